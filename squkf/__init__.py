@@ -1,0 +1,57 @@
+"""squkf: the square-root Unscented Kalman Filter of NAG's g13ej, with filterpy's interface.
+
+``from squkf import SquareRootUKF as UnscentedKalmanFilter`` upgrades a filterpy
+program; :mod:`squkf.nag` keeps g13ej's reverse-communication calling sequence.
+"""
+
+from .errors import (
+    CallSequenceError,
+    CommunicationError,
+    DowndateError,
+    GainError,
+    NonFiniteError,
+    NotPositiveDefiniteError,
+    ParameterError,
+    PosteriorFactorError,
+    ShapeError,
+    SqukfError,
+    SqukfValueError,
+)
+from .generators import Augmented, Redrawn, SigmaSet
+from .transform import sqrt_unscented_transform
+from .ukf import SquareRootUKF
+from .weights import (
+    CubatureWeights,
+    FilterpyPoints,
+    JulierWeights,
+    MerweScaledWeights,
+    SigmaPointFamily,
+    SimplexWeights,
+)
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "SquareRootUKF",
+    "sqrt_unscented_transform",
+    "MerweScaledWeights",
+    "JulierWeights",
+    "SimplexWeights",
+    "CubatureWeights",
+    "FilterpyPoints",
+    "SigmaPointFamily",
+    "Redrawn",
+    "Augmented",
+    "SigmaSet",
+    "SqukfError",
+    "SqukfValueError",
+    "ShapeError",
+    "NonFiniteError",
+    "ParameterError",
+    "NotPositiveDefiniteError",
+    "DowndateError",
+    "GainError",
+    "PosteriorFactorError",
+    "CallSequenceError",
+    "CommunicationError",
+]

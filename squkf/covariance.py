@@ -1,0 +1,208 @@
+"""A covariance carried as its lower factor but readable and writable as a matrix.
+
+filterpy code reads and writes covariances as matrices, in place as often as
+not (``ukf.Q[2:4, 2:4] = ...``, ``ukf.P *= 10``). A :class:`FactorSlot` keeps
+the factor as the truth and hands out the matrix on demand; the matrix it
+handed out is remembered with a snapshot, and if the caller has changed it in
+place by the next time the factor is needed, the changed matrix is validated
+and factored (once). Nothing is formed or compared while nobody reads the
+matrix.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import NonFiniteError, NotPositiveDefiniteError, ShapeError, SqukfValueError
+from .linalg import factor_covariance
+
+__all__ = ["FactorSlot", "as_matrix", "as_lower_factor"]
+
+
+def as_matrix(value, name: str, dim: int | None) -> np.ndarray:
+    """Validate a covariance given as a matrix (or a scalar meaning ``value * I``).
+
+    Parameters
+    ----------
+    value : array_like or float
+    name : str
+        Argument name for messages.
+    dim : int or None
+        Required size; ``None`` accepts any square matrix (a scalar then
+        needs ``dim``).
+
+    Returns
+    -------
+    A : ndarray, shape (dim, dim), float64, symmetrised copy
+
+    Raises
+    ------
+    ShapeError, NonFiniteError, SqukfValueError (not symmetric)
+    """
+    try:
+        A = np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ShapeError(f"{name} must be a float matrix: {exc}") from None
+    if A.ndim == 0 and dim is not None:
+        A = A * np.eye(dim)
+    if A.ndim != 2 or A.shape[0] != A.shape[1] or (dim is not None and A.shape[0] != dim):
+        want = f"({dim}, {dim})" if dim is not None else "square"
+        raise ShapeError(f"{name} has shape {A.shape}, expected {want}")
+    if not np.all(np.isfinite(A)):
+        raise NonFiniteError(f"{name} contains NaN or inf: {A!r}")
+    scale = float(np.max(np.abs(A))) if A.size else 0.0
+    asym = float(np.max(np.abs(A - A.T))) if A.size else 0.0
+    if asym > 1e-9 * scale:
+        raise SqukfValueError(
+            f"{name} is not symmetric: max |{name} - {name}.T| = {asym:.3g} (max |{name}| = {scale:.3g})"
+        )
+    return 0.5 * (A + A.T)
+
+
+def as_lower_factor(value, name: str, dim: int | None, singular_ok: bool) -> np.ndarray:
+    """Validate a lower-triangular factor given directly.
+
+    A negative diagonal entry is made positive by flipping its column (the
+    covariance ``S @ S.T`` is unchanged).
+
+    Parameters
+    ----------
+    value : array_like
+    name : str
+    dim : int or None
+    singular_ok : bool
+        Accept zeros on the diagonal (process noise of lower rank).
+
+    Returns
+    -------
+    S : ndarray, shape (dim, dim), float64 copy
+
+    Raises
+    ------
+    ShapeError, NonFiniteError, SqukfValueError (not lower triangular),
+    NotPositiveDefiniteError (zero on the diagonal)
+    """
+    try:
+        S = np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ShapeError(f"{name} must be a float matrix: {exc}") from None
+    if S.ndim == 0 and dim is not None:
+        S = S * np.eye(dim)
+    if S.ndim != 2 or S.shape[0] != S.shape[1] or (dim is not None and S.shape[0] != dim):
+        want = f"({dim}, {dim})" if dim is not None else "square"
+        raise ShapeError(f"{name} has shape {S.shape}, expected {want}")
+    if not np.all(np.isfinite(S)):
+        raise NonFiniteError(f"{name} contains NaN or inf: {S!r}")
+    upper = np.triu(S, 1)
+    if np.any(upper != 0):
+        i, j = np.argwhere(upper != 0)[0]
+        raise SqukfValueError(
+            f"{name} must be lower triangular, but {name}[{i}, {j}] = {S[i, j]!r} is above the diagonal"
+        )
+    d = S.diagonal()
+    if not singular_ok and np.any(d == 0):
+        raise NotPositiveDefiniteError(
+            f"{name} has a zero on its diagonal (at {int(np.flatnonzero(d == 0)[0])}): "
+            "the covariance it stands for is singular"
+        )
+    neg = d < 0
+    if neg.any():
+        S[:, neg] *= -1.0
+    return S
+
+
+class FactorSlot:
+    """One covariance (``P``, ``Q`` or ``R``) held as its lower factor.
+
+    Parameters
+    ----------
+    name : str
+        ``"P"``, ``"Q"`` or ``"R"``, used in messages.
+    dim : int or None
+        Fixed size, or None for any size.
+    semidefinite : bool
+        Whether a singular covariance is acceptable (noise) or not (``P``).
+    factor : ndarray or None
+        Initial lower factor; None means a zero covariance (no noise).
+    """
+
+    def __init__(self, name: str, dim: int | None, semidefinite: bool, factor: np.ndarray | None):
+        self.name = name
+        self.dim = dim
+        self.semidefinite = semidefinite
+        self._factor = factor
+        self._view = None  # the matrix last handed out
+        self._snap = None  # its value when handed out
+
+    def _size(self) -> int:
+        if self._factor is not None:
+            return self._factor.shape[0]
+        return self.dim if self.dim is not None else 0
+
+    # The factor is the truth; the matrix a view of it that may be edited.
+
+    def factor(self) -> np.ndarray | None:
+        """The current lower factor (None: zero covariance), after absorbing in-place edits."""
+        if self._view is not None and not np.array_equal(self._view, self._snap):
+            self.set_matrix(self._view)
+        return self._factor
+
+    def matrix(self) -> np.ndarray:
+        """The covariance ``S @ S.T``; edits to the returned array take effect."""
+        self.factor()
+        if self._view is None:
+            S = self._factor
+            n = self._size()
+            self._view = S @ S.T if S is not None else np.zeros((n, n))
+            self._snap = self._view.copy()
+        return self._view
+
+    def set_matrix(self, value) -> None:
+        """Assign from a covariance matrix (validated, factored once)."""
+        if value is None:
+            if not self.semidefinite:
+                raise SqukfValueError(f"{self.name} cannot be None")
+            self._factor, self._view, self._snap = None, None, None
+            return
+        try:
+            A = as_matrix(value, self.name, self.dim)
+        except SqukfValueError:
+            self._forget_view()
+            raise
+        if self.semidefinite and not np.any(A):
+            S = None
+        else:
+            try:
+                S = factor_covariance(A, self.name, semidefinite=self.semidefinite)
+            except NotPositiveDefiniteError:
+                self._forget_view()
+                raise
+        self._factor = S
+        self._view = A
+        self._snap = A.copy()
+
+    def _forget_view(self):
+        # a rejected in-place edit must not be retried on every later call
+        self._view, self._snap = None, None
+
+    def set_factor(self, value) -> None:
+        """Assign from a lower-triangular factor (validated)."""
+        if value is None and self.semidefinite:
+            self._factor, self._view, self._snap = None, None, None
+            return
+        S = as_lower_factor(value, f"{self.name}1_2", self.dim, singular_ok=self.semidefinite)
+        if self.semidefinite and not np.any(S):
+            S = None
+        self._factor, self._view, self._snap = S, None, None
+
+    def set_trusted_factor(self, S: np.ndarray) -> None:
+        """Install a factor computed by the filter itself (no validation)."""
+        self._factor, self._view, self._snap = S, None, None
+
+    def factor_or_zeros(self) -> np.ndarray:
+        """The factor, with an absent (zero) covariance shown as zeros."""
+        S = self.factor()
+        if S is None:
+            n = self._size()
+            return np.zeros((n, n))
+        return S

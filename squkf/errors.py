@@ -1,0 +1,88 @@
+"""Exceptions raised by squkf.
+
+Every exception derives from :class:`SqukfError`, and also from the built-in
+class a caller is likely to catch already: bad arguments are ``ValueError``s,
+lost positive-definiteness is a ``numpy.linalg.LinAlgError``, misuse of the
+ask/tell protocol is a ``RuntimeError``.
+
+Where an error corresponds to one of the error exits documented for NAG's
+routine g13ej, the exception carries that number as ``errno`` (``None``
+otherwise), so code ported from NAG can keep testing ``IFAIL`` values.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "SqukfError",
+    "SqukfValueError",
+    "ShapeError",
+    "NonFiniteError",
+    "ParameterError",
+    "NotPositiveDefiniteError",
+    "DowndateError",
+    "GainError",
+    "PosteriorFactorError",
+    "CallSequenceError",
+    "CommunicationError",
+]
+
+
+class SqukfError(Exception):
+    """Base class of every exception raised by squkf.
+
+    Parameters
+    ----------
+    message : str
+        What went wrong, naming the argument and the offending value.
+    errno : int, optional
+        The number of the matching g13ej error exit (IFAIL), if any.
+    """
+
+    def __init__(self, message: str, errno: int | None = None):
+        super().__init__(message)
+        self.errno = errno
+
+    def __reduce__(self):
+        return (type(self), (self.args[0], self.errno))
+
+
+class SqukfValueError(SqukfError, ValueError):
+    """An argument has an invalid value."""
+
+
+class ShapeError(SqukfValueError):
+    """An array argument, or a value returned by a model function, has the wrong shape."""
+
+
+class NonFiniteError(SqukfValueError):
+    """An array argument, or a value returned by a model function, holds NaN or inf."""
+
+
+class ParameterError(SqukfValueError):
+    """A sigma-point parameter or an option is outside its domain."""
+
+
+class NotPositiveDefiniteError(SqukfError, np.linalg.LinAlgError):
+    """A covariance or factor is not (numerically) positive definite."""
+
+
+class DowndateError(NotPositiveDefiniteError):
+    """A negative weight's rank-1 downdate would lose positive-definiteness (g13ej IFAIL 301)."""
+
+
+class GainError(NotPositiveDefiniteError):
+    """The innovation factor is singular, so the Kalman gain cannot be formed (IFAIL 302)."""
+
+
+class PosteriorFactorError(NotPositiveDefiniteError):
+    """The posterior factor cannot be formed by downdating (g13ej IFAIL 303)."""
+
+
+class CallSequenceError(SqukfError, RuntimeError):
+    """The ask/tell (or reverse-communication) calls came in an order that is not allowed."""
+
+
+class CommunicationError(CallSequenceError):
+    """Reverse-communication state was changed between calls (g13ej IFAIL 191/211 and friends)."""

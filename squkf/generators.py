@@ -1,0 +1,276 @@
+"""Second sigma-point sets for the measurement update: redrawn and augmented.
+
+A *generator* is any object with one method::
+
+    second_set(x, S, *, family, propagated, Q1_2, state_add) -> SigmaSet
+
+called after the time update with
+
+- ``x`` ``(n,)`` and ``S`` ``(n, n)``: the predicted mean and lower factor;
+- ``family``: the first set's sigma-point family (for defaults);
+- ``propagated`` ``(N1, n)``: the first set's images under ``fx``, or ``None``
+  when no prediction precedes this update (a second update at the same time,
+  or an update straight after the state was assigned);
+- ``Q1_2`` ``(n, n)`` or ``None``: the process-noise factor of that prediction;
+- ``state_add``: ``state_add(x, dx)`` adds a deviation to a state, or ``None``.
+
+It returns a :class:`SigmaSet`: the points (rows), their weights, and whether
+their weighted mean and covariance equal ``(x, S @ S.T)`` exactly. The filter
+uses that flag to pick the downdate-free QR form of the measurement update,
+which is identical to the downdate form only when it holds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import ParameterError
+from .weights import as_family
+
+__all__ = ["SigmaSet", "Redrawn", "Augmented", "as_generator", "sigma_points_from_factor"]
+
+
+@dataclass(frozen=True)
+class SigmaSet:
+    """A set of sigma points and weights.
+
+    Attributes
+    ----------
+    sigmas : ndarray, shape (N, n)
+    Wm, Wc : ndarray, shape (N,)
+    moments_exact : bool
+        The points' weighted mean and covariance are exactly the ``x`` and
+        ``S @ S.T`` they were drawn for.
+    """
+
+    sigmas: np.ndarray
+    Wm: np.ndarray
+    Wc: np.ndarray
+    moments_exact: bool
+
+
+def sigma_points_from_factor(x: np.ndarray, S: np.ndarray, xi: np.ndarray, state_add=None) -> np.ndarray:
+    """Sigma points ``x + xi[i] @ S.T``, one per row.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n,)
+    S : ndarray, shape (n, n)
+        Lower factor of the covariance.
+    xi : ndarray, shape (N, n)
+        Unit sigma points.
+    state_add : callable ``state_add(x, dx)``, optional
+        Called once per point when given (angles, manifolds).
+
+    Returns
+    -------
+    sigmas : ndarray, shape (N, n)
+    """
+    dx = xi @ S.T
+    if state_add is None or state_add is np.add:
+        dx += x
+        return dx
+    out = np.empty_like(dx)
+    for i, d in enumerate(dx):
+        out[i] = state_add(x, d)
+    return out
+
+
+def _identity_moments(family, n: int) -> bool:
+    """True when the unit points have weighted mean 0 and weighted covariance I."""
+    xi = family.unit_sigma_points(n)
+    Wm, Wc = family.weights(n)
+    tol = 1e-12 * max(1.0, float(np.max(np.abs(xi))) ** 2)
+    mean_ok = np.allclose(Wm @ xi, 0.0, atol=tol) and abs(Wm.sum() - 1.0) < 1e-12
+    cov_ok = np.allclose((xi.T * Wc) @ xi, np.eye(n), atol=tol, rtol=0)
+    return bool(mean_ok and cov_ok)
+
+
+class Redrawn:
+    """Draw the second set afresh from the predicted mean and factor (g13ej's default).
+
+    Parameters
+    ----------
+    weights : family, optional
+        Sigma-point family for the second set (its own kappa/alpha/beta,
+        g13ej's ROPT(5..7)). Defaults to the first set's family.
+    """
+
+    def __init__(self, weights=None):
+        self.weights = None if weights is None else as_family(weights)
+        self._exact = {}
+
+    def __getstate__(self):
+        return {"weights": self.weights}
+
+    def __setstate__(self, state):
+        self.weights = state["weights"]
+        self._exact = {}
+
+    def __repr__(self):
+        return f"Redrawn(weights={self.weights!r})"
+
+    def family_for(self, family):
+        """The family used for the second set, given the first set's."""
+        return self.weights if self.weights is not None else family
+
+    def num_sigmas(self, n: int, family) -> int:
+        """Number of points in the second set for an ``n``-state."""
+        return self.family_for(family).num_sigmas(n)
+
+    def second_set(self, x, S, *, family, propagated=None, Q1_2=None, state_add=None) -> SigmaSet:
+        """The redrawn set ``x + xi @ S.T`` (see the module docstring)."""
+        fam = self.family_for(family)
+        n = x.shape[0]
+        entry = self._exact.get((id(fam), n))
+        if entry is None or entry[0] is not fam:
+            entry = self._exact[(id(fam), n)] = (fam, _identity_moments(fam, n))
+        Wm, Wc = fam.weights(n)
+        sigmas = sigma_points_from_factor(x, S, fam.unit_sigma_points(n), state_add)
+        return SigmaSet(sigmas, Wm, Wc, entry[1])
+
+
+class Augmented:
+    """Augment the propagated first set with the process noise (g13ej's eq. 13).
+
+    The second set is the propagated first set followed by
+    ``F_1 +/- gamma' * Q1_2[:, j]``, where ``F_1`` is the propagated central
+    point; its weights are those of a ``2n``-dimensional set. The predicted
+    mean and factor are unchanged by the augmentation.
+
+    Parameters
+    ----------
+    weights : family, optional
+        Family of the ``2n``-dimensional set; must have a central point and
+        ``+/- gamma`` pairs (Merwe or Julier type). Defaults to the first
+        set's family with ``kappa' = kappa - n``, so that both sets have the
+        same spread (``L' + kappa' = L + kappa``); this makes the augmented
+        set's mean and covariance exactly the prior's.
+
+    Notes
+    -----
+    Without process noise (``Q1_2`` is None) the second set is the propagated
+    first set itself. With no propagated set available (an update that does
+    not follow a prediction), the set is redrawn from ``(x, S)`` with the first
+    set's family.
+    """
+
+    def __init__(self, weights=None):
+        self.weights = None if weights is None else as_family(weights)
+        if self.weights is not None:
+            _require_symmetric(self.weights, "Augmented(weights=...)")
+        self._exact = {}
+
+    def __getstate__(self):
+        return {"weights": self.weights}
+
+    def __setstate__(self, state):
+        self.weights = state["weights"]
+        self._exact = {}
+
+    def __repr__(self):
+        return f"Augmented(weights={self.weights!r})"
+
+    def family_for(self, family, n: int):
+        """The ``2n``-dimensional family used for the second set."""
+        return self._resolve(family, n)[1]
+
+    def _resolve(self, family, n: int):
+        # (first family, second family, moments exact), cached per first family and n
+        entry = self._exact.get((id(family), n))
+        if entry is not None and entry[0] is family:
+            return entry
+        fam2 = self._second_family(family, n)
+        _require_symmetric(fam2, "the augmented family")
+        entry = (family, fam2, _augmented_exact(family, fam2, n, fam2.gamma(2 * n)))
+        self._exact[(id(family), n)] = entry
+        return entry
+
+    def _second_family(self, family, n: int):
+        if self.weights is not None:
+            return self.weights
+        native = family.as_native() if hasattr(family, "as_native") else family
+        if native is None or not hasattr(native, "augmented"):
+            raise ParameterError(
+                "the augmented second set needs a family with a central point and "
+                f"+/- gamma pairs (Merwe or Julier type); got {family!r}"
+            )
+        return native.augmented(n)
+
+    def num_sigmas(self, n: int, family) -> int:
+        """Number of points in the second set for an ``n``-state: ``4n + 1``."""
+        return self.family_for(family, n).num_sigmas(2 * n)
+
+    def second_set(self, x, S, *, family, propagated=None, Q1_2=None, state_add=None) -> SigmaSet:
+        """The augmented set (see the class docstring)."""
+        n = x.shape[0]
+        if propagated is None:
+            return Redrawn().second_set(x, S, family=family, state_add=state_add)
+        if Q1_2 is None:
+            Wm, Wc = family.weights(n)
+            return SigmaSet(propagated, Wm, Wc, True)
+        _, fam2, exact = self._resolve(family, n)
+        g = fam2.gamma(2 * n)
+        Wm2, Wc2 = fam2.weights(2 * n)
+        centre = propagated[0]
+        extra = sigma_points_from_factor(
+            centre, Q1_2, np.vstack([g * np.eye(n), -g * np.eye(n)]), state_add
+        )
+        sigmas = np.vstack([propagated, extra])
+        if sigmas.shape[0] != Wm2.shape[0]:
+            raise ParameterError(
+                f"the augmented set has {sigmas.shape[0]} points but its family gives "
+                f"{Wm2.shape[0]} weights; the first set must be a centre and +/- pairs"
+            )
+        return SigmaSet(sigmas, Wm2, Wc2, exact)
+
+
+def _require_symmetric(fam, what: str):
+    if not hasattr(fam, "gamma"):
+        raise ParameterError(
+            f"{what} must have a central point and +/- gamma pairs (Merwe or Julier type); got {fam!r}"
+        )
+
+
+def _augmented_exact(fam1, fam2, n: int, g2: float) -> bool:
+    """Whether the augmented set reproduces the prior's mean and covariance exactly.
+
+    True when the weights of the propagated points agree between the sets,
+    the centre's weight absorbs the noise points' weights, and each noise
+    pair carries exactly the noise covariance.
+    """
+    Wm1, Wc1 = fam1.weights(n)
+    Wm2, Wc2 = fam2.weights(2 * n)
+    N1 = Wm1.shape[0]
+    if Wm2.shape[0] != N1 + 2 * n:
+        return False
+    ok = True
+    for W1, W2 in ((Wm1, Wm2), (Wc1, Wc2)):
+        ok &= np.allclose(W2[1:N1], W1[1:], rtol=1e-13, atol=0)
+        ok &= abs(W2[0] + W2[N1:].sum() - W1[0]) <= 1e-12 * max(1.0, abs(W1[0]))
+    ok &= np.allclose(2.0 * Wc2[N1:] * g2**2, 1.0, rtol=1e-12)
+    return bool(ok)
+
+
+def as_generator(scheme):
+    """Return a generator for ``scheme``: ``"redrawn"``, ``"augmented"`` or a generator object.
+
+    Raises
+    ------
+    ParameterError
+        For an unknown name or an object without ``second_set``.
+    """
+    if isinstance(scheme, str):
+        key = scheme.lower()
+        if key == "redrawn":
+            return Redrawn()
+        if key == "augmented":
+            return Augmented()
+        raise ParameterError(f"scheme must be 'redrawn', 'augmented' or a generator, got scheme={scheme!r}")
+    if not hasattr(scheme, "second_set"):
+        raise ParameterError(
+            f"scheme must be 'redrawn', 'augmented' or an object with a second_set method, got {scheme!r}"
+        )
+    return scheme

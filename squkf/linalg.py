@@ -1,0 +1,260 @@
+"""Square-root linear algebra: the pure functions the filter is built from.
+
+Convention: a covariance ``P`` is carried as a lower-triangular factor ``S``
+with ``P = S @ S.T`` and a non-negative diagonal (NAG's ST).  Nothing here
+forms ``S @ S.T`` in order to factor it again.
+
+The LAPACK routines are called directly (no ``check_finite`` pass, no argument
+re-validation): every input reaching these functions has been validated once
+at the boundary of the library.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import lapack
+
+from .errors import DowndateError, GainError, NotPositiveDefiniteError
+
+__all__ = [
+    "tria",
+    "chol_update",
+    "chol_downdate_columns",
+    "solve_lower",
+    "kalman_gain",
+    "factor_covariance",
+]
+
+_dgeqrf = lapack.get_lapack_funcs("geqrf", dtype=np.float64)
+_dtrtrs = lapack.get_lapack_funcs("trtrs", dtype=np.float64)
+_dpotrf = lapack.get_lapack_funcs("potrf", dtype=np.float64)
+
+
+def tria(rows: np.ndarray) -> np.ndarray:
+    """Lower-triangular factor of ``rows.T @ rows``, by one QR factorisation.
+
+    Parameters
+    ----------
+    rows : ndarray, shape (k, n)
+        Each row is one weighted column of a square root: the result ``S``
+        satisfies ``S @ S.T == rows.T @ rows``. The array is overwritten.
+
+    Returns
+    -------
+    S : ndarray, shape (n, n)
+        Lower triangular with a non-negative diagonal. If ``k < n`` the last
+        ``n - k`` columns are zero.
+    """
+    k, n = rows.shape
+    qr, _, _, info = _dgeqrf(rows, overwrite_a=1)
+    if info != 0:  # pragma: no cover - LAPACK argument error, cannot happen here
+        raise RuntimeError(f"LAPACK dgeqrf failed with info={info}")
+    m = min(k, n)
+    S = np.zeros((n, n))
+    S[:, :m] = np.triu(qr[:m]).T
+    d = S.diagonal()[:m]
+    neg = d < 0
+    if neg.any():
+        S[:, :m][:, neg] *= -1.0
+    return S
+
+
+def solve_lower(S: np.ndarray, b: np.ndarray, trans: bool = False) -> np.ndarray:
+    """Solve ``S @ x = b`` (or ``S.T @ x = b``) for lower-triangular ``S``.
+
+    Parameters
+    ----------
+    S : ndarray, shape (n, n)
+        Lower triangular, non-singular.
+    b : ndarray, shape (n,) or (n, k)
+        Right-hand side(s).
+    trans : bool
+        Solve with ``S.T`` instead of ``S``.
+
+    Returns
+    -------
+    x : ndarray, same shape as ``b``
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        If ``S`` has a zero on its diagonal.
+    """
+    x, info = _dtrtrs(S, b, lower=1, trans=1 if trans else 0)
+    if info > 0:
+        raise np.linalg.LinAlgError(f"triangular factor is singular: diagonal element {info - 1} is zero")
+    return x
+
+
+def chol_update(S: np.ndarray, v: np.ndarray, sign: float = 1.0) -> np.ndarray:
+    """Rank-1 update or downdate of a lower Cholesky factor in O(n^2).
+
+    Returns ``S1`` with ``S1 @ S1.T == S @ S.T + sign * outer(v, v)``.
+
+    The factor of ``I + sign * p p^T`` with ``p = S^{-1} v`` is a structured
+    triangular matrix whose entries follow from the partial sums of ``p**2``
+    (Gill, Golub, Murray & Saunders 1974, method C1); multiplying ``S`` by it
+    needs one triangular solve and a reverse cumulative sum, all vectorised.
+
+    Parameters
+    ----------
+    S : ndarray, shape (n, n)
+        Lower triangular with a positive diagonal. Not modified.
+    v : ndarray, shape (n,)
+        The update vector.
+    sign : float
+        ``+1`` for an update, ``-1`` for a downdate.
+
+    Returns
+    -------
+    S1 : ndarray, shape (n, n)
+        Lower triangular with a positive diagonal.
+
+    Raises
+    ------
+    DowndateError
+        For a downdate whose result would not be positive definite
+        (``||S^{-1} v|| >= 1``), or if ``S`` is singular (g13ej IFAIL 301).
+    """
+    n = S.shape[0]
+    try:
+        p = solve_lower(S, v)
+    except np.linalg.LinAlgError as exc:
+        raise DowndateError(f"cannot modify a singular factor: {exc}", errno=301) from None
+    sigma = 1.0 if sign > 0 else -1.0
+    # c[j] = 1/sigma_j, with sigma_1 = sign and 1/sigma_{j+1} = 1/sigma_j + p_j^2.
+    c = np.empty(n + 1)
+    c[0] = sigma
+    np.cumsum(p * p, out=c[1:])
+    c[1:] += sigma
+    if sigma < 0 and not c[n] < 0.0:
+        raise DowndateError(
+            "rank-1 downdate would lose positive-definiteness: "
+            f"||S^-1 v||^2 = {1.0 + c[n]:.17g} >= 1",
+            errno=301,
+        )
+    d = np.sqrt(c[1:] / c[:-1])
+    beta = p / (c[:-1] * d)
+    # tail[:, j] = sum_{i > j} p_i S[:, i]
+    Sp = S * p
+    tail = np.zeros_like(S)
+    if n > 1:
+        tail[:, :-1] = np.cumsum(Sp[:, :0:-1], axis=1)[:, ::-1]
+    S1 = S * d + tail * beta
+    if not np.all(np.isfinite(S1)):
+        raise DowndateError("rank-1 modification produced a non-finite factor", errno=301)
+    return np.tril(S1)
+
+
+def chol_downdate_columns(
+    S: np.ndarray, U: np.ndarray, errno: int = 303, error: type = DowndateError
+) -> np.ndarray:
+    """Downdate a lower factor by every column of ``U``.
+
+    Returns ``S1`` with ``S1 @ S1.T == S @ S.T - U @ U.T``.
+
+    Parameters
+    ----------
+    S : ndarray, shape (n, n)
+        Lower triangular with a positive diagonal.
+    U : ndarray, shape (n, m)
+        Columns to downdate by, one at a time.
+    errno : int
+        g13ej error number to attach if a downdate fails.
+    error : exception class
+        Raised when a downdate fails (a :class:`DowndateError` subclass).
+
+    Returns
+    -------
+    S1 : ndarray, shape (n, n)
+
+    Raises
+    ------
+    DowndateError
+        If the result would not be positive definite.
+    """
+    for j in range(U.shape[1]):
+        try:
+            S = chol_update(S, U[:, j], -1.0)
+        except DowndateError as exc:
+            raise error(f"downdate by column {j}: {exc}", errno=errno) from None
+    return S
+
+
+def kalman_gain(Pxy: np.ndarray, Sy: np.ndarray) -> np.ndarray:
+    """Kalman gain ``K = Pxy @ inv(Sy @ Sy.T)`` by two triangular solves.
+
+    Parameters
+    ----------
+    Pxy : ndarray, shape (n, m)
+        State-measurement cross-covariance.
+    Sy : ndarray, shape (m, m)
+        Lower-triangular factor of the innovation covariance.
+
+    Returns
+    -------
+    K : ndarray, shape (n, m)
+
+    Raises
+    ------
+    GainError
+        If ``Sy`` is singular (g13ej IFAIL 302).
+    """
+    d = np.abs(Sy.diagonal())
+    if not np.all(d > np.finfo(float).tiny) or not np.all(np.isfinite(d)):
+        raise GainError(
+            f"innovation factor is singular (diagonal {np.array2string(Sy.diagonal(), precision=3)}): "
+            "cannot form the Kalman gain",
+            errno=302,
+        )
+    # K^T = Sy^-T Sy^-1 Pxy^T
+    W = solve_lower(Sy, np.ascontiguousarray(Pxy.T))
+    Kt = solve_lower(Sy, W, trans=True)
+    return Kt.T
+
+
+def factor_covariance(A: np.ndarray, name: str, semidefinite: bool = False) -> np.ndarray:
+    """Lower factor of a covariance matrix supplied by the user.
+
+    This is the only place a covariance is factored: a matrix the user gave
+    (``P``, ``Q`` or ``R``), once, when it is assigned.
+
+    Parameters
+    ----------
+    A : ndarray, shape (n, n)
+        Symmetric (already checked), finite.
+    name : str
+        The argument's name, for the error message.
+    semidefinite : bool
+        Accept a singular positive semi-definite matrix (a process noise of
+        lower rank, e.g. ``Q_discrete_white_noise``). Its factor is lower
+        triangular with zeros where the rank is missing.
+
+    Returns
+    -------
+    S : ndarray, shape (n, n)
+
+    Raises
+    ------
+    NotPositiveDefiniteError
+        If ``A`` is not positive definite (or, with ``semidefinite``, has a
+        clearly negative eigenvalue).
+    """
+    n = A.shape[0]
+    c, info = _dpotrf(A, lower=1, clean=1, overwrite_a=0)
+    if info == 0:
+        return c
+    if semidefinite:
+        w, V = np.linalg.eigh(A)
+        scale = max(float(np.max(np.abs(w))), np.finfo(float).tiny)
+        tol = 16 * n * np.finfo(float).eps * scale
+        if w[0] >= -tol:
+            w = np.clip(w, 0.0, None)
+            return tria(np.ascontiguousarray((V * np.sqrt(w)).T))
+        raise NotPositiveDefiniteError(
+            f"{name} is not positive semi-definite: smallest eigenvalue {w[0]:.6g}"
+            f" (largest {w[-1]:.6g})"
+        )
+    raise NotPositiveDefiniteError(
+        f"{name} is not positive definite: leading minor {info} of the {n}x{n} matrix is not positive"
+    )

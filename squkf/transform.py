@@ -1,0 +1,166 @@
+"""The square-root unscented transform of a set of weighted points.
+
+Pure functions: points in, mean and lower factor out. Points are rows,
+``(n_sigma, dim)``, as filterpy stores ``sigmas_f``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from .errors import DowndateError, NonFiniteError
+from .linalg import chol_update, tria
+
+__all__ = ["weighted_mean", "deviations", "factor_from_deviations", "sqrt_unscented_transform"]
+
+
+def weighted_mean(sigmas: np.ndarray, Wm: np.ndarray, mean_fn: Callable | None = None) -> np.ndarray:
+    """Weighted mean of the rows of ``sigmas``.
+
+    Parameters
+    ----------
+    sigmas : ndarray, shape (N, d)
+    Wm : ndarray, shape (N,)
+    mean_fn : callable ``mean_fn(sigmas, Wm) -> (d,)``, optional
+        Replaces the weighted sum (e.g. a circular mean for angles).
+
+    Returns
+    -------
+    mean : ndarray, shape (d,)
+    """
+    if mean_fn is None:
+        return Wm @ sigmas
+    mean = np.asarray(mean_fn(sigmas, Wm), dtype=float).reshape(-1)
+    if mean.shape != (sigmas.shape[1],):
+        from .errors import ShapeError
+
+        raise ShapeError(
+            f"mean function returned shape {mean.shape}, expected ({sigmas.shape[1]},)"
+        )
+    return mean
+
+
+def deviations(sigmas: np.ndarray, mean: np.ndarray, residual_fn: Callable | None = None) -> np.ndarray:
+    """Rows ``residual_fn(sigmas[i], mean)`` (plain differences by default).
+
+    Parameters
+    ----------
+    sigmas : ndarray, shape (N, d)
+    mean : ndarray, shape (d,)
+    residual_fn : callable ``residual_fn(a, b) -> (d,)``, optional
+        Called once per row, with 1-D arrays, as filterpy calls it.
+
+    Returns
+    -------
+    dev : ndarray, shape (N, d)
+    """
+    if residual_fn is None or residual_fn is np.subtract:
+        return sigmas - mean
+    dev = np.empty_like(sigmas)
+    for i, s in enumerate(sigmas):
+        dev[i] = residual_fn(s, mean)
+    return dev
+
+
+def factor_from_deviations(
+    dev: np.ndarray,
+    Wc: np.ndarray,
+    noise_sqrt: np.ndarray | None = None,
+    errno: int = 301,
+    error: type[DowndateError] | type = DowndateError,
+) -> np.ndarray:
+    """Lower factor of ``sum_i Wc[i] dev[i] dev[i]^T + noise_sqrt @ noise_sqrt.T``.
+
+    Rows with a positive weight enter one QR factorisation together with the
+    noise factor's columns (for a positive central weight this is the rank-1
+    update of g13ej done inside the QR: the same factor, one LAPACK call);
+    each row with a negative weight is then removed by an O(n^2) rank-1
+    downdate.
+
+    Parameters
+    ----------
+    dev : ndarray, shape (N, d)
+        Deviations from the mean.
+    Wc : ndarray, shape (N,)
+        Covariance weights, of either sign.
+    noise_sqrt : ndarray, shape (d, k), optional
+        A square root (any ``k`` columns) of additive noise.
+    errno : int
+        g13ej error number for a failed downdate.
+    error : exception class
+        Raised for a failed downdate (a :class:`DowndateError` subclass).
+
+    Returns
+    -------
+    S : ndarray, shape (d, d)
+
+    Raises
+    ------
+    DowndateError
+        If a negative weight's downdate would lose positive-definiteness.
+    """
+    pos = Wc > 0
+    if pos.all():
+        rows = np.sqrt(Wc)[:, None] * dev
+        neg = ()
+    else:
+        rows = np.sqrt(Wc[pos])[:, None] * dev[pos]
+        neg = np.flatnonzero(Wc < 0)
+    if noise_sqrt is not None:
+        rows = np.vstack([rows, noise_sqrt.T])
+    S = tria(rows)
+    for i in neg:
+        if not np.all(S.diagonal() > 0):
+            raise error(
+                f"weight Wc[{i}] = {Wc[i]:.6g} is negative and the factor to downdate is singular",
+                errno=errno,
+            )
+        try:
+            S = chol_update(S, np.sqrt(-Wc[i]) * dev[i], -1.0)
+        except DowndateError as exc:
+            raise error(
+                f"weight Wc[{i}] = {Wc[i]:.6g} is negative and its downdate failed: {exc}",
+                errno=errno,
+            ) from None
+    return S
+
+
+def sqrt_unscented_transform(
+    sigmas: np.ndarray,
+    Wm: np.ndarray,
+    Wc: np.ndarray,
+    noise_sqrt: np.ndarray | None = None,
+    mean_fn: Callable | None = None,
+    residual_fn: Callable | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Square-root unscented transform of propagated sigma points.
+
+    The square-root counterpart of filterpy's ``unscented_transform``: same
+    arguments, but the noise is given by its lower factor and the result is
+    a lower factor instead of a covariance. A function with this signature
+    can be passed as ``UT`` to :meth:`SquareRootUKF.predict` and ``update``.
+
+    Parameters
+    ----------
+    sigmas : ndarray, shape (N, d)
+        Propagated sigma points, one per row.
+    Wm, Wc : ndarray, shape (N,)
+        Mean and covariance weights.
+    noise_sqrt : ndarray, shape (d, d), optional
+        Lower factor of the additive noise covariance.
+    mean_fn : callable ``mean_fn(sigmas, Wm)``, optional
+    residual_fn : callable ``residual_fn(a, b)``, optional
+
+    Returns
+    -------
+    mean : ndarray, shape (d,)
+    S : ndarray, shape (d, d)
+        Lower factor of the transformed covariance.
+    """
+    mean = weighted_mean(sigmas, Wm, mean_fn)
+    dev = deviations(sigmas, mean, residual_fn)
+    if not np.all(np.isfinite(dev)):
+        raise NonFiniteError("sigma-point deviations contain NaN or inf")
+    return mean, factor_from_deviations(dev, Wc, noise_sqrt)

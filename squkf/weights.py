@@ -1,0 +1,338 @@
+"""Sigma-point families: unit sigma points and their weights.
+
+A *family* is any object with three methods, each taking the dimension ``n``
+of the random vector the points are drawn for::
+
+    num_sigmas(n) -> int
+    unit_sigma_points(n) -> ndarray, shape (num_sigmas(n), n)
+    weights(n) -> (Wm, Wc), each ndarray of shape (num_sigmas(n),)
+
+The sigma points for a mean ``x`` and a lower factor ``S`` (``P = S @ S.T``)
+are ``x + xi @ S.T``, one point per row, where ``xi`` are the unit points:
+they are built from the factor's columns, never from a re-factored ``P``.
+
+Families whose points are a centre and ``+/- gamma`` along each axis (Merwe's
+scaled points and Julier's) also offer ``gamma(n)`` and
+``augmented(n_state)``; those two are what the *augmented* second sigma-point
+set of g13ej needs.
+
+filterpy's own points objects (``MerweScaledSigmaPoints``,
+``JulierSigmaPoints``, ``SimplexSigmaPoints`` or anything with the same
+interface) are accepted wherever a family is, through :func:`as_family`.
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from .errors import ParameterError
+
+__all__ = [
+    "SigmaPointFamily",
+    "MerweScaledWeights",
+    "JulierWeights",
+    "SimplexWeights",
+    "CubatureWeights",
+    "FilterpyPoints",
+    "as_family",
+]
+
+
+@runtime_checkable
+class SigmaPointFamily(Protocol):
+    """The protocol every sigma-point family follows (see the module docstring)."""
+
+    def num_sigmas(self, n: int) -> int: ...
+
+    def unit_sigma_points(self, n: int) -> np.ndarray: ...
+
+    def weights(self, n: int) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
+
+
+class _CachedFamily:
+    """Caches unit points and weights per dimension (they never change)."""
+
+    def _cache(self) -> dict:
+        c = self.__dict__.get("_by_n")
+        if c is None:
+            c = self.__dict__["_by_n"] = {}
+        return c
+
+    def unit_sigma_points(self, n: int) -> np.ndarray:
+        """Unit sigma points for dimension ``n``, shape ``(num_sigmas(n), n)``, read-only."""
+        key = ("xi", n)
+        c = self._cache()
+        if key not in c:
+            c[key] = _frozen(np.asarray(self._unit_points(n), dtype=float))
+        return c[key]
+
+    def weights(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and covariance weights ``(Wm, Wc)`` for dimension ``n``, read-only."""
+        key = ("w", n)
+        c = self._cache()
+        if key not in c:
+            Wm, Wc = self._weights(n)
+            c[key] = (_frozen(np.asarray(Wm, dtype=float)), _frozen(np.asarray(Wc, dtype=float)))
+        return c[key]
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state.pop("_by_n", None)
+        return state
+
+    def __eq__(self, other):
+        return type(self) is type(other) and self.__getstate__() == other.__getstate__()
+
+    def __hash__(self):
+        return hash((type(self), tuple(sorted(self.__getstate__().items()))))
+
+    def __repr__(self):
+        args = ", ".join(f"{k}={v!r}" for k, v in self.__getstate__().items())
+        return f"{type(self).__name__}({args})"
+
+
+class MerweScaledWeights(_CachedFamily):
+    """Van der Merwe's scaled sigma points, with g13ej's parametrisation.
+
+    For dimension ``L``: ``lambda = alpha**2 * (L + kappa) - L``,
+    ``gamma = sqrt(L + lambda)``, points ``[0, +gamma e_j, -gamma e_j]``,
+    ``Wm = [lambda/(L+lambda), 1/(2(L+lambda)), ...]`` and ``Wc`` equal to
+    ``Wm`` except ``Wc[0] = Wm[0] + 1 - alpha**2 + beta``.
+
+    Parameters
+    ----------
+    alpha : float
+        Spread, ``alpha > 0`` (g13ej's ROPT(3)/ROPT(6); default 1).
+    beta : float
+        Prior-distribution parameter (2 is optimal for a Gaussian; default 2).
+    kappa : float or None
+        Secondary scaling. ``None`` means ``3 - L`` at whatever dimension the
+        family is used (g13ej's default). Must satisfy ``kappa > -L``.
+    """
+
+    def __init__(self, alpha: float = 1.0, beta: float = 2.0, kappa: float | None = None):
+        alpha = float(alpha)
+        if not np.isfinite(alpha) or alpha <= 0:
+            raise ParameterError(f"alpha must be > 0, got alpha={alpha!r}", errno=173)
+        beta = float(beta)
+        if not np.isfinite(beta):
+            raise ParameterError(f"beta must be finite, got beta={beta!r}")
+        if kappa is not None:
+            kappa = float(kappa)
+            if not np.isfinite(kappa):
+                raise ParameterError(f"kappa must be finite, got kappa={kappa!r}", errno=172)
+        self.alpha = alpha
+        self.beta = beta
+        self.kappa = kappa
+
+    def kappa_for(self, n: int) -> float:
+        """The kappa used at dimension ``n`` (``3 - n`` when ``kappa`` is None)."""
+        kappa = 3.0 - n if self.kappa is None else self.kappa
+        if not n + kappa > 0:
+            raise ParameterError(
+                f"kappa must be > -{n} for a {n}-dimensional sigma-point set, got kappa={kappa!r}",
+                errno=172,
+            )
+        return kappa
+
+    def _lambda(self, n: int) -> float:
+        return self.alpha**2 * (n + self.kappa_for(n)) - n
+
+    def num_sigmas(self, n: int) -> int:
+        """``2 n + 1``."""
+        return 2 * n + 1
+
+    def gamma(self, n: int) -> float:
+        """Distance of the non-central unit points from the centre: ``sqrt(n + lambda)``."""
+        return float(np.sqrt(n + self._lambda(n)))
+
+    def _unit_points(self, n):
+        g = self.gamma(n)
+        eye = np.eye(n)
+        return np.vstack([np.zeros((1, n)), g * eye, -g * eye])
+
+    def _weights(self, n):
+        lam = self._lambda(n)
+        Wm = np.full(2 * n + 1, 0.5 / (n + lam))
+        Wm[0] = lam / (n + lam)
+        Wc = Wm.copy()
+        Wc[0] += 1.0 - self.alpha**2 + self.beta
+        return Wm, Wc
+
+    def augmented(self, n_state: int) -> MerweScaledWeights:
+        """The family g13ej uses for the augmented second set of an ``n_state`` state.
+
+        Same alpha and beta; kappa lowered by ``n_state`` so that
+        ``L' + kappa' = L + kappa`` (both sets have the same spread). With
+        ``kappa=None`` this gives g13ej's default ``3 - 2 n_state``.
+        """
+        kappa = None if self.kappa is None else self.kappa - n_state
+        return type(self)._from_params(self.alpha, self.beta, kappa)
+
+    @classmethod
+    def _from_params(cls, alpha, beta, kappa):
+        return MerweScaledWeights(alpha, beta, kappa)
+
+
+class JulierWeights(MerweScaledWeights):
+    """Julier and Uhlmann's (1997) sigma points: Merwe's with ``alpha = 1``, ``beta = 0``.
+
+    Parameters
+    ----------
+    kappa : float or None
+        ``None`` means ``3 - n`` (Julier and Uhlmann's choice for a Gaussian).
+    """
+
+    def __init__(self, kappa: float | None = None):
+        super().__init__(alpha=1.0, beta=0.0, kappa=kappa)
+
+    def __getstate__(self):
+        return {"kappa": self.kappa}
+
+    def __setstate__(self, state):
+        self.__init__(**state)
+
+    @classmethod
+    def _from_params(cls, alpha, beta, kappa):
+        return JulierWeights(kappa)
+
+
+class SimplexWeights(_CachedFamily):
+    """Julier's spherical simplex sigma points: ``n + 1`` points of equal weight.
+
+    The unit points are the columns of filterpy's ``SimplexSigmaPoints``
+    construction (Moireau and Chapelle 2011), so the two agree point for point.
+    """
+
+    def num_sigmas(self, n: int) -> int:
+        """``n + 1``."""
+        return n + 1
+
+    def _unit_points(self, n):
+        lam = n / (n + 1)
+        pts = np.zeros((n, n + 1))
+        pts[0, 0] = -1.0 / np.sqrt(2 * lam)
+        pts[0, 1] = 1.0 / np.sqrt(2 * lam)
+        for d in range(2, n + 1):
+            r = 1.0 / np.sqrt(lam * d * (d + 1))
+            pts[d - 1, :d] = r
+            pts[d - 1, d] = -d * r
+        return (np.sqrt(n) * pts).T
+
+    def _weights(self, n):
+        w = np.full(n + 1, 1.0 / (n + 1))
+        return w, w.copy()
+
+
+class CubatureWeights(_CachedFamily):
+    """Spherical-radial cubature points (Arasaratnam and Haykin 2009).
+
+    ``2 n`` points ``+/- sqrt(n) e_j`` with equal weights ``1/(2n)``, in the
+    order of filterpy's ``CubatureKalmanFilter``: all ``+`` points, then all
+    ``-`` points.
+    """
+
+    def num_sigmas(self, n: int) -> int:
+        """``2 n``."""
+        return 2 * n
+
+    def _unit_points(self, n):
+        g = np.sqrt(n)
+        eye = np.eye(n)
+        return np.vstack([g * eye, -g * eye])
+
+    def _weights(self, n):
+        w = np.full(2 * n, 0.5 / n)
+        return w, w.copy()
+
+
+class FilterpyPoints(_CachedFamily):
+    """Adapter that lets a filterpy points object act as a family.
+
+    The object's weights (``Wm``, ``Wc``) and geometry are used; its unit
+    points are read once by asking it for the sigma points of a zero mean and
+    an identity covariance, with a Cholesky square root and plain subtraction
+    (so an angle-wrapping ``subtract`` cannot fold them). The sigma points
+    themselves are then built from the filter's own factor.
+
+    Parameters
+    ----------
+    points : object
+        Has ``n``, ``num_sigmas()``, ``sigma_points(x, P)``, ``Wm`` and ``Wc``.
+    """
+
+    def __init__(self, points):
+        for attr in ("num_sigmas", "sigma_points", "Wm", "Wc"):
+            if not hasattr(points, attr):
+                raise ParameterError(
+                    f"points must be a sigma-point family or a filterpy points object; "
+                    f"{type(points).__name__} has no attribute {attr!r}"
+                )
+        self.points = points
+        self.n = int(getattr(points, "n", len(np.asarray(points.Wm)) // 2))
+
+    def __getstate__(self):
+        return {"points": self.points, "n": self.n}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+
+    def _check(self, n):
+        if n != self.n:
+            raise ParameterError(
+                f"the filterpy points object was built for n={self.n}, but is used for n={n}"
+            )
+
+    def num_sigmas(self, n: int) -> int:
+        """The wrapped object's ``num_sigmas()``."""
+        self._check(n)
+        return int(self.points.num_sigmas())
+
+    def _unit_points(self, n):
+        from scipy.linalg import cholesky
+
+        self._check(n)
+        probe = copy.copy(self.points)
+        if hasattr(probe, "sqrt"):
+            probe.sqrt = cholesky
+        if hasattr(probe, "subtract"):
+            probe.subtract = np.subtract
+        xi = np.asarray(probe.sigma_points(np.zeros(n), np.eye(n)), dtype=float)
+        return xi.reshape(self.num_sigmas(n), n)
+
+    def _weights(self, n):
+        self._check(n)
+        return np.array(self.points.Wm, dtype=float), np.array(self.points.Wc, dtype=float)
+
+    def as_native(self) -> MerweScaledWeights | None:
+        """The equivalent squkf family for Merwe- or Julier-type objects, else None."""
+        p = self.points
+        name = type(p).__name__
+        if "Merwe" in name and all(hasattr(p, a) for a in ("alpha", "beta", "kappa")):
+            return MerweScaledWeights(p.alpha, p.beta, p.kappa)
+        if "Julier" in name and hasattr(p, "kappa"):
+            return JulierWeights(p.kappa)
+        return None
+
+
+def as_family(points) -> SigmaPointFamily:
+    """Return ``points`` as a family: squkf families pass through, filterpy objects are wrapped.
+
+    Raises
+    ------
+    ParameterError
+        If ``points`` is neither.
+    """
+    if isinstance(points, (_CachedFamily,)) or (
+        isinstance(points, SigmaPointFamily) and not hasattr(points, "sigma_points")
+    ):
+        return points
+    return FilterpyPoints(points)
