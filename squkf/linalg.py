@@ -50,12 +50,12 @@ def tria(rows: np.ndarray) -> np.ndarray:
     if info != 0:  # pragma: no cover - LAPACK argument error, cannot happen here
         raise RuntimeError(f"LAPACK dgeqrf failed with info={info}")
     m = min(k, n)
-    S = np.zeros((n, n))
-    S[:, :m] = np.triu(qr[:m]).T
-    d = S.diagonal()[:m]
-    neg = d < 0
+    R = np.triu(qr[:m])
+    neg = R.diagonal() < 0
     if neg.any():
-        S[:, :m][:, neg] *= -1.0
+        R[neg] *= -1.0
+    S = np.zeros((n, n))
+    S[:, :m] = R.T
     return S
 
 

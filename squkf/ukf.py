@@ -648,6 +648,18 @@ class SquareRootUKF:
         dz = deviations(sigmas_h, np.asarray(z, dtype=float), self._hook(self.residual_z, np.subtract))
         return (dx.T * Wc) @ dz
 
+    def batch_filter(self, zs, Rs=None, dts=None, UT=None, saver=None, Qs=None):
+        """Filter a whole sequence of measurements; see :func:`squkf.batch.batch_filter`."""
+        from .batch import batch_filter
+
+        return batch_filter(self, zs, Rs=Rs, dts=dts, UT=UT, saver=saver, Qs=Qs)
+
+    def rts_smoother(self, Xs, Ps, Qs=None, dts=None, UT=None):
+        """Square-root unscented RTS smoother; see :func:`squkf.smoother.rts_smoother`."""
+        from .smoother import rts_smoother
+
+        return rts_smoother(self, Xs, Ps, Qs=Qs, dts=dts, UT=UT)
+
     def __getstate__(self):
         state = self.__dict__.copy()
         state["_noise_cache"] = {}
