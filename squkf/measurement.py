@@ -10,7 +10,7 @@ import numpy as np
 from .errors import PosteriorFactorError
 from .generators import SigmaSet
 from .linalg import chol_downdate_columns, kalman_gain
-from .transform import deviations, factor_from_deviations, weighted_mean
+from .transform import deviations, factor_from_deviations, mean_and_deviations
 
 __all__ = ["Posterior", "measurement_update"]
 
@@ -106,8 +106,7 @@ def measurement_update(
     """
     Wm, Wc = sset.Wm, sset.Wc
     if UT is None:
-        z_pred = weighted_mean(sigmas_h, Wm, z_mean_fn)
-        dz = deviations(sigmas_h, z_pred, residual_z)
+        z_pred, dz = mean_and_deviations(sigmas_h, Wm, z_mean_fn, residual_z)
         Sy = factor_from_deviations(dz, Wc, R1_2, errno=301)
     else:
         z_pred, Sy = UT(sigmas_h, Wm, Wc, R1_2, z_mean_fn, residual_z)

@@ -29,7 +29,7 @@ import numpy as np
 from .errors import CallSequenceError, NonFiniteError, ShapeError
 from .generators import SigmaSet, sigma_points_from_factor
 from .measurement import Posterior, measurement_update
-from .transform import deviations, factor_from_deviations, weighted_mean
+from .transform import factor_from_deviations, mean_and_deviations
 
 __all__ = ["StepMachine", "check_values"]
 
@@ -182,8 +182,7 @@ class StepMachine:
         F = check_values(values, (N, n), name)
         Wm, Wc = self._first_weights
         if UT is None:
-            x = weighted_mean(F, Wm, x_mean_fn)
-            dev = deviations(F, x, residual_x)
+            x, dev = mean_and_deviations(F, Wm, x_mean_fn, residual_x)
             S = factor_from_deviations(dev, Wc, Q1_2, errno=301)
         else:
             x, S = UT(F, Wm, Wc, Q1_2, x_mean_fn, residual_x)

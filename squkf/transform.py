@@ -10,19 +10,28 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .errors import DowndateError, NonFiniteError
+from .errors import DowndateError, NonFiniteError, ShapeError
 from .linalg import chol_update, tria
 
-__all__ = ["weighted_mean", "deviations", "factor_from_deviations", "sqrt_unscented_transform"]
+__all__ = [
+    "weighted_mean",
+    "mean_and_deviations",
+    "deviations", "factor_from_deviations", "sqrt_unscented_transform"]
 
 
 def weighted_mean(sigmas: np.ndarray, Wm: np.ndarray, mean_fn: Callable | None = None) -> np.ndarray:
     """Weighted mean of the rows of ``sigmas``.
 
+    The plain mean is formed as ``sigmas[0] + Wm @ (sigmas - sigmas[0])``:
+    with a small alpha the weights are large and of both signs, and summing
+    offsets from a reference point avoids the cancellation of summing the
+    points themselves.
+
     Parameters
     ----------
     sigmas : ndarray, shape (N, d)
     Wm : ndarray, shape (N,)
+        Mean weights, summing to 1.
     mean_fn : callable ``mean_fn(sigmas, Wm) -> (d,)``, optional
         Replaces the weighted sum (e.g. a circular mean for angles).
 
@@ -31,15 +40,42 @@ def weighted_mean(sigmas: np.ndarray, Wm: np.ndarray, mean_fn: Callable | None =
     mean : ndarray, shape (d,)
     """
     if mean_fn is None:
-        return Wm @ sigmas
+        ref = sigmas[0]
+        return ref + Wm @ (sigmas - ref)
     mean = np.asarray(mean_fn(sigmas, Wm), dtype=float).reshape(-1)
     if mean.shape != (sigmas.shape[1],):
-        from .errors import ShapeError
-
-        raise ShapeError(
-            f"mean function returned shape {mean.shape}, expected ({sigmas.shape[1]},)"
-        )
+        raise ShapeError(f"mean function returned shape {mean.shape}, expected ({sigmas.shape[1]},)")
     return mean
+
+
+def mean_and_deviations(
+    sigmas: np.ndarray,
+    Wm: np.ndarray,
+    mean_fn: Callable | None = None,
+    residual_fn: Callable | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted mean of the rows of ``sigmas`` and each row's deviation from it.
+
+    Parameters
+    ----------
+    sigmas : ndarray, shape (N, d)
+    Wm : ndarray, shape (N,)
+    mean_fn : callable ``mean_fn(sigmas, Wm)``, optional
+    residual_fn : callable ``residual_fn(a, b)``, optional
+
+    Returns
+    -------
+    mean : ndarray, shape (d,)
+    dev : ndarray, shape (N, d)
+    """
+    if mean_fn is None and (residual_fn is None or residual_fn is np.subtract):
+        ref = sigmas[0]
+        dev = sigmas - ref
+        offset = Wm @ dev
+        dev -= offset
+        return ref + offset, dev
+    mean = weighted_mean(sigmas, Wm, mean_fn)
+    return mean, deviations(sigmas, mean, residual_fn)
 
 
 def deviations(sigmas: np.ndarray, mean: np.ndarray, residual_fn: Callable | None = None) -> np.ndarray:
@@ -159,8 +195,7 @@ def sqrt_unscented_transform(
     S : ndarray, shape (d, d)
         Lower factor of the transformed covariance.
     """
-    mean = weighted_mean(sigmas, Wm, mean_fn)
-    dev = deviations(sigmas, mean, residual_fn)
+    mean, dev = mean_and_deviations(sigmas, Wm, mean_fn, residual_fn)
     if not np.all(np.isfinite(dev)):
         raise NonFiniteError("sigma-point deviations contain NaN or inf")
     return mean, factor_from_deviations(dev, Wc, noise_sqrt)
