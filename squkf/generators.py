@@ -218,9 +218,7 @@ class Augmented:
         g = fam2.gamma(2 * n)
         Wm2, Wc2 = fam2.weights(2 * n)
         centre = propagated[0]
-        extra = sigma_points_from_factor(
-            centre, Q1_2, np.vstack([g * np.eye(n), -g * np.eye(n)]), state_add
-        )
+        extra = sigma_points_from_factor(centre, Q1_2, np.vstack([g * np.eye(n), -g * np.eye(n)]), state_add)
         sigmas = np.vstack([propagated, extra])
         if sigmas.shape[0] != Wm2.shape[0]:
             raise ParameterError(

@@ -129,8 +129,7 @@ def chol_update(S: np.ndarray, v: np.ndarray, sign: float = 1.0) -> np.ndarray:
     c[1:] += sigma
     if sigma < 0 and not c[n] < 0.0:
         raise DowndateError(
-            "rank-1 downdate would lose positive-definiteness: "
-            f"||S^-1 v||^2 = {1.0 + c[n]:.17g} >= 1",
+            f"rank-1 downdate would lose positive-definiteness: ||S^-1 v||^2 = {1.0 + c[n]:.17g} >= 1",
             errno=301,
         )
     d = np.sqrt(c[1:] / c[:-1])
@@ -252,8 +251,7 @@ def factor_covariance(A: np.ndarray, name: str, semidefinite: bool = False) -> n
             w = np.clip(w, 0.0, None)
             return tria(np.ascontiguousarray((V * np.sqrt(w)).T))
         raise NotPositiveDefiniteError(
-            f"{name} is not positive semi-definite: smallest eigenvalue {w[0]:.6g}"
-            f" (largest {w[-1]:.6g})"
+            f"{name} is not positive semi-definite: smallest eigenvalue {w[0]:.6g} (largest {w[-1]:.6g})"
         )
     raise NotPositiveDefiniteError(
         f"{name} is not positive definite: leading minor {info} of the {n}x{n} matrix is not positive"

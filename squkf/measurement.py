@@ -119,9 +119,7 @@ def measurement_update(
     dxk = K @ y
     x_post = x + dxk if state_add is None else np.asarray(state_add(x, dxk), dtype=float).reshape(-1)
     if sset.moments_exact:
-        S_post = factor_from_deviations(
-            dx - dz @ K.T, Wc, K @ R1_2, errno=303, error=PosteriorFactorError
-        )
+        S_post = factor_from_deviations(dx - dz @ K.T, Wc, K @ R1_2, errno=303, error=PosteriorFactorError)
     else:
         S_post = chol_downdate_columns(S, K @ Sy, errno=303, error=PosteriorFactorError)
     if not (np.all(np.isfinite(S_post)) and np.all(np.isfinite(x_post))):

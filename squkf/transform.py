@@ -16,7 +16,10 @@ from .linalg import chol_update, tria
 __all__ = [
     "weighted_mean",
     "mean_and_deviations",
-    "deviations", "factor_from_deviations", "sqrt_unscented_transform"]
+    "deviations",
+    "factor_from_deviations",
+    "sqrt_unscented_transform",
+]
 
 
 def weighted_mean(sigmas: np.ndarray, Wm: np.ndarray, mean_fn: Callable | None = None) -> np.ndarray:

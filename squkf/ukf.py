@@ -707,4 +707,3 @@ def _all_nan(z) -> bool:
     except (TypeError, ValueError):
         return False
     return bool(arr.size) and bool(np.all(np.isnan(arr)))
-

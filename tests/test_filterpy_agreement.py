@@ -10,7 +10,12 @@ relative difference stays many orders below the 1e-8 asserted.
 
 import numpy as np
 import pytest
-from filterpy.kalman import JulierSigmaPoints, MerweScaledSigmaPoints, SimplexSigmaPoints, UnscentedKalmanFilter
+from filterpy.kalman import (
+    JulierSigmaPoints,
+    MerweScaledSigmaPoints,
+    SimplexSigmaPoints,
+    UnscentedKalmanFilter,
+)
 from models import Robot, ct_fx, ct_hx, example_data, l96_fx, l96_hx
 
 from squkf import SquareRootUKF

@@ -60,6 +60,8 @@ def test_augmented_runs_to_completion_and_stays_close():
     # The schemes differ only in higher moments; on this mildly nonlinear example the
     # estimates stay within a few of the posterior standard deviations (~0.2) of each other.
     assert np.max(np.abs(xs_a - xs_r)) < 0.5
-    truth = np.c_[DATA["true_positions"]["xi"], DATA["true_positions"]["eta"], DATA["true_positions"]["theta"]]
+    truth = np.c_[
+        DATA["true_positions"]["xi"], DATA["true_positions"]["eta"], DATA["true_positions"]["theta"]
+    ]
     rmse = np.sqrt(np.mean((xs_a - truth[1:]) ** 2))
     assert rmse < 0.5

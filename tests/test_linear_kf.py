@@ -43,7 +43,9 @@ def run(points, scheme, seed=0, steps=100, n=4, m=2, vectorized=False):
     kf.P = np.eye(n) * 2.0
     kf.x = np.ones(n)
     if vectorized:
-        ukf = SquareRootUKF(n, m, 1.0, lambda X: X @ H.T, lambda X, dt: X @ F.T, points, scheme=scheme, vectorized=True)
+        ukf = SquareRootUKF(
+            n, m, 1.0, lambda X: X @ H.T, lambda X, dt: X @ F.T, points, scheme=scheme, vectorized=True
+        )
     else:
         ukf = SquareRootUKF(n, m, 1.0, lambda x: H @ x, lambda x, dt: F @ x, points, scheme=scheme)
     ukf.x = np.ones(n)
@@ -103,8 +105,9 @@ def test_augmented_with_own_weights_follows_the_covariance_equations():
     against those equations in covariance form, one step at a time."""
     F, H, Q, R = model(1)
     fam2 = MerweScaledWeights(alpha=0.8, beta=2.0, kappa=-1.0)
-    ukf = SquareRootUKF(4, 2, 1.0, lambda x: H @ x, lambda x, dt: F @ x, MerweScaledWeights(),
-                        scheme=Augmented(weights=fam2))
+    ukf = SquareRootUKF(
+        4, 2, 1.0, lambda x: H @ x, lambda x, dt: F @ x, MerweScaledWeights(), scheme=Augmented(weights=fam2)
+    )
     ukf.x, ukf.P, ukf.Q, ukf.R = np.ones(4), np.eye(4) * 2.0, Q, R
     rng = np.random.default_rng(5)
     for _ in range(5):

@@ -6,7 +6,14 @@ from filterpy.kalman import JulierSigmaPoints, MerweScaledSigmaPoints, SimplexSi
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from squkf import CubatureWeights, FilterpyPoints, JulierWeights, MerweScaledWeights, ParameterError, SimplexWeights
+from squkf import (
+    CubatureWeights,
+    FilterpyPoints,
+    JulierWeights,
+    MerweScaledWeights,
+    ParameterError,
+    SimplexWeights,
+)
 
 
 def test_merwe_matches_nag_formulas():
