@@ -20,6 +20,7 @@ from .errors import (
 from .generators import Augmented, Redrawn, SigmaSet
 from .transform import sqrt_unscented_transform
 from .ukf import SquareRootUKF
+from .ut import unscented_transform
 from .weights import (
     CubatureWeights,
     FilterpyPoints,
@@ -34,6 +35,7 @@ __version__ = "0.1.0"
 __all__ = [
     "SquareRootUKF",
     "sqrt_unscented_transform",
+    "unscented_transform",
     "MerweScaledWeights",
     "JulierWeights",
     "SimplexWeights",

@@ -1,0 +1,1 @@
+"""Runnable examples: ``python -m squkf.examples.g13ej_example``."""

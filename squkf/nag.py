@@ -1,0 +1,342 @@
+"""g13ej's own calling sequence: ``kalman_unscented_state_revcom``.
+
+A thin adapter over :class:`squkf.step.StepMachine` (the same core as
+:class:`squkf.SquareRootUKF`) with the argument order of NAG's Python
+interface (``naginterfaces.library.tsa.kalman_unscented_state_revcom``)::
+
+    irevcm, n = kalman_unscented_state_revcom(irevcm, y, ly, x, st, xt, fxt, comm, lx=None, ropt=None)
+
+- ``irevcm`` is 0 on the first time point and 3 on later ones. Intermediate
+  exits return 1 (evaluate F on the columns of ``xt`` into ``fxt``) and 2
+  (evaluate H on the columns of ``xt`` into ``fxt``); the final exit returns 3.
+  On re-entry pass back the ``irevcm`` returned.
+- ``n`` is the number of sigma points in use at an intermediate exit (the
+  documents' N); at the final exit it is the number of columns of ``xt``.
+- ``x`` ``(mx,)``, ``st`` ``(>=mx, >=mx)`` and ``xt`` ``(>=mx, >=n_max)`` are
+  float64 arrays updated in place; ``xt`` and ``fxt`` hold one sigma point
+  per **column**. ``n_max`` is ``2 mx + 1`` for the redrawn second set and
+  ``4 mx + 1`` for the augmented one. ``fxt`` needs ``>= mx`` rows at the
+  first exit and ``>= my`` at the second, and at least ``n`` columns.
+- ``st``, ``ly`` and ``lx`` are lower factors; only their leading lower
+  triangles are read (``st``'s strict upper triangle is never written).
+- ``comm`` is a dict the caller creates empty and passes back unchanged.
+- ``lx=None`` means no process noise (the documents' LDLX = 0).
+- ``ropt`` has up to 7 entries: ROPT(1) 1 = redrawn, 2 = augmented; ROPT(2..4)
+  kappa, alpha, beta of the first set (defaults ``3 - mx``, 1, 2); ROPT(5..7)
+  of the second set (defaults: kappa ``3 - 2 mx`` -- generally the first
+  set's kappa minus ``mx`` -- when augmented with process noise, else the
+  first set's; alpha and beta the first set's).
+
+Section 9 of the documents: with ``lx=None``, stopping at the exit with
+``irevcm == 2`` leaves the unscented transform of F in ``x`` and ``st``.
+
+Errors raise an exception from :mod:`squkf.errors` whose ``errno`` is the
+documented IFAIL number, with the documented message and the values filled
+in: 11, 21, 22, 31, 32, 61, 81, 111, 121, 122, 123, 141, 161, 162, 171, 172,
+173, 181, 191, 211, 301, 302, 303. After an error ``x``, ``st``, ``xt`` and
+``comm`` are exactly as they were.
+
+Documented errors that do not apply in Python:
+
+- 201/202 (LICOMM/LRCOMM too small) and the array-length constraints on
+  ICOMM/RCOMM: ``comm`` is a dict that holds whatever it needs.
+- LDST/LDXT/LDFXT/LDLX/LDLY are the arrays' own shapes; the constraints on
+  them become 61, 81, 111, 141, 161, 162 on the shapes.
+- N as an input: the capacity is the number of columns of ``xt`` (121/122),
+  and a change of that capacity between calls is 123.
+- -99 (unexpected error), -399 (licence) and -999 (allocation) have no
+  counterpart; Python's own exceptions propagate.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+
+from .errors import (
+    CallSequenceError,
+    CommunicationError,
+    NonFiniteError,
+    ParameterError,
+    ShapeError,
+)
+from .generators import Augmented, Redrawn
+from .step import StepMachine
+from .weights import MerweScaledWeights
+
+__all__ = ["kalman_unscented_state_revcom"]
+
+
+def _digest(*arrays) -> str:
+    h = hashlib.sha1()
+    for a in arrays:
+        if a is None:
+            h.update(b"none")
+            continue
+        a = np.ascontiguousarray(a)
+        h.update(str(a.shape).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def _options(ropt, mx: int, has_lx: bool):
+    """Parse ROPT into the two sets' families and the scheme (errors 171-173, 181)."""
+    ropt = [] if ropt is None else list(np.asarray(ropt, dtype=float).reshape(-1))
+    if len(ropt) > 7:
+        raise ParameterError(f"On entry, LROPT = {len(ropt)}. Constraint: 0 <= LROPT <= 7.", errno=181)
+    scheme = ropt[0] if len(ropt) > 0 else 1.0
+    if scheme not in (1.0, 2.0):
+        raise ParameterError(f"On entry, ROPT(1) = {scheme:g}. Constraint: ROPT(1) = 1 or 2.", errno=171)
+    augmented = scheme == 2.0
+    kx = ropt[1] if len(ropt) > 1 else 3.0 - mx
+    ax = ropt[2] if len(ropt) > 2 else 1.0
+    bx = ropt[3] if len(ropt) > 3 else 2.0
+    if len(ropt) > 4:
+        ky = ropt[4]
+    else:
+        ky = kx - mx if (augmented and has_lx) else kx
+    ay = ropt[5] if len(ropt) > 5 else ax
+    by = ropt[6] if len(ropt) > 6 else bx
+    if not kx > -mx:
+        raise ParameterError(f"On entry, ROPT(2) = {kx:g}. Constraint: kappa > {-mx}.", errno=172)
+    ky_min = -2 * mx if (augmented and has_lx) else -mx
+    if not ky > ky_min:
+        raise ParameterError(f"On entry, ROPT(5) = {ky:g}. Constraint: kappa > {ky_min}.", errno=172)
+    for i, a in ((3, ax), (6, ay)):
+        if not a > 0:
+            raise ParameterError(f"On entry, ROPT({i}) = {a:g}. Constraint: alpha > 0.", errno=173)
+    first = MerweScaledWeights(ax, bx, kx)
+    second = MerweScaledWeights(ay, by, ky)
+    generator = Augmented(weights=second) if augmented else Redrawn(weights=second)
+    return first, generator, augmented
+
+
+def _lower(a, rows: int, name: str, errno: int, what: str, need: int):
+    try:
+        arr = np.asarray(a, dtype=float)
+    except (TypeError, ValueError):
+        raise ShapeError(f"{name} must be a float matrix", errno=errno) from None
+    if arr.ndim != 2 or arr.shape[0] < need or arr.shape[1] < need:
+        shape = arr.shape if arr.ndim == 2 else (arr.shape + (0, 0))[:2]
+        raise ShapeError(
+            f"On entry, {what} = {shape[0]} and {name.upper()}'s order = {need}. "
+            f"Constraint: {what} >= {need} (shape of {name} is {arr.shape}).",
+            errno=errno,
+        )
+    S = np.tril(arr[:need, :need])
+    if not np.all(np.isfinite(S)):
+        raise NonFiniteError(f"{name} contains NaN or inf in its lower triangle")
+    neg = S.diagonal() < 0
+    if neg.any():
+        S[:, neg] *= -1.0
+    return S
+
+
+def kalman_unscented_state_revcom(irevcm, y, ly, x, st, xt, fxt, comm, lx=None, ropt=None):
+    """One call of g13ej's reverse-communication sequence (see the module docstring).
+
+    Parameters
+    ----------
+    irevcm : int
+        0 (first time point) or 3 (later ones) on initial entry; on re-entry
+        the value returned by the previous call (1 or 2).
+    y : array_like, shape (my,)
+        The observation at the current time point.
+    ly : array_like, shape (>=my, >=my)
+        Lower factor of the observation noise covariance.
+    x : ndarray, shape (mx,)
+        State estimate, updated in place.
+    st : ndarray, shape (>=mx, >=mx)
+        Lower factor of the state covariance, updated in place.
+    xt : ndarray, shape (>=mx, >=n_max)
+        Receives the sigma points, one per column.
+    fxt : array_like, shape (>=mx or >=my, >=n)
+        On re-entry, F (irevcm 1) or H (irevcm 2) of the columns of ``xt``.
+    comm : dict
+        Communication state; created empty, passed back unchanged.
+    lx : array_like, shape (>=mx, >=mx), optional
+        Lower factor of the process noise covariance; None for none.
+    ropt : sequence of float, optional
+        Up to 7 options (see the module docstring).
+
+    Returns
+    -------
+    irevcm : int
+        1 or 2 at an intermediate exit, 3 at the final exit.
+    n : int
+        Number of sigma points in use (the capacity ``xt.shape[1]`` at the final exit).
+    """
+    if isinstance(irevcm, bool) or not isinstance(irevcm, (int, np.integer)) or irevcm not in (0, 1, 2, 3):
+        raise ParameterError(f"On entry, IREVCM = {irevcm!r}. Constraint: IREVCM = 0, 1, 2 or 3.", errno=11)
+    if not isinstance(comm, dict):
+        raise CommunicationError("comm must be the dict created empty and passed back unchanged", errno=191)
+    for name, arr in (("x", x), ("xt", xt)):
+        if not (isinstance(arr, np.ndarray) and arr.dtype == np.float64 and arr.flags.writeable):
+            raise ShapeError(f"{name} must be a writeable float64 numpy array (it is updated in place)")
+    if not (isinstance(st, np.ndarray) and st.dtype == np.float64 and st.flags.writeable):
+        raise ShapeError("st must be a writeable float64 numpy array (it is updated in place)")
+    mx = x.shape[0] if x.ndim == 1 else 0
+    if mx < 1:
+        raise ParameterError(f"On entry, MX = {mx}. Constraint: MX >= 1.", errno=21)
+    yv = np.asarray(y, dtype=float).reshape(-1)
+    my = yv.shape[0]
+    if my < 1:
+        raise ParameterError(f"On entry, MY = {my}. Constraint: MY >= 1.", errno=31)
+    if irevcm in (0, 3):
+        return _initial_entry(irevcm, yv, ly, x, st, xt, comm, lx, ropt, mx, my)
+    return _re_entry(irevcm, yv, ly, x, st, xt, fxt, comm, lx, mx, my)
+
+
+def _check_common(yv, ly, x, st, xt, lx, mx, my, n_max, augmented):
+    if lx is not None:
+        Lx = _lower(lx, mx, "lx", 61, "LDLX", mx)
+        if not np.any(Lx):
+            Lx = None
+    else:
+        Lx = None
+    Ly = _lower(ly, my, "ly", 81, "LDLY", my)
+    S = _lower(st, mx, "st", 111, "LDST", mx)
+    if xt.ndim != 2 or xt.shape[0] < mx:
+        raise ShapeError(
+            f"On entry, LDXT = {xt.shape[0] if xt.ndim == 2 else 0} and MX = {mx}. Constraint: LDXT >= MX.",
+            errno=141,
+        )
+    if xt.shape[1] < n_max:
+        kind, num = ("augmented", 121) if augmented else ("redrawn", 122)
+        raise ShapeError(
+            f"On entry, {kind} sigma points requested, N = {xt.shape[1]} and MX = {mx}. "
+            f"Constraint: N >= {n_max} (the number of columns of xt).",
+            errno=num,
+        )
+    if not np.all(np.isfinite(x)):
+        raise NonFiniteError(f"x contains NaN or inf: {x!r}")
+    if not np.all(np.isfinite(yv)):
+        raise NonFiniteError(f"y contains NaN or inf: {yv!r}")
+    return Lx, Ly, S
+
+
+def _initial_entry(irevcm, yv, ly, x, st, xt, comm, lx, ropt, mx, my):
+    family, generator, augmented = _options(ropt, mx, lx is not None)
+    n_max = 4 * mx + 1 if augmented else 2 * mx + 1
+    Lx, Ly, S = _check_common(yv, ly, x, st, xt, lx, mx, my, n_max, augmented)
+    machine = StepMachine()
+    X = machine.ask_predict(x.copy(), S, family)
+    N = X.shape[0]
+    # commit
+    xt[:mx, :N] = X.T
+    _save(comm, machine, family, generator, mx, my, xt.shape[1], 1, N, x, st, xt, irevcm)
+    return 1, N
+
+
+def _save(comm, machine, family, generator, mx, my, ncap, expect, n, x, st, xt, first_irevcm):
+    ints = (mx, my, ncap, expect, n, first_irevcm)
+    comm.clear()
+    comm.update(
+        {
+            "icomm": ints,
+            "machine": machine,
+            "family": family,
+            "generator": generator,
+            "digest_i": _digest(np.array(ints), np.array([machine.phase == "predicting"])),
+            "digest_r": _digest(x, np.tril(st[:mx, :mx]), xt[:mx, :n]),
+        }
+    )
+
+
+def _load(comm, irevcm, x, st, xt, mx, my):
+    try:
+        ints = comm["icomm"]
+        machine = comm["machine"]
+        family = comm["family"]
+        generator = comm["generator"]
+        ok = comm["digest_i"] == _digest(np.array(ints), np.array([machine.phase == "predicting"]))
+    except (KeyError, TypeError, AttributeError, ValueError):
+        ok = False
+    if not ok:
+        raise CommunicationError("ICOMM has been corrupted between calls.", errno=191)
+    cmx, cmy, ncap, expect, n, _ = ints
+    if mx != cmx:
+        raise CommunicationError(
+            f"MX has changed between calls. On intermediate entry, MX = {mx}. On initial entry, MX = {cmx}.",
+            errno=22,
+        )
+    if my != cmy:
+        raise CommunicationError(
+            f"MY has changed between calls. On intermediate entry, MY = {my}. On initial entry, MY = {cmy}.",
+            errno=32,
+        )
+    if xt.ndim != 2 or xt.shape[1] != ncap:
+        got = xt.shape[1] if xt.ndim == 2 else 0
+        raise CommunicationError(
+            f"N has changed between calls. On intermediate entry, N = {got}. On intermediate exit, N = {ncap}.",
+            errno=123,
+        )
+    if irevcm != expect:
+        raise CallSequenceError(
+            f"On entry, IREVCM = {irevcm}, but the last exit returned {expect}: on intermediate "
+            "re-entry irevcm must remain unchanged.",
+            errno=11,
+        )
+    if xt.shape[0] < mx or comm["digest_r"] != _digest(x, np.tril(st[:mx, :mx]), xt[:mx, :n]):
+        raise CommunicationError(
+            "RCOMM has been corrupted between calls (x, st or xt changed; they must remain unchanged "
+            "between intermediate exits and re-entries).",
+            errno=211,
+        )
+    return machine, family, generator, ints
+
+
+def _read_fxt(fxt, rows: int, n: int, irevcm: int, mx: int, my: int):
+    try:
+        F = np.asarray(fxt, dtype=float)
+    except (TypeError, ValueError):
+        F = np.empty((0, 0))
+    if F.ndim != 2 or F.shape[0] < rows or F.shape[1] < n:
+        first = F.shape[0] if F.ndim == 2 else 0
+        if irevcm == 1:
+            raise ShapeError(
+                f"On entry, LDFXT = {first} and MX = {mx}. Constraint: if IREVCM = 1, LDFXT >= MX "
+                f"(and fxt needs >= {n} columns; its shape is {F.shape}).",
+                errno=161,
+            )
+        raise ShapeError(
+            f"On entry, LDFXT = {first} and MY = {my}. Constraint: if IREVCM = 2, LDFXT >= MY "
+            f"(and fxt needs >= {n} columns; its shape is {F.shape}).",
+            errno=162,
+        )
+    return F[:rows, :n].T
+
+
+def _re_entry(irevcm, yv, ly, x, st, xt, fxt, comm, lx, mx, my):
+    machine, family, generator, ints = _load(comm, irevcm, x, st, xt, mx, my)
+    _, _, ncap, _, n, first_irevcm = ints
+    augmented = isinstance(generator, Augmented)
+    Lx, Ly, _ = _check_common(yv, ly, x, st, xt, lx, mx, my, xt.shape[1], augmented)
+    work = StepMachine()
+    work.restore(machine.snapshot())
+    if irevcm == 1:
+        F = _read_fxt(fxt, mx, n, 1, mx, my)
+        xbar, Sbar = work.tell_predict(F, Lx, name="fxt (F at the sigma points)")
+        sset = work.ask_update(xbar, Sbar, family, generator)
+        N2 = sset.sigmas.shape[0]
+        if N2 > ncap:  # pragma: no cover - guarded by 121/122 at initial entry
+            raise ShapeError(f"xt has {ncap} columns, {N2} needed", errno=121)
+        # commit
+        x[:] = xbar
+        _write_lower(st, Sbar, mx)
+        xt[:mx, :N2] = sset.sigmas.T
+        _save(comm, work, family, generator, mx, my, ncap, 2, N2, x, st, xt, first_irevcm)
+        return 2, N2
+    H = _read_fxt(fxt, my, n, 2, mx, my)
+    post = work.tell_update(H, yv, Ly, name="fxt (H at the sigma points)")
+    # commit
+    x[:] = post.x
+    _write_lower(st, post.S, mx)
+    comm.clear()
+    return 3, ncap
+
+
+def _write_lower(st, S, mx):
+    il = np.tril_indices(mx)
+    st[il] = S[il]

@@ -1,0 +1,201 @@
+"""The ask/tell API: one code path with predict/update, and misuse caught without losing state."""
+
+import copy
+import pickle
+
+import numpy as np
+import pytest
+from models import ct_fx, ct_hx
+
+from squkf import CallSequenceError, MerweScaledWeights, NonFiniteError, ShapeError, SquareRootUKF
+
+Q = np.diag([0.1, 0.01, 0.1, 0.01, 1e-6])
+R = np.diag([25.0, 0.002**2])
+
+
+def make(scheme="redrawn", vectorized=False):
+    if vectorized:
+        fx = lambda X, dt: np.array([ct_fx(x, dt) for x in X])  # noqa: E731
+        hx = lambda X: np.array([ct_hx(x) for x in X])  # noqa: E731
+    else:
+        fx, hx = ct_fx, ct_hx
+    ukf = SquareRootUKF(
+        5,
+        2,
+        1.0,
+        hx,
+        fx,
+        MerweScaledWeights(alpha=0.1, beta=2.0, kappa=0.0),
+        scheme=scheme,
+        vectorized=vectorized,
+    )
+    ukf.x = np.array([2000.0, 10.0, 3000.0, -5.0, 0.02])
+    ukf.P = np.diag([400.0, 4.0, 400.0, 4.0, 1e-4])
+    ukf.Q, ukf.R = Q, R
+    return ukf
+
+
+def measurements(k=30, seed=0):
+    rng = np.random.default_rng(seed)
+    x = np.array([2000.0, 10.0, 3000.0, -5.0, 0.02])
+    zs = []
+    for _ in range(k):
+        x = ct_fx(x, 1.0)
+        zs.append(ct_hx(x) + rng.normal(0, [5.0, 0.002]))
+    return zs
+
+
+STATE = (
+    "x",
+    "P1_2",
+    "x_prior",
+    "P1_2_prior",
+    "x_post",
+    "P1_2_post",
+    "K",
+    "y",
+    "S1_2",
+    "sigmas_f",
+    "sigmas_h",
+)
+
+
+def state_of(ukf):
+    snap = {k: np.array(getattr(ukf, k), copy=True) for k in STATE}
+    snap["phase"] = ukf._machine.phase
+    return snap
+
+
+def assert_same_state(ukf, snap):
+    for k in STATE:
+        np.testing.assert_array_equal(np.asarray(getattr(ukf, k)), snap[k], err_msg=k)
+    assert ukf._machine.phase == snap["phase"]
+
+
+@pytest.mark.parametrize("scheme", ["redrawn", "augmented"])
+def test_ask_tell_equals_predict_update(scheme):
+    a, b = make(scheme), make(scheme)
+    for z in measurements():
+        a.predict()
+        a.update(z)
+        X = b.ask_predict()
+        b.tell_predict([ct_fx(x, 1.0) for x in X])
+        Y = b.ask_update()
+        b.tell_update(np.array([ct_hx(y) for y in Y]), z)
+        np.testing.assert_array_equal(a.x, b.x)
+        np.testing.assert_array_equal(a.P1_2, b.P1_2)
+
+
+def test_vectorized_ask_tell_equals_per_point():
+    a, b = make(), make(vectorized=True)
+    for z in measurements(10):
+        a.predict()
+        a.update(z)
+        X = b.ask_predict()
+        b.tell_predict(b.fx(X, 1.0))
+        b.tell_update(b.hx(b.ask_update()), z)
+        np.testing.assert_allclose(a.x, b.x, rtol=1e-14)
+        np.testing.assert_allclose(a.P1_2, b.P1_2, rtol=1e-12, atol=1e-15)
+
+
+def test_telling_twice_and_without_asking():
+    ukf = make()
+    snap = state_of(ukf)
+    with pytest.raises(CallSequenceError, match="tell_predict"):
+        ukf.tell_predict(np.zeros((11, 5)))
+    assert_same_state(ukf, snap)
+    X = ukf.ask_predict()
+    F = [ct_fx(x, 1.0) for x in X]
+    ukf.tell_predict(F)
+    snap = state_of(ukf)
+    with pytest.raises(CallSequenceError, match="already told"):
+        ukf.tell_predict(F)
+    assert_same_state(ukf, snap)
+    with pytest.raises(CallSequenceError, match="tell_update"):
+        ukf.tell_update(np.zeros((11, 2)), np.zeros(2))
+    assert_same_state(ukf, snap)
+    Y = ukf.ask_update()
+    H = [ct_hx(y) for y in Y]
+    ukf.tell_update(H, measurements(1)[0])
+    snap = state_of(ukf)
+    with pytest.raises(CallSequenceError, match="already told"):
+        ukf.tell_update(H, measurements(1)[0])
+    assert_same_state(ukf, snap)
+
+
+def test_asking_for_update_before_prediction_is_told():
+    ukf = make()
+    ukf.ask_predict()
+    snap = state_of(ukf)
+    with pytest.raises(CallSequenceError, match="prediction is pending"):
+        ukf.ask_update()
+    assert_same_state(ukf, snap)
+
+
+def poison(A, kind):
+    """A copy of A made wrong in one way."""
+    if kind == "short":
+        return A[:, :-1]
+    if kind == "transposed":
+        return A.T
+    B = A.copy()
+    B[2, 0] = np.nan if kind == "nan" else np.inf
+    return B
+
+
+@pytest.mark.parametrize(
+    "kind, error",
+    [("short", ShapeError), ("transposed", ShapeError), ("nan", NonFiniteError), ("inf", NonFiniteError)],
+)
+def test_bad_values_are_rejected_and_the_step_can_be_completed(kind, error):
+    ref, ukf = make(), make()
+    z = measurements(1)[0]
+    ref.predict()
+    ref.update(z)
+    X = ukf.ask_predict()
+    F = np.array([ct_fx(x, 1.0) for x in X])
+    snap = state_of(ukf)
+    with pytest.raises(error):
+        ukf.tell_predict(poison(F, kind))
+    assert_same_state(ukf, snap)
+    ukf.tell_predict(F)
+    H = np.array([ct_hx(y) for y in ukf.ask_update()])
+    snap = state_of(ukf)
+    with pytest.raises(error):
+        ukf.tell_update(poison(H, kind), z)
+    assert_same_state(ukf, snap)
+    ukf.tell_update(H, z)
+    np.testing.assert_array_equal(ukf.x, ref.x)
+    np.testing.assert_array_equal(ukf.P1_2, ref.P1_2)
+
+
+@pytest.mark.parametrize("copier", [copy.deepcopy, lambda u: pickle.loads(pickle.dumps(u))])
+def test_filter_pickles_between_ask_and_tell(copier):
+    ukf = SquareRootUKF(5, 2, 1.0, ct_hx, ct_fx, MerweScaledWeights(alpha=0.1, beta=2.0, kappa=0.0))
+    ukf.x = np.array([2000.0, 10.0, 3000.0, -5.0, 0.02])
+    ukf.P = np.diag([400.0, 4.0, 400.0, 4.0, 1e-4])
+    ukf.Q, ukf.R = Q, R
+    X = ukf.ask_predict()
+    twin = copier(ukf)
+    F = [ct_fx(x, 1.0) for x in X]
+    ukf.tell_predict(F)
+    twin.tell_predict(F)
+    z = measurements(1)[0]
+    for f in (ukf, twin):
+        f.tell_update([ct_hx(y) for y in f.ask_update()], z)
+    np.testing.assert_array_equal(ukf.x, twin.x)
+    np.testing.assert_array_equal(ukf.P1_2, twin.P1_2)
+
+
+def test_predict_restores_the_step_when_fx_raises():
+    ukf = make()
+    snap = state_of(ukf)
+
+    def broken(x, dt):
+        raise ZeroDivisionError("user model failed")
+
+    with pytest.raises(ZeroDivisionError, match="user model failed"):
+        ukf.predict(fx=broken)
+    assert_same_state(ukf, snap)
+    ukf.predict()
+    assert ukf._machine.phase == "prior"
