@@ -269,7 +269,8 @@ def _load(comm, irevcm, x, st, xt, mx, my):
     if xt.ndim != 2 or xt.shape[1] != ncap:
         got = xt.shape[1] if xt.ndim == 2 else 0
         raise CommunicationError(
-            f"N has changed between calls. On intermediate entry, N = {got}. On intermediate exit, N = {ncap}.",
+            f"N has changed between calls. On intermediate entry, N = {got}. "
+            f"On intermediate exit, N = {ncap}.",
             errno=123,
         )
     if irevcm != expect:

@@ -16,7 +16,7 @@ def test_exact_on_linear_functions():
         L[np.diag_indices(n)] = np.abs(L.diagonal()) + 0.5
         N = np.tril(rng.standard_normal((m, m))) * 0.1
         for fam in (MerweScaledWeights(), MerweScaledWeights(0.2, 2.0, 0.0), JulierWeights(1.0)):
-            mean, S, Pxy = unscented_transform(lambda v: A @ v + b, x, L, fam, N, return_cross=True)
+            mean, S, Pxy = unscented_transform(lambda v, A=A, b=b: A @ v + b, x, L, fam, N, return_cross=True)
             P = A @ L @ L.T @ A.T + N @ N.T
             np.testing.assert_allclose(mean, A @ x + b, rtol=1e-12, atol=1e-12)
             np.testing.assert_allclose(S @ S.T, P, rtol=1e-11, atol=1e-11 * np.abs(P).max())
