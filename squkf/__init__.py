@@ -17,7 +17,7 @@ from .errors import (
     SqukfError,
     SqukfValueError,
 )
-from .generators import Augmented, Redrawn, SigmaSet
+from .generators import Augmented, Propagated, Redrawn, SigmaSet
 from .transform import sqrt_unscented_transform
 from .ukf import SquareRootUKF
 from .ut import unscented_transform
@@ -44,6 +44,7 @@ __all__ = [
     "SigmaPointFamily",
     "Redrawn",
     "Augmented",
+    "Propagated",
     "SigmaSet",
     "SqukfError",
     "SqukfValueError",

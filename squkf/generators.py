@@ -29,7 +29,7 @@ import numpy as np
 from .errors import ParameterError
 from .weights import as_family
 
-__all__ = ["SigmaSet", "Redrawn", "Augmented", "as_generator", "sigma_points_from_factor"]
+__all__ = ["SigmaSet", "Redrawn", "Augmented", "Propagated", "as_generator", "sigma_points_from_factor"]
 
 
 @dataclass(frozen=True)
@@ -228,6 +228,38 @@ class Augmented:
         return SigmaSet(sigmas, Wm2, Wc2, exact)
 
 
+class Propagated:
+    """Reuse the propagated first set as the second set (no redraw, no augmentation).
+
+    This is the classic UKF of Julier and Uhlmann without redrawing, and what
+    filterpy's ``CubatureKalmanFilter`` does. The points' covariance lacks the
+    process noise, so unless there is none the measurement update uses the
+    downdate form. With no propagated set available (an update that does not
+    follow a prediction) the set is redrawn with the first set's family.
+    """
+
+    def __getstate__(self):
+        return {}
+
+    def __setstate__(self, state):
+        pass
+
+    def __repr__(self):
+        return "Propagated()"
+
+    def num_sigmas(self, n: int, family) -> int:
+        """Number of points in the second set: the first set's."""
+        return family.num_sigmas(n)
+
+    def second_set(self, x, S, *, family, propagated=None, Q1_2=None, state_add=None) -> SigmaSet:
+        """The propagated first set with the first set's weights."""
+        n = x.shape[0]
+        if propagated is None:
+            return Redrawn().second_set(x, S, family=family, state_add=state_add)
+        Wm, Wc = family.weights(n)
+        return SigmaSet(propagated, Wm, Wc, Q1_2 is None)
+
+
 def _require_symmetric(fam, what: str):
     if not hasattr(fam, "gamma"):
         raise ParameterError(
@@ -270,7 +302,11 @@ def as_generator(scheme):
             return Redrawn()
         if key == "augmented":
             return Augmented()
-        raise ParameterError(f"scheme must be 'redrawn', 'augmented' or a generator, got scheme={scheme!r}")
+        if key == "propagated":
+            return Propagated()
+        raise ParameterError(
+            f"scheme must be 'redrawn', 'augmented', 'propagated' or a generator, got scheme={scheme!r}"
+        )
     if not hasattr(scheme, "second_set"):
         raise ParameterError(
             f"scheme must be 'redrawn', 'augmented' or an object with a second_set method, got {scheme!r}"

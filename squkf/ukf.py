@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import math
 import sys
 from collections.abc import Callable
@@ -648,17 +649,44 @@ class SquareRootUKF:
         dz = deviations(sigmas_h, np.asarray(z, dtype=float), self._hook(self.residual_z, np.subtract))
         return (dx.T * Wc) @ dz
 
-    def batch_filter(self, zs, Rs=None, dts=None, UT=None, saver=None, Qs=None):
-        """Filter a whole sequence of measurements; see :func:`squkf.batch.batch_filter`."""
+    def batch_filter(self, zs, Rs=None, dts=None, UT=None, saver=None, Qs=None, **kwargs):
+        """Filter a whole sequence of measurements; see :func:`squkf.batch.batch_filter`.
+
+        Returns ``(means, covariances)`` as filterpy does; also accepts ``Qs``
+        (per-step process noise), ``fx_args``/``hx_args`` and ``return_factors``.
+        """
         from .batch import batch_filter
 
-        return batch_filter(self, zs, Rs=Rs, dts=dts, UT=UT, saver=saver, Qs=Qs)
+        return batch_filter(self, zs, Rs=Rs, dts=dts, UT=UT, saver=saver, Qs=Qs, **kwargs)
 
-    def rts_smoother(self, Xs, Ps, Qs=None, dts=None, UT=None):
-        """Square-root unscented RTS smoother; see :func:`squkf.smoother.rts_smoother`."""
+    def rts_smoother(self, Xs, Ps, Qs=None, dts=None, UT=None, **kwargs):
+        """Square-root unscented RTS smoother; see :func:`squkf.smoother.rts_smoother`.
+
+        Returns ``(xs, Ps, Ks)`` as filterpy does. ``Qs[k]`` and ``dts[k]`` are
+        those of the prediction into step ``k`` (the lists given to
+        ``batch_filter``); ``fx_args`` may be given the same way.
+        """
         from .smoother import rts_smoother
 
-        return rts_smoother(self, Xs, Ps, Qs=Qs, dts=dts, UT=UT)
+        return rts_smoother(self, Xs, Ps, Qs=Qs, dts=dts, UT=UT, **kwargs)
+
+    def rts_smoother_factors(self, Xs, P1_2s, Qs=None, dts=None, UT=None, **kwargs):
+        """The smoother on lower factors; see :func:`squkf.smoother.rts_smoother_factors`."""
+        from .smoother import rts_smoother_factors
+
+        return rts_smoother_factors(self, Xs, P1_2s, Qs=Qs, dts=dts, UT=UT, **kwargs)
+
+    def _snapshot(self) -> dict:
+        """Everything a failed multi-step call must put back (arrays are replaced, never mutated)."""
+        state = dict(self.__dict__)
+        for key in ("_P", "_Q", "_R", "_machine"):
+            state[key] = copy.deepcopy(state[key])
+        state["_x"] = self._x.copy()
+        return state
+
+    def _restore(self, state: dict) -> None:
+        self.__dict__.clear()
+        self.__dict__.update(state)
 
     def __getstate__(self):
         state = self.__dict__.copy()
