@@ -28,6 +28,7 @@ __all__ = [
 _dgeqrf = lapack.get_lapack_funcs("geqrf", dtype=np.float64)
 _dtrtrs = lapack.get_lapack_funcs("trtrs", dtype=np.float64)
 _dpotrf = lapack.get_lapack_funcs("potrf", dtype=np.float64)
+_TINY = np.finfo(float).tiny
 
 
 def tria(rows: np.ndarray) -> np.ndarray:
@@ -50,13 +51,23 @@ def tria(rows: np.ndarray) -> np.ndarray:
     if info != 0:  # pragma: no cover - LAPACK argument error, cannot happen here
         raise RuntimeError(f"LAPACK dgeqrf failed with info={info}")
     m = min(k, n)
-    R = np.triu(qr[:m])
-    neg = R.diagonal() < 0
-    if neg.any():
-        R[neg] *= -1.0
     S = np.zeros((n, n))
-    S[:, :m] = R.T
+    S[:, :m] = qr[:m].T
+    S[_strict_upper(n)] = 0.0  # below R's diagonal dgeqrf leaves its Householder vectors
+    d = S.diagonal()
+    if (d < 0).any():
+        S *= np.where(d < 0, -1.0, 1.0)
     return S
+
+
+_UPPER_MASKS: dict[int, np.ndarray] = {}
+
+
+def _strict_upper(n: int) -> np.ndarray:
+    mask = _UPPER_MASKS.get(n)
+    if mask is None:
+        mask = _UPPER_MASKS[n] = np.triu(np.ones((n, n), dtype=bool), 1)
+    return mask
 
 
 def solve_lower(S: np.ndarray, b: np.ndarray, trans: bool = False) -> np.ndarray:
@@ -139,10 +150,12 @@ def chol_update(S: np.ndarray, v: np.ndarray, sign: float = 1.0) -> np.ndarray:
     tail = np.zeros_like(S)
     if n > 1:
         tail[:, :-1] = np.cumsum(Sp[:, :0:-1], axis=1)[:, ::-1]
-    S1 = S * d + tail * beta
-    if not np.all(np.isfinite(S1)):
+    # column j of S and of tail vanish above row j, so S1 is lower triangular as computed
+    S1 = S * d
+    S1 += tail * beta
+    if not np.isfinite(S1).all():
         raise DowndateError("rank-1 modification produced a non-finite factor", errno=301)
-    return np.tril(S1)
+    return S1
 
 
 def chol_downdate_columns(
@@ -200,7 +213,7 @@ def kalman_gain(Pxy: np.ndarray, Sy: np.ndarray) -> np.ndarray:
         If ``Sy`` is singular (g13ej IFAIL 302).
     """
     d = np.abs(Sy.diagonal())
-    if not np.all(d > np.finfo(float).tiny) or not np.all(np.isfinite(d)):
+    if not (d > _TINY).all() or not np.isfinite(d).all():
         raise GainError(
             f"innovation factor is singular (diagonal {np.array2string(Sy.diagonal(), precision=3)}): "
             "cannot form the Kalman gain",

@@ -122,6 +122,6 @@ def measurement_update(
         S_post = factor_from_deviations(dx - dz @ K.T, Wc, K @ R1_2, errno=303, error=PosteriorFactorError)
     else:
         S_post = chol_downdate_columns(S, K @ Sy, errno=303, error=PosteriorFactorError)
-    if not (np.all(np.isfinite(S_post)) and np.all(np.isfinite(x_post))):
+    if not (np.isfinite(S_post).all() and np.isfinite(x_post).all()):
         raise PosteriorFactorError("the posterior mean or factor is not finite", errno=303)
     return Posterior(x_post, S_post, K, y, z_pred, Sy, Pxy)

@@ -69,7 +69,7 @@ def check_values(values, shape: tuple[int, int], name: str) -> np.ndarray:
             arr = arr.reshape(shape)
         else:
             raise ShapeError(f"{name} has shape {arr.shape}, expected {shape} (one row per sigma point)")
-    if not np.all(np.isfinite(arr)):
+    if not np.isfinite(arr).all():
         bad = np.argwhere(~np.isfinite(arr))[0]
         raise NonFiniteError(
             f"{name} is not finite: row {bad[0]} (sigma point {bad[0]}), column {bad[1]} "
@@ -188,7 +188,7 @@ class StepMachine:
             x, S = UT(F, Wm, Wc, Q1_2, x_mean_fn, residual_x)
             x = np.asarray(x, dtype=float).reshape(n)
             S = np.asarray(S, dtype=float).reshape(n, n)
-        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(S))):
+        if not (np.isfinite(x).all() and np.isfinite(S).all()):
             raise NonFiniteError("the predicted mean or factor is not finite")
         self.phase = PRIOR
         self._propagated = F

@@ -140,18 +140,16 @@ def factor_from_deviations(
     DowndateError
         If a negative weight's downdate would lose positive-definiteness.
     """
-    pos = Wc > 0
-    if pos.all():
-        rows = np.sqrt(Wc)[:, None] * dev
-        neg = ()
-    else:
-        rows = np.sqrt(Wc[pos])[:, None] * dev[pos]
-        neg = np.flatnonzero(Wc < 0)
-    if noise_sqrt is not None:
-        rows = np.vstack([rows, noise_sqrt.T])
+    pos, sqrt_pos, neg = _weight_split(Wc)
+    npos, d = pos.shape[0], dev.shape[1]
+    extra = 0 if noise_sqrt is None else noise_sqrt.shape[1]
+    rows = np.empty((npos + extra, d))
+    np.multiply(sqrt_pos[:, None], dev[pos], out=rows[:npos])
+    if extra:
+        rows[npos:] = noise_sqrt.T
     S = tria(rows)
     for i in neg:
-        if not np.all(S.diagonal() > 0):
+        if not (S.diagonal() > 0).all():
             raise error(
                 f"weight Wc[{i}] = {Wc[i]:.6g} is negative and the factor to downdate is singular",
                 errno=errno,
@@ -164,6 +162,26 @@ def factor_from_deviations(
                 errno=errno,
             ) from None
     return S
+
+
+_SPLITS: dict[int, tuple] = {}
+
+
+def _weight_split(Wc: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Indices of the positive weights, their square roots, and indices of the negative ones.
+
+    Cached per weight array: families hand out the same read-only arrays every step.
+    """
+    entry = _SPLITS.get(id(Wc))
+    if entry is not None and entry[0] is Wc:
+        return entry[1]
+    pos = np.flatnonzero(Wc > 0)
+    split = (pos, np.sqrt(Wc[pos]), np.flatnonzero(Wc < 0))
+    if not Wc.flags.writeable:
+        if len(_SPLITS) > 256:
+            _SPLITS.clear()
+        _SPLITS[id(Wc)] = (Wc, split)
+    return split
 
 
 def sqrt_unscented_transform(
@@ -199,6 +217,6 @@ def sqrt_unscented_transform(
         Lower factor of the transformed covariance.
     """
     mean, dev = mean_and_deviations(sigmas, Wm, mean_fn, residual_fn)
-    if not np.all(np.isfinite(dev)):
+    if not np.isfinite(dev).all():
         raise NonFiniteError("sigma-point deviations contain NaN or inf")
     return mean, factor_from_deviations(dev, Wc, noise_sqrt)

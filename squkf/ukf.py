@@ -386,7 +386,7 @@ class SquareRootUKF:
         x = self._x
         if x.dtype != np.float64 or x.shape != (self._dim_x,):
             x = self._x = self._as_state(x, "x")
-        elif not np.all(np.isfinite(x)):
+        elif not np.isfinite(x).all():
             raise NonFiniteError(f"x contains NaN or inf: {x!r}")
         return x, self._P.factor()
 
@@ -547,7 +547,7 @@ class SquareRootUKF:
                     f"z has length {arr.shape[0]} but dim_z is {self._dim_z} and R is {Rdim}x{Rdim};"
                     " pass R= (and hx=) for a measurement of another size"
                 )
-        if not np.all(np.isfinite(arr)):
+        if not np.isfinite(arr).all():
             raise NonFiniteError(f"z contains NaN or inf: {arr!r}")
         return arr
 
