@@ -139,8 +139,8 @@ def header() -> str:
         pass
     threads = os.environ.get("OMP_NUM_THREADS", "default")
     return (
-        f"Machine: {cpu}, {os.cpu_count()} cores; Python {platform.python_version()}, numpy {np.__version__}, "
-        f"scipy {scipy.__version__}, filterpy {filterpy.__version__}; BLAS threads: {threads}."
+        f"Machine: {cpu}, {os.cpu_count()} cores; Python {platform.python_version()}, "
+        f"numpy {np.__version__}, scipy {scipy.__version__}, filterpy {filterpy.__version__}; BLAS threads: {threads}."
     )
 
 
@@ -150,7 +150,8 @@ def write_results(out: Path, table, scale, dims, swept, P0s, skipped, impls) -> 
     if skipped:
         lines += ["Skipped peers: " + "; ".join(skipped), ""]
     lines += [
-        "| scenario | implementation | ms/step | library ms/step | ratio to filterpy | RMSE | NEES | failed at |",
+        "| scenario | implementation | ms/step | library ms/step | ratio to filterpy | RMSE | NEES "
+        "| failed at |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for (sc, name), r in table.items():

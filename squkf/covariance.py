@@ -124,10 +124,21 @@ class FactorSlot:
         Whether a singular covariance is acceptable (noise) or not (``P``).
     factor : ndarray or None
         Initial lower factor; None means a zero covariance (no noise).
+    singular_factor_ok : bool, optional
+        Whether a factor assigned directly may have zeros on its diagonal
+        (default: as ``semidefinite``).
     """
 
-    def __init__(self, name: str, dim: int | None, semidefinite: bool, factor: np.ndarray | None):
+    def __init__(
+        self,
+        name: str,
+        dim: int | None,
+        semidefinite: bool,
+        factor: np.ndarray | None,
+        singular_factor_ok: bool | None = None,
+    ):
         self.name = name
+        self.singular_factor_ok = semidefinite if singular_factor_ok is None else singular_factor_ok
         self.dim = dim
         self.semidefinite = semidefinite
         self._factor = factor
@@ -190,7 +201,7 @@ class FactorSlot:
         if value is None and self.semidefinite:
             self._factor, self._view, self._snap = None, None, None
             return
-        S = as_lower_factor(value, f"{self.name}1_2", self.dim, singular_ok=self.semidefinite)
+        S = as_lower_factor(value, f"{self.name}1_2", self.dim, singular_ok=self.singular_factor_ok)
         if self.semidefinite and not np.any(S):
             S = None
         self._factor, self._view, self._snap = S, None, None

@@ -53,10 +53,10 @@ def tria(rows: np.ndarray) -> np.ndarray:
     m = min(k, n)
     S = np.zeros((n, n))
     S[:, :m] = qr[:m].T
-    S[_strict_upper(n)] = 0.0  # below R's diagonal dgeqrf leaves its Householder vectors
     d = S.diagonal()
     if (d < 0).any():
         S *= np.where(d < 0, -1.0, 1.0)
+    S[_strict_upper(n)] = 0.0  # below R's diagonal dgeqrf leaves its Householder vectors
     return S
 
 

@@ -139,7 +139,7 @@ class SquareRootUKF:
         self._x = np.zeros(n)
         self._P = FactorSlot("P", n, semidefinite=False, factor=np.eye(n))
         self._Q = FactorSlot("Q", n, semidefinite=True, factor=np.eye(n))
-        self._R = FactorSlot("R", None, semidefinite=True, factor=np.eye(m))
+        self._R = FactorSlot("R", m, semidefinite=True, factor=np.eye(m), singular_factor_ok=False)
         self._machine = StepMachine()
         self._noise_cache = {}
 
@@ -500,8 +500,6 @@ class SquareRootUKF:
         P1_2_post : ndarray, shape (dim_x, dim_x)
         """
         z = self._as_measurement(z, R)
-        if R is not None and np.ndim(R) == 0:
-            R = float(R) * np.eye(z.shape[0])
         R1_2 = self._noise_factor(R, self._R, "R", z.shape[0])
         if R1_2 is None:
             R1_2 = np.zeros((z.shape[0], z.shape[0]))
