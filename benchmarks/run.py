@@ -140,7 +140,8 @@ def header() -> str:
     threads = os.environ.get("OMP_NUM_THREADS", "default")
     return (
         f"Machine: {cpu}, {os.cpu_count()} cores; Python {platform.python_version()}, "
-        f"numpy {np.__version__}, scipy {scipy.__version__}, filterpy {filterpy.__version__}; BLAS threads: {threads}."
+        f"numpy {np.__version__}, scipy {scipy.__version__}, filterpy {filterpy.__version__}; "
+        f"BLAS threads: {threads}."
     )
 
 

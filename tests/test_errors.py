@@ -14,9 +14,9 @@ from squkf import (
     NotPositiveDefiniteError,
     ParameterError,
     ShapeError,
+    SquareRootUKF,
     SqukfError,
     SqukfValueError,
-    SquareRootUKF,
 )
 
 Q = np.diag([0.1, 0.01, 0.1, 0.01, 1e-6])

@@ -5,7 +5,7 @@ from filterpy.kalman import KalmanFilter, MerweScaledSigmaPoints, UnscentedKalma
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from squkf import MerweScaledWeights, SqukfError, SquareRootUKF
+from squkf import MerweScaledWeights, SquareRootUKF, SqukfError
 
 EPS = np.finfo(float).eps
 
