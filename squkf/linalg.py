@@ -51,22 +51,26 @@ def tria(rows: np.ndarray) -> np.ndarray:
     if info != 0:  # pragma: no cover - LAPACK argument error, cannot happen here
         raise RuntimeError(f"LAPACK dgeqrf failed with info={info}")
     m = min(k, n)
-    S = np.zeros((n, n))
-    S[:, :m] = qr[:m].T
+    if m == n:
+        # below R's diagonal dgeqrf leaves its Householder vectors: keep the triangle only
+        S = qr[:n].T * _lower_mask(n)
+    else:
+        S = np.zeros((n, n))
+        S[:, :m] = qr[:m].T
+        S *= _lower_mask(n)
     d = S.diagonal()
     if (d < 0).any():
         S *= np.where(d < 0, -1.0, 1.0)
-    S[_strict_upper(n)] = 0.0  # below R's diagonal dgeqrf leaves its Householder vectors
     return S
 
 
-_UPPER_MASKS: dict[int, np.ndarray] = {}
+_LOWER_MASKS: dict[int, np.ndarray] = {}
 
 
-def _strict_upper(n: int) -> np.ndarray:
-    mask = _UPPER_MASKS.get(n)
+def _lower_mask(n: int) -> np.ndarray:
+    mask = _LOWER_MASKS.get(n)
     if mask is None:
-        mask = _UPPER_MASKS[n] = np.triu(np.ones((n, n), dtype=bool), 1)
+        mask = _LOWER_MASKS[n] = np.tril(np.ones((n, n)))
     return mask
 
 

@@ -143,7 +143,7 @@ def factor_from_deviations(
     pos, sqrt_pos, neg = _weight_split(Wc)
     npos, d = pos.shape[0], dev.shape[1]
     extra = 0 if noise_sqrt is None else noise_sqrt.shape[1]
-    rows = np.empty((npos + extra, d))
+    rows = np.empty((npos + extra, d), order="F")  # LAPACK's layout: no copy in tria
     np.multiply(sqrt_pos[:, None], dev[pos], out=rows[:npos])
     if extra:
         rows[npos:] = noise_sqrt.T

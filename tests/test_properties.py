@@ -96,7 +96,7 @@ JUNK = st.one_of(
     value=JUNK,
 )
 def test_junk_inputs_raise_documented_errors_or_are_harmless(target, value):
-    f = SquareRootUKF(3, 2, 1.0, lambda x: x[:2] ** 2, lambda x, dt: x + dt, MerweScaledWeights())
+    f = SquareRootUKF(3, 2, 1.0, lambda x: np.tanh(x[:2]), lambda x, dt: x + dt, MerweScaledWeights())
     f.x, f.P, f.Q, f.R = np.ones(3), np.eye(3), np.eye(3) * 0.1, np.eye(2)
     try:
         if target == "z":
