@@ -44,6 +44,8 @@ def as_matrix(value, name: str, dim: int | None) -> np.ndarray:
     except (TypeError, ValueError) as exc:
         raise ShapeError(f"{name} must be a float matrix: {exc}") from None
     if A.ndim == 0 and dim is not None:
+        if not np.isfinite(A):
+            raise NonFiniteError(f"{name} is not finite: {float(A)!r}")
         A = A * np.eye(dim)
     if A.ndim != 2 or A.shape[0] != A.shape[1] or (dim is not None and A.shape[0] != dim):
         want = f"({dim}, {dim})" if dim is not None else "square"
@@ -87,6 +89,8 @@ def as_lower_factor(value, name: str, dim: int | None, singular_ok: bool) -> np.
     except (TypeError, ValueError) as exc:
         raise ShapeError(f"{name} must be a float matrix: {exc}") from None
     if S.ndim == 0 and dim is not None:
+        if not np.isfinite(S):
+            raise NonFiniteError(f"{name} is not finite: {float(S)!r}")
         S = S * np.eye(dim)
     if S.ndim != 2 or S.shape[0] != S.shape[1] or (dim is not None and S.shape[0] != dim):
         want = f"({dim}, {dim})" if dim is not None else "square"
