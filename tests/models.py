@@ -78,3 +78,36 @@ def l96_fx(x, dt, F=8.0):
 def l96_hx(x):
     """Every other component observed."""
     return x[::2].copy()
+
+
+FILTER_STATE = (
+    "x",
+    "P1_2",
+    "Q1_2",
+    "R1_2",
+    "x_prior",
+    "P1_2_prior",
+    "x_post",
+    "P1_2_post",
+    "K",
+    "y",
+    "S1_2",
+    "sigmas_f",
+    "sigmas_h",
+)
+
+
+def filter_state(f) -> dict:
+    """Copies of everything a failed call must leave unchanged."""
+    snap = {k: np.array(getattr(f, k), copy=True) for k in FILTER_STATE}
+    snap["phase"] = f._machine.phase
+    snap["log_likelihood"] = f.log_likelihood
+    return snap
+
+
+def assert_filter_state(f, snap: dict) -> None:
+    """The filter is bit for bit as in ``snap``."""
+    for k in FILTER_STATE:
+        np.testing.assert_array_equal(np.asarray(getattr(f, k)), snap[k], err_msg=k)
+    assert f._machine.phase == snap["phase"]
+    assert f.log_likelihood == snap["log_likelihood"]

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from models import ct_fx, ct_hx
+from models import assert_filter_state, ct_fx, ct_hx, filter_state
 
 from squkf import (
     CallSequenceError,
@@ -21,21 +21,6 @@ from squkf import (
 
 Q = np.diag([0.1, 0.01, 0.1, 0.01, 1e-6])
 R = np.diag([25.0, 0.002**2])
-STATE = (
-    "x",
-    "P1_2",
-    "Q1_2",
-    "R1_2",
-    "x_prior",
-    "P1_2_prior",
-    "x_post",
-    "P1_2_post",
-    "K",
-    "y",
-    "S1_2",
-    "sigmas_f",
-    "sigmas_h",
-)
 
 
 def make(vectorized=False, points=None, **kw):
@@ -55,20 +40,6 @@ def make(vectorized=False, points=None, **kw):
     return f
 
 
-def snapshot(f):
-    snap = {k: np.array(getattr(f, k), copy=True) for k in STATE}
-    snap["phase"] = f._machine.phase
-    snap["ll"] = f.log_likelihood
-    return snap
-
-
-def assert_intact(f, snap):
-    for k in STATE:
-        np.testing.assert_array_equal(np.asarray(getattr(f, k)), snap[k], err_msg=k)
-    assert f._machine.phase == snap["phase"]
-    assert f.log_likelihood == snap["ll"]
-
-
 def still_works(f):
     f.update(ct_hx(f.x) + 0.5)
     f.predict()
@@ -76,11 +47,11 @@ def still_works(f):
 
 
 def check(f, action, error, match=None):
-    snap = snapshot(f)
+    snap = filter_state(f)
     with pytest.raises(error, match=match) as info:
         action(f)
     assert isinstance(info.value, SqukfError) or error not in (SqukfError,)
-    assert_intact(f, snap)
+    assert_filter_state(f, snap)
     still_works(f)
     return info.value
 
@@ -200,11 +171,11 @@ def test_failed_negative_weight_downdate():
     X = f.ask_predict()
     F = np.array([ct_fx(x, 1.0) for x in X])
     F[0] += [5e4, 0, 0, 0, 0]  # the central point far from the rest: Wc[0] < 0 dominates
-    snap = snapshot(f)
+    snap = filter_state(f)
     with pytest.raises(DowndateError) as info:
         f.tell_predict(F)
     assert info.value.errno == 301 and isinstance(info.value, np.linalg.LinAlgError)
-    assert_intact(f, snap)
+    assert_filter_state(f, snap)
     f.tell_predict([ct_fx(x, 1.0) for x in X])
 
 
