@@ -1,4 +1,7 @@
-"""The implementations compared: SquareRootUKF variants, filterpy's UKF, and installed peers."""
+"""The implementations compared: SquareRootUKF variants, filterpy's UKF, and installed peers.
+
+Adapters for kalman-py, nrl-tracker and Stone Soup are in ``peers_external.py``.
+"""
 
 from __future__ import annotations
 
@@ -56,7 +59,9 @@ def _squkf(scheme: str, vectorized: bool) -> Impl:
 
 
 def implementations() -> tuple[list[Impl], list[str]]:
-    """The implementations available here, and the peers skipped (not installed / not wired)."""
+    """The implementations available here, and the peers skipped (not installed)."""
+    from peers_external import external_impls
+
     impls = [_filterpy_like("filterpy", "filterpy UKF")]
     for scheme in ("redrawn", "augmented"):
         for vec in (False, True):
@@ -66,13 +71,5 @@ def implementations() -> tuple[list[Impl], list[str]]:
         impls.append(_filterpy_like("bayesian_filters", "bayesian-filters UKF"))
     else:
         skipped.append("bayesian-filters (not installed)")
-    for mod, label in (
-        ("kalman", "kalman-py"),
-        ("TrackerComponentLibrary", "nrl-tracker"),
-        ("stonesoup", "Stone Soup"),
-    ):
-        if importlib.util.find_spec(mod) is None:
-            skipped.append(f"{label} (not installed)")
-        else:
-            skipped.append(f"{label} (installed, adapter not written yet)")
-    return impls, skipped
+    more, missing = external_impls()
+    return impls + more, skipped + missing

@@ -1,30 +1,61 @@
-"""Speed, accuracy and robustness of SquareRootUKF against filterpy's UKF, in one run.
+"""Speed, accuracy and robustness of SquareRootUKF against filterpy's UKF and its peers, in one run.
 
-    python benchmarks/run.py            # full run, results in benchmarks/results/
-    python benchmarks/run.py --quick    # smoke test (CI), a few seconds
+    python benchmarks/run.py            # full run (~10 min), results in benchmarks/results/
+    python benchmarks/run.py --quick    # smoke test (CI), well under a minute
 
 Implementations are interleaved over repetitions in one process; times are
 medians of time per predict+update step, and ratios to filterpy are taken per
-repetition (median of the ratios). The time spent inside the user's fx and
-hx is measured by wrapping them, and the library's own time is the rest.
-Peers other than filterpy are used when installed (``pip install -e
-".[bench]"``); those not installed are listed as skipped.
+repetition (median of the ratios). Only the steps are timed (reading the
+state for RMSE and NEES is not). The time spent inside the user's fx and hx is
+measured by wrapping them, and the library's own time is the rest.
+
+BLAS is pinned to one thread for the main tables (``--threads 1``, set before
+numpy is imported); a second speed table is measured in a subprocess with the
+BLAS library's default threading. Peers are used when installed
+(``pip install -e ".[bench]"``); those not installed are listed as skipped.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
+import subprocess
 import sys
 import time
 from pathlib import Path
 
-import numpy as np
+HERE = Path(__file__).resolve().parent
+THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS")
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+# targets of issue 6, as ratios to filterpy: (per-point, vectorised) per scenario
+TARGETS = {
+    "g13ej robot n=3": (0.4, 0.25),
+    "coordinated turn n=5": (0.4, 0.25),
+    "Lorenz-96 n=40": (0.7, 0.05),
+}
 
-from models import SCENARIOS, near_singular  # noqa: E402
+
+def _parse(argv):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="tiny sizes, for CI")
+    ap.add_argument("--out", default=str(HERE / "results"))
+    ap.add_argument("--threads", default="1", help="BLAS threads: a number, or 'default' (leave as is)")
+    ap.add_argument("--speed-only", action="store_true", help="only the speed table, as JSON on stdout")
+    return ap.parse_args(argv)
+
+
+ARGS = _parse(sys.argv[1:]) if __name__ == "__main__" else None
+if ARGS is not None and ARGS.threads != "default":
+    for var in THREAD_VARS:  # must happen before numpy loads its BLAS
+        os.environ[var] = ARGS.threads
+
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(HERE))
+
+from models import SCENARIOS, Lorenz96, near_singular  # noqa: E402
 from peers import implementations  # noqa: E402
 
 
@@ -44,29 +75,30 @@ class Timed:
 
 
 def run_one(impl, sc, steps: int, seed: int) -> dict:
-    """Filter one simulated run; time it; return time/step, model time/step, RMSE, NEES, failure."""
+    """Filter one simulated run; time the steps; return time/step, model time/step, RMSE, NEES, failure."""
     truth, zs = sc.simulate(steps, seed)
     fx, hx = (Timed(sc.fx_vec), Timed(sc.hx_vec)) if impl.vectorized else (Timed(sc.fx), Timed(sc.hx))
     f = impl.make(sc, fx, hx)
     est, nees, failed = [], [], None
-    t0 = time.perf_counter()
+    total = 0.0
     for k, z in enumerate(zs):
+        t0 = time.perf_counter()
         try:
             impl.step(f, z)
         except Exception as exc:  # noqa: BLE001 - a benchmark records every failure
             failed = (k, type(exc).__name__)
             break
+        total += time.perf_counter() - t0
         x, P = impl.state(f)
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
             failed = (k, "non-finite")
             break
-        est.append(x)
-        e = x - truth[k]
+        est.append(np.array(x, dtype=float))
+        e = est[-1] - truth[k]
         try:
             nees.append(float(e @ np.linalg.solve(P, e)))
         except np.linalg.LinAlgError:
             nees.append(np.inf)
-    total = time.perf_counter() - t0
     done = max(len(est), 1)
     est = np.array(est) if est else np.zeros((0, truth.shape[1]))
     rmse = float(np.sqrt(np.mean((est - truth[: len(est)]) ** 2))) if len(est) else np.nan
@@ -101,16 +133,18 @@ def compare(scenarios, impls, steps, reps) -> dict:
     return table
 
 
-def scaling(impls, dims, steps) -> dict:
-    """Time per step against dim_x on Lorenz-96 (every other component observed)."""
-    from models import Lorenz96
-
+def scaling(impls, dims, steps, reps) -> dict:
+    """Median time per step against dim_x on Lorenz-96 (every other component observed)."""
     out = {impl.name: [] for impl in impls}
     for n in dims:
         sc = Lorenz96(n)
-        for impl in impls:
-            r = run_one(impl, sc, steps, seed=0)
-            out[impl.name].append(np.nan if r["failed"] else r["t"])
+        times = {impl.name: [] for impl in impls}
+        for rep in range(reps):
+            for impl in impls:
+                r = run_one(impl, sc, steps, seed=rep)
+                times[impl.name].append(np.nan if r["failed"] else r["t"])
+        for name, ts in times.items():
+            out[name].append(float(np.median(ts)))
     return out
 
 
@@ -125,7 +159,7 @@ def sweep(impls, P0s, steps) -> dict:
     return out
 
 
-def header() -> str:
+def header(threads: str) -> str:
     import filterpy
     import scipy
 
@@ -137,7 +171,6 @@ def header() -> str:
                 break
     except OSError:
         pass
-    threads = os.environ.get("OMP_NUM_THREADS", "default")
     return (
         f"Machine: {cpu}, {os.cpu_count()} cores; Python {platform.python_version()}, "
         f"numpy {np.__version__}, scipy {scipy.__version__}, filterpy {filterpy.__version__}; "
@@ -145,9 +178,38 @@ def header() -> str:
     )
 
 
-def write_results(out: Path, table, scale, dims, swept, P0s, skipped, impls) -> None:
+def _slope(dims, ts) -> float | None:
+    ts = np.asarray(ts, dtype=float)
+    ok = np.isfinite(ts)
+    if ok.sum() < 2:
+        return None
+    return float(np.polyfit(np.log(np.asarray(dims)[ok]), np.log(ts[ok]), 1)[0])
+
+
+def targets_section(table) -> list[str]:
+    """Each target of the issue beside the ratio reached (squkf's default redrawn scheme)."""
+    lines = [
+        "## Targets (ratio to filterpy; squkf redrawn, the default)",
+        "",
+        "| scenario | per-point target | reached | vectorised target | reached |",
+        "|---|---|---|---|---|",
+    ]
+    for sc, (t_pp, t_vec) in TARGETS.items():
+        pp = table.get((sc, "squkf redrawn per-point"))
+        vec = table.get((sc, "squkf redrawn vectorised"))
+        if pp is None or vec is None:
+            continue
+
+        def cell(r, t):
+            return f"{r['ratio']:.2f} ({'met' if r['ratio'] <= t else 'not met'})"
+
+        lines.append(f"| {sc} | <= {t_pp} | {cell(pp, t_pp)} | <= {t_vec} | {cell(vec, t_vec)} |")
+    return lines + [""]
+
+
+def write_results(out: Path, table, scale, dims, swept, P0s, skipped, impls, threaded) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    lines = ["# Benchmark results", "", header(), ""]
+    lines = ["# Benchmark results", "", header(ARGS.threads if ARGS else "1"), ""]
     if skipped:
         lines += ["Skipped peers: " + "; ".join(skipped), ""]
     lines += [
@@ -161,7 +223,19 @@ def write_results(out: Path, table, scale, dims, swept, P0s, skipped, impls) -> 
             f"| {sc} | {name} | {r['t_ms']:.3f} | {r['own_ms']:.3f} | {r['ratio']:.2f} | "
             f"{r['rmse']:.3g} | {r['nees']:.3g} | {fail} |"
         )
-    lines += ["", "## Near-singular sweep (R = 1e-12 I, Q = 1e-14 I)", ""]
+    lines += [""] + targets_section(table)
+    if threaded:
+        lines += [
+            "## Default BLAS threading (same runs, measured in a subprocess)",
+            "",
+            "| scenario | implementation | ms/step, default threads | ratio to filterpy, default threads |",
+            "|---|---|---|---|",
+        ]
+        for key, r in threaded.items():
+            sc, name = key.split(" || ")
+            lines.append(f"| {sc} | {name} | {r['t_ms']:.3f} | {r['ratio']:.2f} |")
+        lines.append("")
+    lines += ["## Near-singular sweep (R = 1e-12 I, Q = 1e-14 I)", ""]
     lines += ["| P0 | " + " | ".join(i.name for i in impls) + " |", "|---" * (len(impls) + 1) + "|"]
     for p0 in P0s:
         cells = [
@@ -171,9 +245,8 @@ def write_results(out: Path, table, scale, dims, swept, P0s, skipped, impls) -> 
         lines.append(f"| {p0:.0e} I | " + " | ".join(cells) + " |")
     lines += ["", "## Growth with dim_x (Lorenz-96)", ""]
     for name, ts in scale.items():
-        ok = np.isfinite(ts)
-        if ok.sum() >= 2:
-            slope = np.polyfit(np.log(np.array(dims)[ok]), np.log(np.array(ts)[ok]), 1)[0]
+        slope = _slope(dims, ts)
+        if slope is not None:
             lines.append(f"- {name}: time ~ dim_x^{slope:.2f}")
     (out / "results.md").write_text("\n".join(lines) + "\n")
     _plots(out, scale, dims, swept, P0s, impls)
@@ -185,26 +258,29 @@ def _plots(out, scale, dims, swept, P0s, impls) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6, 4), dpi=90)
+    fig, ax = plt.subplots(figsize=(7, 4.5), dpi=90)
     for name, ts in scale.items():
         ts = np.array(ts)
         ok = np.isfinite(ts)
-        label = name
-        if ok.sum() >= 2:
-            slope = np.polyfit(np.log(np.array(dims)[ok]), np.log(ts[ok]), 1)[0]
-            label = f"{name} (slope {slope:.2f})"
-        ax.loglog(np.array(dims)[ok], 1e3 * ts[ok], "o-", label=label)
-    ax.set_xlabel("dim_x (Lorenz-96)")
+        slope = _slope(dims, ts)
+        label = name if slope is None else f"{name} (slope {slope:.2f})"
+        style = "o-" if name.startswith("squkf") else "s--"
+        ax.loglog(np.array(dims)[ok], 1e3 * ts[ok], style, label=label, ms=4)
+    ax.set_xlabel("dim_x (Lorenz-96, every other component observed)")
     ax.set_ylabel("ms per predict+update")
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=6)
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     fig.savefig(out / "scaling.png")
     plt.close(fig)
 
-    fig, ax = plt.subplots(figsize=(6, 0.5 + 0.4 * len(impls)), dpi=90)
+    fig, ax = plt.subplots(figsize=(6, 0.6 + 0.35 * len(impls)), dpi=90)
     grid = np.array([[0.0 if swept[(p, i.name)] is None else 1.0 for p in P0s] for i in impls])
     ax.imshow(grid, cmap="RdYlGn_r", vmin=0, vmax=1, aspect="auto")
+    for i, impl in enumerate(impls):
+        for j, p in enumerate(P0s):
+            f = swept[(p, impl.name)]
+            ax.text(j, i, "ok" if f is None else f"step {f[0]}", ha="center", va="center", fontsize=6)
     ax.set_xticks(range(len(P0s)), [f"{p:.0e}" for p in P0s])
     ax.set_yticks(range(len(impls)), [i.name for i in impls], fontsize=7)
     ax.set_xlabel("P0 (times I); red = failed, green = completed")
@@ -213,23 +289,46 @@ def _plots(out, scale, dims, swept, P0s, impls) -> None:
     plt.close(fig)
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="tiny sizes, for CI")
-    ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results"))
-    args = ap.parse_args(argv)
+def _sizes(quick: bool) -> dict:
+    if quick:
+        return {"steps": 20, "reps": 2, "dims": [2, 4, 8], "scale_steps": 5, "scale_reps": 1, "sweep": 200}
+    return {
+        "steps": 200,
+        "reps": 7,
+        "dims": [2, 4, 8, 16, 32, 64, 100],
+        "scale_steps": 20,
+        "scale_reps": 3,
+        "sweep": 2000,
+    }
+
+
+def _scenarios(quick: bool):
+    return [sc for sc in SCENARIOS() if not (quick and sc.name.startswith("Lorenz"))]
+
+
+def _threaded_table(quick: bool) -> dict:
+    """The speed table measured with the BLAS library's default threading (a subprocess)."""
+    env = {k: v for k, v in os.environ.items() if k not in THREAD_VARS}
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--threads", "default", "--speed-only"]
+    if quick:
+        cmd.append("--quick")
+    res = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True)
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def main() -> int:
+    args = ARGS
     impls, skipped = implementations()
-    if args.quick:
-        steps, reps, dims, scale_steps, sweep_steps = 20, 2, [2, 4, 8], 5, 200
-        scen = [sc for sc in SCENARIOS() if sc.name != "Lorenz-96 n=40"]
-    else:
-        steps, reps, dims, scale_steps, sweep_steps = 200, 7, [2, 4, 8, 16, 32, 64, 100], 20, 2000
-        scen = SCENARIOS()
+    size = _sizes(args.quick)
+    table = compare(_scenarios(args.quick), impls, size["steps"], size["reps"])
+    if args.speed_only:
+        print(json.dumps({f"{sc} || {name}": r for (sc, name), r in table.items()}))
+        return 0
+    threaded = _threaded_table(args.quick) if args.threads != "default" else {}
+    scale = scaling(impls, size["dims"], size["scale_steps"], size["scale_reps"])
     P0s = [1e2, 1e3, 1e4, 1e5, 1e6]
-    table = compare(scen, impls, steps, reps)
-    scale = scaling(impls, dims, scale_steps)
-    swept = sweep(impls, P0s, sweep_steps)
-    write_results(Path(args.out), table, scale, dims, swept, P0s, skipped, impls)
+    swept = sweep(impls, P0s, size["sweep"])
+    write_results(Path(args.out), table, scale, size["dims"], swept, P0s, skipped, impls, threaded)
     print((Path(args.out) / "results.md").read_text())
     return 0
 

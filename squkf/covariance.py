@@ -147,7 +147,7 @@ class FactorSlot:
         self.semidefinite = semidefinite
         self._factor = factor
         self._view = None  # the matrix last handed out
-        self._snap = None  # its value when handed out
+        self._snap = None  # its bytes when handed out (compared to see in-place edits)
 
     def _size(self) -> int:
         if self._factor is not None:
@@ -158,7 +158,7 @@ class FactorSlot:
 
     def factor(self) -> np.ndarray | None:
         """The current lower factor (None: zero covariance), after absorbing in-place edits."""
-        if self._view is not None and not np.array_equal(self._view, self._snap):
+        if self._view is not None and self._view.tobytes() != self._snap:
             self.set_matrix(self._view)
         return self._factor
 
@@ -169,7 +169,7 @@ class FactorSlot:
             S = self._factor
             n = self._size()
             self._view = S @ S.T if S is not None else np.zeros((n, n))
-            self._snap = self._view.copy()
+            self._snap = self._view.tobytes()
         return self._view
 
     def set_matrix(self, value) -> None:
@@ -194,7 +194,7 @@ class FactorSlot:
                 raise
         self._factor = S
         self._view = A
-        self._snap = A.copy()
+        self._snap = A.tobytes()
 
     def _forget_view(self):
         # a rejected in-place edit must not be retried on every later call

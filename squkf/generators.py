@@ -22,18 +22,25 @@ which is identical to the downdate form only when it holds.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from .errors import ParameterError
 from .weights import as_family
 
-__all__ = ["SigmaSet", "Redrawn", "Augmented", "Propagated", "as_generator", "sigma_points_from_factor"]
+__all__ = [
+    "SigmaSet",
+    "Redrawn",
+    "Augmented",
+    "Propagated",
+    "as_generator",
+    "sigma_points_from_factor",
+    "sigma_points_and_offsets",
+]
 
 
-@dataclass(frozen=True)
-class SigmaSet:
+class SigmaSet(NamedTuple):
     """A set of sigma points and weights.
 
     Attributes
@@ -43,12 +50,47 @@ class SigmaSet:
     moments_exact : bool
         The points' weighted mean and covariance are exactly the ``x`` and
         ``S @ S.T`` they were drawn for.
+    offsets : ndarray, shape (N, n), or None
+        ``sigmas - x`` as the generator formed it (``xi @ S.T``), before the
+        rounding of adding ``x``; None when it is not known. The update uses
+        it for the points' deviations, which keeps their spread when ``x`` is
+        large compared with it.
     """
 
     sigmas: np.ndarray
     Wm: np.ndarray
     Wc: np.ndarray
     moments_exact: bool
+    offsets: np.ndarray | None = None
+
+
+def sigma_points_and_offsets(
+    x: np.ndarray, S: np.ndarray, xi: np.ndarray, state_add=None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Sigma points ``x + xi[i] @ S.T`` (one per row) and their offsets ``xi @ S.T``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (n,)
+    S : ndarray, shape (n, n)
+        Lower factor of the covariance.
+    xi : ndarray, shape (N, n)
+        Unit sigma points.
+    state_add : callable ``state_add(x, dx)``, optional
+        Called once per point when given (angles, manifolds).
+
+    Returns
+    -------
+    sigmas : ndarray, shape (N, n)
+    offsets : ndarray, shape (N, n)
+    """
+    dx = xi @ S.T
+    if state_add is None or state_add is np.add:
+        return dx + x, dx
+    out = np.empty_like(dx)
+    for i, d in enumerate(dx):
+        out[i] = state_add(x, d)
+    return out, dx
 
 
 def sigma_points_from_factor(x: np.ndarray, S: np.ndarray, xi: np.ndarray, state_add=None) -> np.ndarray:
@@ -131,8 +173,8 @@ class Redrawn:
         if entry is None or entry[0] is not fam:
             entry = self._exact[(id(fam), n)] = (fam, _identity_moments(fam, n))
         Wm, Wc = fam.weights(n)
-        sigmas = sigma_points_from_factor(x, S, fam.unit_sigma_points(n), state_add)
-        return SigmaSet(sigmas, Wm, Wc, entry[1])
+        sigmas, offsets = sigma_points_and_offsets(x, S, fam.unit_sigma_points(n), state_add)
+        return SigmaSet(sigmas, Wm, Wc, entry[1], offsets)
 
 
 class Augmented:

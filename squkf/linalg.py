@@ -11,12 +11,15 @@ at the boundary of the library.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.linalg import lapack
 
 from .errors import DowndateError, GainError, NotPositiveDefiniteError
 
 __all__ = [
+    "all_finite",
     "tria",
     "chol_update",
     "chol_downdate_columns",
@@ -29,6 +32,24 @@ _dgeqrf = lapack.get_lapack_funcs("geqrf", dtype=np.float64)
 _dtrtrs = lapack.get_lapack_funcs("trtrs", dtype=np.float64)
 _dpotrf = lapack.get_lapack_funcs("potrf", dtype=np.float64)
 _TINY = np.finfo(float).tiny
+
+
+def all_finite(a: np.ndarray) -> bool:
+    """Whether every entry of ``a`` is finite.
+
+    One BLAS dot product decides in the usual case: a NaN or an infinity
+    makes ``a . a`` non-finite. Only when it overflows (entries beyond about
+    1e154) is every entry tested.
+
+    Parameters
+    ----------
+    a : ndarray of float
+
+    Returns
+    -------
+    bool
+    """
+    return math.isfinite(np.vdot(a, a)) or bool(np.isfinite(a).all())
 
 
 def tria(rows: np.ndarray) -> np.ndarray:
@@ -47,20 +68,23 @@ def tria(rows: np.ndarray) -> np.ndarray:
         ``n - k`` columns are zero.
     """
     k, n = rows.shape
-    qr, _, _, info = _dgeqrf(rows, overwrite_a=1)
+    # LAPACK's blocked QR needs a workspace of n * block size; below ~16 columns
+    # the unblocked code (scipy's default workspace) is faster
+    if n >= 16:
+        qr, _, _, info = _dgeqrf(rows, lwork=32 * n, overwrite_a=1)
+    else:
+        qr, _, _, info = _dgeqrf(rows, overwrite_a=1)
     if info != 0:  # pragma: no cover - LAPACK argument error, cannot happen here
         raise RuntimeError(f"LAPACK dgeqrf failed with info={info}")
-    m = min(k, n)
-    if m == n:
+    if k >= n:
         # below R's diagonal dgeqrf leaves its Householder vectors: keep the triangle only
         S = qr[:n].T * _lower_mask(n)
     else:
         S = np.zeros((n, n))
-        S[:, :m] = qr[:m].T
+        S[:, :k] = qr.T
         S *= _lower_mask(n)
-    d = S.diagonal()
-    if (d < 0).any():
-        S *= np.where(d < 0, -1.0, 1.0)
+    # a column's sign does not change S @ S.T: make the diagonal non-negative
+    S *= np.copysign(1.0, S.diagonal())
     return S
 
 

@@ -30,7 +30,7 @@ from .errors import ShapeError
 from .generators import _identity_moments, sigma_points_from_factor
 from .linalg import chol_downdate_columns, kalman_gain, tria
 from .step import check_values
-from .transform import deviations, factor_from_deviations, mean_and_deviations
+from .transform import deviations, factor_from_deviations, sqrt_unscented_transform
 
 __all__ = ["rts_smoother", "rts_smoother_factors"]
 
@@ -124,12 +124,9 @@ def rts_smoother_factors(ukf, Xs, P1_2s, Qs=None, dts=None, UT=None, fx_args=Non
         x, S = Xs[k], S_in[k]
         X = sigma_points_from_factor(x, S, xi, state_add)
         F = check_values(ukf._evaluate(ukf.fx, X, (dts[k + 1],), fx_args[k + 1] or {}), X.shape, "fx values")
-        if UT is None:
-            x_pred, dF = mean_and_deviations(F, Wm, ukf.x_mean, residual_x)
-            S_pred = factor_from_deviations(dF, Wc, Q1_2)
-        else:
-            x_pred, S_pred = UT(F, Wm, Wc, Q1_2, ukf.x_mean, residual_x)
-            dF = deviations(F, x_pred, residual_x)
+        ut = sqrt_unscented_transform if UT is None else UT
+        x_pred, S_pred = ut(F, Wm, Wc, Q1_2, ukf.x_mean, residual_x)
+        dF = deviations(F, x_pred, residual_x)
         dX = deviations(X, x, residual_x)
         C = (dX.T * Wc) @ dF
         G = kalman_gain(C, S_pred)

@@ -28,8 +28,9 @@ import numpy as np
 
 from .errors import CallSequenceError, NonFiniteError, ShapeError
 from .generators import SigmaSet, sigma_points_from_factor
+from .linalg import all_finite
 from .measurement import Posterior, measurement_update
-from .transform import factor_from_deviations, mean_and_deviations
+from .transform import transform_factor, weight_plan
 
 __all__ = ["StepMachine", "check_values"]
 
@@ -69,12 +70,9 @@ def check_values(values, shape: tuple[int, int], name: str) -> np.ndarray:
             arr = arr.reshape(shape)
         else:
             raise ShapeError(f"{name} has shape {arr.shape}, expected {shape} (one row per sigma point)")
-    if not np.isfinite(arr).all():
-        bad = np.argwhere(~np.isfinite(arr))[0]
-        raise NonFiniteError(
-            f"{name} is not finite: row {bad[0]} (sigma point {bad[0]}), column {bad[1]} "
-            f"holds {arr[bad[0], bad[1]]}"
-        )
+    if not all_finite(arr):
+        i, j = np.argwhere(~np.isfinite(arr))[0]
+        raise NonFiniteError(f"{name} is not finite: row {i} (sigma point {i}), column {j} holds {arr[i, j]}")
     return arr
 
 
@@ -95,8 +93,8 @@ class StepMachine:
         self._first_weights = None  # (Wm, Wc) of the pending first set
         self._propagated = None  # first-set images, for the augmented set
         self._Q1_2 = None  # process noise of the last prediction
-        self._sset = None  # pending second set
-        self._prior = None  # (x, S) the pending second set was drawn from
+        self._sset = None  # second set drawn (at tell_predict, or by ask_update)
+        self._prior = None  # (x, bytes of x, S) that set was drawn from
         self.sigmas_h = None  # images of the last second set told
 
     def snapshot(self) -> dict:
@@ -182,18 +180,43 @@ class StepMachine:
         F = check_values(values, (N, n), name)
         Wm, Wc = self._first_weights
         if UT is None:
-            x, dev = mean_and_deviations(F, Wm, x_mean_fn, residual_x)
-            S = factor_from_deviations(dev, Wc, Q1_2, errno=301)
+            x, S = transform_factor(F, weight_plan(Wm, Wc), Q1_2, x_mean_fn, residual_x, errno=301)
         else:
             x, S = UT(F, Wm, Wc, Q1_2, x_mean_fn, residual_x)
             x = np.asarray(x, dtype=float).reshape(n)
             S = np.asarray(S, dtype=float).reshape(n, n)
-        if not (np.isfinite(x).all() and np.isfinite(S).all()):
+        if not (all_finite(x) and all_finite(S)):
             raise NonFiniteError("the predicted mean or factor is not finite")
         self.phase = PRIOR
         self._propagated = F
         self._Q1_2 = Q1_2
         return x, S
+
+    def draw_second_set(self, x: np.ndarray, S: np.ndarray, family, generator, state_add=None) -> SigmaSet:
+        """Draw the second set for ``(x, S)`` now (``ask_update`` hands it out if they are unchanged).
+
+        Called by the facade straight after :meth:`tell_predict`, since filterpy
+        shows the second set in ``sigmas_f`` as soon as the prediction is done.
+
+        Parameters
+        ----------
+        x : ndarray, shape (n,)
+        S : ndarray, shape (n, n)
+        family : sigma-point family of the first set
+        generator : second-set generator
+        state_add : callable, optional
+
+        Returns
+        -------
+        SigmaSet
+        """
+        propagated = self._propagated if self.phase in (PRIOR, UPDATING) else None
+        sset = generator.second_set(
+            x, S, family=family, propagated=propagated, Q1_2=self._Q1_2, state_add=state_add
+        )
+        self._sset = sset
+        self._prior = (x.copy(), x.tobytes(), S)  # a copy: the caller's x may be edited in place
+        return sset
 
     # -- measurement update -------------------------------------------------
 
@@ -217,15 +240,18 @@ class StepMachine:
             raise CallSequenceError(
                 "ask_update called while a prediction is pending: tell_predict the fx values first"
             )
-        propagated = self._propagated if self.phase in (PRIOR, UPDATING) else None
-        sset = generator.second_set(
-            x, S, family=family, propagated=propagated, Q1_2=self._Q1_2, state_add=state_add
-        )
+        drawn = self._prior
+        if not (
+            self.phase in (PRIOR, UPDATING)
+            and drawn is not None
+            and drawn[2] is S
+            and drawn[0].shape == x.shape
+            and drawn[1] == x.tobytes()
+        ):
+            self.draw_second_set(x, S, family, generator, state_add)
         self.phase = UPDATING
-        self.sigmas = sset.sigmas
-        self._sset = sset
-        self._prior = (x.copy(), S.copy())
-        return sset
+        self.sigmas = self._sset.sigmas
+        return self._sset
 
     def tell_update(
         self,
@@ -262,7 +288,7 @@ class StepMachine:
             )
         m = z.shape[0]
         H = check_values(values, (self._sset.sigmas.shape[0], m), name)
-        x, S = self._prior
+        x, _, S = self._prior
         post = measurement_update(
             x,
             S,

@@ -12,7 +12,8 @@ import numpy as np
 from .covariance import FactorSlot
 from .errors import NonFiniteError, ParameterError, ShapeError
 from .generators import as_generator, sigma_points_from_factor
-from .linalg import solve_lower
+from .linalg import all_finite, solve_lower
+from .measurement import gain_from_factors
 from .step import PRIOR, StepMachine, check_values
 from .transform import deviations
 from .weights import as_family
@@ -137,6 +138,7 @@ class SquareRootUKF:
 
         n, m = self._dim_x, self._dim_z
         self._x = np.zeros(n)
+        self._x_bytes = b""  # the bytes of x when it was last found valid
         self._P = FactorSlot("P", n, semidefinite=False, factor=np.eye(n))
         self._Q = FactorSlot("Q", n, semidefinite=True, factor=np.eye(n))
         self._R = FactorSlot("R", m, semidefinite=True, factor=np.eye(m), singular_factor_ok=False)
@@ -149,7 +151,8 @@ class SquareRootUKF:
         self.P1_2_post = np.eye(n)
         self.sigmas_f = np.zeros((self._num_sigmas, n))
         self.sigmas_h = np.zeros((self._num_sigmas, m))
-        self.K = np.zeros((n, m))
+        self._K = np.zeros((n, m))
+        self._L21 = None  # K @ S1_2 of the last update: K is formed from it on request
         self.y = np.zeros(m)
         self.z = np.array([[None] * m]).T
         self.S1_2 = np.zeros((m, m))
@@ -318,6 +321,17 @@ class SquareRootUKF:
         W = solve_lower(self.S1_2, np.eye(m))
         return W.T @ W
 
+    @property
+    def K(self) -> np.ndarray:
+        """Kalman gain of the last update, shape ``(dim_x, dim_z)`` (formed on request)."""
+        if self._K is None:
+            self._K = gain_from_factors(self.S1_2, self._L21)
+        return self._K
+
+    @K.setter
+    def K(self, value):
+        self._K = value
+
     # -- likelihood ---------------------------------------------------------
 
     def _whitened_innovation(self) -> np.ndarray:
@@ -381,31 +395,26 @@ class SquareRootUKF:
             self._noise_cache[name] = (value, value.copy(), S)
         return S
 
+    def _set_trusted_x(self, x: np.ndarray) -> None:
+        """Install a mean computed by the filter itself (already checked)."""
+        self._x = x
+        self._x_bytes = x.tobytes()
+
     def _current(self) -> tuple[np.ndarray, np.ndarray]:
         """The current mean and factor, with in-place edits of ``x`` and ``P`` checked."""
         x = self._x
-        if x.dtype != np.float64 or x.shape != (self._dim_x,):
-            x = self._x = self._as_state(x, "x")
-        elif not np.isfinite(x).all():
-            raise NonFiniteError(f"x contains NaN or inf: {x!r}")
+        if x.tobytes() != self._x_bytes:  # assigned or edited in place since last checked
+            if x.dtype != np.float64 or x.shape != (self._dim_x,):
+                x = self._x = self._as_state(x, "x")
+            elif not all_finite(x):
+                raise NonFiniteError(f"x contains NaN or inf: {x!r}")
+            self._x_bytes = x.tobytes()
         return x, self._P.factor()
 
     def _evaluate(self, fn: Callable, sigmas: np.ndarray, args: tuple, kwargs: dict) -> object:
         if self.vectorized:
             return fn(sigmas, *args, **kwargs)
         return [fn(s, *args, **kwargs) for s in sigmas]
-
-    def _second_set_preview(self, x, S) -> np.ndarray:
-        # filterpy shows the second set in sigmas_f as soon as the prediction is done
-        sset = self._generator.second_set(
-            x,
-            S,
-            family=self._family,
-            propagated=self._machine._propagated,
-            Q1_2=self._machine._Q1_2,
-            state_add=self._hook(self.state_add, np.add),
-        )
-        return sset.sigmas
 
     @staticmethod
     def _hook(fn, default):
@@ -453,11 +462,14 @@ class SquareRootUKF:
                 residual_x=self._hook(self.residual_x, np.subtract),
                 UT=UT,
             )
-            preview = self._second_set_preview(x, S)
+            # filterpy shows the second set in sigmas_f as soon as the prediction is done
+            preview = self._machine.draw_second_set(
+                x, S, self._family, self._generator, self._hook(self.state_add, np.add)
+            ).sigmas
         except BaseException:
             self._machine.restore(snap)
             raise
-        self._x = x
+        self._set_trusted_x(x)
         self._P.set_trusted_factor(S)
         self.x_prior = x.copy()
         self.P1_2_prior = S
@@ -499,7 +511,10 @@ class SquareRootUKF:
         x_post : ndarray, shape (dim_x,)
         P1_2_post : ndarray, shape (dim_x, dim_x)
         """
-        z = self._as_measurement(z, R)
+        return self._tell_update(sigmas_h, self._as_measurement(z, R), R, UT)
+
+    def _tell_update(self, sigmas_h, z: np.ndarray, R, UT) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`tell_update` with ``z`` already validated."""
         R1_2 = self._noise_factor(R, self._R, "R", z.shape[0])
         if R1_2 is None:
             R1_2 = np.zeros((z.shape[0], z.shape[0]))
@@ -513,9 +528,10 @@ class SquareRootUKF:
             state_add=self._hook(self.state_add, np.add),
             UT=UT,
         )
-        self._x = post.x
+        self._set_trusted_x(post.x)
         self._P.set_trusted_factor(post.S)
-        self.K = post.K
+        self._K = None
+        self._L21 = post.L21
         self.y = post.y
         self.S1_2 = post.Sy
         self.sigmas_h = self._machine.sigmas_h
@@ -527,17 +543,23 @@ class SquareRootUKF:
         self._mahalanobis = None
         return self.x_post, _readonly(post.S)
 
-    def _as_measurement(self, z, R) -> np.ndarray:
+    def _as_measurement(self, z, R, missing_ok: bool = False) -> np.ndarray | None:
+        """``z`` as a float vector, checked; with ``missing_ok`` an all-NaN ``z`` gives None."""
         try:
             arr = np.array(z, dtype=float)
         except (TypeError, ValueError) as exc:
             raise ShapeError(f"z must be a float vector: {exc}") from None
-        if arr.ndim == 0:
-            arr = arr.reshape(1)
-        elif arr.ndim == 2 and 1 in arr.shape:
-            arr = arr.reshape(-1)
         if arr.ndim != 1:
-            raise ShapeError(f"z has shape {np.shape(z)}, expected ({self._dim_z},)")
+            if arr.ndim == 0:
+                arr = arr.reshape(1)
+            elif arr.ndim == 2 and 1 in arr.shape:
+                arr = arr.reshape(-1)
+            else:
+                raise ShapeError(f"z has shape {np.shape(z)}, expected ({self._dim_z},)")
+        if not all_finite(arr):
+            if missing_ok and np.isnan(arr).all():
+                return None
+            raise NonFiniteError(f"z contains NaN or inf: {arr!r}")
         if R is None and arr.shape[0] != self._dim_z:
             Rdim = self._R.factor_or_zeros().shape[0]
             if Rdim != arr.shape[0]:
@@ -545,8 +567,6 @@ class SquareRootUKF:
                     f"z has length {arr.shape[0]} but dim_z is {self._dim_z} and R is {Rdim}x{Rdim};"
                     " pass R= (and hx=) for a measurement of another size"
                 )
-        if not np.isfinite(arr).all():
-            raise NonFiniteError(f"z contains NaN or inf: {arr!r}")
         return arr
 
     # -- filterpy's methods ---------------------------------------------------
@@ -595,7 +615,8 @@ class SquareRootUKF:
         **hx_args
             Passed to ``hx``.
         """
-        if z is None or (np.ndim(z) > 0 and _all_nan(z)):
+        zz = None if z is None else self._as_measurement(z, R, missing_ok=np.ndim(z) > 0)
+        if zz is None:
             self._machine.skip_update()
             self.z = np.array([[None] * self._dim_z]).T
             self.x_post = self._x.copy()
@@ -604,10 +625,9 @@ class SquareRootUKF:
         hx = self.hx if hx is None else hx
         snap = self._machine.snapshot()
         try:
-            self._as_measurement(z, R)
             sigmas = self.ask_update()
             values = self._evaluate(hx, sigmas, (), hx_args)
-            self.tell_update(values, z, R=R, UT=UT)
+            self._tell_update(values, zz, R, UT)
         except BaseException:
             self._machine.restore(snap)
             raise
@@ -725,11 +745,3 @@ class SquareRootUKF:
                 pretty_str("z_mean", self.z_mean),
             ]
         )
-
-
-def _all_nan(z) -> bool:
-    try:
-        arr = np.asarray(z, dtype=float)
-    except (TypeError, ValueError):
-        return False
-    return bool(arr.size) and bool(np.all(np.isnan(arr)))

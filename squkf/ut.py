@@ -10,7 +10,7 @@ from .covariance import as_lower_factor
 from .errors import ShapeError
 from .generators import sigma_points_from_factor
 from .step import check_values
-from .transform import deviations, factor_from_deviations, mean_and_deviations
+from .transform import deviations, sqrt_unscented_transform
 from .weights import MerweScaledWeights, as_family
 
 __all__ = ["unscented_transform"]
@@ -89,9 +89,8 @@ def unscented_transform(
     m = values.shape[1]
     values = check_values(values, (sigmas.shape[0], m), "fn values")
     noise = None if noise_sqrt is None else as_lower_factor(noise_sqrt, "noise_sqrt", m, singular_ok=True)
-    mean, dev = mean_and_deviations(values, Wm, mean_fn, residual_fn)
-    Sy = factor_from_deviations(dev, Wc, noise)
+    mean, Sy = sqrt_unscented_transform(values, Wm, Wc, noise, mean_fn, residual_fn)
     if not return_cross:
         return mean, Sy
     dx = deviations(sigmas, x, residual_x)
-    return mean, Sy, (dx.T * Wc) @ dev
+    return mean, Sy, (dx.T * Wc) @ deviations(values, mean, residual_fn)

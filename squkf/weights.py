@@ -68,20 +68,24 @@ class _CachedFamily:
 
     def unit_sigma_points(self, n: int) -> np.ndarray:
         """Unit sigma points for dimension ``n``, shape ``(num_sigmas(n), n)``, read-only."""
-        key = ("xi", n)
-        c = self._cache()
-        if key not in c:
-            c[key] = _frozen(np.asarray(self._unit_points(n), dtype=float))
-        return c[key]
+        try:
+            return self.__dict__["_by_n"][n][0]
+        except KeyError:
+            return self._fill(n)[0]
 
     def weights(self, n: int) -> tuple[np.ndarray, np.ndarray]:
         """Mean and covariance weights ``(Wm, Wc)`` for dimension ``n``, read-only."""
-        key = ("w", n)
-        c = self._cache()
-        if key not in c:
-            Wm, Wc = self._weights(n)
-            c[key] = (_frozen(np.asarray(Wm, dtype=float)), _frozen(np.asarray(Wc, dtype=float)))
-        return c[key]
+        try:
+            return self.__dict__["_by_n"][n][1]
+        except KeyError:
+            return self._fill(n)[1]
+
+    def _fill(self, n: int) -> tuple:
+        xi = _frozen(np.asarray(self._unit_points(n), dtype=float))
+        Wm, Wc = self._weights(n)
+        entry = (xi, (_frozen(np.asarray(Wm, dtype=float)), _frozen(np.asarray(Wc, dtype=float))))
+        self._cache()[n] = entry
+        return entry
 
     def __getstate__(self):
         state = self.__dict__.copy()

@@ -7,7 +7,7 @@ import sys
 import numpy as np
 import pytest
 
-from squkf import unscented_transform
+from squkf import MerweScaledWeights, unscented_transform
 from squkf.examples import g13ej_example as ex
 from squkf.nag import kalman_unscented_state_revcom as g13ej
 
@@ -293,12 +293,37 @@ def test_errno_211_rcomm_corrupted():
 
 
 def test_errno_301_negative_weight_downdate():
-    # alpha small makes Wc[0] hugely negative; F maps the centre far from the others
-    a = first_entry(ropt=[1, 0.0, 0.01], lx=None)
+    # alpha = 1, beta = 0, kappa = -1: the weights outside the centre sum to s = 1.5 > 1, so
+    # when every non-central point is mapped to the same place the weighted "covariance" is
+    # s (1 - s) e e^T < 0 along e: the negative-weight downdate must fail
+    a = first_entry(ropt=[1, -1.0, 1.0, 0.0], lx=None)
     _, n = call(a)
     a["fxt"][:3, :n] = 0.0
     a["fxt"][:3, 0] = [50.0, 0, 0]
     expect(a, 301)
+
+
+def test_tiny_alpha_needs_no_downdate():
+    """The input g13ej's downdate fails on (alpha = 0.01, beta = 2) is a valid rank-1 covariance.
+
+    With beta >= alpha**2 the covariance is written with non-negative weights only (deviations
+    from the central point), so squkf factors it by QR and gets it right instead of failing.
+    """
+    a = first_entry(ropt=[1, 0.0, 0.01], lx=None)
+    _, n = call(a)
+    a["fxt"][:3, :n] = 0.0
+    a["fxt"][:3, 0] = [50.0, 0, 0]
+    irevcm, _ = call(a)
+    assert irevcm == 2
+    Wm, Wc = MerweScaledWeights(0.01, 2.0, 0.0).weights(3)
+    F = a["fxt"][:3, :n].T
+    mean = Wm @ F
+    D = F - mean
+    P = (D.T * Wc) @ D  # terms of 2.5e15 cancel to 5e11: the reference is good to ~1e-11
+    np.testing.assert_allclose(a["x"], mean, rtol=1e-12)
+    St = np.tril(a["st"])
+    np.testing.assert_allclose(St @ St.T, P, rtol=1e-9, atol=1e-9 * P[0, 0])
+    assert P[0, 0] > 0 and np.all(np.diag(St)[1:] == 0)
 
 
 def test_errno_302_singular_innovation():
