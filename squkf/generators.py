@@ -110,14 +110,7 @@ def sigma_points_from_factor(x: np.ndarray, S: np.ndarray, xi: np.ndarray, state
     -------
     sigmas : ndarray, shape (N, n)
     """
-    dx = xi @ S.T
-    if state_add is None or state_add is np.add:
-        dx += x
-        return dx
-    out = np.empty_like(dx)
-    for i, d in enumerate(dx):
-        out[i] = state_add(x, d)
-    return out
+    return sigma_points_and_offsets(x, S, xi, state_add)[0]
 
 
 def _identity_moments(family, n: int) -> bool:

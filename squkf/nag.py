@@ -36,6 +36,12 @@ in: 11, 21, 22, 31, 32, 61, 81, 111, 121, 122, 123, 141, 161, 162, 171, 172,
 173, 181, 191, 211, 301, 302, 303. After an error ``x``, ``st``, ``xt`` and
 ``comm`` are exactly as they were.
 
+IFAIL 301 (a failed rank-1 downdate for a negative weight) is rarer than in
+g13ej: the weighted covariance is written with non-negative weights whenever
+``beta >= alpha**2`` (deviations from the central point; see
+:mod:`squkf.transform`), so no downdate is needed there, however small alpha
+is. It remains possible with ``beta < alpha**2`` and a negative central weight.
+
 Documented errors that do not apply in Python:
 
 - 201/202 (LICOMM/LRCOMM too small) and the array-length constraints on
