@@ -94,22 +94,7 @@ def sigma_points_and_offsets(
 
 
 def sigma_points_from_factor(x: np.ndarray, S: np.ndarray, xi: np.ndarray, state_add=None) -> np.ndarray:
-    """Sigma points ``x + xi[i] @ S.T``, one per row.
-
-    Parameters
-    ----------
-    x : ndarray, shape (n,)
-    S : ndarray, shape (n, n)
-        Lower factor of the covariance.
-    xi : ndarray, shape (N, n)
-        Unit sigma points.
-    state_add : callable ``state_add(x, dx)``, optional
-        Called once per point when given (angles, manifolds).
-
-    Returns
-    -------
-    sigmas : ndarray, shape (N, n)
-    """
+    """The sigma points of :func:`sigma_points_and_offsets` alone, shape ``(N, n)``."""
     return sigma_points_and_offsets(x, S, xi, state_add)[0]
 
 

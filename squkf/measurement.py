@@ -25,7 +25,15 @@ import numpy as np
 from .errors import DowndateError, GainError, PosteriorFactorError
 from .generators import SigmaSet
 from .linalg import all_finite, chol_downdate_columns, chol_update, solve_lower, tria
-from .transform import central_rows, deviations, factor_rows, signed_rows, weight_plan, weighted_mean
+from .transform import (
+    central_rows,
+    deviations,
+    factor_rows,
+    signed_rows,
+    transform_factor,
+    weight_plan,
+    weighted_mean,
+)
 
 __all__ = ["Posterior", "measurement_update", "gain_from_factors"]
 
@@ -138,15 +146,13 @@ def measurement_update(
         z_pred, Sy, L21, L22 = _joint_factor(sset, plan, sigmas_h, x, R1_2, z_mean_fn, residual_x, residual_z)
     else:
         if UT is None:
-            z_pred = weighted_mean(sigmas_h, plan.Wm, z_mean_fn)
-            Dz = deviations(sigmas_h, z_pred, residual_z)
-            Sy = factor_rows(Dz, plan.mean_form, R1_2, errno=301)
+            z_pred, Sy = transform_factor(sigmas_h, plan, R1_2, z_mean_fn, residual_z, errno=301)
         else:
             z_pred, Sy = UT(sigmas_h, sset.Wm, sset.Wc, R1_2, z_mean_fn, residual_z)
             z_pred = np.asarray(z_pred, dtype=float).reshape(m)
             Sy = np.asarray(Sy, dtype=float).reshape(m, m)
-            Dz = deviations(sigmas_h, z_pred, residual_z)
         _check_gain(Sy)
+        Dz = deviations(sigmas_h, z_pred, residual_z)
         Dx = _state_deviations(sset, x, residual_x)
         Pxy = (Dx.T * sset.Wc) @ Dz
         L21 = solve_lower(Sy, np.ascontiguousarray(Pxy.T)).T
@@ -177,35 +183,32 @@ def _joint_factor(sset, plan, sigmas_h, x, R1_2, z_mean_fn, residual_x, residual
     hooks = z_mean_fn is not None or residual_x is not None or residual_z is not None
     points = sset.sigmas if sset.offsets is None else sset.offsets
     N, m = sigmas_h.shape
-    if not hooks and plan.fast:  # rows written straight into the QR buffer
-        M = np.empty((N + m, m + points.shape[1]), order="F")
+    n = points.shape[1]
+    if not hooks and plan.fast:
+        # every row enters the QR: write them straight into the buffer
+        npos, neg = N, ()
+        M = np.empty((N + m, m + n), order="F")  # LAPACK's layout: no copy in tria
         z_pred = central_rows(sigmas_h, plan, M[:, :m])
         central_rows(points, plan, M[:, m:])
-        M[N:, :m] = R1_2.T
-        M[N:, m:] = 0.0
-        L = tria(M)
-        Sy = L[:m, :m]
-        _check_gain(Sy)
-        return z_pred, Sy, L[m:, :m], L[m:, m:]
-    if not hooks and plan.best.central:
-        z_pred, Dz, form = signed_rows(sigmas_h, plan)
-        _, Dx, _ = signed_rows(points, plan)
     else:
-        form = plan.mean_form
-        z_pred = weighted_mean(sigmas_h, plan.Wm, z_mean_fn)
-        Dz = deviations(sigmas_h, z_pred, residual_z)
-        Dx = _state_deviations(sset, x, residual_x)
-    m, n = Dz.shape[1], Dx.shape[1]
-    pos = form.pos
-    scale = (form.scale if pos is None else form.scale[pos])[:, None]
-    npos = scale.shape[0]
-    M = np.empty((npos + m, m + n), order="F")  # LAPACK's layout: no copy in tria
-    np.multiply(Dz if pos is None else Dz[pos], scale, out=M[:npos, :m])
-    np.multiply(Dx if pos is None else Dx[pos], scale, out=M[:npos, m:])
+        if not hooks and plan.best.central:
+            z_pred, Dz, form = signed_rows(sigmas_h, plan)
+            _, Dx, _ = signed_rows(points, plan)
+        else:
+            form = plan.mean_form
+            z_pred = weighted_mean(sigmas_h, plan.Wm, z_mean_fn)
+            Dz = deviations(sigmas_h, z_pred, residual_z)
+            Dx = _state_deviations(sset, x, residual_x)
+        pos, neg = form.pos, form.neg
+        scale = (form.scale if pos is None else form.scale[pos])[:, None]
+        npos = scale.shape[0]
+        M = np.empty((npos + m, m + n), order="F")
+        np.multiply(Dz if pos is None else Dz[pos], scale, out=M[:npos, :m])
+        np.multiply(Dx if pos is None else Dx[pos], scale, out=M[:npos, m:])
     M[npos:, :m] = R1_2.T
     M[npos:, m:] = 0.0
     L = tria(M)
-    for k in form.neg:
+    for k in neg:
         L = _downdate_joint(L, form.scale[k] * np.concatenate([Dz[k], Dx[k]]), m, form.weights[k])
     Sy = L[:m, :m]
     _check_gain(Sy)

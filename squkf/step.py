@@ -94,7 +94,7 @@ class StepMachine:
         self._propagated = None  # first-set images, for the augmented set
         self._Q1_2 = None  # process noise of the last prediction
         self._sset = None  # second set drawn (at tell_predict, or by ask_update)
-        self._prior = None  # (x, bytes of x, S) that set was drawn from
+        self._prior = None  # (x, S) that set was drawn from (x a private copy)
         self.sigmas_h = None  # images of the last second set told
 
     def snapshot(self) -> dict:
@@ -215,7 +215,7 @@ class StepMachine:
             x, S, family=family, propagated=propagated, Q1_2=self._Q1_2, state_add=state_add
         )
         self._sset = sset
-        self._prior = (x.copy(), x.tobytes(), S)  # a copy: the caller's x may be edited in place
+        self._prior = (x.copy(), S)  # a copy: the caller's x may be edited in place
         return sset
 
     # -- measurement update -------------------------------------------------
@@ -244,9 +244,9 @@ class StepMachine:
         if not (
             self.phase in (PRIOR, UPDATING)
             and drawn is not None
-            and drawn[2] is S
+            and drawn[1] is S
             and drawn[0].shape == x.shape
-            and drawn[1] == x.tobytes()
+            and drawn[0].tobytes() == x.tobytes()
         ):
             self.draw_second_set(x, S, family, generator, state_add)
         self.phase = UPDATING
@@ -288,7 +288,7 @@ class StepMachine:
             )
         m = z.shape[0]
         H = check_values(values, (self._sset.sigmas.shape[0], m), name)
-        x, _, S = self._prior
+        x, S = self._prior
         post = measurement_update(
             x,
             S,
