@@ -76,14 +76,13 @@ def tria(rows: np.ndarray) -> np.ndarray:
         qr, _, _, info = _dgeqrf(rows, overwrite_a=1)
     if info != 0:  # pragma: no cover - LAPACK argument error, cannot happen here
         raise RuntimeError(f"LAPACK dgeqrf failed with info={info}")
+    # below R's diagonal dgeqrf leaves its Householder vectors: keep the triangle only; and
+    # since a column's sign does not change S @ S.T, make the diagonal non-negative (one mask)
     if k >= n:
-        # below R's diagonal dgeqrf leaves its Householder vectors: keep the triangle only
-        S = qr[:n].T * _lower_mask(n)
-    else:
-        S = np.zeros((n, n))
-        S[:, :k] = qr.T
-        S *= _lower_mask(n)
-    # a column's sign does not change S @ S.T: make the diagonal non-negative
+        return qr[:n].T * np.copysign(_lower_mask(n), qr.diagonal())
+    S = np.zeros((n, n))
+    S[:, :k] = qr.T
+    S *= _lower_mask(n)
     S *= np.copysign(1.0, S.diagonal())
     return S
 

@@ -28,6 +28,7 @@ import numpy as np
 
 from .errors import CallSequenceError, NonFiniteError, ShapeError
 from .generators import SigmaSet, sigma_points_from_factor
+from .lane import Lane
 from .linalg import all_finite
 from .measurement import Posterior, measurement_update
 from .transform import transform_factor, weight_plan
@@ -94,6 +95,7 @@ class StepMachine:
         self._propagated = None  # first-set images, for the augmented set
         self._Q1_2 = None  # process noise of the last prediction
         self._sset = None  # second set drawn (at tell_predict, or by ask_update)
+        self._sset_lane = None  # the lane that drew it, if any
         self._prior = None  # (x, S) that set was drawn from (x a private copy)
         self.sigmas_h = None  # images of the last second set told
 
@@ -114,7 +116,9 @@ class StepMachine:
 
     # -- prediction ---------------------------------------------------------
 
-    def ask_predict(self, x: np.ndarray, S: np.ndarray, family, state_add=None) -> np.ndarray:
+    def ask_predict(
+        self, x: np.ndarray, S: np.ndarray, family, state_add=None, lane: Lane | None = None
+    ) -> np.ndarray:
         """Start a step: the first sigma-point set around ``(x, S)``.
 
         Parameters
@@ -124,6 +128,8 @@ class StepMachine:
             Lower factor of the current covariance.
         family : sigma-point family
         state_add : callable, optional
+        lane : Lane, optional
+            The plain step's kernel for this family (no ``state_add``).
 
         Returns
         -------
@@ -131,9 +137,12 @@ class StepMachine:
             ``[x, x + g S[:, j], x - g S[:, j]]`` for a symmetric family.
         """
         n = x.shape[0]
-        xi = family.unit_sigma_points(n)
-        sigmas = sigma_points_from_factor(x, S, xi, state_add)
-        weights = family.weights(n)
+        if lane is not None:
+            sigmas = lane.first_set(x, S)
+            weights = lane.plan1.Wm, lane.plan1.Wc
+        else:
+            sigmas = sigma_points_from_factor(x, S, family.unit_sigma_points(n), state_add)
+            weights = family.weights(n)
         self.phase = PREDICTING
         self.sigmas = sigmas
         self._first_weights = weights
@@ -150,6 +159,7 @@ class StepMachine:
         residual_x: Callable | None = None,
         UT: Callable | None = None,
         name: str = "fx values",
+        lane: Lane | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Finish the prediction from the first set's images.
 
@@ -165,6 +175,8 @@ class StepMachine:
             :func:`squkf.sqrt_unscented_transform`).
         name : str
             How to call ``values`` in error messages.
+        lane : Lane, optional
+            The plain step's kernel (only without hooks and ``UT``).
 
         Returns
         -------
@@ -179,20 +191,24 @@ class StepMachine:
         N, n = self.sigmas.shape
         F = check_values(values, (N, n), name)
         Wm, Wc = self._first_weights
-        if UT is None:
+        if lane is not None:
+            x, S = lane.prior(F, Q1_2)
+        elif UT is None:
             x, S = transform_factor(F, weight_plan(Wm, Wc), Q1_2, x_mean_fn, residual_x, errno=301)
         else:
             x, S = UT(F, Wm, Wc, Q1_2, x_mean_fn, residual_x)
             x = np.asarray(x, dtype=float).reshape(n)
             S = np.asarray(S, dtype=float).reshape(n, n)
-        if not (all_finite(x) and all_finite(S)):
+        if lane is None and not (all_finite(x) and all_finite(S)):
             raise NonFiniteError("the predicted mean or factor is not finite")
         self.phase = PRIOR
         self._propagated = F
         self._Q1_2 = Q1_2
         return x, S
 
-    def draw_second_set(self, x: np.ndarray, S: np.ndarray, family, generator, state_add=None) -> SigmaSet:
+    def draw_second_set(
+        self, x: np.ndarray, S: np.ndarray, family, generator, state_add=None, lane: Lane | None = None
+    ) -> SigmaSet:
         """Draw the second set for ``(x, S)`` now (``ask_update`` hands it out if they are unchanged).
 
         Called by the facade straight after :meth:`tell_predict`, since filterpy
@@ -205,22 +221,30 @@ class StepMachine:
         family : sigma-point family of the first set
         generator : second-set generator
         state_add : callable, optional
+        lane : Lane, optional
+            The plain step's kernel for this generator (draws the same set).
 
         Returns
         -------
         SigmaSet
         """
-        propagated = self._propagated if self.phase in (PRIOR, UPDATING) else None
-        sset = generator.second_set(
-            x, S, family=family, propagated=propagated, Q1_2=self._Q1_2, state_add=state_add
-        )
+        if lane is not None:
+            sset = lane.second_set(x, S)
+        else:
+            propagated = self._propagated if self.phase in (PRIOR, UPDATING) else None
+            sset = generator.second_set(
+                x, S, family=family, propagated=propagated, Q1_2=self._Q1_2, state_add=state_add
+            )
         self._sset = sset
+        self._sset_lane = lane
         self._prior = (x.copy(), S)  # a copy: the caller's x may be edited in place
         return sset
 
     # -- measurement update -------------------------------------------------
 
-    def ask_update(self, x: np.ndarray, S: np.ndarray, family, generator, state_add=None) -> SigmaSet:
+    def ask_update(
+        self, x: np.ndarray, S: np.ndarray, family, generator, state_add=None, lane: Lane | None = None
+    ) -> SigmaSet:
         """The second sigma-point set for the measurement update.
 
         Parameters
@@ -231,6 +255,8 @@ class StepMachine:
         family : sigma-point family of the first set
         generator : second-set generator
         state_add : callable, optional
+        lane : Lane, optional
+            The plain step's kernel for this generator.
 
         Returns
         -------
@@ -248,7 +274,7 @@ class StepMachine:
             and drawn[0].shape == x.shape
             and drawn[0].tobytes() == x.tobytes()
         ):
-            self.draw_second_set(x, S, family, generator, state_add)
+            self.draw_second_set(x, S, family, generator, state_add, lane)
         self.phase = UPDATING
         self.sigmas = self._sset.sigmas
         return self._sset
@@ -265,6 +291,7 @@ class StepMachine:
         state_add: Callable | None = None,
         UT: Callable | None = None,
         name: str = "hx values",
+        lane: Lane | None = None,
     ) -> Posterior:
         """Finish the update from the second set's images and the measurement.
 
@@ -276,6 +303,9 @@ class StepMachine:
         R1_2 : ndarray, shape (m, m)
         z_mean_fn, residual_x, residual_z, state_add, UT : callable, optional
         name : str
+        lane : Lane, optional
+            The plain step's kernel (only without hooks and ``UT``); used when
+            it is the one that drew the pending set.
 
         Returns
         -------
@@ -289,19 +319,22 @@ class StepMachine:
         m = z.shape[0]
         H = check_values(values, (self._sset.sigmas.shape[0], m), name)
         x, S = self._prior
-        post = measurement_update(
-            x,
-            S,
-            self._sset,
-            H,
-            z,
-            R1_2,
-            z_mean_fn=z_mean_fn,
-            residual_x=residual_x,
-            residual_z=residual_z,
-            state_add=state_add,
-            UT=UT,
-        )
+        if lane is not None and lane is self._sset_lane:
+            post = lane.posterior(H, x, S, z, R1_2)
+        else:
+            post = measurement_update(
+                x,
+                S,
+                self._sset,
+                H,
+                z,
+                R1_2,
+                z_mean_fn=z_mean_fn,
+                residual_x=residual_x,
+                residual_z=residual_z,
+                state_add=state_add,
+                UT=UT,
+            )
         self.phase = IDLE
         self._propagated = None
         self._sset = None

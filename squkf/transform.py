@@ -98,6 +98,10 @@ class WeightPlan:
     fast : bool
         ``best`` is the central form with no negative weight: its rows can be
         written straight into the QR buffer (:func:`central_rows`).
+    tail_scale : ndarray, shape (N - 1, 1)
+        ``best.scale[:-1]`` as a column (the scales of the rows ``e_i``).
+    mu_scale : float
+        ``best.scale[-1]`` (the scale of the row ``mu``).
     """
 
     Wm: np.ndarray
@@ -107,6 +111,8 @@ class WeightPlan:
     central_form: RowForm | None
     best: RowForm
     fast: bool
+    tail_scale: np.ndarray
+    mu_scale: float
 
 
 def _row_form(w: np.ndarray, central: bool) -> RowForm:
@@ -187,7 +193,11 @@ def weight_plan(Wm: np.ndarray, Wc: np.ndarray) -> WeightPlan:
     if central_form is not None and central_form.neg.size <= mean_rows.neg.size:
         best = central_form
     fast = best.central and best.neg.size == 0  # zero-weight rows are zero rows in the QR
-    plan = WeightPlan(Wm_, Wc_, _frozen(Wm_[1:].copy()), mean_rows, central_form, best, fast)
+    tail_scale = _frozen(best.scale[:-1, None].copy())
+    mu_scale = float(best.scale[-1]) if best.scale.size else 0.0
+    plan = WeightPlan(
+        Wm_, Wc_, _frozen(Wm_[1:].copy()), mean_rows, central_form, best, fast, tail_scale, mu_scale
+    )
     if _cacheable(Wm, Wc):
         if len(_PLANS) > 256:
             _PLANS.clear()
@@ -360,8 +370,8 @@ def central_rows(sigmas: np.ndarray, plan: WeightPlan, out: np.ndarray) -> np.nd
     E = out[: N - 1]
     np.subtract(sigmas[1:], ref, out=E)
     mu = plan.wm_tail @ E
-    E *= plan.best.scale[: N - 1, None]
-    np.multiply(mu, plan.best.scale[N - 1], out=out[N - 1])
+    E *= plan.tail_scale
+    np.multiply(mu, plan.mu_scale, out=out[N - 1])
     return ref + mu
 
 

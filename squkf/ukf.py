@@ -12,6 +12,7 @@ import numpy as np
 from .covariance import FactorSlot
 from .errors import NonFiniteError, ParameterError, ShapeError
 from .generators import as_generator, sigma_points_from_factor
+from .lane import Lane, lane_for
 from .linalg import all_finite, solve_lower
 from .measurement import gain_from_factors
 from .step import PRIOR, StepMachine, check_values
@@ -182,6 +183,7 @@ class SquareRootUKF:
         self._points = points
         self._family = family
         self._num_sigmas = num
+        self._lane = None  # built on first use
 
     @property
     def scheme(self):
@@ -194,6 +196,7 @@ class SquareRootUKF:
         if hasattr(gen, "num_sigmas"):
             gen.num_sigmas(self._dim_x, self._family)  # fails now, not at the first update
         self._generator = gen
+        self._lane = None  # built on first use
 
     @property
     def dim_x(self) -> int:
@@ -420,6 +423,24 @@ class SquareRootUKF:
     def _hook(fn, default):
         return None if fn is default else fn
 
+    def _plain_lane(self, UT) -> Lane | None:
+        """The plain step's kernel, when the configuration is plain (no hooks, no ``UT``)."""
+        if not (
+            UT is None
+            and self.x_mean is None
+            and self.z_mean is None
+            and self.residual_x is np.subtract
+            and self.residual_z is np.subtract
+            and self.state_add is np.add
+        ):
+            return None
+        lane = self._lane
+        if lane is None:
+            lane = self._lane = lane_for(self._dim_x, self._family, self._generator) or False
+        elif lane is not False and lane.family2 is not self._generator.family_for(self._family):
+            lane = self._lane = lane_for(self._dim_x, self._family, self._generator) or False
+        return lane or None
+
     # -- ask/tell: the step in halves ----------------------------------------
 
     def ask_predict(self) -> np.ndarray:
@@ -431,8 +452,11 @@ class SquareRootUKF:
             One point per row; evaluate the state transition at each and pass
             the results to :meth:`tell_predict`.
         """
+        return self._ask_predict(self._plain_lane(None))
+
+    def _ask_predict(self, lane: Lane | None) -> np.ndarray:
         x, S = self._current()
-        return self._machine.ask_predict(x, S, self._family, self._hook(self.state_add, np.add))
+        return self._machine.ask_predict(x, S, self._family, self._hook(self.state_add, np.add), lane)
 
     def tell_predict(self, sigmas_f, Q=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of a prediction: the propagated points give the prior.
@@ -452,29 +476,38 @@ class SquareRootUKF:
         x_prior : ndarray, shape (dim_x,)
         P1_2_prior : ndarray, shape (dim_x, dim_x)
         """
-        Q1_2 = self._noise_factor(Q, self._Q, "Q", self._dim_x)
         snap = self._machine.snapshot()
         try:
-            x, S = self._machine.tell_predict(
+            x, S = self._tell_predict(sigmas_f, Q, UT, self._plain_lane(UT))
+        except BaseException:
+            self._machine.restore(snap)
+            raise
+        return x, _readonly(S)
+
+    def _tell_predict(self, sigmas_f, Q, UT, lane: Lane | None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`tell_predict` without the snapshot (the caller restores the machine on failure)."""
+        Q1_2 = self._noise_factor(Q, self._Q, "Q", self._dim_x)
+        machine = self._machine
+        if lane is not None:
+            x, S = machine.tell_predict(sigmas_f, Q1_2, lane=lane)
+            preview = machine.draw_second_set(x, S, self._family, self._generator, None, lane)
+        else:
+            x, S = machine.tell_predict(
                 sigmas_f,
                 Q1_2,
                 x_mean_fn=self.x_mean,
                 residual_x=self._hook(self.residual_x, np.subtract),
                 UT=UT,
             )
-            # filterpy shows the second set in sigmas_f as soon as the prediction is done
-            preview = self._machine.draw_second_set(
+            preview = machine.draw_second_set(
                 x, S, self._family, self._generator, self._hook(self.state_add, np.add)
-            ).sigmas
-        except BaseException:
-            self._machine.restore(snap)
-            raise
+            )
         self._set_trusted_x(x)
         self._P.set_trusted_factor(S)
         self.x_prior = x.copy()
         self.P1_2_prior = S
-        self.sigmas_f = preview
-        return self.x_prior, _readonly(S)
+        self.sigmas_f = preview.sigmas  # filterpy shows the second set once the prediction is done
+        return self.x_prior, S
 
     def ask_update(self) -> np.ndarray:
         """First half of an update: the sigma points to pass through the measurement function.
@@ -485,11 +518,12 @@ class SquareRootUKF:
             The second set (redrawn from the prior, or augmented); evaluate
             ``hx`` at each and pass the results to :meth:`tell_update`.
         """
+        return self._ask_update(self._plain_lane(None))
+
+    def _ask_update(self, lane: Lane | None) -> np.ndarray:
         x, S = self._current()
-        sset = self._machine.ask_update(
-            x, S, self._family, self._generator, self._hook(self.state_add, np.add)
-        )
-        return sset.sigmas
+        hook = None if lane is not None else self._hook(self.state_add, np.add)
+        return self._machine.ask_update(x, S, self._family, self._generator, hook, lane).sigmas
 
     def tell_update(self, sigmas_h, z, R=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of an update: measurement-function values and ``z`` give the posterior.
@@ -511,23 +545,27 @@ class SquareRootUKF:
         x_post : ndarray, shape (dim_x,)
         P1_2_post : ndarray, shape (dim_x, dim_x)
         """
-        return self._tell_update(sigmas_h, self._as_measurement(z, R), R, UT)
+        x, S = self._tell_update(sigmas_h, self._as_measurement(z, R), R, UT, self._plain_lane(UT))
+        return x, _readonly(S)
 
-    def _tell_update(self, sigmas_h, z: np.ndarray, R, UT) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`tell_update` with ``z`` already validated."""
+    def _tell_update(self, sigmas_h, z: np.ndarray, R, UT, lane: Lane | None) -> tuple[np.ndarray, ...]:
+        """:meth:`tell_update` with ``z`` already validated (a fresh array, kept as ``self.z``)."""
         R1_2 = self._noise_factor(R, self._R, "R", z.shape[0])
         if R1_2 is None:
             R1_2 = np.zeros((z.shape[0], z.shape[0]))
-        post = self._machine.tell_update(
-            sigmas_h,
-            z,
-            R1_2,
-            z_mean_fn=self.z_mean,
-            residual_x=self._hook(self.residual_x, np.subtract),
-            residual_z=self._hook(self.residual_z, np.subtract),
-            state_add=self._hook(self.state_add, np.add),
-            UT=UT,
-        )
+        if lane is not None:
+            post = self._machine.tell_update(sigmas_h, z, R1_2, lane=lane)
+        else:
+            post = self._machine.tell_update(
+                sigmas_h,
+                z,
+                R1_2,
+                z_mean_fn=self.z_mean,
+                residual_x=self._hook(self.residual_x, np.subtract),
+                residual_z=self._hook(self.residual_z, np.subtract),
+                state_add=self._hook(self.state_add, np.add),
+                UT=UT,
+            )
         self._set_trusted_x(post.x)
         self._P.set_trusted_factor(post.S)
         self._K = None
@@ -535,13 +573,13 @@ class SquareRootUKF:
         self.y = post.y
         self.S1_2 = post.Sy
         self.sigmas_h = self._machine.sigmas_h
-        self.z = z.copy()
+        self.z = z
         self.x_post = post.x.copy()
         self.P1_2_post = post.S
         self._log_likelihood = None
         self._likelihood = None
         self._mahalanobis = None
-        return self.x_post, _readonly(post.S)
+        return self.x_post, post.S
 
     def _as_measurement(self, z, R, missing_ok: bool = False) -> np.ndarray | None:
         """``z`` as a float vector, checked; with ``missing_ok`` an all-NaN ``z`` gives None."""
@@ -589,11 +627,12 @@ class SquareRootUKF:
         """
         dt = self._dt if dt is None else self._check_dt(dt)
         fx = self.fx if fx is None else fx
+        lane = self._plain_lane(UT)
         snap = self._machine.snapshot()
         try:
-            sigmas = self.ask_predict()
+            sigmas = self._ask_predict(lane)
             values = self._evaluate(fx, sigmas, (dt,), fx_args)
-            self.tell_predict(values, Q=Q, UT=UT)
+            self._tell_predict(values, Q, UT, lane)
         except BaseException:
             self._machine.restore(snap)
             raise
@@ -623,11 +662,12 @@ class SquareRootUKF:
             self.P1_2_post = self._P.factor()
             return
         hx = self.hx if hx is None else hx
+        lane = self._plain_lane(UT)
         snap = self._machine.snapshot()
         try:
-            sigmas = self.ask_update()
+            sigmas = self._ask_update(lane)
             values = self._evaluate(hx, sigmas, (), hx_args)
-            self._tell_update(values, zz, R, UT)
+            self._tell_update(values, zz, R, UT, lane)
         except BaseException:
             self._machine.restore(snap)
             raise

@@ -1,0 +1,200 @@
+"""The plain step: the default configuration's constants and buffers, prepared once.
+
+With the redrawn second set, no angle hooks and no user ``UT``, and weights
+whose central form has no negative row (Merwe's points with ``beta >=
+alpha**2``, filterpy's default; Julier's, cubature and simplex points have
+``sum(Wc) - 2 < 0`` and take the general step), a step is the same
+sequence of array operations every time. A :class:`Lane` holds everything
+that does not change between steps: the unit points, the central form's
+row scales, the QR buffers, and the second set's state rows as a constant
+matrix ``G`` (so that they are one product ``G S^T``), and performs the
+step's numerics with them. It computes exactly what
+:func:`squkf.transform.transform_factor` and
+:func:`squkf.measurement.measurement_update` compute for this configuration
+(the tests compare them), with about half the array operations.
+
+The redrawn set is ``x + xi @ S.T``, so its deviations from its central
+point are ``(xi[1:] - xi[0]) @ S.T`` exactly, whatever the size of ``x``.
+The joint rows of the update are then::
+
+    [ s_k (h_k - h_0),  s_k (xi_k - xi_0) S^T ]      k = 1 .. N-1
+    [ c mu_z,           c (sum_k Wm_k (xi_k - xi_0)) S^T ]
+    [ R1_2^T,           0 ]
+
+with ``s_k = sqrt(Wc_k)``, ``c = sqrt(sum(Wc) - 2)`` and ``mu_z`` the
+central form's mean offset of the images (see :mod:`squkf.transform`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import GainError, NonFiniteError, PosteriorFactorError
+from .generators import Redrawn, SigmaSet, _identity_moments
+from .linalg import all_finite, solve_lower, tria
+from .measurement import Posterior
+from .transform import _cacheable, central_rows, weight_plan
+
+__all__ = ["Lane", "lane_for"]
+
+_TINY = np.finfo(float).tiny
+_INF = float("inf")
+
+
+class Lane:
+    """Constants and buffers of the plain step for one state dimension.
+
+    Build it with :func:`lane_for`, which returns None for a configuration
+    the lane does not serve.
+
+    Parameters
+    ----------
+    n : int
+        State dimension.
+    xi1 : ndarray, shape (N1, n)
+        Unit points of the first set.
+    plan1 : WeightPlan
+        The first set's weights (``plan1.fast``).
+    family2 : sigma-point family
+        The second set's family (its unit points and weights for ``n``
+        give a set with the prior's mean and covariance, ``plan.fast``).
+    """
+
+    def __init__(self, n: int, xi1: np.ndarray, plan1, family2):
+        self.n = n
+        self.xi1 = xi1
+        self.plan1 = plan1
+        self.family2 = family2
+        self.xi2 = family2.unit_sigma_points(n)
+        self.plan2 = weight_plan(*family2.weights(n))
+        form = self.plan2.best
+        N2 = self.xi2.shape[0]
+        E = self.xi2[1:] - self.xi2[0]
+        G = np.empty((N2, n))
+        G[:-1] = E * form.scale[:-1, None]
+        G[-1] = form.scale[-1] * (self.plan2.wm_tail @ E)
+        self.G2 = G
+        self._prior_rows: dict[int, np.ndarray] = {}
+        self._joint_rows: dict[int, np.ndarray] = {}
+
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state["_prior_rows"], state["_joint_rows"] = {}, {}
+        return state
+
+    def first_set(self, x: np.ndarray, S: np.ndarray) -> np.ndarray:
+        """The first set ``x + xi1 @ S.T``, shape ``(N1, n)``."""
+        return self.xi1.dot(S.T) + x
+
+    def prior(self, F: np.ndarray, Q1_2: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """Predicted mean and lower factor from the first set's images.
+
+        Parameters
+        ----------
+        F : ndarray, shape (N1, n)
+            ``fx`` at the first set (checked finite).
+        Q1_2 : ndarray, shape (n, k), or None
+            Square root of the process noise.
+
+        Returns
+        -------
+        x : ndarray, shape (n,)
+        S : ndarray, shape (n, n)
+
+        Raises
+        ------
+        NonFiniteError
+            The result overflowed.
+        """
+        N = F.shape[0]
+        extra = 0 if Q1_2 is None else Q1_2.shape[1]
+        rows = self._prior_rows.get(extra)
+        if rows is None:
+            rows = self._prior_rows[extra] = np.empty((N + extra, self.n), order="F")
+        x = central_rows(F, self.plan1, rows)
+        if extra:
+            rows[N:] = Q1_2.T
+        S = tria(rows)
+        if not (all_finite(S) and all_finite(x)):
+            raise NonFiniteError("the predicted mean or factor is not finite (overflow)")
+        return x, S
+
+    def second_set(self, x: np.ndarray, S: np.ndarray) -> SigmaSet:
+        """The redrawn set ``x + xi2 @ S.T`` (exact moments; offsets are not needed)."""
+        Wm, Wc = self.plan2.Wm, self.plan2.Wc
+        return SigmaSet(self.xi2.dot(S.T) + x, Wm, Wc, True)
+
+    def posterior(
+        self, H: np.ndarray, x: np.ndarray, S: np.ndarray, z: np.ndarray, R1_2: np.ndarray
+    ) -> Posterior:
+        """The measurement update by one joint QR (see the module docstring).
+
+        Parameters
+        ----------
+        H : ndarray, shape (N2, m)
+            ``hx`` at the second set (checked finite).
+        x : ndarray, shape (n,)
+        S : ndarray, shape (n, n)
+            The prior the second set was drawn from.
+        z : ndarray, shape (m,)
+        R1_2 : ndarray, shape (m, m)
+
+        Returns
+        -------
+        Posterior
+
+        Raises
+        ------
+        GainError
+            The innovation factor is singular (IFAIL 302).
+        PosteriorFactorError
+            The posterior is not finite (IFAIL 303).
+        """
+        N, m = H.shape
+        n = self.n
+        M = self._joint_rows.get(m)
+        if M is None:
+            M = self._joint_rows[m] = np.empty((N + m, m + n), order="F")
+        z_pred = central_rows(H, self.plan2, M[:, :m])
+        M[:N, m:] = self.G2.dot(S.T)
+        M[N:, :m] = R1_2.T
+        M[N:, m:] = 0.0
+        L = tria(M)
+        Sy = L[:m, :m]
+        d = Sy.diagonal().tolist()  # non-negative (tria's convention); m is small
+        if not (_TINY < min(d) and max(d) < _INF):
+            raise GainError(
+                f"innovation factor is singular (diagonal {np.array2string(Sy.diagonal(), precision=3)}): "
+                "cannot form the Kalman gain",
+                errno=302,
+            )
+        L21 = L[m:, :m]
+        y = z - z_pred
+        w = solve_lower(Sy, y)
+        x_post = x + L21.dot(w)
+        if not (all_finite(L) and all_finite(x_post)):
+            raise PosteriorFactorError("the posterior mean or factor is not finite", errno=303)
+        return Posterior(x_post, L[m:, m:], y, z_pred, Sy, L21, w)
+
+
+def lane_for(n: int, family, generator) -> Lane | None:
+    """The lane for ``family`` and ``generator`` at dimension ``n``, or None if it does not apply.
+
+    It applies to the :class:`~squkf.generators.Redrawn` generator (not a
+    subclass, which may draw differently) with families whose cached,
+    read-only weights have a central form without negative rows, and whose
+    second set reproduces the prior's moments.
+    """
+    if type(generator) is not Redrawn:
+        return None
+    xi1 = family.unit_sigma_points(n)
+    Wm1, Wc1 = family.weights(n)
+    family2 = generator.family_for(family)
+    xi2 = family2.unit_sigma_points(n)
+    Wm2, Wc2 = family2.weights(n)
+    if not _cacheable(xi1, Wm1, Wc1, xi2, Wm2, Wc2):
+        return None  # a family that may hand out other arrays next time
+    plan1, plan2 = weight_plan(Wm1, Wc1), weight_plan(Wm2, Wc2)
+    if not (plan1.fast and plan2.fast and _identity_moments(family2, n)):
+        return None
+    return Lane(n, xi1, plan1, family2)
