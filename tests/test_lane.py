@@ -157,11 +157,19 @@ def test_lane_errors_leave_the_filter_as_it_was():
     assert np.array_equal(f.x, x) and np.array_equal(f.P, P)
 
 
+def _fx_sin(x, dt):
+    return x + 0.1 * np.sin(x)
+
+
+def _hx_sq(x):
+    return x[:2] + 0.05 * x[0] ** 2
+
+
 def test_lane_survives_pickling_mid_step():
-    fx, hx, _ = _model(3, 2, 1)
-    f = SquareRootUKF(3, 2, 1.0, hx, fx, MerweScaledWeights(1.0, 2.0, 0.0))
+    f = SquareRootUKF(3, 2, 1.0, _hx_sq, _fx_sin, MerweScaledWeights(1.0, 2.0, 0.0))
     f.predict()
     g = pickle.loads(pickle.dumps(f))
     f.update([0.1, -0.2])
     g.update([0.1, -0.2])
+    assert isinstance(g._lane, Lane) and g._machine._sset_lane is g._lane
     assert np.array_equal(f.x, g.x) and np.array_equal(f.P1_2, g.P1_2)
