@@ -55,6 +55,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(HERE))
 
+from floor import inline_impls, qr_ms  # noqa: E402
 from models import SCENARIOS, Lorenz96, near_singular  # noqa: E402
 from peers import implementations  # noqa: E402
 
@@ -207,7 +208,31 @@ def targets_section(table) -> list[str]:
     return lines + [""]
 
 
-def write_results(out: Path, table, scale, dims, swept, P0s, skipped, impls, threaded) -> None:
+def floor_section(table, qr) -> list[str]:
+    """squkf's own time beside the two QRs alone and a hand-inlined step with no checks (floor.py)."""
+    inl = "reference: inlined step, no checks"
+    lines = [
+        "## Where the library's time goes (squkf redrawn; see benchmarks/floor.py)",
+        "",
+        "| scenario | two QRs alone, ms | library ms/step: squkf / inlined, vectorised "
+        "| ratio per-point: squkf / inlined | ratio vectorised: squkf / inlined |",
+        "|---|---|---|---|---|",
+    ]
+    for sc, q in qr.items():
+        row = {k: table.get((sc, k)) for k in ("squkf redrawn per-point", "squkf redrawn vectorised")}
+        row |= {k: table.get((sc, f"{inl} {k}")) for k in ("per-point", "vectorised")}
+        if any(v is None for v in row.values()):
+            continue
+        sv, iv = row["squkf redrawn vectorised"], row["vectorised"]
+        sp, ip = row["squkf redrawn per-point"], row["per-point"]
+        lines.append(
+            f"| {sc} | {q:.3f} | {sv['own_ms']:.3f} / {iv['own_ms']:.3f} "
+            f"| {sp['ratio']:.2f} / {ip['ratio']:.2f} | {sv['ratio']:.2f} / {iv['ratio']:.2f} |"
+        )
+    return lines + [""]
+
+
+def write_results(out: Path, table, scale, dims, swept, P0s, skipped, impls, threaded, qr) -> None:
     out.mkdir(parents=True, exist_ok=True)
     lines = ["# Benchmark results", "", header(ARGS.threads if ARGS else "1"), ""]
     if skipped:
@@ -223,7 +248,7 @@ def write_results(out: Path, table, scale, dims, swept, P0s, skipped, impls, thr
             f"| {sc} | {name} | {r['t_ms']:.3f} | {r['own_ms']:.3f} | {r['ratio']:.2f} | "
             f"{r['rmse']:.3g} | {r['nees']:.3g} | {fail} |"
         )
-    lines += [""] + targets_section(table)
+    lines += [""] + targets_section(table) + floor_section(table, qr)
     if threaded:
         lines += [
             "## Default BLAS threading (same runs, measured in a subprocess)",
@@ -320,7 +345,8 @@ def main() -> int:
     args = ARGS
     impls, skipped = implementations()
     size = _sizes(args.quick)
-    table = compare(_scenarios(args.quick), impls, size["steps"], size["reps"])
+    scenarios = _scenarios(args.quick)
+    table = compare(scenarios, impls + inline_impls(), size["steps"], size["reps"])
     if args.speed_only:
         print(json.dumps({f"{sc} || {name}": r for (sc, name), r in table.items()}))
         return 0
@@ -328,7 +354,8 @@ def main() -> int:
     scale = scaling(impls, size["dims"], size["scale_steps"], size["scale_reps"])
     P0s = [1e2, 1e3, 1e4, 1e5, 1e6]
     swept = sweep(impls, P0s, size["sweep"])
-    write_results(Path(args.out), table, scale, size["dims"], swept, P0s, skipped, impls, threaded)
+    qr = {sc.name: qr_ms(sc.dim_x, sc.dim_z, 2 * sc.dim_x + 1) for sc in scenarios}
+    write_results(Path(args.out), table, scale, size["dims"], swept, P0s, skipped, impls, threaded, qr)
     print((Path(args.out) / "results.md").read_text())
     return 0
 

@@ -84,7 +84,7 @@ def sigma_points_and_offsets(
     sigmas : ndarray, shape (N, n)
     offsets : ndarray, shape (N, n)
     """
-    dx = xi @ S.T
+    dx = xi.dot(S.T)
     if state_add is None or state_add is np.add:
         return dx + x, dx
     out = np.empty_like(dx)

@@ -26,5 +26,15 @@ def test_quick_benchmark_writes_results(tmp_path):
     for row in rows:
         cells = [c.strip() for c in row.strip("|").split("|")]
         assert cells[2:6] == ["completed"] * 4, row
+    # the hand-inlined reference step is the same filter (same RMSE and NEES as SquareRootUKF)
+    rows = {
+        cells[1]: cells
+        for line in text.splitlines()
+        if line.startswith("| g13ej robot n=3 |")
+        for cells in [[c.strip() for c in line.strip("|").split("|")]]
+    }
+    ref = rows["reference: inlined step, no checks vectorised"]
+    assert ref[5:7] == rows["squkf redrawn vectorised"][5:7]
+    assert "| g13ej robot n=3 | " in text.split("## Where the library's time goes")[1]
     assert (tmp_path / "scaling.png").stat().st_size > 1000
     assert (tmp_path / "failure_map.png").stat().st_size > 1000

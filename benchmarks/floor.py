@@ -1,0 +1,113 @@
+"""Lower bounds for the library's own time per step, measured on this machine.
+
+Two references, neither of them a filter anyone should use:
+
+- ``qr_ms``: the two QR factorisations a square-root step needs (the prior's
+  ``(N + n) x n`` rows and the update's joint ``(N + m) x (m + n)`` rows),
+  timed alone on fresh random rows.
+- ``inline_impls``: the default step (redrawn Merwe points, ``beta >= alpha**2``)
+  written as one straight function with no validation, no error handling,
+  no bookkeeping of filterpy's attributes and no support for anything else.
+  It is what a hand-tuned NumPy square-root UKF costs here, so the gap
+  between it and ``SquareRootUKF`` is the price of the library's checks and
+  interface, and the gap between it and filterpy is all a NumPy library can win.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+from peers import Impl
+from scipy.linalg import lapack
+
+_geqrf = lapack.get_lapack_funcs("geqrf", dtype=np.float64)
+_trtrs = lapack.get_lapack_funcs("trtrs", dtype=np.float64)
+
+
+def qr_ms(n: int, m: int, N: int, reps: int = 300) -> float:
+    """Milliseconds for the step's two QR factorisations (median of ``reps``)."""
+    rng = np.random.default_rng(0)
+    A = np.asfortranarray(rng.standard_normal((N + n, n)))
+    M = np.asfortranarray(rng.standard_normal((N + m, m + n)))
+    times = []
+    for _ in range(reps):
+        a, b = A.copy(order="F"), M.copy(order="F")  # fresh rows: QR overwrites its input
+        t = time.perf_counter()
+        _geqrf(a, overwrite_a=1)
+        _geqrf(b, overwrite_a=1)
+        times.append(time.perf_counter() - t)
+    return 1e3 * float(np.median(times))
+
+
+class InlineStep:
+    """The redrawn central-form step, inlined; see the module docstring."""
+
+    def __init__(self, sc, fx, hx, vectorized: bool):
+        from squkf import MerweScaledWeights
+
+        n, m = sc.dim_x, sc.dim_z
+        pts = MerweScaledWeights(sc.alpha, sc.beta, sc.kappa)
+        self.xi = np.array(pts.unit_sigma_points(n))
+        Wm, Wc = pts.weights(n)
+        N = self.xi.shape[0]
+        self.n, self.m, self.N, self.dt = n, m, N, sc.dt
+        self.tail = np.array(Wm[1:])
+        self.s = np.sqrt(Wc[1:])[:, None]
+        self.c = math.sqrt(Wc.sum() - 2.0)
+        self.G = self.xi[1:] * self.s
+        self.QT = np.linalg.cholesky(sc.Q).T
+        self.RT = np.linalg.cholesky(sc.R).T
+        self.A = np.empty((N + n, n), order="F")
+        self.M = np.empty((N + m, m + n), order="F")
+        self.mask = np.tril(np.ones((n + m, n + m)))
+        self.x, self.S = sc.x0.astype(float), np.linalg.cholesky(sc.P0)
+        self.fx, self.hx, self.vec = fx, hx, vectorized
+
+    def step(self, z):
+        n, m, N, A, M = self.n, self.m, self.N, self.A, self.M
+        X = self.xi.dot(self.S.T) + self.x
+        F = self.fx(X, self.dt) if self.vec else np.array([self.fx(s, self.dt) for s in X])
+        E = A[: N - 1]
+        np.subtract(F[1:], F[0], out=E)
+        mu = self.tail.dot(E)
+        E *= self.s
+        A[N - 1] = self.c * mu
+        A[N:] = self.QT
+        qr = _geqrf(A, overwrite_a=1)[0]
+        S = qr[:n].T * np.copysign(self.mask[:n, :n], qr.diagonal())
+        x = F[0] + mu
+        D = self.xi.dot(S.T)
+        Z = self.hx(D + x) if self.vec else np.array([self.hx(s) for s in D + x])
+        Ez = M[: N - 1, :m]
+        np.subtract(Z[1:], Z[0], out=Ez)
+        muz = self.tail.dot(Ez)
+        Ez *= self.s
+        M[N - 1, :m] = self.c * muz
+        M[: N - 1, m:] = D[1:] * self.s
+        M[N - 1 :, m:] = 0.0
+        M[N:, :m] = self.RT
+        qr = _geqrf(M, overwrite_a=1)[0]
+        L = qr[: m + n].T * np.copysign(self.mask, qr.diagonal())
+        w = _trtrs(L[:m, :m], z - (Z[0] + muz), lower=1)[0]
+        self.x = x + L[m:, :m].dot(w)
+        self.S = L[m:, m:]
+
+
+def inline_impls() -> list[Impl]:
+    """The hand-inlined step, with per-point and with vectorised model functions."""
+
+    def state(f):
+        return f.x, f.S @ f.S.T
+
+    return [
+        Impl(
+            f"reference: inlined step, no checks {'vectorised' if vec else 'per-point'}",
+            lambda sc, fx, hx, vec=vec: InlineStep(sc, fx, hx, vec),
+            lambda f, z: f.step(np.asarray(z, dtype=float)),
+            state,
+            vec,
+        )
+        for vec in (False, True)
+    ]
