@@ -8,10 +8,11 @@ sequence of array operations every time. A :class:`Lane` holds everything
 that does not change between steps: the unit points, the central form's
 row scales, the QR buffers, and the second set's state rows as a constant
 matrix ``G`` (so that they are one product ``G S^T``), and performs the
-step's numerics with them. It computes exactly what
+step's numerics with them. It computes what
 :func:`squkf.transform.transform_factor` and
-:func:`squkf.measurement.measurement_update` compute for this configuration
-(the tests compare them), with about half the array operations.
+:func:`squkf.measurement.measurement_update` compute for this configuration,
+by the same formulas up to the order of some roundings (``tests/test_lane.py``
+compares them), with about half the array operations.
 
 The redrawn set is ``x + xi @ S.T``, so its deviations from its central
 point are ``(xi[1:] - xi[0]) @ S.T`` exactly, whatever the size of ``x``.
