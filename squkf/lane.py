@@ -40,6 +40,30 @@ __all__ = ["Lane", "lane_for"]
 
 _TINY = np.finfo(float).tiny
 _INF = float("inf")
+_SQRT2 = float(np.sqrt(2.0))
+# From this dimension on, the symmetric sets are built as x +/- gamma S^T (O(n^2)) rather than by
+# the product xi @ S^T (O(n^3)); below it the one product is fewer array operations (measured).
+_AXIS_MIN_N = 32
+
+
+def _axis_gamma(xi: np.ndarray) -> float | None:
+    """``gamma`` if ``xi`` is ``[0; gamma I; -gamma I]`` (Merwe's and Julier's unit points), else None."""
+    N, n = xi.shape
+    if N != 2 * n + 1 or n < _AXIS_MIN_N:
+        return None
+    gamma = float(xi[1, 0])
+    axes = np.vstack([np.zeros((1, n)), gamma * np.eye(n), -gamma * np.eye(n)])
+    return gamma if np.array_equal(xi, axes) else None
+
+
+def _axis_points(x: np.ndarray, D: np.ndarray) -> np.ndarray:
+    """The rows ``[x, x + D, x - D]`` for ``D = gamma S^T``, shape ``(2n + 1, n)``."""
+    n = x.shape[0]
+    X = np.empty((2 * n + 1, n))
+    X[0] = x
+    np.add(x, D, out=X[1 : n + 1])
+    np.subtract(x, D, out=X[n + 1 :])
+    return X
 
 
 class Lane:
@@ -75,16 +99,30 @@ class Lane:
         G[:-1] = E * form.scale[:-1, None]
         G[-1] = form.scale[-1] * (self.plan2.wm_tail @ E)
         self.G2 = G
+        # with axis points every product with xi is a multiple of S^T (the same roundings)
+        self.gamma1 = _axis_gamma(xi1)
+        self.gamma2 = _axis_gamma(self.xi2)
+        self.gs2 = None if self.gamma2 is None else float(G[0, 0])
+        if self.gs2 is not None:
+            tail = form.scale[:-1]
+            if not np.all(tail == tail[0]):  # pairs of equal weight are what the rotation needs
+                self.gs2 = None
+            self.pair_scale = float(tail[0]) / _SQRT2
         self._prior_rows: dict[int, np.ndarray] = {}
         self._joint_rows: dict[int, np.ndarray] = {}
+        self._z_rows: dict[int, np.ndarray] = {}
+        self._paired_rows: dict[int, np.ndarray] = {}
 
     def __getstate__(self):
         state = self.__dict__.copy()
-        state["_prior_rows"], state["_joint_rows"] = {}, {}
+        for key in ("_prior_rows", "_joint_rows", "_z_rows", "_paired_rows"):
+            state[key] = {}
         return state
 
     def first_set(self, x: np.ndarray, S: np.ndarray) -> np.ndarray:
         """The first set ``x + xi1 @ S.T``, shape ``(N1, n)``."""
+        if self.gamma1 is not None:
+            return _axis_points(x, self.gamma1 * S.T)
         return self.xi1.dot(S.T) + x
 
     def prior(self, F: np.ndarray, Q1_2: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -109,9 +147,7 @@ class Lane:
         """
         N = F.shape[0]
         extra = 0 if Q1_2 is None else Q1_2.shape[1]
-        rows = self._prior_rows.get(extra)
-        if rows is None:
-            rows = self._prior_rows[extra] = np.empty((N + extra, self.n), order="F")
+        rows = self._buffer(self._prior_rows, extra, (N + extra, self.n))
         x = central_rows(F, self.plan1, rows)
         if extra:
             rows[N:] = Q1_2.T
@@ -123,6 +159,8 @@ class Lane:
     def second_set(self, x: np.ndarray, S: np.ndarray) -> SigmaSet:
         """The redrawn set ``x + xi2 @ S.T`` (exact moments; offsets are not needed)."""
         Wm, Wc = self.plan2.Wm, self.plan2.Wc
+        if self.gamma2 is not None:
+            return SigmaSet(_axis_points(x, self.gamma2 * S.T), Wm, Wc, True)
         return SigmaSet(self.xi2.dot(S.T) + x, Wm, Wc, True)
 
     def posterior(
@@ -153,14 +191,15 @@ class Lane:
         """
         N, m = H.shape
         n = self.n
-        M = self._joint_rows.get(m)
-        if M is None:
-            M = self._joint_rows[m] = np.empty((N + m, m + n), order="F")
-        z_pred = central_rows(H, self.plan2, M[:, :m])
-        M[:N, m:] = self.G2.dot(S.T)
-        M[N:, :m] = R1_2.T
-        M[N:, m:] = 0.0
-        L = tria(M)
+        if self.gs2 is not None:
+            z_pred, L = self._paired_joint(H, S, R1_2)
+        else:
+            M = self._buffer(self._joint_rows, m, (N + m, m + n))
+            z_pred = central_rows(H, self.plan2, M[:, :m])
+            M[:N, m:] = self.G2.dot(S.T)
+            M[N:, m:] = 0.0
+            M[N:, :m] = R1_2.T
+            L = tria(M)
         Sy = L[:m, :m]
         d = Sy.diagonal().tolist()  # non-negative (tria's convention); m is small
         if not (_TINY < min(d) and max(d) < _INF):
@@ -176,6 +215,41 @@ class Lane:
         if not (all_finite(L) and all_finite(x_post)):
             raise PosteriorFactorError("the posterior mean or factor is not finite", errno=303)
         return Posterior(x_post, L[m:, m:], y, z_pred, Sy, L21, w)
+
+    @staticmethod
+    def _buffer(cache: dict, m: int, shape: tuple[int, int]) -> np.ndarray:
+        rows = cache.get(m)
+        if rows is None:
+            rows = cache[m] = np.empty(shape, order="F")  # LAPACK's layout: QR works in place
+        return rows
+
+    def _paired_joint(self, H: np.ndarray, S: np.ndarray, R1_2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``z_pred`` and the joint factor for axis points, each ``+/-`` pair rotated by 45 degrees.
+
+        The pair's rows ``[s e+, gs S^T_i]`` and ``[s e-, -gs S^T_i]`` (``e = h - h_0``) have the
+        same Gram matrix as ``[s (e+ + e-) / sqrt2, 0]`` and ``[s (h+ - h-) / sqrt2, sqrt2 gs S^T_i]``.
+        The rows without a state part are triangularised first, with ``mu`` and ``R1_2^T``, into
+        ``T`` (``m x m``); then the joint QR has ``n + m`` rows instead of ``2n + 1 + m``.
+        """
+        n = self.n
+        m = H.shape[1]
+        Z = self._buffer(self._z_rows, m, (n + 1 + m, m))
+        M = self._buffer(self._paired_rows, m, (n + m, m + n))
+        h0 = H[0]
+        E = H[1:] - h0
+        mu = self.plan2.wm_tail.dot(E)
+        np.add(E[:n], E[n:], out=Z[:n])
+        Z[:n] *= self.pair_scale
+        np.multiply(mu, self.plan2.mu_scale, out=Z[n])
+        Z[n + 1 :] = R1_2.T
+        T = tria(Z)
+        B = M[:n, :m]
+        np.subtract(H[1 : n + 1], H[n + 1 :], out=B)
+        B *= self.pair_scale
+        np.multiply(S.T, self.gs2 * _SQRT2, out=M[:n, m:])
+        M[n:, :m] = T.T
+        M[n:, m:] = 0.0
+        return h0 + mu, tria(M)
 
 
 def lane_for(n: int, family, generator) -> Lane | None:

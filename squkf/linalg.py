@@ -32,14 +32,18 @@ _dgeqrf = lapack.get_lapack_funcs("geqrf", dtype=np.float64)
 _dtrtrs = lapack.get_lapack_funcs("trtrs", dtype=np.float64)
 _dpotrf = lapack.get_lapack_funcs("potrf", dtype=np.float64)
 _TINY = np.finfo(float).tiny
+_DOT_MAX = 4096  # OpenBLAS threads a dot product from 10000 entries on
 
 
 def all_finite(a: np.ndarray) -> bool:
     """Whether every entry of ``a`` is finite.
 
-    One BLAS dot product decides in the usual case: a NaN or an infinity
-    makes ``a . a`` non-finite. Only when it overflows (entries beyond about
-    1e154) is every entry tested.
+    One reduction decides in the usual case: a NaN or an infinity makes
+    ``a . a`` (or the sum of ``a``) non-finite. Only when that overflows is
+    every entry tested. Small arrays use the BLAS dot product, the cheapest
+    call; from ``_DOT_MAX`` entries on, numpy's own sum, because a threaded
+    BLAS wakes its threads for a long dot product, which on a busy or
+    virtual machine costs milliseconds.
 
     Parameters
     ----------
@@ -49,7 +53,8 @@ def all_finite(a: np.ndarray) -> bool:
     -------
     bool
     """
-    return math.isfinite(np.vdot(a, a)) or bool(np.isfinite(a).all())
+    s = np.vdot(a, a) if a.size <= _DOT_MAX else a.sum()
+    return math.isfinite(s) or bool(np.isfinite(a).all())
 
 
 def tria(rows: np.ndarray) -> np.ndarray:

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import copy
+import functools
 import math
 import sys
 from collections.abc import Callable
 
 import numpy as np
 
+from . import blas
 from .covariance import FactorSlot
 from .errors import NonFiniteError, ParameterError, ShapeError
 from .generators import as_generator, sigma_points_from_factor
@@ -31,6 +33,19 @@ def _readonly(a: np.ndarray | None) -> np.ndarray | None:
     v = a.view()
     v.flags.writeable = False
     return v
+
+
+def _one_blas_thread(method):
+    """Run ``method`` on one BLAS thread for states of ``blas.MIN_DIM`` or more (see :mod:`squkf.blas`)."""
+
+    @functools.wraps(method)
+    def run(self, *args, **kwargs):
+        if blas.MIN_DIM is not None and self._dim_x >= blas.MIN_DIM:
+            with blas.one_blas_thread():
+                return method(self, *args, **kwargs)
+        return method(self, *args, **kwargs)
+
+    return run
 
 
 class SquareRootUKF:
@@ -484,6 +499,7 @@ class SquareRootUKF:
             raise
         return x, _readonly(S)
 
+    @_one_blas_thread
     def _tell_predict(self, sigmas_f, Q, UT, lane: Lane | None) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`tell_predict` without the snapshot (the caller restores the machine on failure)."""
         Q1_2 = self._noise_factor(Q, self._Q, "Q", self._dim_x)
@@ -548,6 +564,7 @@ class SquareRootUKF:
         x, S = self._tell_update(sigmas_h, self._as_measurement(z, R), R, UT, self._plain_lane(UT))
         return x, _readonly(S)
 
+    @_one_blas_thread
     def _tell_update(self, sigmas_h, z: np.ndarray, R, UT, lane: Lane | None) -> tuple[np.ndarray, ...]:
         """:meth:`tell_update` with ``z`` already validated (a fresh array, kept as ``self.z``)."""
         R1_2 = self._noise_factor(R, self._R, "R", z.shape[0])

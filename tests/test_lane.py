@@ -74,7 +74,17 @@ FAMILIES = [
     offset=st.sampled_from([0.0, 1e3, 1e8]),
 )
 def test_lane_equals_general_step(n, m, fam, seed, offset):
-    points = FAMILIES[fam]
+    _compare_one_step(n, m, FAMILIES[fam], seed, offset)
+
+
+@pytest.mark.parametrize("n", [32, 40])
+def test_lane_axis_points_for_large_n(n):
+    # from n = 32 the lane builds Merwe's sets as x +/- gamma S^T, without the product xi S^T
+    fast = _compare_one_step(n, 7, MerweScaledWeights(0.5, 2.0, 3.0 - n), seed=n, offset=1e3)
+    assert fast._lane.gamma1 is not None and fast._lane.gs2 is not None
+
+
+def _compare_one_step(n, m, points, seed, offset):
     x0 = np.full(n, offset)
     fast, rng = _filter(n, m, points, seed, x0)
     slow, _ = _filter(n, m, points, seed, x0, plain=False)
@@ -108,6 +118,7 @@ def test_lane_equals_general_step(n, m, fam, seed, offset):
     assert np.allclose(fast.K, slow.K, rtol=0, atol=rel * (1 + np.abs(slow.K).max()))
     # log|Sy| moves by sum(dSy_ii / Sy_ii) and w.w by about 2 |w|^2 times the relative change
     assert abs(fast.log_likelihood - slow.log_likelihood) <= rel * (m + 2 * w @ w + 1)
+    return fast
 
 
 @pytest.mark.parametrize(
