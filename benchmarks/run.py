@@ -329,7 +329,7 @@ def _sizes(quick: bool) -> dict:
         return {"steps": 20, "reps": 2, "dims": [2, 4, 8], "scale_steps": 5, "scale_reps": 1, "sweep": 200}
     return {
         "steps": 200,
-        "reps": 7,
+        "reps": 11,
         "dims": [2, 4, 8, 16, 32, 64, 100],
         "scale_steps": 20,
         "scale_reps": 3,

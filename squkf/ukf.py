@@ -432,7 +432,16 @@ class SquareRootUKF:
     def _evaluate(self, fn: Callable, sigmas: np.ndarray, args: tuple, kwargs: dict) -> object:
         if self.vectorized:
             return fn(sigmas, *args, **kwargs)
-        return [fn(s, *args, **kwargs) for s in sigmas]
+        # one call per point: spelled out for the common cases, since unpacking *args and
+        # **kwargs at every call costs more than the loop itself
+        if kwargs:
+            return [fn(s, *args, **kwargs) for s in sigmas]
+        if not args:
+            return [fn(s) for s in sigmas]
+        if len(args) == 1:
+            dt = args[0]
+            return [fn(s, dt) for s in sigmas]
+        return [fn(s, *args) for s in sigmas]
 
     @staticmethod
     def _hook(fn, default):
