@@ -58,7 +58,7 @@ def as_matrix(value, name: str, dim: int | None) -> np.ndarray:
         raise SqukfValueError(
             f"{name} is not symmetric: max |{name} - {name}.T| = {asym:.3g} (max |{name}| = {scale:.3g})"
         )
-    return 0.5 * (A + A.T)
+    return 0.5 * A + 0.5 * A.T  # halves first: A + A.T overflows for entries near the largest float
 
 
 def as_lower_factor(value, name: str, dim: int | None, singular_ok: bool) -> np.ndarray:
