@@ -26,12 +26,13 @@ with ``s_k = sqrt(Wc_k)``, ``c = sqrt(sum(Wc) - 2)`` and ``mu_z`` the
 central form's mean offset of the images (see :mod:`squkf.transform`).
 
 For larger states (``n >= 32``) with Merwe's axis points ``xi = [0; g I; -g I]``
-two things change, neither the arithmetic of a single entry: the sets are
-built as ``x +/- g S^T`` (O(n^2) instead of the O(n^3) product), and each
-``+/-`` pair of joint rows is rotated by 45 degrees (:meth:`Lane._paired_joint`),
-which leaves ``n`` rows with no state part; those are triangularised first, so
-the joint QR has ``n + m`` rows instead of ``2n + 1 + m`` (about 40% fewer
-flops in the update's QR at ``n = 100``).
+two things change. The sets are built as ``x +/- g S^T``, O(n^2) instead of
+the O(n^3) product, with the same numbers. And each ``+/-`` pair of joint rows
+is rotated by 45 degrees (:meth:`Lane._paired_joint`), an orthogonal change of
+rows (the same Gram matrix, other roundings) that leaves ``n`` rows with no
+state part; those are triangularised first, so the joint QR has ``n + m``
+rows instead of ``2n + 1 + m`` (about 40% fewer flops in the update's QR at
+``n = 100``).
 """
 
 from __future__ import annotations
@@ -110,6 +111,7 @@ class Lane:
         # with axis points every product with xi is a multiple of S^T (the same roundings)
         self.gamma1 = _axis_gamma(xi1)
         self.gamma2 = _axis_gamma(self.xi2)
+        # for axis points G2 = [gs I; -gs I; 0]: the update's state rows are +/- gs S^T
         self.gs2 = None if self.gamma2 is None else float(G[0, 0])
         if self.gs2 is not None:
             tail = form.scale[:-1]
