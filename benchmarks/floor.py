@@ -111,3 +111,85 @@ def inline_impls() -> list[Impl]:
         )
         for vec in (False, True)
     ]
+
+
+def _median_us(fn, reps: int) -> float:
+    for _ in range(20):
+        fn()
+    times = []
+    for _ in range(reps):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return 1e6 * float(np.median(times))
+
+
+def step_profile(sc, reps: int = 1000) -> dict[str, float]:
+    """Where one predict+update of ``SquareRootUKF`` spends its time, in microseconds.
+
+    The step runs vectorised with cheap linear model functions of the
+    scenario's sizes, so that the library's own time dominates. Each part is
+    then timed alone on the inputs of one such step; the facade's share is
+    what remains of the whole step's time.
+    """
+    from squkf import MerweScaledWeights, SquareRootUKF
+    from squkf.step import check_values
+    from squkf.transform import central_rows
+
+    n, m = sc.dim_x, sc.dim_z
+    A, C = np.eye(n) * 0.99, np.eye(m, n)
+
+    def fx(X, dt):
+        return X.dot(A.T)
+
+    def hx(X):
+        return X.dot(C.T)
+
+    f = SquareRootUKF(n, m, sc.dt, hx, fx, MerweScaledWeights(sc.alpha, sc.beta, sc.kappa), vectorized=True)
+    f.x, f.P, f.Q, f.R = sc.x0, sc.P0, sc.Q, sc.R
+    z = hx(sc.x0[None])[0] + 0.1
+
+    def step():
+        f.predict()
+        f.update(z)
+
+    total = _median_us(step, reps)
+    lane = f._plain_lane(None)
+    x, S, Q1_2, R1_2 = f.x.copy(), np.array(f.P1_2), f._Q.factor(), f._R.factor()
+    X1 = lane.first_set(x, S)
+    F = fx(X1, sc.dt)
+    xp, Sp = lane.prior(F, Q1_2)
+    X2 = lane.second_set(xp, Sp).sigmas
+    H = hx(X2)
+    qr = 1e3 * qr_ms(n, m, X1.shape[0], reps)
+    buf1 = np.empty((F.shape[0] + n, n), order="F")
+    buf2 = np.empty((H.shape[0] + m, m + n), order="F")
+    rows_us = _median_us(
+        lambda: (central_rows(F, lane.plan1, buf1), central_rows(H, lane.plan2, buf2[:, :m])), reps
+    )
+    parts = {
+        "model functions (cheap, linear)": _median_us(lambda: (fx(X1, sc.dt), hx(X2)), reps),
+        "two QR factorisations (LAPACK)": qr,
+        "sigma points of both sets": _median_us(
+            lambda: (lane.first_set(x, S), lane.second_set(xp, Sp)), reps
+        ),
+        "central-form rows of both transforms": rows_us,
+        "the rest of prior and posterior: triangle and sign, solve, mean, result checks": _median_us(
+            lambda: (lane.prior(F, Q1_2), lane.posterior(H, xp, Sp, z, R1_2)), reps
+        )
+        - qr
+        - rows_us,
+        "checks of what fx, hx and z bring": _median_us(
+            lambda: (
+                check_values(F, F.shape, "fx"),
+                check_values(H, H.shape, "hx"),
+                f._as_measurement(z, None),
+            ),
+            reps,
+        ),
+    }
+    parts["facade and step machine (edit checks, transaction, filterpy's attributes)"] = total - sum(
+        parts.values()
+    )
+    parts["whole step"] = total
+    return parts

@@ -55,7 +55,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(HERE))
 
-from floor import inline_impls, qr_ms  # noqa: E402
+from floor import inline_impls, qr_ms, step_profile  # noqa: E402
 from models import SCENARIOS, Lorenz96, near_singular  # noqa: E402
 from peers import implementations  # noqa: E402
 
@@ -232,7 +232,21 @@ def floor_section(table, qr) -> list[str]:
     return lines + [""]
 
 
-def write_results(out: Path, table, scale, dims, swept, P0s, skipped, impls, threaded, qr) -> None:
+def profile_section(profile) -> list[str]:
+    """One step of squkf (vectorised, cheap linear models) split into its parts (floor.step_profile)."""
+    names = list(profile)
+    lines = [
+        "## Profile of one step (squkf redrawn, vectorised, cheap linear fx/hx; microseconds)",
+        "",
+        "| part | " + " | ".join(names) + " |",
+        "|---" * (len(names) + 1) + "|",
+    ]
+    for part in next(iter(profile.values())):
+        lines.append(f"| {part} | " + " | ".join(f"{profile[sc][part]:.1f}" for sc in names) + " |")
+    return lines + [""]
+
+
+def write_results(out: Path, table, scale, dims, swept, P0s, skipped, impls, threaded, qr, profile) -> None:
     out.mkdir(parents=True, exist_ok=True)
     lines = ["# Benchmark results", "", header(ARGS.threads if ARGS else "1"), ""]
     if skipped:
@@ -248,7 +262,7 @@ def write_results(out: Path, table, scale, dims, swept, P0s, skipped, impls, thr
             f"| {sc} | {name} | {r['t_ms']:.3f} | {r['own_ms']:.3f} | {r['ratio']:.2f} | "
             f"{r['rmse']:.3g} | {r['nees']:.3g} | {fail} |"
         )
-    lines += [""] + targets_section(table) + floor_section(table, qr)
+    lines += [""] + targets_section(table) + floor_section(table, qr) + profile_section(profile)
     if threaded["table"]:
         lines += [
             "## Default BLAS threading (same runs, measured in a subprocess)",
@@ -368,7 +382,10 @@ def main() -> int:
     P0s = [1e2, 1e3, 1e4, 1e5, 1e6]
     swept = sweep(impls, P0s, size["sweep"])
     qr = {sc.name: qr_ms(sc.dim_x, sc.dim_z, 2 * sc.dim_x + 1) for sc in scenarios}
-    write_results(Path(args.out), table, scale, size["dims"], swept, P0s, skipped, impls, threaded, qr)
+    profile = {sc.name: step_profile(sc, 200 if args.quick else 2000) for sc in scenarios}
+    write_results(
+        Path(args.out), table, scale, size["dims"], swept, P0s, skipped, impls, threaded, qr, profile
+    )
     print((Path(args.out) / "results.md").read_text())
     return 0
 

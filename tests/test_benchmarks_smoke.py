@@ -36,5 +36,15 @@ def test_quick_benchmark_writes_results(tmp_path):
     ref = rows["reference: inlined step, no checks vectorised"]
     assert ref[5:7] == rows["squkf redrawn vectorised"][5:7]
     assert "| g13ej robot n=3 | " in text.split("## Where the library's time goes")[1]
+    # the profile's parts add up to the whole step (the facade's share is the remainder, so
+    # this checks that every part was measured and written)
+    profile = text.split("## Profile of one step")[1].split("##")[0]
+    cells = {
+        row.split("|")[1].strip(): float(row.split("|")[2])
+        for row in profile.splitlines()
+        if row.startswith("| ") and "---" not in row and "part" not in row
+    }
+    whole = cells.pop("whole step")
+    assert len(cells) == 7 and abs(sum(cells.values()) - whole) < 0.5
     assert (tmp_path / "scaling.png").stat().st_size > 1000
     assert (tmp_path / "failure_map.png").stat().st_size > 1000
