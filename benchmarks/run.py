@@ -1,6 +1,6 @@
 """Speed, accuracy and robustness of SquareRootUKF against filterpy's UKF and its peers, in one run.
 
-    python benchmarks/run.py            # full run (~10 min), results in benchmarks/results/
+    python benchmarks/run.py            # full run (a few minutes), results in benchmarks/results/
     python benchmarks/run.py --quick    # smoke test (CI), well under a minute
 
 Implementations are interleaved over repetitions in one process; times are
@@ -11,8 +11,11 @@ measured by wrapping them, and the library's own time is the rest.
 
 BLAS is pinned to one thread for the main tables (``--threads 1``, set before
 numpy is imported); a second speed table is measured in a subprocess with the
-BLAS library's default threading. Peers are used when installed
-(``pip install -e ".[bench]"``); those not installed are listed as skipped.
+BLAS library's default threading, with the largest Lorenz-96 state too. Peers
+are used when installed (``pip install -e ".[bench]"``); those not installed
+are listed as skipped. Beside them run two references from ``floor.py``: the
+step's QRs alone and the same step inlined with no checks, and a profile of
+one squkf step split into its parts.
 """
 
 from __future__ import annotations
