@@ -86,35 +86,27 @@ class CoordinatedTurn(Scenario):
         self.R = np.diag([25.0, 0.002**2])
         self.alpha, self.kappa = 0.1, 0.0
 
+    @staticmethod
+    def _turn(px, vx, py, vy, w, s, c):
+        # the same expressions for floats (one point) and for columns (all points)
+        return [
+            px + (s * vx - (1 - c) * vy) / w,
+            c * vx - s * vy,
+            py + ((1 - c) * vx + s * vy) / w,
+            s * vx + c * vy,
+            w,
+        ]
+
     def fx(self, x, dt):
         px, vx, py, vy, w = x.tolist()
         if abs(w) < 1e-9:
             w = math.copysign(1e-9, w)
-        s, c = math.sin(w * dt), math.cos(w * dt)
-        return np.array(
-            [
-                px + (s * vx - (1 - c) * vy) / w,
-                c * vx - s * vy,
-                py + ((1 - c) * vx + s * vy) / w,
-                s * vx + c * vy,
-                w,
-            ]
-        )
+        return np.array(self._turn(px, vx, py, vy, w, math.sin(w * dt), math.cos(w * dt)))
 
     def fx_vec(self, X, dt):
         px, vx, py, vy, w = X.T
         w = np.where(np.abs(w) < 1e-9, np.copysign(1e-9, w), w)
-        s, c = np.sin(w * dt), np.cos(w * dt)
-        return np.stack(
-            [
-                px + (s * vx - (1 - c) * vy) / w,
-                c * vx - s * vy,
-                py + ((1 - c) * vx + s * vy) / w,
-                s * vx + c * vy,
-                w,
-            ],
-            axis=1,
-        )
+        return np.stack(self._turn(px, vx, py, vy, w, np.sin(w * dt), np.cos(w * dt)), axis=1)
 
     def hx(self, x):
         px, py = x[0], x[2]

@@ -39,16 +39,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import GainError, NonFiniteError, PosteriorFactorError
+from .errors import NonFiniteError, PosteriorFactorError
 from .generators import Redrawn, SigmaSet, _identity_moments
 from .linalg import all_finite, solve_lower, tria
-from .measurement import Posterior
-from .transform import _cacheable, central_rows, weight_plan
+from .measurement import Posterior, check_gain
+from .transform import _cacheable, central_rows, transform_factor, weight_plan
 
 __all__ = ["Lane", "lane_for"]
 
-_TINY = np.finfo(float).tiny
-_INF = float("inf")
 _SQRT2 = float(np.sqrt(2.0))
 # From this dimension on, the symmetric sets are built as x +/- gamma S^T (O(n^2)) rather than by
 # the product xi @ S^T (O(n^3)); below it the one product is fewer array operations (measured).
@@ -102,11 +100,8 @@ class Lane:
         self.xi2 = family2.unit_sigma_points(n)
         self.plan2 = weight_plan(*family2.weights(n))
         form = self.plan2.best
-        N2 = self.xi2.shape[0]
-        E = self.xi2[1:] - self.xi2[0]
-        G = np.empty((N2, n))
-        G[:-1] = E * form.scale[:-1, None]
-        G[-1] = form.scale[-1] * (self.plan2.wm_tail @ E)
+        G = np.empty((self.xi2.shape[0], n))
+        central_rows(self.xi2, self.plan2, G)  # the rows of the unit points: x + xi S^T gives G S^T
         self.G2 = G
         # with axis points every product with xi is a multiple of S^T (the same roundings)
         self.gamma1 = _axis_gamma(xi1)
@@ -158,10 +153,7 @@ class Lane:
         N = F.shape[0]
         extra = 0 if Q1_2 is None else Q1_2.shape[1]
         rows = self._buffer(self._prior_rows, extra, (N + extra, self.n))
-        x = central_rows(F, self.plan1, rows)
-        if extra:
-            rows[N:] = Q1_2.T
-        S = tria(rows)
+        x, S = transform_factor(F, self.plan1, Q1_2, rows=rows)
         if not (all_finite(S) and all_finite(x)):
             raise NonFiniteError("the predicted mean or factor is not finite (overflow)")
         return x, S
@@ -211,13 +203,7 @@ class Lane:
             M[N:, :m] = R1_2.T
             L = tria(M)
         Sy = L[:m, :m]
-        d = Sy.diagonal().tolist()  # non-negative (tria's convention); m is small
-        if not (_TINY < min(d) and max(d) < _INF):
-            raise GainError(
-                f"innovation factor is singular (diagonal {np.array2string(Sy.diagonal(), precision=3)}): "
-                "cannot form the Kalman gain",
-                errno=302,
-            )
+        check_gain(Sy)
         L21 = L[m:, :m]
         y = z - z_pred
         w = solve_lower(Sy, y)

@@ -35,9 +35,10 @@ from .transform import (
     weighted_mean,
 )
 
-__all__ = ["Posterior", "measurement_update", "gain_from_factors"]
+__all__ = ["Posterior", "measurement_update", "gain_from_factors", "check_gain"]
 
 _TINY = np.finfo(float).tiny
+_INF = float("inf")
 
 
 class Posterior(NamedTuple):
@@ -151,7 +152,7 @@ def measurement_update(
             z_pred, Sy = UT(sigmas_h, sset.Wm, sset.Wc, R1_2, z_mean_fn, residual_z)
             z_pred = np.asarray(z_pred, dtype=float).reshape(m)
             Sy = np.asarray(Sy, dtype=float).reshape(m, m)
-        _check_gain(Sy)
+        check_gain(Sy)
         Dz = deviations(sigmas_h, z_pred, residual_z)
         Dx = _state_deviations(sset, x, residual_x)
         Pxy = (Dx.T * sset.Wc) @ Dz
@@ -211,7 +212,7 @@ def _joint_factor(sset, plan, sigmas_h, x, R1_2, z_mean_fn, residual_x, residual
     for k in neg:
         L = _downdate_joint(L, form.scale[k] * np.concatenate([Dz[k], Dx[k]]), m, form.weights[k])
     Sy = L[:m, :m]
-    _check_gain(Sy)
+    check_gain(Sy)
     return z_pred, Sy, L[m:, :m], L[m:, m:]
 
 
@@ -239,9 +240,9 @@ def _downdate_joint(L: np.ndarray, v: np.ndarray, m: int, weight: float) -> np.n
         ) from None
 
 
-def _check_gain(Sy: np.ndarray) -> None:
-    d = Sy.diagonal()
-    if not _TINY < np.abs(d).min() <= np.abs(d).max() < np.inf:
+def check_gain(Sy: np.ndarray) -> None:
+    """Raise GainError (IFAIL 302) unless each diagonal entry of ``Sy`` is finite and above ``tiny``."""
+    if not all(_TINY < abs(v) < _INF for v in Sy.diagonal().tolist()):  # a NaN fails too; m is small
         raise GainError(
             f"innovation factor is singular (diagonal {np.array2string(Sy.diagonal(), precision=3)}): "
             "cannot form the Kalman gain",

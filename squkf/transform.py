@@ -383,6 +383,7 @@ def transform_factor(
     residual_fn: Callable | None = None,
     errno: int = 301,
     error: type[DowndateError] | type = DowndateError,
+    rows: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Weighted mean and lower factor of the points' covariance plus additive noise.
 
@@ -396,6 +397,9 @@ def transform_factor(
     errno : int
     error : exception class
         For a failed downdate.
+    rows : ndarray, shape (N + k, d), Fortran order, optional
+        A buffer for the QR of a ``plan.fast`` transform (overwritten; kept
+        between calls by :class:`squkf.lane.Lane`); allocated when not given.
 
     Returns
     -------
@@ -406,7 +410,8 @@ def transform_factor(
     if plain and plan.fast:
         N, d = sigmas.shape
         extra = 0 if noise_sqrt is None else noise_sqrt.shape[1]
-        rows = np.empty((N + extra, d), order="F")  # LAPACK's layout: no copy in tria
+        if rows is None:
+            rows = np.empty((N + extra, d), order="F")  # LAPACK's layout: no copy in tria
         mean = central_rows(sigmas, plan, rows)
         if extra:
             rows[N:] = noise_sqrt.T
