@@ -133,8 +133,10 @@ def step_profile(sc, reps: int = 1000) -> dict[str, float]:
     what remains of the whole step's time.
     """
     from squkf import MerweScaledWeights, SquareRootUKF
-    from squkf.step import check_values
-    from squkf.transform import central_rows
+    from squkf.generators import sigma_points_and_offsets
+    from squkf.measurement import measurement_update
+    from squkf.transform import central_rows, transform_factor
+    from squkf.validate import check_values
 
     n, m = sc.dim_x, sc.dim_z
     A, C = np.eye(n) * 0.99, np.eye(m, n)
@@ -154,28 +156,35 @@ def step_profile(sc, reps: int = 1000) -> dict[str, float]:
         f.update(z)
 
     total = _median_us(step, reps)
-    lane = f._plain_lane(None)
+    plan = f._plan
     x, S, Q1_2, R1_2 = f.x.copy(), np.array(f.P1_2), f._Q.factor(), f._R.factor()
-    X1 = lane.first_set(x, S)
+    first = plan.first
+    X1 = sigma_points_and_offsets(x, S, first.xi, None, first.gamma)[0]
     F = fx(X1, sc.dt)
-    xp, Sp = lane.prior(F, Q1_2)
-    X2 = lane.second_set(xp, Sp).sigmas
+    xp, Sp = transform_factor(F, first.rows, Q1_2)
+    sset = plan.second.draw(xp, Sp, None, None, None)
+    X2 = sset.sigmas
     H = hx(X2)
     qr = 1e3 * qr_ms(n, m, X1.shape[0], reps)
     buf1 = np.empty((F.shape[0] + n, n), order="F")
     buf2 = np.empty((H.shape[0] + m, m + n), order="F")
     rows_us = _median_us(
-        lambda: (central_rows(F, lane.plan1, buf1), central_rows(H, lane.plan2, buf2[:, :m])), reps
+        lambda: (central_rows(F, first.rows, buf1), central_rows(H, sset.rows, buf2[:, :m])), reps
     )
     parts = {
         "model functions (cheap, linear)": _median_us(lambda: (fx(X1, sc.dt), hx(X2)), reps),
         "two QR factorisations (LAPACK)": qr,
         "sigma points of both sets": _median_us(
-            lambda: (lane.first_set(x, S), lane.second_set(xp, Sp)), reps
+            lambda: (
+                sigma_points_and_offsets(x, S, first.xi, None, first.gamma),
+                plan.second.draw(xp, Sp, None, None, None),
+            ),
+            reps,
         ),
         "central-form rows of both transforms": rows_us,
         "the rest of prior and posterior: triangle and sign, solve, mean, result checks": _median_us(
-            lambda: (lane.prior(F, Q1_2), lane.posterior(H, xp, Sp, z, R1_2)), reps
+            lambda: (transform_factor(F, first.rows, Q1_2), measurement_update(xp, Sp, sset, H, z, R1_2)),
+            reps,
         )
         - qr
         - rows_us,

@@ -15,6 +15,7 @@ import numpy as np
 
 from .errors import NonFiniteError, NotPositiveDefiniteError, ShapeError, SqukfValueError
 from .linalg import factor_covariance
+from .validate import as_float_array
 
 __all__ = ["FactorSlot", "as_matrix", "as_lower_factor"]
 
@@ -25,6 +26,8 @@ def as_matrix(value, name: str, dim: int | None) -> np.ndarray:
     Parameters
     ----------
     value : array_like or float
+        A square matrix; a scalar (``value * I``); for ``dim == 1`` also a
+        1-element array.
     name : str
         Argument name for messages.
     dim : int or None
@@ -39,14 +42,18 @@ def as_matrix(value, name: str, dim: int | None) -> np.ndarray:
     ------
     ShapeError, NonFiniteError, SqukfValueError (not symmetric)
     """
-    try:
-        A = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ShapeError(f"{name} must be a float matrix: {exc}") from None
+    A = as_float_array(value, name)
+    if A.ndim == 1 and A.shape[0] == 1 and dim in (None, 1):
+        A = A.reshape(1, 1)
     if A.ndim == 0 and dim is not None:
         if not np.isfinite(A):
             raise NonFiniteError(f"{name} is not finite: {float(A)!r}")
         A = A * np.eye(dim)
+    if A.ndim == 1 and A.shape[0] > 1:
+        raise ShapeError(
+            f"{name} is a 1-D array of length {A.shape[0]}; a covariance is a matrix: "
+            f"for a diagonal one use np.diag({name})"
+        )
     if A.ndim != 2 or A.shape[0] != A.shape[1] or (dim is not None and A.shape[0] != dim):
         want = f"({dim}, {dim})" if dim is not None else "square"
         raise ShapeError(f"{name} has shape {A.shape}, expected {want}")
@@ -70,10 +77,12 @@ def as_lower_factor(value, name: str, dim: int | None, singular_ok: bool) -> np.
     Parameters
     ----------
     value : array_like
+        A lower-triangular matrix; a scalar (``value * I``); for ``dim == 1``
+        also a 1-element array.
     name : str
     dim : int or None
     singular_ok : bool
-        Accept zeros on the diagonal (process noise of lower rank).
+        Accept zeros on the diagonal (a covariance of lower rank).
 
     Returns
     -------
@@ -84,10 +93,9 @@ def as_lower_factor(value, name: str, dim: int | None, singular_ok: bool) -> np.
     ShapeError, NonFiniteError, SqukfValueError (not lower triangular),
     NotPositiveDefiniteError (zero on the diagonal)
     """
-    try:
-        S = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ShapeError(f"{name} must be a float matrix: {exc}") from None
+    S = as_float_array(value, name)
+    if S.ndim == 1 and S.shape[0] == 1 and dim in (None, 1):
+        S = S.reshape(1, 1)
     if S.ndim == 0 and dim is not None:
         if not np.isfinite(S):
             raise NonFiniteError(f"{name} is not finite: {float(S)!r}")
@@ -118,6 +126,13 @@ def as_lower_factor(value, name: str, dim: int | None, singular_ok: bool) -> np.
 class FactorSlot:
     """One covariance (``P``, ``Q`` or ``R``) held as its lower factor.
 
+    The factor is the truth. The matrix is formed when first read and then
+    handed out as the same array until the factor changes, so that edits in
+    place (also several statements of them) reach it; they are validated and
+    factored when the factor is next needed (:meth:`factor`). An assignment is
+    validated at once, and one that fails changes nothing, pending in-place
+    edits included.
+
     Parameters
     ----------
     name : str
@@ -126,45 +141,52 @@ class FactorSlot:
         Fixed size, or None for any size.
     semidefinite : bool
         Whether a singular covariance is acceptable (noise) or not (``P``).
+        A factor given directly is accepted exactly when its covariance is.
     factor : ndarray or None
         Initial lower factor; None means a zero covariance (no noise).
-    singular_factor_ok : bool, optional
-        Whether a factor assigned directly may have zeros on its diagonal
-        (default: as ``semidefinite``).
     """
 
-    def __init__(
-        self,
-        name: str,
-        dim: int | None,
-        semidefinite: bool,
-        factor: np.ndarray | None,
-        singular_factor_ok: bool | None = None,
-    ):
+    def __init__(self, name: str, dim: int | None, semidefinite: bool, factor: np.ndarray | None):
         self.name = name
-        self.singular_factor_ok = semidefinite if singular_factor_ok is None else singular_factor_ok
         self.dim = dim
         self.semidefinite = semidefinite
         self._factor = factor
-        self._view = None  # the matrix last handed out
-        self._snap = None  # its bytes when handed out (compared to see in-place edits)
+        self._view: np.ndarray | None = None  # the matrix handed out
+        self._snap: bytes | None = None  # its bytes when it matched the factor
 
     def _size(self) -> int:
         if self._factor is not None:
             return self._factor.shape[0]
         return self.dim if self.dim is not None else 0
 
-    # The factor is the truth; the matrix a view of it that may be edited.
+    def pending(self) -> bool:
+        """Whether the matrix handed out was edited in place since it matched the factor."""
+        return self._view is not None and self._view.tobytes() != self._snap
 
     def factor(self) -> np.ndarray | None:
-        """The current lower factor (None: zero covariance), after absorbing in-place edits."""
-        if self._view is not None and self._view.tobytes() != self._snap:
-            self.set_matrix(self._view)
+        """The current lower factor (None: zero covariance), after validating in-place edits.
+
+        The array returned is the slot's own: callers inside the library only
+        read it, and hand out copies.
+
+        Raises
+        ------
+        SqukfValueError, NotPositiveDefiniteError
+            The edited matrix is not a valid covariance; the edit stays pending.
+        """
+        if self.pending():
+            S = self._factor_of(as_matrix(self._view, self.name, self.dim))
+            self._factor = S
+            self._snap = self._view.tobytes()
         return self._factor
 
+    def _factor_of(self, A: np.ndarray) -> np.ndarray | None:
+        if self.semidefinite and not np.any(A):
+            return None
+        return factor_covariance(A, self.name, semidefinite=self.semidefinite)
+
     def matrix(self) -> np.ndarray:
-        """The covariance ``S @ S.T``; edits to the returned array take effect."""
-        self.factor()
+        """The covariance ``S @ S.T``; edits to the returned array take effect at the next step."""
         if self._view is None:
             S = self._factor
             n = self._size()
@@ -173,45 +195,28 @@ class FactorSlot:
         return self._view
 
     def set_matrix(self, value) -> None:
-        """Assign from a covariance matrix (validated, factored once)."""
+        """Assign from a covariance matrix (validated, factored once; a copy is kept)."""
         if value is None:
             if not self.semidefinite:
                 raise SqukfValueError(f"{self.name} cannot be None")
             self._factor, self._view, self._snap = None, None, None
             return
-        try:
-            A = as_matrix(value, self.name, self.dim)
-        except SqukfValueError:
-            self._forget_view()
-            raise
-        if self.semidefinite and not np.any(A):
-            S = None
-        else:
-            try:
-                S = factor_covariance(A, self.name, semidefinite=self.semidefinite)
-            except NotPositiveDefiniteError:
-                self._forget_view()
-                raise
-        self._factor = S
-        self._view = A
-        self._snap = A.tobytes()
-
-    def _forget_view(self):
-        # a rejected in-place edit must not be retried on every later call
-        self._view, self._snap = None, None
+        A = as_matrix(value, self.name, self.dim)
+        S = self._factor_of(A)
+        self._factor, self._view, self._snap = S, A, A.tobytes()
 
     def set_factor(self, value) -> None:
-        """Assign from a lower-triangular factor (validated)."""
+        """Assign from a lower-triangular factor (validated; a copy is kept)."""
         if value is None and self.semidefinite:
             self._factor, self._view, self._snap = None, None, None
             return
-        S = as_lower_factor(value, f"{self.name}1_2", self.dim, singular_ok=self.singular_factor_ok)
+        S = as_lower_factor(value, f"{self.name}1_2", self.dim, singular_ok=self.semidefinite)
         if self.semidefinite and not np.any(S):
             S = None
         self._factor, self._view, self._snap = S, None, None
 
     def set_trusted_factor(self, S: np.ndarray) -> None:
-        """Install a factor computed by the filter itself (no validation)."""
+        """Install a factor computed by the filter itself (no validation; not copied)."""
         self._factor, self._view, self._snap = S, None, None
 
     def factor_or_zeros(self) -> np.ndarray:

@@ -27,6 +27,8 @@ from typing import NamedTuple
 import numpy as np
 
 from .errors import ParameterError
+from .rows import WeightRows, weight_rows
+from .validate import call_hook
 from .weights import as_family
 
 __all__ = [
@@ -34,7 +36,10 @@ __all__ = [
     "Redrawn",
     "Augmented",
     "Propagated",
+    "UnitSet",
     "as_generator",
+    "prepare_second_set",
+    "axis_gamma",
     "sigma_points_from_factor",
     "sigma_points_and_offsets",
 ]
@@ -45,16 +50,23 @@ class SigmaSet(NamedTuple):
 
     Attributes
     ----------
-    sigmas : ndarray, shape (N, n)
+    sigmas : ndarray, shape (..., N, n)
     Wm, Wc : ndarray, shape (N,)
     moments_exact : bool
         The points' weighted mean and covariance are exactly the ``x`` and
         ``S @ S.T`` they were drawn for.
-    offsets : ndarray, shape (N, n), or None
+    offsets : ndarray, shape (..., N, n), or None
         ``sigmas - x`` as the generator formed it (``xi @ S.T``), before the
         rounding of adding ``x``; None when it is not known. The update uses
         it for the points' deviations, which keeps their spread when ``x`` is
         large compared with it.
+    rows : WeightRows or None
+        The covariance rows of ``(Wm, Wc)``, when the generator prepared them
+        (a plan's generators do); None makes the update compute them.
+    axis : tuple (gamma, S) or None
+        Set when ``sigmas`` are the axis points ``[x, x + gamma S^T, x - gamma S^T]``
+        of the lower factor ``S`` (``(..., n, n)``): the update then rotates
+        each ``+/-`` pair of its joint rows (see :mod:`squkf.measurement`).
     """
 
     sigmas: np.ndarray
@@ -62,39 +74,81 @@ class SigmaSet(NamedTuple):
     Wc: np.ndarray
     moments_exact: bool
     offsets: np.ndarray | None = None
+    rows: WeightRows | None = None
+    axis: tuple[float, np.ndarray] | None = None
+
+
+#: From this dimension on, axis points are built as ``x +/- gamma S^T`` (O(n^2)) rather than by the
+#: product ``xi @ S^T`` (O(n^3)), and the update rotates their pairs; below it the one product is
+#: fewer array operations (measured: benchmarks/run.py).
+AXIS_MIN_N = 32
+
+
+def axis_gamma(xi: np.ndarray) -> float | None:
+    """``gamma`` if the unit points ``xi`` are ``[0; gamma I; -gamma I]`` and ``n >= AXIS_MIN_N``.
+
+    Parameters
+    ----------
+    xi : ndarray, shape (N, n)
+
+    Returns
+    -------
+    float or None
+    """
+    N, n = xi.shape
+    if N != 2 * n + 1 or n < AXIS_MIN_N:
+        return None
+    gamma = float(xi[1, 0])
+    axes = np.vstack([np.zeros((1, n)), gamma * np.eye(n), -gamma * np.eye(n)])
+    return gamma if np.array_equal(xi, axes) else None
 
 
 def sigma_points_and_offsets(
-    x: np.ndarray, S: np.ndarray, xi: np.ndarray, state_add=None
+    x: np.ndarray, S: np.ndarray, xi: np.ndarray, state_add=None, gamma: float | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Sigma points ``x + xi[i] @ S.T`` (one per row) and their offsets ``xi @ S.T``.
 
     Parameters
     ----------
-    x : ndarray, shape (n,)
-    S : ndarray, shape (n, n)
+    x : ndarray, shape (..., n)
+    S : ndarray, shape (..., n, n)
         Lower factor of the covariance.
     xi : ndarray, shape (N, n)
         Unit sigma points.
     state_add : callable ``state_add(x, dx)``, optional
-        Called once per point when given (angles, manifolds).
+        Called once per point (and filter) when given (angles, manifolds);
+        what it returns is checked.
+    gamma : float, optional
+        ``xi`` is ``[0; gamma I; -gamma I]`` (see :func:`axis_gamma`): the
+        offsets are ``+/- gamma S^T``, formed without the product.
 
     Returns
     -------
-    sigmas : ndarray, shape (N, n)
-    offsets : ndarray, shape (N, n)
+    sigmas : ndarray, shape (..., N, n)
+    offsets : ndarray, shape (..., N, n)
     """
-    dx = xi.dot(S.T)
+    ST = np.swapaxes(S, -1, -2)
+    if gamma is None:
+        dx = np.matmul(xi, ST)
+    else:
+        n = xi.shape[1]
+        dx = np.zeros(ST.shape[:-2] + (2 * n + 1, n))
+        np.multiply(ST, gamma, out=dx[..., 1 : n + 1, :])
+        np.negative(dx[..., 1 : n + 1, :], out=dx[..., n + 1 :, :])
     if state_add is None or state_add is np.add:
-        return dx + x, dx
-    out = np.empty_like(dx)
-    for i, d in enumerate(dx):
-        out[i] = state_add(x, d)
+        return dx + x[..., None, :], dx
+    out = np.empty(np.broadcast_shapes(dx.shape, x.shape[:-1] + (1, x.shape[-1])))
+    n = x.shape[-1]
+    for idx in np.ndindex(out.shape[:-2]):
+        xk = x[idx] if x.ndim > 1 else x
+        dk = dx[idx] if dx.ndim > 2 else dx
+        for i, d in enumerate(dk):
+            out[idx + (i,)] = call_hook(state_add, (xk, d), (n,), "state_add")
     return out, dx
 
 
 def sigma_points_from_factor(x: np.ndarray, S: np.ndarray, xi: np.ndarray, state_add=None) -> np.ndarray:
-    """The sigma points of :func:`sigma_points_and_offsets` alone, shape ``(N, n)``."""
+    """The sigma points of :func:`sigma_points_and_offsets` alone, shape ``(..., N, n)``."""
     return sigma_points_and_offsets(x, S, xi, state_add)[0]
 
 
@@ -111,6 +165,39 @@ def _identity_moments(family, n: int) -> bool:
     return bool(mean_ok and cov_ok)
 
 
+class UnitSet:
+    """One family's points at one dimension, prepared once: ``x + xi @ S.T`` with its weights.
+
+    Parameters
+    ----------
+    family : sigma-point family
+    n : int
+        Dimension of the points.
+
+    Attributes
+    ----------
+    xi : ndarray, shape (N, n)
+    rows : WeightRows
+    exact : bool
+        The points reproduce the mean and covariance they are drawn for.
+    gamma : float or None
+        Set for axis points of ``n >= AXIS_MIN_N`` (see :func:`axis_gamma`).
+    """
+
+    def __init__(self, family, n: int):
+        self.xi = family.unit_sigma_points(n)
+        self.rows = weight_rows(*family.weights(n))
+        self.exact = _identity_moments(family, n)
+        self.gamma = axis_gamma(self.xi)
+
+    def draw(self, x: np.ndarray, S: np.ndarray, state_add=None) -> SigmaSet:
+        """The set for mean ``x`` ``(..., n)`` and lower factor ``S`` ``(..., n, n)``."""
+        sigmas, offsets = sigma_points_and_offsets(x, S, self.xi, state_add, self.gamma)
+        axis = None if self.gamma is None or state_add is not None else (self.gamma, S)
+        rows = self.rows
+        return SigmaSet(sigmas, rows.Wm, rows.Wc, self.exact, offsets, rows, axis)
+
+
 class Redrawn:
     """Draw the second set afresh from the predicted mean and factor (g13ej's default).
 
@@ -123,14 +210,6 @@ class Redrawn:
 
     def __init__(self, weights=None):
         self.weights = None if weights is None else as_family(weights)
-        self._exact = {}
-
-    def __getstate__(self):
-        return {"weights": self.weights}
-
-    def __setstate__(self, state):
-        self.weights = state["weights"]
-        self._exact = {}
 
     def __repr__(self):
         return f"Redrawn(weights={self.weights!r})"
@@ -143,16 +222,21 @@ class Redrawn:
         """Number of points in the second set for an ``n``-state."""
         return self.family_for(family).num_sigmas(n)
 
+    def prepare(self, family, n: int) -> _RedrawnSet:
+        """What this generator needs for ``family`` at dimension ``n``, prepared once."""
+        return _RedrawnSet(UnitSet(self.family_for(family), n))
+
     def second_set(self, x, S, *, family, propagated=None, Q1_2=None, state_add=None) -> SigmaSet:
         """The redrawn set ``x + xi @ S.T`` (see the module docstring)."""
-        fam = self.family_for(family)
-        n = x.shape[0]
-        entry = self._exact.get((id(fam), n))
-        if entry is None or entry[0] is not fam:
-            entry = self._exact[(id(fam), n)] = (fam, _identity_moments(fam, n))
-        Wm, Wc = fam.weights(n)
-        sigmas, offsets = sigma_points_and_offsets(x, S, fam.unit_sigma_points(n), state_add)
-        return SigmaSet(sigmas, Wm, Wc, entry[1], offsets)
+        return self.prepare(family, x.shape[-1]).draw(x, S, propagated, Q1_2, state_add)
+
+
+class _RedrawnSet:
+    def __init__(self, unit: UnitSet):
+        self.unit = unit
+
+    def draw(self, x, S, propagated, Q1_2, state_add) -> SigmaSet:
+        return self.unit.draw(x, S, state_add)
 
 
 class Augmented:
@@ -184,32 +268,15 @@ class Augmented:
         self.weights = None if weights is None else as_family(weights)
         if self.weights is not None:
             _require_symmetric(self.weights, "Augmented(weights=...)")
-        self._exact = {}
-
-    def __getstate__(self):
-        return {"weights": self.weights}
-
-    def __setstate__(self, state):
-        self.weights = state["weights"]
-        self._exact = {}
 
     def __repr__(self):
         return f"Augmented(weights={self.weights!r})"
 
     def family_for(self, family, n: int):
         """The ``2n``-dimensional family used for the second set."""
-        return self._resolve(family, n)[1]
-
-    def _resolve(self, family, n: int):
-        # (first family, second family, moments exact), cached per first family and n
-        entry = self._exact.get((id(family), n))
-        if entry is not None and entry[0] is family:
-            return entry
         fam2 = self._second_family(family, n)
         _require_symmetric(fam2, "the augmented family")
-        entry = (family, fam2, _augmented_exact(family, fam2, n, fam2.gamma(2 * n)))
-        self._exact[(id(family), n)] = entry
-        return entry
+        return fam2
 
     def _second_family(self, family, n: int):
         if self.weights is not None:
@@ -226,26 +293,53 @@ class Augmented:
         """Number of points in the second set for an ``n``-state: ``4n + 1``."""
         return self.family_for(family, n).num_sigmas(2 * n)
 
-    def second_set(self, x, S, *, family, propagated=None, Q1_2=None, state_add=None) -> SigmaSet:
-        """The augmented set (see the class docstring)."""
-        n = x.shape[0]
-        if propagated is None:
-            return Redrawn().second_set(x, S, family=family, state_add=state_add)
-        if Q1_2 is None:
-            Wm, Wc = family.weights(n)
-            return SigmaSet(propagated, Wm, Wc, True)
-        _, fam2, exact = self._resolve(family, n)
-        g = fam2.gamma(2 * n)
+    def prepare(self, family, n: int) -> _AugmentedSet:
+        """What this generator needs for ``family`` at dimension ``n``, prepared once."""
+        fam2 = self.family_for(family, n)
         Wm2, Wc2 = fam2.weights(2 * n)
-        centre = propagated[0]
-        extra = sigma_points_from_factor(centre, Q1_2, np.vstack([g * np.eye(n), -g * np.eye(n)]), state_add)
-        sigmas = np.vstack([propagated, extra])
-        if sigmas.shape[0] != Wm2.shape[0]:
+        if Wm2.shape[0] != family.num_sigmas(n) + 2 * n:
             raise ParameterError(
-                f"the augmented set has {sigmas.shape[0]} points but its family gives "
+                f"the augmented set has {family.num_sigmas(n) + 2 * n} points but its family gives "
                 f"{Wm2.shape[0]} weights; the first set must be a centre and +/- pairs"
             )
-        return SigmaSet(sigmas, Wm2, Wc2, exact)
+        g = fam2.gamma(2 * n)
+        return _AugmentedSet(
+            UnitSet(family, n),
+            weight_rows(Wm2, Wc2),
+            _augmented_exact(family, fam2, n, g),
+            np.vstack([g * np.eye(n), -g * np.eye(n)]),
+        )
+
+    def second_set(self, x, S, *, family, propagated=None, Q1_2=None, state_add=None) -> SigmaSet:
+        """The augmented set (see the class docstring)."""
+        return self.prepare(family, x.shape[-1]).draw(x, S, propagated, Q1_2, state_add)
+
+
+class _AugmentedSet:
+    def __init__(self, first: UnitSet, rows: WeightRows, exact: bool, noise_xi: np.ndarray):
+        self.first = first
+        self.rows = rows
+        self.exact = exact
+        self.noise_xi = noise_xi
+
+    def draw(self, x, S, propagated, Q1_2, state_add) -> SigmaSet:
+        if propagated is None:
+            return self.first.draw(x, S, state_add)
+        if Q1_2 is None:
+            r = self.first.rows
+            return SigmaSet(propagated, r.Wm, r.Wc, True, None, r)
+        centre = propagated[..., 0, :]
+        extra = sigma_points_from_factor(centre, Q1_2, self.noise_xi, state_add)
+        batch = np.broadcast_shapes(propagated.shape[:-2], extra.shape[:-2])
+        sigmas = np.concatenate(
+            [
+                np.broadcast_to(propagated, batch + propagated.shape[-2:]),
+                np.broadcast_to(extra, batch + extra.shape[-2:]),
+            ],
+            axis=-2,
+        )
+        r = self.rows
+        return SigmaSet(sigmas, r.Wm, r.Wc, self.exact, None, r)
 
 
 class Propagated:
@@ -258,12 +352,6 @@ class Propagated:
     follow a prediction) the set is redrawn with the first set's family.
     """
 
-    def __getstate__(self):
-        return {}
-
-    def __setstate__(self, state):
-        pass
-
     def __repr__(self):
         return "Propagated()"
 
@@ -271,13 +359,54 @@ class Propagated:
         """Number of points in the second set: the first set's."""
         return family.num_sigmas(n)
 
+    def prepare(self, family, n: int) -> _PropagatedSet:
+        """What this generator needs for ``family`` at dimension ``n``, prepared once."""
+        return _PropagatedSet(UnitSet(family, n))
+
     def second_set(self, x, S, *, family, propagated=None, Q1_2=None, state_add=None) -> SigmaSet:
         """The propagated first set with the first set's weights."""
-        n = x.shape[0]
+        return self.prepare(family, x.shape[-1]).draw(x, S, propagated, Q1_2, state_add)
+
+
+class _PropagatedSet:
+    def __init__(self, first: UnitSet):
+        self.first = first
+
+    def draw(self, x, S, propagated, Q1_2, state_add) -> SigmaSet:
         if propagated is None:
-            return Redrawn().second_set(x, S, family=family, state_add=state_add)
-        Wm, Wc = family.weights(n)
-        return SigmaSet(propagated, Wm, Wc, Q1_2 is None)
+            return self.first.draw(x, S, state_add)
+        r = self.first.rows
+        return SigmaSet(propagated, r.Wm, r.Wc, Q1_2 is None, None, r)
+
+
+class _UserSet:
+    """A user's generator (only ``second_set``): its weights' rows are computed when they change."""
+
+    def __init__(self, generator, family):
+        self.generator = generator
+        self.family = family
+
+    def draw(self, x, S, propagated, Q1_2, state_add) -> SigmaSet:
+        sset = self.generator.second_set(
+            x, S, family=self.family, propagated=propagated, Q1_2=Q1_2, state_add=state_add
+        )
+        if not isinstance(sset, SigmaSet):
+            raise ParameterError(f"the generator's second_set returned {type(sset).__name__}, not a SigmaSet")
+        if sset.rows is None:
+            sset = sset._replace(rows=weight_rows(sset.Wm, sset.Wc))
+        return sset
+
+
+def prepare_second_set(generator, family, n: int):
+    """The generator's second-set drawer for ``family`` at ``n`` (its ``prepare``, or an adapter).
+
+    Returns
+    -------
+    object with ``draw(x, S, propagated, Q1_2, state_add) -> SigmaSet``
+    """
+    if hasattr(generator, "prepare"):
+        return generator.prepare(family, n)
+    return _UserSet(generator, family)
 
 
 def _require_symmetric(fam, what: str):

@@ -62,34 +62,44 @@ def tria(rows: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    rows : ndarray, shape (k, n)
+    rows : ndarray, shape (..., k, n)
         Each row is one weighted column of a square root: the result ``S``
-        satisfies ``S @ S.T == rows.T @ rows``. The array is overwritten.
+        satisfies ``S @ S.T == rows.T @ rows`` (for every leading index). A
+        single matrix is factored by LAPACK's ``dgeqrf`` in place (give it in
+        Fortran order to avoid a copy); a stack by numpy's stacked QR.
 
     Returns
     -------
-    S : ndarray, shape (n, n)
+    S : ndarray, shape (..., n, n)
         Lower triangular with a non-negative diagonal. If ``k < n`` the last
         ``n - k`` columns are zero.
     """
-    k, n = rows.shape
-    # LAPACK's blocked QR needs a workspace of n * block size; below ~16 columns
-    # the unblocked code (scipy's default workspace) is faster
-    if n >= 16:
-        qr, _, _, info = _dgeqrf(rows, lwork=32 * n, overwrite_a=1)
-    else:
-        qr, _, _, info = _dgeqrf(rows, overwrite_a=1)
-    if info != 0:  # pragma: no cover - LAPACK argument error, cannot happen here
-        raise RuntimeError(f"LAPACK dgeqrf failed with info={info}")
-    # below R's diagonal dgeqrf leaves its Householder vectors: keep the triangle only; and
-    # since a column's sign does not change S @ S.T, make the diagonal non-negative (one mask)
+    k, n = rows.shape[-2:]
+    if rows.ndim == 2:
+        # LAPACK's blocked QR needs a workspace of n * block size; below ~16 columns
+        # the unblocked code (scipy's default workspace) is faster
+        if n >= 16:
+            qr, _, _, info = _dgeqrf(rows, lwork=32 * n, overwrite_a=1)
+        else:
+            qr, _, _, info = _dgeqrf(rows, overwrite_a=1)
+        if info != 0:  # pragma: no cover - LAPACK argument error, cannot happen here
+            raise RuntimeError(f"LAPACK dgeqrf failed with info={info}")
+        # below R's diagonal dgeqrf leaves its Householder vectors: keep the triangle only; and
+        # since a column's sign does not change S @ S.T, make the diagonal non-negative (one mask)
+        if k >= n:
+            return qr[:n].T * np.copysign(_lower_mask(n), qr.diagonal())
+        S = np.zeros((n, n))
+        S[:, :k] = qr.T
+        S *= _lower_mask(n)
+        S *= np.copysign(1.0, S.diagonal())
+        return S
+    R = np.linalg.qr(rows, mode="r")  # (..., min(k, n), n), upper triangular
     if k >= n:
-        return qr[:n].T * np.copysign(_lower_mask(n), qr.diagonal())
-    S = np.zeros((n, n))
-    S[:, :k] = qr.T
-    S *= _lower_mask(n)
-    S *= np.copysign(1.0, S.diagonal())
-    return S
+        S = np.swapaxes(R, -1, -2)
+    else:
+        S = np.zeros(rows.shape[:-2] + (n, n))
+        S[..., :k] = np.swapaxes(R, -1, -2)
+    return S * np.copysign(1.0, np.diagonal(S, axis1=-2, axis2=-1))[..., None, :]
 
 
 _LOWER_MASKS: dict[int, np.ndarray] = {}
@@ -107,10 +117,10 @@ def solve_lower(S: np.ndarray, b: np.ndarray, trans: bool = False) -> np.ndarray
 
     Parameters
     ----------
-    S : ndarray, shape (n, n)
+    S : ndarray, shape (..., n, n)
         Lower triangular, non-singular.
-    b : ndarray, shape (n,) or (n, k)
-        Right-hand side(s).
+    b : ndarray, shape (..., n) or (..., n, k)
+        Right-hand side(s); a stack of vectors when ``b.ndim == S.ndim - 1``.
     trans : bool
         Solve with ``S.T`` instead of ``S``.
 
@@ -123,10 +133,27 @@ def solve_lower(S: np.ndarray, b: np.ndarray, trans: bool = False) -> np.ndarray
     numpy.linalg.LinAlgError
         If ``S`` has a zero on its diagonal.
     """
-    x, info = _dtrtrs(S, b, lower=1, trans=1 if trans else 0)
-    if info > 0:
-        raise np.linalg.LinAlgError(f"triangular factor is singular: diagonal element {info - 1} is zero")
-    return x
+    if S.ndim == 2:
+        x, info = _dtrtrs(S, b, lower=1, trans=1 if trans else 0)
+        if info > 0:
+            raise np.linalg.LinAlgError(f"triangular factor is singular: diagonal element {info - 1} is zero")
+        return x
+    vector = b.ndim == S.ndim - 1
+    B = b[..., None] if vector else b
+    d = np.diagonal(S, axis1=-2, axis2=-1)
+    if not np.all(d != 0):
+        raise np.linalg.LinAlgError("triangular factor is singular: a diagonal element is zero")
+    n = S.shape[-1]
+    X = np.empty(np.broadcast_shapes(S.shape[:-2], B.shape[:-2]) + B.shape[-2:])
+    # substitution row by row, each step vectorised over the stack and the right-hand sides
+    order = range(n - 1, -1, -1) if trans else range(n)
+    done: list[int] = []
+    for i in order:
+        coef = S[..., done, i] if trans else S[..., i, done]  # (..., len(done))
+        acc = B[..., i, :] - np.einsum("...j,...jk->...k", coef, X[..., done, :]) if done else B[..., i, :]
+        X[..., i, :] = acc / d[..., i, None]
+        done.append(i)
+    return X[..., 0] if vector else X
 
 
 def chol_update(S: np.ndarray, v: np.ndarray, sign: float = 1.0) -> np.ndarray:
@@ -141,16 +168,16 @@ def chol_update(S: np.ndarray, v: np.ndarray, sign: float = 1.0) -> np.ndarray:
 
     Parameters
     ----------
-    S : ndarray, shape (n, n)
+    S : ndarray, shape (..., n, n)
         Lower triangular with a positive diagonal. Not modified.
-    v : ndarray, shape (n,)
+    v : ndarray, shape (..., n)
         The update vector.
     sign : float
         ``+1`` for an update, ``-1`` for a downdate.
 
     Returns
     -------
-    S1 : ndarray, shape (n, n)
+    S1 : ndarray, shape (..., n, n)
         Lower triangular with a positive diagonal.
 
     Raises
@@ -159,32 +186,33 @@ def chol_update(S: np.ndarray, v: np.ndarray, sign: float = 1.0) -> np.ndarray:
         For a downdate whose result would not be positive definite
         (``||S^{-1} v|| >= 1``), or if ``S`` is singular (g13ej IFAIL 301).
     """
-    n = S.shape[0]
+    n = S.shape[-1]
     try:
         p = solve_lower(S, v)
     except np.linalg.LinAlgError as exc:
         raise DowndateError(f"cannot modify a singular factor: {exc}", errno=301) from None
     sigma = 1.0 if sign > 0 else -1.0
     # c[j] = 1/sigma_j, with sigma_1 = sign and 1/sigma_{j+1} = 1/sigma_j + p_j^2.
-    c = np.empty(n + 1)
-    c[0] = sigma
-    np.cumsum(p * p, out=c[1:])
-    c[1:] += sigma
-    if sigma < 0 and not c[n] < 0.0:
+    c = np.empty(p.shape[:-1] + (n + 1,))
+    c[..., 0] = sigma
+    np.cumsum(p * p, axis=-1, out=c[..., 1:])
+    c[..., 1:] += sigma
+    if sigma < 0 and not np.all(c[..., n] < 0.0):
+        worst = float(np.max(1.0 + c[..., n]))
         raise DowndateError(
-            f"rank-1 downdate would lose positive-definiteness: ||S^-1 v||^2 = {1.0 + c[n]:.17g} >= 1",
+            f"rank-1 downdate would lose positive-definiteness: ||S^-1 v||^2 = {worst:.17g} >= 1",
             errno=301,
         )
-    d = np.sqrt(c[1:] / c[:-1])
-    beta = p / (c[:-1] * d)
-    # tail[:, j] = sum_{i > j} p_i S[:, i]
-    Sp = S * p
-    tail = np.zeros_like(S)
+    d = np.sqrt(c[..., 1:] / c[..., :-1])
+    beta = p / (c[..., :-1] * d)
+    # tail[..., :, j] = sum_{i > j} p_i S[..., :, i]
+    Sp = S * p[..., None, :]
+    tail = np.zeros_like(Sp)
     if n > 1:
-        tail[:, :-1] = np.cumsum(Sp[:, :0:-1], axis=1)[:, ::-1]
+        tail[..., :-1] = np.cumsum(Sp[..., :0:-1], axis=-1)[..., ::-1]
     # column j of S and of tail vanish above row j, so S1 is lower triangular as computed
-    S1 = S * d
-    S1 += tail * beta
+    S1 = S * d[..., None, :]
+    S1 += tail * beta[..., None, :]
     if not np.isfinite(S1).all():
         raise DowndateError("rank-1 modification produced a non-finite factor", errno=301)
     return S1
@@ -199,9 +227,9 @@ def chol_downdate_columns(
 
     Parameters
     ----------
-    S : ndarray, shape (n, n)
+    S : ndarray, shape (..., n, n)
         Lower triangular with a positive diagonal.
-    U : ndarray, shape (n, m)
+    U : ndarray, shape (..., n, m)
         Columns to downdate by, one at a time.
     errno : int
         g13ej error number to attach if a downdate fails.
@@ -210,16 +238,16 @@ def chol_downdate_columns(
 
     Returns
     -------
-    S1 : ndarray, shape (n, n)
+    S1 : ndarray, shape (..., n, n)
 
     Raises
     ------
     DowndateError
         If the result would not be positive definite.
     """
-    for j in range(U.shape[1]):
+    for j in range(U.shape[-1]):
         try:
-            S = chol_update(S, U[:, j], -1.0)
+            S = chol_update(S, U[..., j], -1.0)
         except DowndateError as exc:
             raise error(f"downdate by column {j}: {exc}", errno=errno) from None
     return S
@@ -230,31 +258,30 @@ def kalman_gain(Pxy: np.ndarray, Sy: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    Pxy : ndarray, shape (n, m)
+    Pxy : ndarray, shape (..., n, m)
         State-measurement cross-covariance.
-    Sy : ndarray, shape (m, m)
+    Sy : ndarray, shape (..., m, m)
         Lower-triangular factor of the innovation covariance.
 
     Returns
     -------
-    K : ndarray, shape (n, m)
+    K : ndarray, shape (..., n, m)
 
     Raises
     ------
     GainError
         If ``Sy`` is singular (g13ej IFAIL 302).
     """
-    d = np.abs(Sy.diagonal())
+    d = np.abs(np.diagonal(Sy, axis1=-2, axis2=-1))
     if not (d > _TINY).all() or not np.isfinite(d).all():
         raise GainError(
-            f"innovation factor is singular (diagonal {np.array2string(Sy.diagonal(), precision=3)}): "
+            f"innovation factor is singular (diagonal {np.array2string(d, precision=3)}): "
             "cannot form the Kalman gain",
             errno=302,
         )
     # K^T = Sy^-T Sy^-1 Pxy^T
-    W = solve_lower(Sy, np.ascontiguousarray(Pxy.T))
-    Kt = solve_lower(Sy, W, trans=True)
-    return Kt.T
+    W = solve_lower(Sy, np.ascontiguousarray(np.swapaxes(Pxy, -1, -2)))
+    return np.swapaxes(solve_lower(Sy, W, trans=True), -1, -2)
 
 
 def factor_covariance(A: np.ndarray, name: str, semidefinite: bool = False) -> np.ndarray:

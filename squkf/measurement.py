@@ -1,18 +1,35 @@
-"""The square-root measurement update, as a pure function.
+"""The square-root measurement update, as a pure function on stacked arrays.
 
 The update triangularises the joint rows of the measurement and the state
 (the "array form" of the square-root Kalman filter)::
 
     tria([[Dz, Dx], [R1_2^T, 0]]) = [[Sy, 0], [L21, L22]]
 
-where ``Dz``, ``Dx`` are the signed rows (see :mod:`squkf.transform`) of the
+where ``Dz``, ``Dx`` are the signed rows (see :mod:`squkf.rows`) of the
 second set's images and of the second set itself. Then ``Sy`` is the
 innovation factor, ``L21 = Pxy Sy^-T`` (so the gain is ``K = L21 Sy^-1`` and
 ``K y = L21 (Sy^-1 y)``), and ``L22 L22^T = Pxx - K Pyy K^T`` is the
 posterior covariance whenever the set's covariance ``Pxx`` is the prior's
 (``SigmaSet.moments_exact``). That is one QR and two triangular solves, and
-no downdate. Otherwise the posterior factor is the prior's downdated by the
-columns of ``L21 = K Sy`` (g13ej's form).
+no downdate. Every configuration whose set reproduces the prior takes it.
+
+For axis points ``[x, x + gamma S^T, x - gamma S^T]`` with equal pair weights
+(``SigmaSet.axis``) each ``+/-`` pair of joint rows is first rotated by 45
+degrees, an orthogonal change of rows (the same Gram matrix, other
+roundings) that leaves ``n`` rows with no state part; those are
+triangularised first, so the joint QR has ``n + m`` rows instead of
+``2n + 1 + m``.
+
+Two fallbacks, each named:
+
+- :func:`_gain_form_posterior`: a user's ``UT`` with a set that reproduces the
+  prior. ``Sy`` comes from the ``UT``; the posterior factor is the QR of the
+  rows ``Dx - Dz K^T`` and ``K R1_2`` (Joseph form, no downdate).
+- :func:`_downdate_posterior`: a set whose covariance is not the prior's (the
+  propagated set with process noise, a user's generator). The posterior is
+  g13ej's: the prior factor downdated by the columns of ``L21 = K Sy``.
+
+Every array may carry leading batch axes ``(...)``: one filter has none.
 """
 
 from __future__ import annotations
@@ -25,17 +42,19 @@ import numpy as np
 from .errors import DowndateError, GainError, PosteriorFactorError
 from .generators import SigmaSet
 from .linalg import all_finite, chol_downdate_columns, chol_update, solve_lower, tria
+from .rows import WeightRows, weight_rows
 from .transform import (
+    _row_buffer,
     central_rows,
     deviations,
     factor_rows,
     signed_rows,
     transform_factor,
-    weight_plan,
     weighted_mean,
 )
+from .validate import call_hook, check_hook_result
 
-__all__ = ["Posterior", "measurement_update", "gain_from_factors", "check_gain"]
+__all__ = ["Posterior", "measurement_update", "gain_from_factors", "check_gain", "observed_noise_factor"]
 
 _TINY = np.finfo(float).tiny
 _INF = float("inf")
@@ -46,19 +65,19 @@ class Posterior(NamedTuple):
 
     Attributes
     ----------
-    x : ndarray, shape (n,)
+    x : ndarray, shape (..., n)
         Posterior mean.
-    S : ndarray, shape (n, n)
+    S : ndarray, shape (..., n, n)
         Lower factor of the posterior covariance.
-    y : ndarray, shape (m,)
+    y : ndarray, shape (..., m)
         Innovation ``residual_z(z, z_pred)``.
-    z_pred : ndarray, shape (m,)
+    z_pred : ndarray, shape (..., m)
         Predicted measurement.
-    Sy : ndarray, shape (m, m)
+    Sy : ndarray, shape (..., m, m)
         Lower factor of the innovation covariance.
-    L21 : ndarray, shape (n, m)
+    L21 : ndarray, shape (..., n, m)
         ``Pxy Sy^-T`` (equivalently ``K Sy``); :meth:`gain` forms ``K`` from it.
-    w : ndarray, shape (m,)
+    w : ndarray, shape (..., m)
         Whitened innovation ``Sy^-1 y`` (for the likelihood).
     """
 
@@ -71,7 +90,7 @@ class Posterior(NamedTuple):
     w: np.ndarray
 
     def gain(self) -> np.ndarray:
-        """The Kalman gain ``K = L21 Sy^-1``, shape ``(n, m)`` (one triangular solve)."""
+        """The Kalman gain ``K = L21 Sy^-1``, shape ``(..., n, m)`` (one triangular solve)."""
         return gain_from_factors(self.Sy, self.L21)
 
 
@@ -80,16 +99,36 @@ def gain_from_factors(Sy: np.ndarray, L21: np.ndarray) -> np.ndarray:
 
     Parameters
     ----------
-    Sy : ndarray, shape (m, m)
+    Sy : ndarray, shape (..., m, m)
         Lower factor of the innovation covariance.
-    L21 : ndarray, shape (n, m)
+    L21 : ndarray, shape (..., n, m)
         ``Pxy Sy^-T``.
 
     Returns
     -------
-    K : ndarray, shape (n, m)
+    K : ndarray, shape (..., n, m)
     """
-    return solve_lower(Sy, np.ascontiguousarray(L21.T), trans=True).T
+    Kt = solve_lower(Sy, np.ascontiguousarray(np.swapaxes(L21, -1, -2)), trans=True)
+    return np.swapaxes(Kt, -1, -2)
+
+
+def observed_noise_factor(R1_2: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    """Lower factor of the observed block of ``R = R1_2 R1_2^T``, by one QR.
+
+    The block ``R[obs][:, obs]`` is ``R1_2[obs] R1_2[obs]^T``: the rows of the
+    factor for the observed components, triangularised (no covariance formed).
+
+    Parameters
+    ----------
+    R1_2 : ndarray, shape (..., m, m)
+    observed : ndarray of bool, shape (m,)
+
+    Returns
+    -------
+    ndarray, shape (..., m_obs, m_obs)
+    """
+    rows = np.swapaxes(R1_2[..., observed, :], -1, -2)
+    return tria(rows.copy(order="F") if rows.ndim == 2 else rows.copy())
 
 
 def measurement_update(
@@ -110,20 +149,21 @@ def measurement_update(
 
     Parameters
     ----------
-    x : ndarray, shape (n,)
+    x : ndarray, shape (..., n)
         Prior mean.
-    S : ndarray, shape (n, n)
+    S : ndarray, shape (..., n, n)
         Lower factor of the prior covariance.
     sset : SigmaSet
         The second sigma-point set (``N`` points) and its weights.
-    sigmas_h : ndarray, shape (N, m)
+    sigmas_h : ndarray, shape (..., N, m)
         The measurement function's values at ``sset.sigmas``.
-    z : ndarray, shape (m,)
+    z : ndarray, shape (..., m)
         The measurement.
-    R1_2 : ndarray, shape (m, m)
+    R1_2 : ndarray, shape (..., m, m)
         Lower factor of the measurement noise covariance.
     z_mean_fn, residual_x, residual_z, state_add : callable, optional
-        filterpy's hooks for non-additive quantities (angles).
+        filterpy's hooks for non-additive quantities (angles), called per
+        filter; what they return is checked.
     UT : callable, optional
         Replaces the transform of ``sigmas_h`` into ``(z_pred, Sy)``; same
         signature as :func:`squkf.sqrt_unscented_transform`.
@@ -141,40 +181,74 @@ def measurement_update(
     PosteriorFactorError
         The posterior factor could not be formed (IFAIL 303).
     """
-    plan = weight_plan(sset.Wm, sset.Wc)
-    m = z.shape[0]
+    rows = sset.rows if sset.rows is not None else weight_rows(sset.Wm, sset.Wc)
+    m = z.shape[-1]
+    L22 = None
     if UT is None and sset.moments_exact:
-        z_pred, Sy, L21, L22 = _joint_factor(sset, plan, sigmas_h, x, R1_2, z_mean_fn, residual_x, residual_z)
+        z_pred, Sy, L21, L22 = _joint_factor(
+            sset, rows, sigmas_h, x, S, R1_2, z_mean_fn, residual_x, residual_z
+        )
+        Dx = Dz = None
     else:
         if UT is None:
-            z_pred, Sy = transform_factor(sigmas_h, plan, R1_2, z_mean_fn, residual_z, errno=301)
+            z_pred, Sy = transform_factor(
+                sigmas_h, rows, R1_2, z_mean_fn, residual_z, errno=301, hooks=("z_mean_fn", "residual_z")
+            )
         else:
             z_pred, Sy = UT(sigmas_h, sset.Wm, sset.Wc, R1_2, z_mean_fn, residual_z)
-            z_pred = np.asarray(z_pred, dtype=float).reshape(m)
-            Sy = np.asarray(Sy, dtype=float).reshape(m, m)
+            z_pred = check_hook_result(z_pred, sigmas_h.shape[:-2] + (m,), "UT")
+            Sy = check_hook_result(Sy, sigmas_h.shape[:-2] + (m, m), "UT")
         check_gain(Sy)
-        Dz = deviations(sigmas_h, z_pred, residual_z)
+        Dz = deviations(sigmas_h, z_pred, residual_z, "residual_z")
         Dx = _state_deviations(sset, x, residual_x)
-        Pxy = (Dx.T * sset.Wc) @ Dz
-        L21 = solve_lower(Sy, np.ascontiguousarray(Pxy.T)).T
-        L22 = None
-    y = z - z_pred if residual_z is None else np.asarray(residual_z(z, z_pred), dtype=float).reshape(m)
+        Pxy = np.matmul(np.swapaxes(Dx, -1, -2) * sset.Wc, Dz)
+        L21 = np.swapaxes(solve_lower(Sy, np.ascontiguousarray(np.swapaxes(Pxy, -1, -2))), -1, -2)
+    y = _per_filter(residual_z, z, z_pred, "residual_z")
     w = solve_lower(Sy, y)
-    dx = L21 @ w
-    x_post = x + dx if state_add is None else np.asarray(state_add(x, dx), dtype=float).reshape(-1)
+    dx = np.matmul(L21, w[..., None])[..., 0]
+    x_post = _per_filter(state_add, x, dx, "state_add", add=True)
     if L22 is not None:
         S_post = L22
-    elif sset.moments_exact:  # a user's UT: the QR form with the gain
-        K = gain_from_factors(Sy, L21)
-        S_post = factor_rows(Dx - Dz @ K.T, plan.mean_form, K @ R1_2, errno=303, error=PosteriorFactorError)
+    elif sset.moments_exact:
+        S_post = _gain_form_posterior(Sy, L21, Dx, Dz, rows, R1_2)
     else:
-        S_post = chol_downdate_columns(S, L21, errno=303, error=PosteriorFactorError)
+        S_post = _downdate_posterior(S, L21)
     if not (all_finite(S_post) and all_finite(x_post)):
         raise PosteriorFactorError("the posterior mean or factor is not finite", errno=303)
     return Posterior(x_post, S_post, y, z_pred, Sy, L21, w)
 
 
-def _joint_factor(sset, plan, sigmas_h, x, R1_2, z_mean_fn, residual_x, residual_z):
+def _per_filter(
+    fn: Callable | None, a: np.ndarray, b: np.ndarray, hook: str, add: bool = False
+) -> np.ndarray:
+    """``a + b`` / ``a - b``, or the user's hook for it, called and checked per filter."""
+    if fn is None:
+        return a + b if add else a - b
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    d = out.shape[-1]
+    for idx in np.ndindex(out.shape[:-1]):
+        out[idx] = call_hook(fn, (a[idx] if a.ndim > 1 else a, b[idx] if b.ndim > 1 else b), (d,), hook)
+    return out
+
+
+def _gain_form_posterior(Sy, L21, Dx, Dz, rows: WeightRows, R1_2) -> np.ndarray:
+    """Posterior factor as the QR of ``Dx - Dz K^T`` and ``K R1_2`` (a user's UT, exact set)."""
+    K = gain_from_factors(Sy, L21)
+    return factor_rows(
+        Dx - np.matmul(Dz, np.swapaxes(K, -1, -2)),
+        rows.mean_form,
+        np.matmul(K, R1_2),
+        errno=303,
+        error=PosteriorFactorError,
+    )
+
+
+def _downdate_posterior(S, L21) -> np.ndarray:
+    """g13ej's posterior factor: the prior's downdated by the columns of ``L21 = K Sy``."""
+    return chol_downdate_columns(S, L21, errno=303, error=PosteriorFactorError)
+
+
+def _joint_factor(sset, rows, sigmas_h, x, S, R1_2, z_mean_fn, residual_x, residual_z):
     """``z_pred`` and the blocks ``Sy``, ``L21``, ``L22`` of the joint factor (module docstring).
 
     Only for a set whose mean and covariance are the prior's: then the
@@ -183,44 +257,81 @@ def _joint_factor(sset, plan, sigmas_h, x, R1_2, z_mean_fn, residual_x, residual
     """
     hooks = z_mean_fn is not None or residual_x is not None or residual_z is not None
     points = sset.sigmas if sset.offsets is None else sset.offsets
-    N, m = sigmas_h.shape
-    n = points.shape[1]
-    if not hooks and plan.fast:
-        # every row enters the QR: write them straight into the buffer
-        npos, neg = N, ()
-        M = np.empty((N + m, m + n), order="F")  # LAPACK's layout: no copy in tria
-        z_pred = central_rows(sigmas_h, plan, M[:, :m])
-        central_rows(points, plan, M[:, m:])
+    N, m = sigmas_h.shape[-2:]
+    n = points.shape[-1]
+    batch = np.broadcast_shapes(sigmas_h.shape[:-2], points.shape[:-2], R1_2.shape[:-2])
+    neg: tuple | np.ndarray = ()
+    if not hooks and rows.fast and sset.axis is not None and rows.pair_scale is not None:
+        z_pred, L = _paired_joint(sigmas_h, sset.axis, rows, R1_2, batch)
     else:
-        if not hooks and plan.best.central:
-            z_pred, Dz, form = signed_rows(sigmas_h, plan)
-            _, Dx, _ = signed_rows(points, plan)
+        if not hooks and rows.fast:
+            # every row enters the QR: write them straight into the buffer
+            npos = N
+            M = _row_buffer(batch, N + m, m + n)
+            z_pred = central_rows(sigmas_h, rows, M[..., :m])
+            central_rows(points, rows, M[..., m:])
         else:
-            form = plan.mean_form
-            z_pred = weighted_mean(sigmas_h, plan.Wm, z_mean_fn)
-            Dz = deviations(sigmas_h, z_pred, residual_z)
-            Dx = _state_deviations(sset, x, residual_x)
-        pos, neg = form.pos, form.neg
-        scale = (form.scale if pos is None else form.scale[pos])[:, None]
-        npos = scale.shape[0]
-        M = np.empty((npos + m, m + n), order="F")
-        np.multiply(Dz if pos is None else Dz[pos], scale, out=M[:npos, :m])
-        np.multiply(Dx if pos is None else Dx[pos], scale, out=M[:npos, m:])
-    M[npos:, :m] = R1_2.T
-    M[npos:, m:] = 0.0
-    L = tria(M)
-    for k in neg:
-        L = _downdate_joint(L, form.scale[k] * np.concatenate([Dz[k], Dx[k]]), m, form.weights[k])
-    Sy = L[:m, :m]
+            if not hooks and rows.best.central:
+                z_pred, Dz, form = signed_rows(sigmas_h, rows)
+                _, Dx, _ = signed_rows(points, rows)
+            else:
+                form = rows.mean_form
+                z_pred = weighted_mean(sigmas_h, rows.Wm, z_mean_fn, "z_mean_fn")
+                Dz = deviations(sigmas_h, z_pred, residual_z, "residual_z")
+                Dx = _state_deviations(sset, x, residual_x)
+            pos, neg = form.pos, form.neg
+            scale = (form.scale if pos is None else form.scale[pos])[:, None]
+            npos = scale.shape[0]
+            M = _row_buffer(batch, npos + m, m + n)
+            np.multiply(Dz if pos is None else Dz[..., pos, :], scale, out=M[..., :npos, :m])
+            np.multiply(Dx if pos is None else Dx[..., pos, :], scale, out=M[..., :npos, m:])
+        M[..., npos:, :m] = np.swapaxes(R1_2, -1, -2)
+        M[..., npos:, m:] = 0.0
+        L = tria(M)
+        for k in neg:
+            v = form.scale[k] * np.concatenate([Dz[..., k, :], Dx[..., k, :]], axis=-1)
+            L = _downdate_joint(L, v, m, form.weights[k])
+    Sy = L[..., :m, :m]
     check_gain(Sy)
-    return z_pred, Sy, L[m:, :m], L[m:, m:]
+    return z_pred, Sy, L[..., m:, :m], L[..., m:, m:]
+
+
+def _paired_joint(H, axis, rows: WeightRows, R1_2, batch):
+    """``z_pred`` and the joint factor for axis points, each ``+/-`` pair rotated by 45 degrees.
+
+    The pair's rows ``[s e+, s g S^T_i]`` and ``[s e-, -s g S^T_i]`` (``e = h - h_0``) have the
+    same Gram matrix as ``[s (e+ + e-) / sqrt2, 0]`` and ``[s (h+ - h-) / sqrt2, sqrt2 s g S^T_i]``.
+    The rows without a state part are triangularised first, with ``mu`` and ``R1_2^T``, into
+    ``T`` (``m x m``); then the joint QR has ``n + m`` rows instead of ``2n + 1 + m``.
+    """
+    gamma, S = axis
+    n = S.shape[-1]
+    m = H.shape[-1]
+    c = rows.pair_scale
+    Z = _row_buffer(batch, n + 1 + m, m)
+    M = _row_buffer(batch, n + m, m + n)
+    h0 = H[..., 0, :]
+    E = H[..., 1:, :] - h0[..., None, :]
+    mu = np.matmul(rows.wm_tail, E)
+    np.add(E[..., :n, :], E[..., n:, :], out=Z[..., :n, :])
+    Z[..., :n, :] *= c
+    np.multiply(mu, rows.mu_scale, out=Z[..., n, :])
+    Z[..., n + 1 :, :] = np.swapaxes(R1_2, -1, -2)
+    T = tria(Z)
+    B = M[..., :n, :m]
+    np.subtract(H[..., 1 : n + 1, :], H[..., n + 1 :, :], out=B)
+    B *= c
+    np.multiply(np.swapaxes(S, -1, -2), 2.0 * c * gamma, out=M[..., :n, m:])
+    M[..., n:, :m] = np.swapaxes(T, -1, -2)
+    M[..., n:, m:] = 0.0
+    return h0 + mu, tria(M)
 
 
 def _state_deviations(sset: SigmaSet, x: np.ndarray, residual_x: Callable | None) -> np.ndarray:
     """Deviations of the second set from the prior mean (its exact offsets where known)."""
     if sset.offsets is not None and residual_x is None:
         return sset.offsets
-    return deviations(sset.sigmas, x, residual_x)
+    return deviations(sset.sigmas, x, residual_x, "residual_x")
 
 
 def _downdate_joint(L: np.ndarray, v: np.ndarray, m: int, weight: float) -> np.ndarray:
@@ -229,7 +340,7 @@ def _downdate_joint(L: np.ndarray, v: np.ndarray, m: int, weight: float) -> np.n
         return chol_update(L, v, -1.0)
     except DowndateError as exc:
         try:  # the leading block alone decides whether the innovation factor failed
-            chol_update(L[:m, :m], v[:m], -1.0)
+            chol_update(L[..., :m, :m], v[..., :m], -1.0)
         except DowndateError:
             raise DowndateError(
                 f"weight {weight:.6g} is negative and the innovation factor's downdate failed: {exc}",
@@ -242,9 +353,15 @@ def _downdate_joint(L: np.ndarray, v: np.ndarray, m: int, weight: float) -> np.n
 
 def check_gain(Sy: np.ndarray) -> None:
     """Raise GainError (IFAIL 302) unless each diagonal entry of ``Sy`` is finite and above ``tiny``."""
-    if not all(_TINY < abs(v) < _INF for v in Sy.diagonal().tolist()):  # a NaN fails too; m is small
+    diag = np.diagonal(Sy, axis1=-2, axis2=-1)
+    if Sy.ndim == 2:  # one small matrix: a Python loop beats numpy's reductions
+        ok = all(_TINY < abs(v) < _INF for v in diag.tolist())  # a NaN fails too
+    else:
+        d = np.abs(diag)
+        ok = bool(np.all(d > _TINY) and np.all(d < _INF))
+    if not ok:
         raise GainError(
-            f"innovation factor is singular (diagonal {np.array2string(Sy.diagonal(), precision=3)}): "
+            f"innovation factor is singular (diagonal {np.array2string(diag, precision=3)}): "
             "cannot form the Kalman gain",
             errno=302,
         )

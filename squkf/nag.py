@@ -1,6 +1,6 @@
 """g13ej's own calling sequence: ``kalman_unscented_state_revcom``.
 
-A thin adapter over :class:`squkf.step.StepMachine` (the same core as
+A thin adapter over the step transitions of :mod:`squkf.step` (the same core as
 :class:`squkf.SquareRootUKF`) with the argument order of NAG's Python
 interface (``naginterfaces.library.tsa.kalman_unscented_state_revcom``)::
 
@@ -60,6 +60,7 @@ import hashlib
 
 import numpy as np
 
+from . import step as steps
 from .errors import (
     CallSequenceError,
     CommunicationError,
@@ -68,7 +69,7 @@ from .errors import (
     ShapeError,
 )
 from .generators import Augmented, Redrawn
-from .step import StepMachine
+from .plan import build_plan
 from .weights import MerweScaledWeights
 
 __all__ = ["kalman_unscented_state_revcom"]
@@ -226,24 +227,24 @@ def _initial_entry(irevcm, yv, ly, x, st, xt, comm, lx, ropt, mx, my):
     family, generator, augmented = _options(ropt, mx, lx is not None)
     n_max = 4 * mx + 1 if augmented else 2 * mx + 1
     Lx, Ly, S = _check_common(yv, ly, x, st, xt, lx, mx, my, n_max, augmented)
-    machine = StepMachine()
-    X = machine.ask_predict(x.copy(), S, family)
+    plan = build_plan(family, generator, mx)
+    machine = steps.ask_predict(steps.StepState(), plan, x.copy(), S)
+    X = machine.sigmas
     N = X.shape[0]
     # commit
     xt[:mx, :N] = X.T
-    _save(comm, machine, family, generator, mx, my, xt.shape[1], 1, N, x, st, xt, irevcm)
+    _save(comm, machine, plan, mx, my, xt.shape[1], 1, N, x, st, xt, irevcm)
     return 1, N
 
 
-def _save(comm, machine, family, generator, mx, my, ncap, expect, n, x, st, xt, first_irevcm):
+def _save(comm, machine, plan, mx, my, ncap, expect, n, x, st, xt, first_irevcm):
     ints = (mx, my, ncap, expect, n, first_irevcm)
     comm.clear()
     comm.update(
         {
             "icomm": ints,
             "machine": machine,
-            "family": family,
-            "generator": generator,
+            "plan": plan,
             "digest_i": _digest(np.array(ints), np.array([machine.phase == "predicting"])),
             "digest_r": _digest(x, np.tril(st[:mx, :mx]), xt[:mx, :n]),
         }
@@ -254,9 +255,10 @@ def _load(comm, irevcm, x, st, xt, mx, my):
     try:
         ints = comm["icomm"]
         machine = comm["machine"]
-        family = comm["family"]
-        generator = comm["generator"]
-        ok = comm["digest_i"] == _digest(np.array(ints), np.array([machine.phase == "predicting"]))
+        plan = comm["plan"]
+        ok = isinstance(machine, steps.StepState) and comm["digest_i"] == _digest(
+            np.array(ints), np.array([machine.phase == "predicting"])
+        )
     except (KeyError, TypeError, AttributeError, ValueError):
         ok = False
     if not ok:
@@ -291,7 +293,7 @@ def _load(comm, irevcm, x, st, xt, mx, my):
             "between intermediate exits and re-entries).",
             errno=211,
         )
-    return machine, family, generator, ints
+    return machine, plan, ints
 
 
 def _read_fxt(fxt, rows: int, n: int, irevcm: int, mx: int, my: int):
@@ -316,16 +318,15 @@ def _read_fxt(fxt, rows: int, n: int, irevcm: int, mx: int, my: int):
 
 
 def _re_entry(irevcm, yv, ly, x, st, xt, fxt, comm, lx, mx, my):
-    machine, family, generator, ints = _load(comm, irevcm, x, st, xt, mx, my)
+    machine, plan, ints = _load(comm, irevcm, x, st, xt, mx, my)
     _, _, ncap, _, n, first_irevcm = ints
-    augmented = isinstance(generator, Augmented)
+    augmented = isinstance(plan.generator, Augmented)
     Lx, Ly, _ = _check_common(yv, ly, x, st, xt, lx, mx, my, xt.shape[1], augmented)
-    work = StepMachine()
-    work.restore(machine.snapshot())
     if irevcm == 1:
         F = _read_fxt(fxt, mx, n, 1, mx, my)
-        xbar, Sbar = work.tell_predict(F, Lx, name="fxt (F at the sigma points)")
-        sset = work.ask_update(xbar, Sbar, family, generator)
+        work, xbar, Sbar = steps.tell_predict(machine, plan, F, Lx, name="fxt (F at the sigma points)")
+        work = steps.ask_update(steps.draw_second_set(work, plan, xbar, Sbar), plan, xbar, Sbar)
+        sset = work.sset
         N2 = sset.sigmas.shape[0]
         if N2 > ncap:  # pragma: no cover - guarded by 121/122 at initial entry
             raise ShapeError(f"xt has {ncap} columns, {N2} needed", errno=121)
@@ -333,10 +334,10 @@ def _re_entry(irevcm, yv, ly, x, st, xt, fxt, comm, lx, mx, my):
         x[:] = xbar
         _write_lower(st, Sbar, mx)
         xt[:mx, :N2] = sset.sigmas.T
-        _save(comm, work, family, generator, mx, my, ncap, 2, N2, x, st, xt, first_irevcm)
+        _save(comm, work, plan, mx, my, ncap, 2, N2, x, st, xt, first_irevcm)
         return 2, N2
     H = _read_fxt(fxt, my, n, 2, mx, my)
-    post = work.tell_update(H, yv, Ly, name="fxt (H at the sigma points)")
+    _, post, _ = steps.tell_update(machine, H, yv, Ly, name="fxt (H at the sigma points)")
     # commit
     x[:] = post.x
     _write_lower(st, post.S, mx)

@@ -29,8 +29,9 @@ from .covariance import FactorSlot
 from .errors import ShapeError
 from .generators import _identity_moments, sigma_points_from_factor
 from .linalg import chol_downdate_columns, kalman_gain, tria
+from .rows import weight_rows
 from .step import check_values
-from .transform import deviations, factor_from_deviations, sqrt_unscented_transform
+from .transform import deviations, factor_rows, sqrt_unscented_transform
 
 __all__ = ["rts_smoother", "rts_smoother_factors"]
 
@@ -112,15 +113,16 @@ def rts_smoother_factors(ukf, Xs, P1_2s, Qs=None, dts=None, UT=None, fx_args=Non
     xi = family.unit_sigma_points(n)
     Wm, Wc = family.weights(n)
     exact = _identity_moments(family, n)
-    hook = ukf._hook
-    residual_x = hook(ukf.residual_x, np.subtract)
-    state_add = hook(ukf.state_add, np.add)
+    mean_rows = weight_rows(Wm, Wc).mean_form
+    hooks = ukf._hooks()
+    residual_x = hooks.residual_x
+    state_add = hooks.state_add
 
     xs = Xs.copy()
     Ss = S_in.copy()
     Ks = np.zeros((T, n, n))
     for k in range(T - 2, -1, -1):
-        Q1_2 = ukf._noise_factor(Q_list[k + 1], ukf._Q, "Q", n)
+        Q1_2 = ukf._noise_factor(Q_list[k + 1], "Q", n)
         x, S = Xs[k], S_in[k]
         X = sigma_points_from_factor(x, S, xi, state_add)
         F = check_values(ukf._evaluate(ukf.fx, X, (dts[k + 1],), fx_args[k + 1] or {}), X.shape, "fx values")
@@ -136,7 +138,7 @@ def rts_smoother_factors(ukf, Xs, P1_2s, Qs=None, dts=None, UT=None, fx_args=Non
         GS = G @ Ss[k + 1]
         if exact:
             extra = GS if Q1_2 is None else np.hstack([G @ Q1_2, GS])
-            Ss[k] = factor_from_deviations(dX - dF @ G.T, Wc, extra)
+            Ss[k] = factor_rows(dX - dF @ G.T, mean_rows, extra)
         else:
             base = chol_downdate_columns(S, G @ S_pred)
             Ss[k] = tria(np.vstack([base.T, GS.T]))

@@ -1,4 +1,12 @@
-"""``SquareRootUKF``: g13ej's square-root UKF behind filterpy's ``UnscentedKalmanFilter`` API."""
+"""``SquareRootUKF``: g13ej's square-root UKF behind filterpy's ``UnscentedKalmanFilter`` API.
+
+A thin facade over the step (:mod:`squkf.step`): each call validates its
+inputs at the boundary, runs the step's pure transitions on the filter's
+private state, and commits every new value at once when the whole call
+succeeded. What it hands out is the caller's (fresh arrays), and what the
+caller may edit in place (``x``, ``P``, ``Q``, ``R``) is validated at the next
+call.
+"""
 
 from __future__ import annotations
 
@@ -11,28 +19,21 @@ from collections.abc import Callable
 import numpy as np
 
 from . import blas
+from . import step as steps
 from .covariance import FactorSlot
 from .errors import NonFiniteError, ParameterError, ShapeError
 from .generators import as_generator, sigma_points_from_factor
-from .lane import Lane, lane_for
-from .linalg import all_finite, solve_lower
+from .linalg import solve_lower
 from .measurement import gain_from_factors
-from .step import PRIOR, StepMachine, check_values
+from .plan import Hooks, Plan, build_plan
 from .transform import deviations
+from .validate import as_float_array, check_values
 from .weights import as_family
 
 __all__ = ["SquareRootUKF"]
 
 _LOG_TINY = math.log(sys.float_info.min)
 _LOG_2PI = math.log(2.0 * math.pi)
-
-
-def _readonly(a: np.ndarray | None) -> np.ndarray | None:
-    if a is None:
-        return None
-    v = a.view()
-    v.flags.writeable = False
-    return v
 
 
 def _one_blas_thread(method):
@@ -46,6 +47,48 @@ def _one_blas_thread(method):
         return method(self, *args, **kwargs)
 
     return run
+
+
+class _Covariance:
+    """``P``, ``Q`` or ``R``: a matrix kept in the instance's ``__dict__``, backed by a factor slot.
+
+    Not a ``property``, on purpose: filterpy's ``Saver`` deep-copies the
+    instance's ``__dict__`` (so a saved matrix is a copy, as for filterpy's
+    own filters) but would keep a property's value by reference.
+    """
+
+    def __set_name__(self, owner, name: str):
+        self.name = name
+        self.slot = "_" + name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        return obj.__dict__[self.name]
+
+    def __set__(self, obj, value):
+        slot = obj.__dict__[self.slot]
+        slot.set_matrix(value)
+        obj.__dict__[self.name] = slot.matrix()
+        obj._covariance_assigned(self.name)
+
+
+class _State:
+    """``x``: the state vector kept in the instance's ``__dict__`` (see :class:`_Covariance`)."""
+
+    def __set_name__(self, owner, name: str):
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        return obj.__dict__[self.name]
+
+    def __set__(self, obj, value):
+        x = obj._as_state(value, "x")
+        obj.__dict__["_xs"] = x
+        obj.__dict__[self.name] = x.copy()
+        obj._covariance_assigned("x")
 
 
 class SquareRootUKF:
@@ -97,14 +140,20 @@ class SquareRootUKF:
     ----------
     x : ndarray, shape (dim_x,)
     P, Q : ndarray, shape (dim_x, dim_x)
-        Read as matrices, stored as factors; assignment (and in-place edits)
-        are validated and factored once.
+        Read as matrices, stored as factors. An assignment is validated at
+        once (and, if it fails, changes nothing); edits in place take effect
+        at the next call, where they are validated. Every step assigns fresh
+        arrays to ``x`` and ``P``, so arrays read earlier (a ``Saver``'s
+        history) are never rewritten.
     R : ndarray, shape (dim_z, dim_z)
     P1_2, Q1_2, R1_2 : ndarray
-        The lower factors themselves (read-only arrays; assign to change).
+        The lower factors (each read gives a fresh copy; assign to change).
     x_prior, P_prior, P1_2_prior, x_post, P_post, P1_2_post
+        Records of the last prediction and update: fresh arrays each step,
+        never the filter's own state.
     K : ndarray, shape (dim_x, dim_z)
     y : ndarray, shape (dim_z,)
+        Innovation; NaN in components that were not measured.
     z : ndarray
     S, SI : ndarray, shape (dim_z, dim_z)
         Innovation covariance and its inverse (formed on request, SI by
@@ -114,6 +163,11 @@ class SquareRootUKF:
         Weights of the first sigma-point set.
     log_likelihood, likelihood, mahalanobis : float
     """
+
+    x = _State()
+    P = _Covariance()
+    Q = _Covariance()
+    R = _Covariance()
 
     def __init__(
         self,
@@ -136,45 +190,52 @@ class SquareRootUKF:
         for name, v in (("dim_x", dim_x), ("dim_z", dim_z)):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
                 raise ParameterError(f"{name} must be a positive integer, got {name}={v!r}")
-        self._dim_x = int(dim_x)
-        self._dim_z = int(dim_z)
+        n, m = int(dim_x), int(dim_z)
+        self._dim_x = n
+        self._dim_z = m
         self._dt = self._check_dt(dt)
+        self._plan: Plan | None = None
+        self._family = None
+        self._generator = None
         self.hx = hx
         self.fx = fx
         self.points_fn = points
+        self.scheme = scheme
         self.msqrt = sqrt_fn
         self.x_mean = x_mean_fn
         self.z_mean = z_mean_fn
         self.residual_x = np.subtract if residual_x is None else residual_x
         self.residual_z = np.subtract if residual_z is None else residual_z
         self.state_add = np.add if state_add is None else state_add
-        self.scheme = scheme
         self.vectorized = bool(vectorized)
         self.inv = np.linalg.inv
 
-        n, m = self._dim_x, self._dim_z
-        self._x = np.zeros(n)
-        self._x_bytes = b""  # the bytes of x when it was last found valid
-        self._P = FactorSlot("P", n, semidefinite=False, factor=np.eye(n))
-        self._Q = FactorSlot("Q", n, semidefinite=True, factor=np.eye(n))
-        self._R = FactorSlot("R", m, semidefinite=True, factor=np.eye(m), singular_factor_ok=False)
-        self._machine = StepMachine()
-        self._noise_cache = {}
+        d = self.__dict__
+        d["_P"] = FactorSlot("P", n, semidefinite=False, factor=np.eye(n))
+        d["_Q"] = FactorSlot("Q", n, semidefinite=True, factor=np.eye(n))
+        d["_R"] = FactorSlot("R", m, semidefinite=True, factor=np.eye(m))
+        for name in ("P", "Q", "R"):
+            d[name] = d["_" + name].matrix()
+        d["_xs"] = np.zeros(n)
+        d["x"] = np.zeros(n)
+        self._state = steps.StepState()
+        self._step_plan = self._plan
+        self._noise_cache: dict = {}
 
-        self.x_prior = self._x.copy()
+        self.x_prior = np.zeros(n)
         self.P1_2_prior = np.eye(n)
-        self.x_post = self._x.copy()
+        self.x_post = np.zeros(n)
         self.P1_2_post = np.eye(n)
         self.sigmas_f = np.zeros((self._num_sigmas, n))
         self.sigmas_h = np.zeros((self._num_sigmas, m))
-        self._K = np.zeros((n, m))
-        self._L21 = None  # K @ S1_2 of the last update: K is formed from it on request
         self.y = np.zeros(m)
         self.z = np.array([[None] * m]).T
-        self.S1_2 = np.zeros((m, m))
-        self._log_likelihood = _LOG_TINY
-        self._likelihood = sys.float_info.min
-        self._mahalanobis = None
+        self._K = None
+        self._L21 = np.zeros((n, m))  # K @ S1_2 of the last update, observed columns
+        self._Sy = np.zeros((m, m))  # innovation factor of the last update, observed block
+        self._w = np.zeros(m)  # whitened innovation Sy^-1 y of the last update
+        self._observed = None  # mask of the measured components, None: all
+        self._measured = False  # whether an update has happened
 
     # -- configuration -----------------------------------------------------
 
@@ -189,16 +250,15 @@ class SquareRootUKF:
         n = self._dim_x
         try:
             num = family.num_sigmas(n)
-            family.unit_sigma_points(n)
-            family.weights(n)
         except ParameterError:
             raise
         except Exception as exc:  # a user's family that cannot serve this dimension
             raise ParameterError(f"points cannot give sigma points for dim_x={n}: {exc}") from exc
+        plan = build_plan(family, self._generator, n) if self._generator is not None else None
         self._points = points
         self._family = family
         self._num_sigmas = num
-        self._lane = None  # built on first use
+        self._plan = plan
 
     @property
     def scheme(self):
@@ -210,8 +270,9 @@ class SquareRootUKF:
         gen = as_generator(value)
         if hasattr(gen, "num_sigmas"):
             gen.num_sigmas(self._dim_x, self._family)  # fails now, not at the first update
+        plan = build_plan(self._family, gen, self._dim_x)
         self._generator = gen
-        self._lane = None  # built on first use
+        self._plan = plan
 
     @property
     def dim_x(self) -> int:
@@ -225,31 +286,30 @@ class SquareRootUKF:
 
     @property
     def Wm(self) -> np.ndarray:
-        """Mean weights of the first sigma-point set, shape ``(N,)``."""
-        return self._family.weights(self._dim_x)[0]
+        """Mean weights of the first sigma-point set, shape ``(N,)`` (a copy)."""
+        return self._plan.first.rows.Wm.copy()
 
     @property
     def Wc(self) -> np.ndarray:
-        """Covariance weights of the first sigma-point set, shape ``(N,)``."""
-        return self._family.weights(self._dim_x)[1]
+        """Covariance weights of the first sigma-point set, shape ``(N,)`` (a copy)."""
+        return self._plan.first.rows.Wc.copy()
+
+    def _hooks(self) -> Hooks:
+        return Hooks(
+            self.x_mean,
+            self.z_mean,
+            None if self.residual_x is np.subtract else self.residual_x,
+            None if self.residual_z is np.subtract else self.residual_z,
+            None if self.state_add is np.add else self.state_add,
+        )
 
     # -- state and covariances ---------------------------------------------
 
-    @property
-    def x(self) -> np.ndarray:
-        """State estimate, shape ``(dim_x,)``; editable in place."""
-        return self._x
-
-    @x.setter
-    def x(self, value):
-        self._x = self._as_state(value, "x")
-        self._machine.forget_propagated()
+    def _covariance_assigned(self, name: str) -> None:
+        """An assignment to ``x``, ``P``, ``Q`` or ``R`` succeeded (hook for subclasses)."""
 
     def _as_state(self, value, name) -> np.ndarray:
-        try:
-            x = np.array(value, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise ShapeError(f"{name} must be a float vector of length {self._dim_x}: {exc}") from None
+        x = as_float_array(value, name)
         if x.shape not in ((self._dim_x,), (self._dim_x, 1)):
             raise ShapeError(f"{name} has shape {x.shape}, expected ({self._dim_x},)")
         x = x.reshape(self._dim_x)
@@ -258,128 +318,114 @@ class SquareRootUKF:
         return x
 
     @property
-    def P(self) -> np.ndarray:
-        """State covariance ``P1_2 @ P1_2.T``; assignment and in-place edits are factored once."""
-        return self._P.matrix()
-
-    @P.setter
-    def P(self, value):
-        self._P.set_matrix(value)
-        self._machine.forget_propagated()
-
-    @property
     def P1_2(self) -> np.ndarray:
-        """Lower Cholesky factor of ``P`` (read-only array; assign to change)."""
-        return _readonly(self._P.factor())
+        """Lower Cholesky factor of ``P`` (a fresh copy; assign to change)."""
+        return self._P.factor().copy()
 
     @P1_2.setter
     def P1_2(self, value):
-        self._P.set_factor(value)
-        self._machine.forget_propagated()
-
-    @property
-    def Q(self) -> np.ndarray:
-        """Process noise covariance; ``None`` or zeros mean no process noise."""
-        return self._Q.matrix()
-
-    @Q.setter
-    def Q(self, value):
-        self._Q.set_matrix(value)
+        slot = self._P
+        slot.set_factor(value)
+        self.__dict__["P"] = slot.matrix()
 
     @property
     def Q1_2(self) -> np.ndarray:
-        """Lower factor of ``Q`` (zeros when there is no process noise)."""
-        return _readonly(self._Q.factor_or_zeros())
+        """Lower factor of ``Q`` (zeros when there is no process noise; a fresh copy)."""
+        return self._Q.factor_or_zeros().copy()
 
     @Q1_2.setter
     def Q1_2(self, value):
         self._Q.set_factor(value)
-
-    @property
-    def R(self) -> np.ndarray:
-        """Measurement noise covariance (default for ``update``)."""
-        return self._R.matrix()
-
-    @R.setter
-    def R(self, value):
-        self._R.set_matrix(value)
+        self.__dict__["Q"] = self._Q.matrix()
 
     @property
     def R1_2(self) -> np.ndarray:
-        """Lower factor of ``R``."""
-        return _readonly(self._R.factor_or_zeros())
+        """Lower factor of ``R`` (a fresh copy)."""
+        return self._R.factor_or_zeros().copy()
 
     @R1_2.setter
     def R1_2(self, value):
         self._R.set_factor(value)
+        self.__dict__["R"] = self._R.matrix()
 
     @property
     def P_prior(self) -> np.ndarray:
-        """Covariance after the last prediction (a copy)."""
+        """Covariance after the last prediction (a fresh array)."""
         return self.P1_2_prior @ self.P1_2_prior.T
 
     @property
     def P_post(self) -> np.ndarray:
-        """Covariance after the last update (a copy)."""
+        """Covariance after the last update (a fresh array)."""
         return self.P1_2_post @ self.P1_2_post.T
+
+    # -- the last update's records ------------------------------------------
+
+    def _embed(self, block: np.ndarray, fill: float) -> np.ndarray:
+        """A ``(dim_z, dim_z)`` record from its observed block (``fill`` elsewhere)."""
+        obs = self._observed
+        if obs is None:
+            return block.copy()
+        out = np.full((obs.shape[0], obs.shape[0]), fill)
+        out[np.ix_(obs, obs)] = block
+        return out
+
+    @property
+    def S1_2(self) -> np.ndarray:
+        """Lower factor of the last innovation covariance (NaN where a component was missing)."""
+        return self._embed(self._Sy, np.nan)
 
     @property
     def S(self) -> np.ndarray:
-        """Innovation covariance of the last update, ``S1_2 @ S1_2.T``."""
-        return self.S1_2 @ self.S1_2.T
+        """Innovation covariance of the last update, ``S1_2 @ S1_2.T`` (NaN where missing)."""
+        return self._embed(self._Sy @ self._Sy.T, np.nan)
 
     @property
     def SI(self) -> np.ndarray:
         """Inverse of ``S``, by triangular solves with ``S1_2`` (or by ``self.inv`` if replaced)."""
         if self.inv is not np.linalg.inv:
             return self.inv(self.S)
-        m = self.S1_2.shape[0]
-        if not np.all(self.S1_2.diagonal() != 0):
-            return np.zeros((m, m))
-        W = solve_lower(self.S1_2, np.eye(m))
-        return W.T @ W
+        Sy = self._Sy
+        m = Sy.shape[0]
+        if not np.all(Sy.diagonal() != 0):
+            return self._embed(np.zeros((m, m)), np.nan)
+        W = solve_lower(Sy, np.eye(m))
+        return self._embed(W.T @ W, np.nan)
 
     @property
     def K(self) -> np.ndarray:
-        """Kalman gain of the last update, shape ``(dim_x, dim_z)`` (formed on request)."""
+        """Kalman gain of the last update, shape ``(dim_x, dim_z)`` (zero columns where missing)."""
         if self._K is None:
-            self._K = gain_from_factors(self.S1_2, self._L21)
+            K = gain_from_factors(self._Sy, self._L21) if self._measured else np.zeros_like(self._L21)
+            obs = self._observed
+            if obs is not None:
+                full = np.zeros((self._dim_x, obs.shape[0]))
+                full[:, obs] = K
+                K = full
+            self._K = K
         return self._K
 
     @K.setter
     def K(self, value):
         self._K = value
 
-    # -- likelihood ---------------------------------------------------------
-
-    def _whitened_innovation(self) -> np.ndarray:
-        return solve_lower(self.S1_2, np.asarray(self.y, dtype=float).reshape(-1))
-
     @property
     def log_likelihood(self) -> float:
-        """Log-likelihood of the last measurement, from the innovation factor."""
-        if self._log_likelihood is None:
-            w = self._whitened_innovation()
-            logdet = 2.0 * float(np.sum(np.log(np.abs(self.S1_2.diagonal()))))
-            self._log_likelihood = -0.5 * (w.size * _LOG_2PI + logdet + float(w @ w))
-        return self._log_likelihood
+        """Log-likelihood of the last measurement (its measured components), from the innovation factor."""
+        if not self._measured:
+            return _LOG_TINY
+        w = self._w
+        logdet = 2.0 * float(np.sum(np.log(np.abs(self._Sy.diagonal()))))
+        return -0.5 * (w.size * _LOG_2PI + logdet + float(w @ w))
 
     @property
     def likelihood(self) -> float:
         """``exp(log_likelihood)``, never below ``sys.float_info.min``."""
-        if self._likelihood is None:
-            self._likelihood = max(math.exp(self.log_likelihood), sys.float_info.min)
-        return self._likelihood
+        return max(math.exp(self.log_likelihood), sys.float_info.min)
 
     @property
     def mahalanobis(self) -> float:
-        """Mahalanobis distance of the last innovation, ``||S1_2^-1 y||``."""
-        if self._mahalanobis is None:
-            if not np.any(self.S1_2):
-                return 0.0
-            w = self._whitened_innovation()
-            self._mahalanobis = float(math.sqrt(w @ w))
-        return self._mahalanobis
+        """Mahalanobis distance of the last innovation, ``||S1_2^-1 y||`` (measured components)."""
+        return float(math.sqrt(self._w @ self._w)) if self._measured else 0.0
 
     # -- helpers ------------------------------------------------------------
 
@@ -388,15 +434,15 @@ class SquareRootUKF:
         try:
             value = float(dt)
         except (TypeError, ValueError):
-            raise ParameterError(f"dt must be a positive finite number, got dt={dt!r}") from None
-        if not (math.isfinite(value) and value > 0):
-            raise ParameterError(f"dt must be a positive finite number, got dt={dt!r}")
+            raise ParameterError(f"dt must be a finite number, got dt={dt!r}") from None
+        if isinstance(dt, complex) or not math.isfinite(value):
+            raise ParameterError(f"dt must be a finite number, got dt={dt!r}")
         return value
 
-    def _noise_factor(self, value, slot: FactorSlot, name: str, dim: int) -> np.ndarray | None:
-        """Factor of a per-call noise matrix (cached for repeated identical arrays)."""
+    def _noise_factor(self, value, name: str, dim: int) -> np.ndarray | None:
+        """Lower factor of ``Q`` or ``R`` (``value`` for this call, else the attribute's); None: zero."""
         if value is None:
-            S = slot.factor()
+            S = self.__dict__["_" + name].factor()
             if S is not None and S.shape[0] != dim:
                 raise ShapeError(
                     f"{name} is {S.shape[0]}x{S.shape[0]} but the {'measurement' if name == 'R' else 'state'}"
@@ -413,21 +459,13 @@ class SquareRootUKF:
             self._noise_cache[name] = (value, value.copy(), S)
         return S
 
-    def _set_trusted_x(self, x: np.ndarray) -> None:
-        """Install a mean computed by the filter itself (already checked)."""
-        self._x = x
-        self._x_bytes = x.tobytes()
-
     def _current(self) -> tuple[np.ndarray, np.ndarray]:
-        """The current mean and factor, with in-place edits of ``x`` and ``P`` checked."""
-        x = self._x
-        if x.tobytes() != self._x_bytes:  # assigned or edited in place since last checked
-            if x.dtype != np.float64 or x.shape != (self._dim_x,):
-                x = self._x = self._as_state(x, "x")
-            elif not all_finite(x):
-                raise NonFiniteError(f"x contains NaN or inf: {x!r}")
-            self._x_bytes = x.tobytes()
-        return x, self._P.factor()
+        """The current mean and factor, with in-place edits of ``x`` and ``P`` validated."""
+        d = self.__dict__
+        xu, xs = d["x"], d["_xs"]
+        if xu.shape != xs.shape or xu.dtype != xs.dtype or xu.tobytes() != xs.tobytes():
+            d["_xs"] = self._as_state(xu, "x")  # edited in place since last checked
+        return d["_xs"], self._P.factor()
 
     def _evaluate(self, fn: Callable, sigmas: np.ndarray, args: tuple, kwargs: dict) -> object:
         if self.vectorized:
@@ -443,27 +481,14 @@ class SquareRootUKF:
             return [fn(s, dt) for s in sigmas]
         return [fn(s, *args) for s in sigmas]
 
-    @staticmethod
-    def _hook(fn, default):
-        return None if fn is default else fn
-
-    def _plain_lane(self, UT) -> Lane | None:
-        """The plain step's kernel, when the configuration is plain (no hooks, no ``UT``)."""
-        if not (
-            UT is None
-            and self.x_mean is None
-            and self.z_mean is None
-            and self.residual_x is np.subtract
-            and self.residual_z is np.subtract
-            and self.state_add is np.add
-        ):
-            return None
-        lane = self._lane
-        if lane is None:
-            lane = self._lane = lane_for(self._dim_x, self._family, self._generator) or False
-        elif lane is not False and lane.family2 is not self._generator.family_for(self._family):
-            lane = self._lane = lane_for(self._dim_x, self._family, self._generator) or False
-        return lane or None
+    def _commit_estimate(self, x: np.ndarray, S: np.ndarray) -> None:
+        """Install a mean and factor computed by the filter (fresh user-facing arrays)."""
+        d = self.__dict__
+        d["_xs"] = x
+        d["x"] = x.copy()
+        slot = d["_P"]
+        slot.set_trusted_factor(S)
+        d["P"] = slot.matrix()
 
     # -- ask/tell: the step in halves ----------------------------------------
 
@@ -473,14 +498,14 @@ class SquareRootUKF:
         Returns
         -------
         sigmas : ndarray, shape (N, dim_x)
-            One point per row; evaluate the state transition at each and pass
-            the results to :meth:`tell_predict`.
+            One point per row (a fresh array); evaluate the state transition
+            at each and pass the results to :meth:`tell_predict`.
         """
-        return self._ask_predict(self._plain_lane(None))
-
-    def _ask_predict(self, lane: Lane | None) -> np.ndarray:
         x, S = self._current()
-        return self._machine.ask_predict(x, S, self._family, self._hook(self.state_add, np.add), lane)
+        plan = self._plan
+        state = steps.ask_predict(self._state, plan, x, S, self._hooks().state_add)
+        self._state, self._step_plan = state, plan
+        return state.sigmas.copy()
 
     def tell_predict(self, sigmas_f, Q=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of a prediction: the propagated points give the prior.
@@ -499,40 +524,23 @@ class SquareRootUKF:
         -------
         x_prior : ndarray, shape (dim_x,)
         P1_2_prior : ndarray, shape (dim_x, dim_x)
+            Fresh arrays.
         """
-        snap = self._machine.snapshot()
-        try:
-            x, S = self._tell_predict(sigmas_f, Q, UT, self._plain_lane(UT))
-        except BaseException:
-            self._machine.restore(snap)
-            raise
-        return x, _readonly(S)
+        self._tell_predict(self._state, self._step_plan, sigmas_f, Q, UT, self._hooks())
+        return self.x_prior.copy(), self.P1_2_prior.copy()
 
     @_one_blas_thread
-    def _tell_predict(self, sigmas_f, Q, UT, lane: Lane | None) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`tell_predict` without the snapshot (the caller restores the machine on failure)."""
-        Q1_2 = self._noise_factor(Q, self._Q, "Q", self._dim_x)
-        machine = self._machine
-        if lane is not None:
-            x, S = machine.tell_predict(sigmas_f, Q1_2, lane=lane)
-            preview = machine.draw_second_set(x, S, self._family, self._generator, None, lane)
-        else:
-            x, S = machine.tell_predict(
-                sigmas_f,
-                Q1_2,
-                x_mean_fn=self.x_mean,
-                residual_x=self._hook(self.residual_x, np.subtract),
-                UT=UT,
-            )
-            preview = machine.draw_second_set(
-                x, S, self._family, self._generator, self._hook(self.state_add, np.add)
-            )
-        self._set_trusted_x(x)
-        self._P.set_trusted_factor(S)
+    def _tell_predict(self, state, plan: Plan, values, Q, UT, hooks: Hooks) -> None:
+        """Finish a prediction and commit it (nothing is changed if anything fails)."""
+        Q1_2 = self._noise_factor(Q, "Q", self._dim_x)
+        state, x, S = steps.tell_predict(state, plan, values, Q1_2, hooks, UT)
+        state = steps.draw_second_set(state, plan, x, S, hooks.state_add)
+        # commit
+        self._state, self._step_plan = state, plan
+        self._commit_estimate(x, S)
         self.x_prior = x.copy()
-        self.P1_2_prior = S
-        self.sigmas_f = preview.sigmas  # filterpy shows the second set once the prediction is done
-        return self.x_prior, S
+        self.P1_2_prior = S.copy()
+        self.sigmas_f = state.sset.sigmas.copy()  # filterpy shows the second set once the prediction is done
 
     def ask_update(self) -> np.ndarray:
         """First half of an update: the sigma points to pass through the measurement function.
@@ -540,15 +548,14 @@ class SquareRootUKF:
         Returns
         -------
         sigmas : ndarray, shape (N2, dim_x)
-            The second set (redrawn from the prior, or augmented); evaluate
-            ``hx`` at each and pass the results to :meth:`tell_update`.
+            The second set (redrawn from the prior, or augmented; a fresh
+            array); evaluate ``hx`` at each and pass the results to
+            :meth:`tell_update`.
         """
-        return self._ask_update(self._plain_lane(None))
-
-    def _ask_update(self, lane: Lane | None) -> np.ndarray:
         x, S = self._current()
-        hook = None if lane is not None else self._hook(self.state_add, np.add)
-        return self._machine.ask_update(x, S, self._family, self._generator, hook, lane).sigmas
+        state = steps.ask_update(self._state, self._plan, x, S, self._hooks().state_add)
+        self._state = state
+        return state.sigmas.copy()
 
     def tell_update(self, sigmas_h, z, R=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of an update: measurement-function values and ``z`` give the posterior.
@@ -558,8 +565,8 @@ class SquareRootUKF:
         sigmas_h : array_like, shape (N2, dim_z)
             The measurement function at each point from :meth:`ask_update`.
         z : array_like, shape (dim_z,)
-            The measurement (its length may differ from ``dim_z`` if ``R``
-            has the matching size).
+            The measurement; NaN (or masked) components are missing. Its
+            length may differ from ``dim_z`` if ``R`` has the matching size.
         R : ndarray, optional
             Measurement noise for this update only (default ``self.R``); a
             scalar means ``R * I``.
@@ -569,50 +576,51 @@ class SquareRootUKF:
         -------
         x_post : ndarray, shape (dim_x,)
         P1_2_post : ndarray, shape (dim_x, dim_x)
+            Fresh arrays.
         """
-        x, S = self._tell_update(sigmas_h, self._as_measurement(z, R), R, UT, self._plain_lane(UT))
-        return x, _readonly(S)
+        meas = self._as_measurement(z, R)
+        if meas is None:
+            raise NonFiniteError(
+                "tell_update needs a measurement, but z holds none (all NaN, masked or None)"
+            )
+        self._tell_update(self._state, sigmas_h, meas[0], meas[1], R, UT, self._hooks())
+        return self.x_post.copy(), self.P1_2_post.copy()
 
     @_one_blas_thread
-    def _tell_update(self, sigmas_h, z: np.ndarray, R, UT, lane: Lane | None) -> tuple[np.ndarray, ...]:
-        """:meth:`tell_update` with ``z`` already validated (a fresh array, kept as ``self.z``)."""
-        R1_2 = self._noise_factor(R, self._R, "R", z.shape[0])
+    def _tell_update(self, state, values, z: np.ndarray, observed, R, UT, hooks: Hooks) -> None:
+        """Finish an update and commit it (nothing is changed if anything fails)."""
+        R1_2 = self._noise_factor(R, "R", z.shape[0])
         if R1_2 is None:
             R1_2 = np.zeros((z.shape[0], z.shape[0]))
-        if lane is not None:
-            post = self._machine.tell_update(sigmas_h, z, R1_2, lane=lane)
+        state, post, H = steps.tell_update(state, values, z, R1_2, observed, hooks, UT)
+        m = z.shape[0]
+        if observed is None:
+            y = post.y
         else:
-            post = self._machine.tell_update(
-                sigmas_h,
-                z,
-                R1_2,
-                z_mean_fn=self.z_mean,
-                residual_x=self._hook(self.residual_x, np.subtract),
-                residual_z=self._hook(self.residual_z, np.subtract),
-                state_add=self._hook(self.state_add, np.add),
-                UT=UT,
-            )
-        self._set_trusted_x(post.x)
-        self._P.set_trusted_factor(post.S)
-        self._K = None
-        self._L21 = post.L21
-        self.y = post.y
-        self.S1_2 = post.Sy
-        self.sigmas_h = self._machine.sigmas_h
-        self.z = z
+            y = np.full(m, np.nan)
+            y[observed] = post.y
+        # commit
+        self._state = state
+        self._commit_estimate(post.x, post.S)
         self.x_post = post.x.copy()
-        self.P1_2_post = post.S
-        self._log_likelihood = None
-        self._likelihood = None
-        self._mahalanobis = None
-        return self.x_post, post.S
+        self.P1_2_post = post.S.copy()
+        self.y = y
+        self.z = z
+        self.sigmas_h = H
+        self._Sy, self._L21, self._w, self._observed = post.Sy, post.L21, post.w, observed
+        self._K = None
+        self._measured = True
 
-    def _as_measurement(self, z, R, missing_ok: bool = False) -> np.ndarray | None:
-        """``z`` as a float vector, checked; with ``missing_ok`` an all-NaN ``z`` gives None."""
-        try:
-            arr = np.array(z, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise ShapeError(f"z must be a float vector: {exc}") from None
+    def _as_measurement(self, z, R) -> tuple[np.ndarray, np.ndarray | None] | None:
+        """``z`` checked, as ``(z, observed)``; None when it holds no measurement.
+
+        ``observed`` is the mask of the measured components, or None when all are.
+        """
+        if z is None:
+            return None
+        if isinstance(z, np.ma.MaskedArray):
+            z = np.ma.filled(np.ma.asarray(z, dtype=float), np.nan)
+        arr = as_float_array(z, "z")
         if arr.ndim != 1:
             if arr.ndim == 0:
                 arr = arr.reshape(1)
@@ -620,10 +628,15 @@ class SquareRootUKF:
                 arr = arr.reshape(-1)
             else:
                 raise ShapeError(f"z has shape {np.shape(z)}, expected ({self._dim_z},)")
-        if not all_finite(arr):
-            if missing_ok and np.isnan(arr).all():
+        observed = None
+        finite = np.isfinite(arr)
+        if not finite.all():
+            nan = np.isnan(arr)
+            if not (finite | nan).all():
+                raise NonFiniteError(f"z contains inf (NaN means a missing component): {arr!r}")
+            if nan.all():
                 return None
-            raise NonFiniteError(f"z contains NaN or inf: {arr!r}")
+            observed = ~nan
         if R is None and arr.shape[0] != self._dim_z:
             Rdim = self._R.factor_or_zeros().shape[0]
             if Rdim != arr.shape[0]:
@@ -631,7 +644,7 @@ class SquareRootUKF:
                     f"z has length {arr.shape[0]} but dim_z is {self._dim_z} and R is {Rdim}x{Rdim};"
                     " pass R= (and hx=) for a measurement of another size"
                 )
-        return arr
+        return arr, observed
 
     # -- filterpy's methods ---------------------------------------------------
 
@@ -641,7 +654,8 @@ class SquareRootUKF:
         Parameters
         ----------
         dt : float, optional
-            Time step for this prediction (default: the constructor's ``dt``).
+            Time step for this prediction (default: the constructor's ``dt``);
+            any finite value, ``0`` included (``fx(x, 0)``), as filterpy.
         UT : callable, optional
             Square-root transform, signature of :func:`squkf.sqrt_unscented_transform`.
         fx : callable, optional
@@ -653,15 +667,12 @@ class SquareRootUKF:
         """
         dt = self._dt if dt is None else self._check_dt(dt)
         fx = self.fx if fx is None else fx
-        lane = self._plain_lane(UT)
-        snap = self._machine.snapshot()
-        try:
-            sigmas = self._ask_predict(lane)
-            values = self._evaluate(fx, sigmas, (dt,), fx_args)
-            self._tell_predict(values, Q, UT, lane)
-        except BaseException:
-            self._machine.restore(snap)
-            raise
+        x, S = self._current()
+        plan = self._plan
+        hooks = self._hooks()
+        state = steps.ask_predict(self._state, plan, x, S, hooks.state_add)
+        values = self._evaluate(fx, state.sigmas.copy(), (dt,), fx_args)
+        self._tell_predict(state, plan, values, Q, UT, hooks)
 
     def update(self, z, R=None, UT=None, hx=None, **hx_args) -> None:
         """Update the estimate with measurement ``z``: ``x``, ``P`` become the posterior.
@@ -669,8 +680,9 @@ class SquareRootUKF:
         Parameters
         ----------
         z : array_like, shape (dim_z,), or None
-            ``None`` (or all-NaN) means no measurement: the prior is kept as
-            the posterior.
+            ``None``, a NaN scalar, an all-NaN or a fully masked ``z`` mean no
+            measurement: the prior is kept as the posterior. NaN (or masked)
+            components are missing: the update uses the measured ones only.
         R : ndarray or float, optional
             Measurement noise for this update (default ``self.R``). With a
             ``z`` of another length (a second sensor), give ``R`` and ``hx``.
@@ -680,32 +692,28 @@ class SquareRootUKF:
         **hx_args
             Passed to ``hx``.
         """
-        zz = None if z is None else self._as_measurement(z, R, missing_ok=np.ndim(z) > 0)
-        if zz is None:
-            self._machine.skip_update()
+        meas = self._as_measurement(z, R)
+        if meas is None:
+            state = steps.skip_update(self._state)
+            x, S = self._current()
+            self._state = state
             self.z = np.array([[None] * self._dim_z]).T
-            self.x_post = self._x.copy()
-            self.P1_2_post = self._P.factor()
+            self.x_post = x.copy()
+            self.P1_2_post = S.copy()
             return
         hx = self.hx if hx is None else hx
-        lane = self._plain_lane(UT)
-        snap = self._machine.snapshot()
-        try:
-            sigmas = self._ask_update(lane)
-            values = self._evaluate(hx, sigmas, (), hx_args)
-            self._tell_update(values, zz, R, UT, lane)
-        except BaseException:
-            self._machine.restore(snap)
-            raise
+        x, S = self._current()
+        hooks = self._hooks()
+        state = steps.ask_update(self._state, self._plan, x, S, hooks.state_add)
+        values = self._evaluate(hx, state.sigmas.copy(), (), hx_args)
+        self._tell_update(state, values, meas[0], meas[1], R, UT, hooks)
 
     def compute_process_sigmas(self, dt, fx=None, **fx_args) -> None:
         """Set ``sigmas_f`` to the first set propagated through ``fx`` (state unchanged)."""
         dt = self._check_dt(dt)
         fx = self.fx if fx is None else fx
         x, S = self._current()
-        sigmas = sigma_points_from_factor(
-            x, S, self._family.unit_sigma_points(self._dim_x), self._hook(self.state_add, np.add)
-        )
+        sigmas = sigma_points_from_factor(x, S, self._plan.first.xi, self._hooks().state_add)
         values = self._evaluate(fx, sigmas, (dt,), fx_args)
         self.sigmas_f = check_values(values, sigmas.shape, "fx values")
 
@@ -715,22 +723,18 @@ class SquareRootUKF:
         The weights are those of the set with as many points as ``sigmas_f``
         (the second set after a prediction, else the first).
         """
-        sigmas_f = np.asarray(sigmas_f, dtype=float)
-        sigmas_h = np.atleast_2d(np.asarray(sigmas_h, dtype=float))
+        sigmas_f = as_float_array(sigmas_f, "sigmas_f")
+        sigmas_h = np.atleast_2d(as_float_array(sigmas_h, "sigmas_h"))
         N = sigmas_f.shape[0]
-        Wc = self.Wc
-        if Wc.shape[0] != N and self._machine.phase == PRIOR:
-            Wc = self._generator.second_set(
-                self._x,
-                self._P.factor(),
-                family=self._family,
-                propagated=self._machine._propagated,
-                Q1_2=self._machine._Q1_2,
-            ).Wc
+        Wc = self._plan.first.rows.Wc
+        sset = self._state.sset
+        if Wc.shape[0] != N and sset is not None:
+            Wc = sset.Wc
         if Wc.shape[0] != N:
             raise ShapeError(f"sigmas_f has {N} points but the sigma-point sets have {Wc.shape[0]}")
-        dx = deviations(sigmas_f, np.asarray(x, dtype=float), self._hook(self.residual_x, np.subtract))
-        dz = deviations(sigmas_h, np.asarray(z, dtype=float), self._hook(self.residual_z, np.subtract))
+        hooks = self._hooks()
+        dx = deviations(sigmas_f, as_float_array(x, "x"), hooks.residual_x, "residual_x")
+        dz = deviations(sigmas_h, as_float_array(z, "z"), hooks.residual_z, "residual_z")
         return (dx.T * Wc) @ dz
 
     def batch_filter(self, zs, Rs=None, dts=None, UT=None, saver=None, Qs=None, **kwargs):
@@ -760,22 +764,49 @@ class SquareRootUKF:
 
         return rts_smoother_factors(self, Xs, P1_2s, Qs=Qs, dts=dts, UT=UT, **kwargs)
 
+    # -- transactions, copies, pickling ---------------------------------------
+
     def _snapshot(self) -> dict:
-        """Everything a failed multi-step call must put back (arrays are replaced, never mutated)."""
+        """Everything a failed multi-step call must put back.
+
+        The filter's own arrays are replaced by each step, never changed in
+        place; only the matrices and vector the caller may edit in place are
+        copied.
+        """
         state = dict(self.__dict__)
-        for key in ("_P", "_Q", "_R", "_machine"):
-            state[key] = copy.deepcopy(state[key])
-        state["_x"] = self._x.copy()
+        for key in ("_P", "_Q", "_R"):
+            state[key] = copy.copy(state[key])
         return state
 
     def _restore(self, state: dict) -> None:
         self.__dict__.clear()
         self.__dict__.update(state)
 
+    def __copy__(self):
+        # an independent filter: arrays and covariance slots are copied, functions and
+        # configuration objects are shared (as copy.copy of a filterpy filter shares them)
+        new = type(self).__new__(type(self))
+        d = {}
+        for key, value in self.__dict__.items():
+            if isinstance(value, np.ndarray):
+                value = value.copy()
+            elif isinstance(value, FactorSlot):
+                value = copy.deepcopy(value)
+            d[key] = value
+        for name in ("P", "Q", "R"):
+            d[name] = d["_" + name].matrix()
+        new.__dict__.update(d)
+        return new
+
     def __getstate__(self):
         state = self.__dict__.copy()
         state["_noise_cache"] = {}
         return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        for name in ("P", "Q", "R"):
+            self.__dict__[name] = self.__dict__["_" + name].matrix()
 
     def __repr__(self) -> str:
         from filterpy.common import pretty_str

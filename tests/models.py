@@ -100,7 +100,7 @@ FILTER_STATE = (
 def filter_state(f) -> dict:
     """Copies of everything a failed call must leave unchanged."""
     snap = {k: np.array(getattr(f, k), copy=True) for k in FILTER_STATE}
-    snap["phase"] = f._machine.phase
+    snap["phase"] = f._state.phase
     snap["log_likelihood"] = f.log_likelihood
     return snap
 
@@ -109,5 +109,5 @@ def assert_filter_state(f, snap: dict) -> None:
     """The filter is bit for bit as in ``snap``."""
     for k in FILTER_STATE:
         np.testing.assert_array_equal(np.asarray(getattr(f, k)), snap[k], err_msg=k)
-    assert f._machine.phase == snap["phase"]
+    assert f._state.phase == snap["phase"]
     assert f.log_likelihood == snap["log_likelihood"]

@@ -171,4 +171,4 @@ def test_predict_restores_the_step_when_fx_raises():
         ukf.predict(fx=broken)
     assert_filter_state(ukf, snap)
     ukf.predict()
-    assert ukf._machine.phase == "prior"
+    assert ukf._state.phase == "prior"

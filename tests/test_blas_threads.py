@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-import squkf.lane
+import squkf.transform
 from squkf import MerweScaledWeights, SquareRootUKF, blas
 
 CONTROLS = blas.blas_controls()
@@ -36,7 +36,7 @@ def test_context_holds_one_thread_and_restores_on_error(two_threads):
 @pytest.mark.parametrize("n, inside", [(blas.MIN_DIM, 1), (blas.MIN_DIM - 1, 2)])
 def test_step_numerics_on_one_thread_user_functions_untouched(two_threads, monkeypatch, n, inside):
     seen = {"fx": [], "hx": [], "qr": []}
-    real_tria = squkf.lane.tria
+    real_tria = squkf.transform.tria
 
     def tria(rows):
         seen["qr"].append(_counts())
@@ -50,7 +50,7 @@ def test_step_numerics_on_one_thread_user_functions_untouched(two_threads, monke
         seen["hx"].append(_counts())
         return x[:2]
 
-    monkeypatch.setattr(squkf.lane, "tria", tria)
+    monkeypatch.setattr(squkf.transform, "tria", tria)
     f = SquareRootUKF(n, 2, 1.0, hx, fx, MerweScaledWeights(0.5, 2.0, 0.0))
     f.predict()
     f.update(np.array([0.1, -0.1]))
@@ -62,8 +62,8 @@ def test_step_numerics_on_one_thread_user_functions_untouched(two_threads, monke
 def test_min_dim_none_leaves_the_blas_alone(two_threads, monkeypatch):
     monkeypatch.setattr(blas, "MIN_DIM", None)
     counts = []
-    real_tria = squkf.lane.tria
-    monkeypatch.setattr(squkf.lane, "tria", lambda rows: counts.append(_counts()) or real_tria(rows))
+    real_tria = squkf.transform.tria
+    monkeypatch.setattr(squkf.transform, "tria", lambda rows: counts.append(_counts()) or real_tria(rows))
     n = 20
     f = SquareRootUKF(n, 1, 1.0, lambda x: x[:1], lambda x, dt: x, MerweScaledWeights(0.5, 2.0, 0.0))
     f.predict()

@@ -1,0 +1,126 @@
+"""Checks at the boundary: what callers and their functions hand to the filter.
+
+Every value that crosses into the core goes through one of these: the images
+of the model functions, what the user's hooks return, and arrays given as
+arguments. Each raises a specific :mod:`squkf.errors` exception naming the
+argument (or the function) and the value; none keeps a reference to its input.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from .errors import NonFiniteError, ShapeError
+from .linalg import all_finite
+
+__all__ = ["as_float_array", "check_values", "check_hook_result", "call_hook"]
+
+
+def as_float_array(value, name: str) -> np.ndarray:
+    """``value`` as a new float64 array; complex or non-numeric input is an error.
+
+    Parameters
+    ----------
+    value : array_like
+    name : str
+        Used in the error message.
+
+    Returns
+    -------
+    ndarray, float64, a private copy
+
+    Raises
+    ------
+    ShapeError
+        ``value`` is not a real numeric array (complex, strings, ragged, objects).
+    """
+    if isinstance(value, np.ndarray) and value.dtype.kind in "fiub":
+        return np.array(value, dtype=float)
+    try:
+        probe = np.asarray(value)
+    except (TypeError, ValueError) as exc:
+        raise ShapeError(f"{name} could not be read as a real float array: {exc}") from None
+    if probe.dtype.kind == "c":
+        raise ShapeError(f"{name} is complex ({probe.dtype}); squkf works in real float64")
+    if probe.dtype.kind not in "fiub":
+        if probe.dtype.kind == "O":
+            try:
+                return as_float_array(probe.astype(float), name)
+            except (TypeError, ValueError):
+                pass
+        raise ShapeError(f"{name} could not be read as a real float array (dtype {probe.dtype}): {value!r}")
+    return np.array(probe, dtype=float)
+
+
+def check_values(values, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """Validate the images of a sigma-point set returned by the caller.
+
+    Parameters
+    ----------
+    values : array_like
+        What the model function returned (or the caller told).
+    shape : tuple (..., N, d)
+        Expected shape: one row per sigma point (after any batch axes).
+    name : str
+        Used in the error message.
+
+    Returns
+    -------
+    values : ndarray, shape ``shape``, float64, a private copy
+
+    Raises
+    ------
+    ShapeError, NonFiniteError
+    """
+    arr = as_float_array(values, name)
+    if arr.shape != shape:
+        # per-point functions returning column vectors, or scalars for a 1-d measurement
+        if arr.shape == shape + (1,) or (shape[-1] == 1 and arr.shape == shape[:-1]):
+            arr = arr.reshape(shape)
+        else:
+            raise ShapeError(f"{name} has shape {arr.shape}, expected {shape} (one row per sigma point)")
+    if not all_finite(arr):
+        idx = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
+        raise NonFiniteError(
+            f"{name} is not finite: row {idx[-2]} (sigma point {idx[-2]}), column {idx[-1]} holds {arr[idx]}"
+            + (f" (filter {idx[:-2]})" if len(idx) > 2 else "")
+        )
+    return arr
+
+
+def check_hook_result(value, shape: tuple[int, ...], hook: str) -> np.ndarray:
+    """Validate what a user's hook returned: its shape and that it is finite.
+
+    Parameters
+    ----------
+    value : array_like
+        The hook's return value.
+    shape : tuple
+        The shape it must have (a ``(1,)`` result may also be a scalar).
+    hook : str
+        The hook's name (``"state_add"``, ``"residual_x"``, ...), for the message.
+
+    Returns
+    -------
+    ndarray, shape ``shape``, float64, a private copy
+
+    Raises
+    ------
+    ShapeError, NonFiniteError
+    """
+    arr = as_float_array(value, f"what {hook} returned")
+    if arr.shape != shape:
+        if arr.size == int(np.prod(shape)) and (arr.ndim <= 1 or arr.shape == shape + (1,)):
+            arr = arr.reshape(shape)
+        else:
+            raise ShapeError(f"{hook} returned shape {arr.shape}, expected {shape}")
+    if not all_finite(arr):
+        raise NonFiniteError(f"{hook} returned a non-finite value: {arr!r}")
+    return arr
+
+
+def call_hook(fn: Callable, args: tuple, shape: tuple[int, ...], hook: str) -> np.ndarray:
+    """Call a user's hook and validate its result (see :func:`check_hook_result`)."""
+    return check_hook_result(fn(*args), shape, hook)
