@@ -4,6 +4,7 @@
 program; :mod:`squkf.nag` keeps g13ej's reverse-communication calling sequence.
 """
 
+from ._version import __version__ as __version__
 from .errors import (
     CallSequenceError,
     CommunicationError,
@@ -29,8 +30,6 @@ from .weights import (
     SigmaPointFamily,
     SimplexWeights,
 )
-
-__version__ = "0.1.0"
 
 __all__ = [
     "SquareRootUKF",

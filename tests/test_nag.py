@@ -1,6 +1,7 @@
 """squkf.nag: g13ej's calling sequence, its example, and its documented errors."""
 
 import copy
+import os
 import subprocess
 import sys
 
@@ -20,15 +21,44 @@ def test_example_program_prints_the_published_table():
     ).stdout
     lines = out.splitlines()
     assert lines[0] == "g13ej example results"
+    assert lines[3].split() == list(ex.STATE_NAMES)  # the columns are named
     rows = [line.split() for line in lines if line.strip()[:1].isdigit() and len(line.split()) == 4]
     assert len(rows) == 15
     published = DATA["published_state_estimates"]["x"]
     for t, row in enumerate(rows):
         assert int(row[0]) == t + 1
         assert [float(v) for v in row[1:]] == published[t]
-    factor = [line.split() for line in lines[-3:]]
-    printed = [[float(v) for v in row] for row in factor]
+    start = lines.index("Covariance Matrix at the Last Time Point") + 1
+    printed = [[float(v) for v in line.split()] for line in lines[start : start + 3]]
     assert printed == DATA["published_final_st"]["rows"]
+    # the last line compares the unrounded estimates with the table: all agree, and the largest
+    # difference it reports is the one computed here, below half a unit of the third decimal
+    states, _ = ex.run()
+    largest = np.abs(states - np.array(published)).max()
+    assert lines[-1] == (
+        "All 45 values agree with NAG's published results to the 3 decimal places printed "
+        f"(max abs difference from the printed values {largest:.1e})"
+    )
+    assert largest < 5e-4
+
+
+def test_example_comparison_reports_a_value_that_differs():
+    states, _ = ex.run()
+    states[8, 1] += 0.002
+    line = ex.comparison_line(states, DATA)
+    assert line.startswith("44 of 45 values agree")
+    assert f"{ex.STATE_NAMES[1]} at time 9" in line
+
+
+def test_example_program_names_the_columns_in_ascii_where_greek_cannot_be_printed():
+    out = subprocess.run(
+        [sys.executable, "-m", "squkf.examples.g13ej_example"],
+        capture_output=True,
+        check=True,
+        env={**os.environ, "PYTHONIOENCODING": "ascii"},
+    ).stdout.decode("ascii")
+    assert out.splitlines()[3].split() == ["xi", "eta", "theta"]
+    assert out.splitlines()[-1].startswith("All 45 values agree")
 
 
 def first_entry(ropt=None, lx="default"):

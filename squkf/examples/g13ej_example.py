@@ -2,7 +2,11 @@
 
 A two-wheeled robot moves past a wall; it measures its distance and angle to
 the wall. Run ``python -m squkf.examples.g13ej_example`` to print the same
-results table NAG publishes for its routine g13ej.
+results table NAG publishes for its routine g13ej, with a last line comparing
+it with NAG's.
+
+The state is ``(xi, eta, theta)``: the robot's x and y position and its
+heading, the angle (radians) from the x-axis in which it faces.
 
 The inputs (and NAG's published output, and the simulated true trajectory)
 are in ``g13ej_example.json`` beside this file.
@@ -11,6 +15,7 @@ are in ``g13ej_example.json`` beside this file.
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +23,11 @@ import numpy as np
 from squkf.nag import kalman_unscented_state_revcom
 
 DATA_FILE = Path(__file__).with_name("g13ej_example.json")
+
+#: Names of the state components (x position, y position, heading), as in NAG's documents.
+STATE_NAMES = ("ξ", "η", "θ")
+#: The same names spelled in ASCII, for an output that cannot encode Greek letters.
+ASCII_STATE_NAMES = ("xi", "eta", "theta")
 
 
 def load_data() -> dict:
@@ -82,15 +92,29 @@ def run(data: dict | None = None, ropt=None) -> tuple[np.ndarray, np.ndarray]:
     return np.array(states), np.tril(st)
 
 
-def results_table(states: np.ndarray, st: np.ndarray) -> str:
-    """The results in the layout of NAG's published example output."""
+def results_table(states: np.ndarray, st: np.ndarray, names: tuple[str, ...] = STATE_NAMES) -> str:
+    """The results in the layout of NAG's published example output, with the columns named.
+
+    Parameters
+    ----------
+    states : ndarray, shape (ntime, 3)
+        The state estimate after each time point.
+    st : ndarray, shape (3, 3)
+        Lower factor of the state covariance at the last time point.
+    names : tuple of str, optional
+        Names of the state components (x position, y position, heading).
+    """
     mx = states.shape[1]
     pad = " " * -(-(11 * mx - 16) // 2)
     head = f"  Time  {pad} Estimate of State{pad}"
-    lines = ["g13ej example results", "", head, "-" * len(head)]
+    lines = ["g13ej example results", "", head, " " * 8 + "".join(f" {name:>10}" for name in names)]
+    lines.append("-" * len(head))
     for t, row in enumerate(states, start=1):
         lines.append(f"  {t:3d}   " + "".join(f" {v:10.3f}" for v in row))
+    x, y, heading = names
     lines += [
+        "",
+        f"{x}, {y}: the robot's x and y position; {heading}: its heading (angle from the x-axis, radians)",
         "",
         "Estimate of Cholesky Factorisation of the State",
         "Covariance Matrix at the Last Time Point",
@@ -100,9 +124,49 @@ def results_table(states: np.ndarray, st: np.ndarray) -> str:
     return "\n".join(lines)
 
 
+def comparison_line(states: np.ndarray, data: dict, names: tuple[str, ...] = STATE_NAMES) -> str:
+    """One line comparing the state estimates with NAG's published table.
+
+    Parameters
+    ----------
+    states : ndarray, shape (ntime, 3)
+        The state estimate after each time point.
+    data : dict
+        As returned by :func:`load_data`; holds the published estimates and their decimals.
+    names : tuple of str, optional
+        Names of the state components, used to point at the first value that differs.
+    """
+    published = np.array(data["published_state_estimates"]["x"], dtype=float)
+    decimals = data["published_state_estimates"]["decimals"]
+    diff = np.abs(states - published)
+    # a value agrees when it rounds to the printed one (the tolerance absorbs the binary spelling)
+    agrees = np.abs(np.round(states, decimals) - published) < 1e-9
+    n = agrees.size
+    if agrees.all():
+        return (
+            f"All {n} values agree with NAG's published results to the {decimals} decimal places printed "
+            f"(max abs difference from the printed values {diff.max():.1e})"
+        )
+    t, i = np.argwhere(~agrees)[0]
+    return (
+        f"{int(agrees.sum())} of {n} values agree with NAG's published results to the {decimals} decimal "
+        f"places printed; the first that differs is {names[i]} at time {t + 1} "
+        f"({states[t, i]:.6f} against {published[t, i]:.{decimals}f}; max abs difference {diff.max():.1e})"
+    )
+
+
 def main() -> None:
-    """Print the example's results table."""
-    print(results_table(*run()))
+    """Print the example's results table and how it compares with NAG's."""
+    try:
+        "".join(STATE_NAMES).encode(sys.stdout.encoding or "ascii")
+        names = STATE_NAMES
+    except (LookupError, UnicodeEncodeError):
+        names = ASCII_STATE_NAMES
+    data = load_data()
+    states, st = run(data)
+    print(results_table(states, st, names))
+    print()
+    print(comparison_line(states, data, names))
 
 
 if __name__ == "__main__":

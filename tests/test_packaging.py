@@ -1,0 +1,135 @@
+"""The sdist and the wheel carry the licence, the typing marker and what the sdist's own tests read;
+the version is written once.
+
+The distributions are built with setuptools' PEP 517 backend in a subprocess, from a copy of the
+source tree (the backend writes ``squkf.egg-info`` beside the sources); the wheel is built from the
+unpacked sdist, as pip does.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import json
+import shutil
+import subprocess
+import sys
+import tarfile
+import zipfile
+from email.parser import Parser
+from pathlib import Path
+from urllib.parse import unquote, urlparse
+
+import pytest
+
+import squkf
+
+ROOT = Path(__file__).resolve().parents[1]
+
+NOT_SOURCES = shutil.ignore_patterns(
+    ".git",
+    ".venv*",
+    "venv",
+    "build",
+    "dist",
+    "*.egg-info",
+    "__pycache__",
+    "*.pyc",
+    ".pytest_cache",
+    ".ruff_cache",
+    ".hypothesis",
+    ".ipynb_checkpoints",
+)
+
+# Files the tests open by path (tests/test_readme.py, tests/models.py, tests/test_benchmarks_smoke.py
+# and the files benchmarks/run.py imports), besides every tests/*.py and benchmarks/*.py.
+READ_BY_TESTS = ["README.md", ".ci/run", "squkf/examples/g13ej_example.json"]
+
+
+def backend(hook: str, source: Path, out: Path, pattern: str) -> Path:
+    """Run ``setuptools.build_meta.<hook>(out)`` in ``source``; the one file it made in ``out``."""
+    out.mkdir()
+    subprocess.run(
+        [sys.executable, "-c", f"import setuptools.build_meta as b; b.{hook}({str(out)!r})"],
+        cwd=source,
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    (made,) = out.glob(pattern)
+    return made
+
+
+@pytest.fixture(scope="module")
+def dists(tmp_path_factory) -> dict:
+    tmp = tmp_path_factory.mktemp("packaging")
+    source = tmp / "source"
+    shutil.copytree(ROOT, source, ignore=NOT_SOURCES)
+    sdist = backend("build_sdist", source, tmp / "sdist", "squkf-*.tar.gz")
+    with tarfile.open(sdist) as tar:
+        names = tar.getnames()
+        # the "data" filter where this Python has it (3.12+ warn without a filter)
+        tar.extractall(tmp / "unpacked", **({"filter": "data"} if hasattr(tarfile, "data_filter") else {}))
+    (top,) = {name.split("/")[0] for name in names}
+    wheel = backend("build_wheel", tmp / "unpacked" / top, tmp / "wheel", "squkf-*.whl")
+    return {
+        "sdist_names": {name.split("/", 1)[1] for name in names if "/" in name},
+        "pkg_info": (tmp / "unpacked" / top / "PKG-INFO").read_text(encoding="utf-8"),
+        "wheel": wheel,
+    }
+
+
+def metadata(text: str):
+    return Parser().parsestr(text)
+
+
+def test_sdist_carries_the_licence_and_everything_its_tests_read(dists):
+    names = dists["sdist_names"]
+    wanted = {"LICENSE", "CHANGELOG.md", "pyproject.toml", "squkf/py.typed", *READ_BY_TESTS}
+    wanted |= {"tests/conftest.py", "tests/models.py"}
+    wanted |= {p.relative_to(ROOT).as_posix() for p in ROOT.glob("tests/*.py")}
+    wanted |= {p.relative_to(ROOT).as_posix() for p in ROOT.glob("benchmarks/*.py")}
+    wanted |= {p.relative_to(ROOT).as_posix() for p in ROOT.glob("squkf/**/*.py")}
+    assert wanted <= names, sorted(wanted - names)
+    assert not [n for n in names if "__pycache__" in n or n.endswith(".pyc")]
+    meta = metadata(dists["pkg_info"])
+    assert meta["Version"] == squkf.__version__
+    assert meta["License-Expression"] == "MIT"
+
+
+def test_wheel_carries_the_licence_and_the_typing_marker(dists):
+    with zipfile.ZipFile(dists["wheel"]) as whl:
+        names = set(whl.namelist())
+        (info,) = {n.split("/")[0] for n in names if n.split("/")[0].endswith(".dist-info")}
+        meta = metadata(whl.read(f"{info}/METADATA").decode())
+        licence = whl.read(f"{info}/licenses/LICENSE").decode()
+    assert "MIT License" in licence and "the squkf developers" in licence
+    assert {"squkf/py.typed", "squkf/_version.py", "squkf/examples/g13ej_example.json"} <= names
+    # only the package and its metadata: tests and benchmarks stay in the sdist
+    assert {n.split("/")[0] for n in names} == {"squkf", info}
+    assert meta["Version"] == squkf.__version__
+    assert meta["License-Expression"] == "MIT"
+    extras = set(meta.get_all("Provides-Extra"))
+    assert {"test", "progress", "threads", "notebook"} <= extras
+
+
+def installed_is_imported(dist: importlib.metadata.Distribution) -> bool:
+    """Whether the installed distribution ``squkf`` is the package this test imported."""
+    imported = Path(squkf.__file__).resolve()
+    direct = dist.read_text("direct_url.json")
+    if direct and json.loads(direct).get("dir_info", {}).get("editable"):
+        source = Path(unquote(urlparse(json.loads(direct)["url"]).path)).resolve()
+        return imported.parent.parent == source
+    return Path(dist.locate_file("squkf/__init__.py")).resolve() == imported
+
+
+def test_installed_version_is_the_package_version():
+    try:
+        dist = importlib.metadata.distribution("squkf")
+    except importlib.metadata.PackageNotFoundError:
+        pytest.skip("squkf is not installed (imported from the source tree)")
+    if not installed_is_imported(dist):
+        pytest.skip(f"the installed squkf is another copy than the imported {squkf.__file__}")
+    assert squkf.__version__ == importlib.metadata.version("squkf"), (
+        "installed metadata is stale: reinstall (pip install -e .)"
+    )
