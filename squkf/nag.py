@@ -122,6 +122,11 @@ def _ropt_values(ropt) -> list[float]:
         raise ParameterError(f"On entry, LROPT = {len(flat)}. Constraint: 0 <= LROPT <= 7.", errno=181)
     if flat.dtype.kind in "iuf":
         return [float(v) for v in flat]
+    if flat.dtype.kind == "c":  # name the first entry that is complex in value, not only in type
+        imag = np.flatnonzero(flat.imag)
+        flat = flat.astype(object)
+        if imag.size:
+            flat[: imag[0]] = [v.real for v in flat[: imag[0]]]
     values = []
     for i, v in enumerate(flat, 1):
         try:
