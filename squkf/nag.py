@@ -122,7 +122,9 @@ def _ropt_values(ropt) -> list[float]:
         raise ParameterError(f"On entry, LROPT = {len(flat)}. Constraint: 0 <= LROPT <= 7.", errno=181)
     if flat.dtype.kind in "iuf":
         return [float(v) for v in flat]
-    if flat.dtype.kind == "c":  # name the first entry that is complex in value, not only in type
+    if isinstance(ropt, (list, tuple)) and len(ropt) == flat.size:
+        flat = list(ropt)  # the entries as given: one string among numbers makes an all-string array
+    elif flat.dtype.kind == "c":  # name the first entry that is complex in value, not only in type
         imag = np.flatnonzero(flat.imag)
         flat = flat.astype(object)
         if imag.size:
