@@ -36,6 +36,22 @@ in: 11, 21, 22, 31, 32, 61, 81, 111, 121, 122, 123, 141, 161, 162, 171, 172,
 173, 181, 191, 211, 301, 302, 303. After an error ``x``, ``st``, ``xt`` and
 ``comm`` are exactly as they were.
 
+An argument that is not what the documents' types make it gets the number of
+that argument's constraint: ``x`` 21, ``y`` 31, ``lx`` 61, ``ly`` 81, ``st``
+111, ``xt`` 141, ``fxt`` 161/162 (a complex, string, bool or object array is
+refused, never cast to real), an ROPT entry that is not a real number 171,
+172 or 173 by its position, ROPT not a flat sequence 181. Non-finite kappa or
+alpha are 172 and 173; so are a kappa and alpha whose ``L + lambda =
+alpha**2 (L + kappa)`` is 0 or inf in floating point (173). A non-finite beta
+(ROPT(4), ROPT(7)) and NaN or inf in ``x``, ``y``, ``st``, ``lx`` or ``ly``
+have no documented number: they raise ParameterError and NonFiniteError with
+``errno`` None.
+
+``comm`` holds a digest of everything it keeps, so any change to it between
+calls (a key removed, a value replaced, the state inside the kept machine or
+options changed) is 191, and a change to ``x``, ``st`` or ``xt`` is 211; a
+``comm`` that is not a dict is 191.
+
 IFAIL 301 (a failed rank-1 downdate for a negative weight) is rarer than in
 g13ej: the weighted covariance is written with non-negative weights whenever
 ``beta >= alpha**2`` (deviations from the central point; see
@@ -67,10 +83,11 @@ from .errors import (
     NonFiniteError,
     ParameterError,
     ShapeError,
+    SqukfError,
 )
 from .generators import Augmented, Redrawn
 from .plan import build_plan
-from .weights import MerweScaledWeights
+from .weights import MerweScaledWeights, _real_array, _real_number
 
 __all__ = ["kalman_unscented_state_revcom"]
 
@@ -87,11 +104,63 @@ def _digest(*arrays) -> str:
     return h.hexdigest()
 
 
+# the error number of each ROPT entry's constraint (beta, ROPT(4) and ROPT(7), has none)
+_ROPT_ERRNO = (171, 172, 173, None, 172, 173, None)
+
+
+def _ropt_values(ropt) -> list[float]:
+    """ROPT as a list of at most 7 floats (errors 181, or 171-173 for an entry that is not a real number)."""
+    if ropt is None:
+        return []
+    try:
+        flat = np.asarray(ropt).reshape(-1)
+    except Exception as exc:  # ragged nesting and the like
+        raise ParameterError(
+            f"On entry, ROPT = {ropt!r}. Constraint: ROPT is a sequence of at most 7 real numbers ({exc}).",
+            errno=181,
+        ) from None
+    if len(flat) > 7:
+        raise ParameterError(f"On entry, LROPT = {len(flat)}. Constraint: 0 <= LROPT <= 7.", errno=181)
+    if flat.dtype.kind in "iuf":
+        return [float(v) for v in flat]
+    if isinstance(ropt, (list, tuple)) and len(ropt) == flat.size:
+        flat = list(ropt)  # the entries as given: one string among numbers makes an all-string array
+    elif flat.dtype.kind == "c":  # name the first entry that is complex in value, not only in type
+        imag = np.flatnonzero(flat.imag)
+        flat = flat.astype(object)
+        if imag.size:
+            flat[: imag[0]] = [v.real for v in flat[: imag[0]]]
+    values = []
+    for i, v in enumerate(flat, 1):
+        try:
+            values.append(_real_number(v, f"ROPT({i})"))
+        except ParameterError:
+            raise ParameterError(
+                f"On entry, ROPT({i}) = {v!r}. Constraint: ROPT({i}) is a real number.",
+                errno=_ROPT_ERRNO[i - 1],
+            ) from None
+    return values
+
+
+def _ropt_family(kappa: float, alpha: float, beta: float, first: int, n: int) -> MerweScaledWeights:
+    """The family of ROPT(first..first+2) = kappa, alpha, beta, checked at dimension ``n``."""
+    if not np.isfinite(beta):
+        raise ParameterError(f"On entry, ROPT({first + 2}) = {beta:g}. Constraint: beta is finite.")
+    try:
+        family = MerweScaledWeights(alpha, beta, kappa)
+        family.weights(n)  # L + lambda in floating point, and finite weights
+    except ParameterError as exc:
+        raise ParameterError(
+            f"On entry, ROPT({first}) = {kappa:g}, ROPT({first + 1}) = {alpha:g} and "
+            f"ROPT({first + 2}) = {beta:g}: {exc}",
+            errno=exc.errno,
+        ) from None
+    return family
+
+
 def _options(ropt, mx: int, has_lx: bool):
     """Parse ROPT into the two sets' families and the scheme (errors 171-173, 181)."""
-    ropt = [] if ropt is None else list(np.asarray(ropt, dtype=float).reshape(-1))
-    if len(ropt) > 7:
-        raise ParameterError(f"On entry, LROPT = {len(ropt)}. Constraint: 0 <= LROPT <= 7.", errno=181)
+    ropt = _ropt_values(ropt)
     scheme = ropt[0] if len(ropt) > 0 else 1.0
     if scheme not in (1.0, 2.0):
         raise ParameterError(f"On entry, ROPT(1) = {scheme:g}. Constraint: ROPT(1) = 1 or 2.", errno=171)
@@ -105,25 +174,28 @@ def _options(ropt, mx: int, has_lx: bool):
         ky = kx - mx if (augmented and has_lx) else kx
     ay = ropt[5] if len(ropt) > 5 else ax
     by = ropt[6] if len(ropt) > 6 else bx
-    if not kx > -mx:
-        raise ParameterError(f"On entry, ROPT(2) = {kx:g}. Constraint: kappa > {-mx}.", errno=172)
+    if not (kx > -mx and np.isfinite(kx)):
+        raise ParameterError(
+            f"On entry, ROPT(2) = {kx:g}. Constraint: kappa > {-mx} (and finite).", errno=172
+        )
     ky_min = -2 * mx if (augmented and has_lx) else -mx
-    if not ky > ky_min:
-        raise ParameterError(f"On entry, ROPT(5) = {ky:g}. Constraint: kappa > {ky_min}.", errno=172)
+    if not (ky > ky_min and np.isfinite(ky)):
+        raise ParameterError(
+            f"On entry, ROPT(5) = {ky:g}. Constraint: kappa > {ky_min} (and finite).", errno=172
+        )
     for i, a in ((3, ax), (6, ay)):
-        if not a > 0:
-            raise ParameterError(f"On entry, ROPT({i}) = {a:g}. Constraint: alpha > 0.", errno=173)
-    first = MerweScaledWeights(ax, bx, kx)
-    second = MerweScaledWeights(ay, by, ky)
+        if not (a > 0 and np.isfinite(a)):
+            raise ParameterError(
+                f"On entry, ROPT({i}) = {a:g}. Constraint: alpha > 0 (and finite).", errno=173
+            )
+    first = _ropt_family(kx, ax, bx, 2, mx)
+    second = _ropt_family(ky, ay, by, 5, 2 * mx if augmented else mx)
     generator = Augmented(weights=second) if augmented else Redrawn(weights=second)
     return first, generator, augmented
 
 
 def _lower(a, rows: int, name: str, errno: int, what: str, need: int):
-    try:
-        arr = np.asarray(a, dtype=float)
-    except (TypeError, ValueError):
-        raise ShapeError(f"{name} must be a float matrix", errno=errno) from None
+    arr = _real_array(a, name, errno=errno, error=ShapeError)
     if arr.ndim != 2 or arr.shape[0] < need or arr.shape[1] < need:
         shape = arr.shape if arr.ndim == 2 else (arr.shape + (0, 0))[:2]
         raise ShapeError(
@@ -178,21 +250,42 @@ def kalman_unscented_state_revcom(irevcm, y, ly, x, st, xt, fxt, comm, lx=None, 
         raise ParameterError(f"On entry, IREVCM = {irevcm!r}. Constraint: IREVCM = 0, 1, 2 or 3.", errno=11)
     if not isinstance(comm, dict):
         raise CommunicationError("comm must be the dict created empty and passed back unchanged", errno=191)
-    for name, arr in (("x", x), ("xt", xt)):
+    for name, arr, errno in (("x", x, 21), ("st", st, 111), ("xt", xt, 141)):
         if not (isinstance(arr, np.ndarray) and arr.dtype == np.float64 and arr.flags.writeable):
-            raise ShapeError(f"{name} must be a writeable float64 numpy array (it is updated in place)")
-    if not (isinstance(st, np.ndarray) and st.dtype == np.float64 and st.flags.writeable):
-        raise ShapeError("st must be a writeable float64 numpy array (it is updated in place)")
+            got = f"a {arr.dtype} array" if isinstance(arr, np.ndarray) else f"a {type(arr).__name__}"
+            if isinstance(arr, np.ndarray) and arr.dtype == np.float64:
+                got = "a read-only array"
+            raise ShapeError(
+                f"{name} must be a writeable float64 numpy array (it is updated in place), got {got}",
+                errno=errno,
+            )
     mx = x.shape[0] if x.ndim == 1 else 0
     if mx < 1:
         raise ParameterError(f"On entry, MX = {mx}. Constraint: MX >= 1.", errno=21)
-    yv = np.asarray(y, dtype=float).reshape(-1)
+    yv = _real_array(y, "y", errno=31, error=ShapeError).reshape(-1)
     my = yv.shape[0]
     if my < 1:
         raise ParameterError(f"On entry, MY = {my}. Constraint: MY >= 1.", errno=31)
     if irevcm in (0, 3):
         return _initial_entry(irevcm, yv, ly, x, st, xt, comm, lx, ropt, mx, my)
-    return _re_entry(irevcm, yv, ly, x, st, xt, fxt, comm, lx, mx, my)
+    try:
+        return _re_entry(irevcm, yv, ly, x, st, xt, fxt, comm, lx, mx, my)
+    except SqukfError:
+        raise
+    except (
+        TypeError,
+        ValueError,
+        ArithmeticError,
+        LookupError,
+        AttributeError,
+        np.linalg.LinAlgError,
+    ) as exc:
+        # every argument has been checked by now; what is left is the state kept in comm
+        raise CommunicationError(
+            f"ICOMM has been corrupted between calls (the state kept in comm cannot be used: "
+            f"{type(exc).__name__}: {exc}).",
+            errno=191,
+        ) from exc
 
 
 def _check_common(yv, ly, x, st, xt, lx, mx, my, n_max, augmented):
@@ -244,22 +337,59 @@ def _save(comm, machine, plan, mx, my, ncap, expect, n, x, st, xt, first_irevcm)
         {
             "icomm": ints,
             "machine": machine,
-            "plan": plan,
-            "digest_i": _digest(np.array(ints), np.array([machine.phase == "predicting"])),
+            "family": plan.family,
+            "generator": plan.generator,
+            "digest_i": _digest_i(ints, machine, plan.family, plan.generator),
             "digest_r": _digest(x, np.tril(st[:mx, :mx]), xt[:mx, :n]),
         }
     )
+
+
+def _fingerprint(h, value) -> None:
+    """Feed ``value`` (arrays, plain scalars and tuples of them; other objects by type) to ``h``."""
+    if isinstance(value, np.ndarray):
+        h.update(f"{value.dtype.str}{value.shape}".encode())
+        h.update(np.ascontiguousarray(value).tobytes())
+    elif isinstance(value, (tuple, list)):
+        h.update(f"{type(value).__name__}[{len(value)}]".encode())
+        for v in value:
+            _fingerprint(h, v)
+    elif value is None or isinstance(value, (bool, int, float, str, np.generic)):
+        h.update(f"{type(value).__name__}:{value!r};".encode())
+    else:
+        h.update(f"<{type(value).__name__}>".encode())
+
+
+def _digest_i(ints, machine, family, generator) -> str:
+    """The digest of the integer state, the options and the machine's state kept in comm."""
+    h = hashlib.sha1()
+    _fingerprint(h, tuple(int(v) for v in ints))
+    h.update(f"{type(family).__name__}:{family!r}|{type(generator).__name__}:{generator!r}".encode())
+    for name, value in sorted(vars(machine).items()):
+        h.update(name.encode())
+        _fingerprint(h, value)
+    return h.hexdigest()
 
 
 def _load(comm, irevcm, x, st, xt, mx, my):
     try:
         ints = comm["icomm"]
         machine = comm["machine"]
-        plan = comm["plan"]
-        ok = isinstance(machine, steps.StepState) and comm["digest_i"] == _digest(
-            np.array(ints), np.array([machine.phase == "predicting"])
+        family = comm["family"]
+        generator = comm["generator"]
+        ok = (
+            type(ints) is tuple
+            and len(ints) == 6
+            and all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in ints)
+            and isinstance(machine, steps.StepState)
+            and type(family) is MerweScaledWeights
+            and type(generator) in (Redrawn, Augmented)
+            and type(generator.weights) is MerweScaledWeights
+            and isinstance(comm["digest_i"], str)
+            and isinstance(comm["digest_r"], str)
+            and comm["digest_i"] == _digest_i(ints, machine, family, generator)
         )
-    except (KeyError, TypeError, AttributeError, ValueError):
+    except Exception:  # whatever was put in comm: a missing key, an object whose repr fails
         ok = False
     if not ok:
         raise CommunicationError("ICOMM has been corrupted between calls.", errno=191)
@@ -293,14 +423,11 @@ def _load(comm, irevcm, x, st, xt, mx, my):
             "between intermediate exits and re-entries).",
             errno=211,
         )
-    return machine, plan, ints
+    return machine, build_plan(family, generator, mx), ints
 
 
 def _read_fxt(fxt, rows: int, n: int, irevcm: int, mx: int, my: int):
-    try:
-        F = np.asarray(fxt, dtype=float)
-    except (TypeError, ValueError):
-        F = np.empty((0, 0))
+    F = _real_array(fxt, f"fxt (with IREVCM = {irevcm})", errno=160 + irevcm, error=ShapeError)
     if F.ndim != 2 or F.shape[0] < rows or F.shape[1] < n:
         first = F.shape[0] if F.ndim == 2 else 0
         if irevcm == 1:

@@ -24,6 +24,7 @@ interface) are accepted wherever a family is, through :func:`as_family`.
 from __future__ import annotations
 
 import copy
+import numbers
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -57,6 +58,73 @@ def _frozen(a: np.ndarray) -> np.ndarray:
     return a
 
 
+def _real_number(value, name: str, errno: int | None = None) -> float:
+    """``value`` as a float if it is one real number (not a bool, string, complex or array).
+
+    ``float()`` alone would parse strings and, for numpy complex scalars, drop
+    the imaginary part with only a warning.
+    """
+    if isinstance(value, np.ndarray) and value.ndim == 0:
+        value = value[()]
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise ParameterError(
+            f"{name} must be a real number, got {name}={value!r} (a {type(value).__name__})", errno=errno
+        )
+    return float(value)
+
+
+def _real_array(value, name: str, errno: int | None = None, error=ParameterError) -> np.ndarray:
+    """``value`` as a new float64 array if it holds real numbers (int or float dtype) only.
+
+    Complex, bool, string and object arrays are refused rather than cast
+    (casting complex to float drops the imaginary part with only a warning).
+    """
+    try:
+        arr = np.asarray(value)
+    except Exception as exc:  # ragged nesting, objects whose __array__ fails
+        raise error(f"{name} must be an array of real numbers: {exc}", errno=errno) from None
+    if arr.dtype.kind not in "iuf":
+        kind = "complex" if arr.dtype.kind == "c" else f"dtype {arr.dtype}"
+        raise error(
+            f"{name} must be an array of real numbers, got {kind} ({type(value).__name__})", errno=errno
+        )
+    return np.array(arr, dtype=float)
+
+
+def _dimension(n) -> int:
+    if isinstance(n, (bool, np.bool_)) or not isinstance(n, numbers.Integral) or n < 1:
+        raise ParameterError(f"n (the dimension) must be a positive integer, got n={n!r}")
+    return int(n)
+
+
+def _alpha(value, errno: int | None = 173) -> float:
+    alpha = _real_number(value, "alpha", errno)
+    if not (np.isfinite(alpha) and alpha > 0):
+        raise ParameterError(f"alpha must be a positive finite number, got alpha={alpha!r}", errno=errno)
+    a2 = alpha * alpha
+    if not (np.isfinite(a2) and a2 >= np.finfo(float).tiny):
+        raise ParameterError(
+            f"alpha**2 must be a positive finite normal number (about 1.5e-154 < alpha < 1.3e154), "
+            f"got alpha={alpha!r}",
+            errno=errno,
+        )
+    return alpha
+
+
+def _beta(value) -> float:
+    beta = _real_number(value, "beta")
+    if not np.isfinite(beta):
+        raise ParameterError(f"beta must be a finite number, got beta={beta!r}")
+    return beta
+
+
+def _kappa(value, errno: int | None = 172) -> float:
+    kappa = _real_number(value, "kappa", errno)
+    if not np.isfinite(kappa):
+        raise ParameterError(f"kappa must be a finite number, got kappa={kappa!r}", errno=errno)
+    return kappa
+
+
 class _CachedFamily:
     """Caches unit points and weights per dimension (they never change)."""
 
@@ -81,9 +149,25 @@ class _CachedFamily:
             return self._fill(n)[1]
 
     def _fill(self, n: int) -> tuple:
-        xi = _frozen(np.asarray(self._unit_points(n), dtype=float))
+        n = _dimension(n)
+        what = f"{self!r} for n={n}"
+        xi = _real_array(self._unit_points(n), f"the unit sigma points of {what}")
         Wm, Wc = self._weights(n)
-        entry = (xi, (_frozen(np.asarray(Wm, dtype=float)), _frozen(np.asarray(Wc, dtype=float))))
+        Wm = _real_array(Wm, f"the mean weights Wm of {what}")
+        Wc = _real_array(Wc, f"the covariance weights Wc of {what}")
+        N = self.num_sigmas(n)
+        if xi.shape != (N, n) or Wm.shape != (N,) or Wc.shape != (N,):
+            raise ParameterError(
+                f"{what} gives unit points of shape {xi.shape} and weights of shapes {Wm.shape}, "
+                f"{Wc.shape}; expected ({N}, {n}) and ({N},)"
+            )
+        if not (np.isfinite(xi).all() and np.isfinite(Wm).all() and np.isfinite(Wc).all()):
+            raise ParameterError(
+                f"{what} gives non-finite weights or unit points: its parameters are outside the "
+                "range that can be used at this dimension",
+                errno=getattr(self, "_nonfinite_errno", None),
+            )
+        entry = (_frozen(xi), (_frozen(Wm), _frozen(Wc)))
         self._cache()[n] = entry
         return entry
 
@@ -114,25 +198,32 @@ class MerweScaledWeights(_CachedFamily):
     Parameters
     ----------
     alpha : float
-        Spread, ``alpha > 0`` (g13ej's ROPT(3)/ROPT(6); default 1).
+        Spread, ``alpha > 0`` (g13ej's ROPT(3)/ROPT(6); default 1), finite and
+        with ``alpha**2`` a normal float.
     beta : float
-        Prior-distribution parameter (2 is optimal for a Gaussian; default 2).
+        Prior-distribution parameter, finite (2 is optimal for a Gaussian; default 2).
     kappa : float or None
-        Secondary scaling. ``None`` means ``3 - L`` at whatever dimension the
-        family is used (g13ej's default). Must satisfy ``kappa > -L``.
+        Secondary scaling, finite. ``None`` means ``3 - L`` at whatever
+        dimension the family is used (g13ej's default). Must satisfy
+        ``kappa > -L``, checked when the family is used at dimension ``L``.
+
+    Raises
+    ------
+    ParameterError
+        At construction, for a parameter that is not a real number or is out
+        of its domain (``errno`` 173 for alpha, 172 for kappa); when used at a
+        dimension ``L``, for ``kappa <= -L`` (172) or when
+        ``L + lambda = alpha**2 (L + kappa)`` is not a positive finite number
+        in floating point (173; e.g. alpha below about 1e-8 with ``L + kappa = 3``).
     """
 
+    _nonfinite_errno = 173
+
     def __init__(self, alpha: float = 1.0, beta: float = 2.0, kappa: float | None = None):
-        alpha = float(alpha)
-        if not np.isfinite(alpha) or alpha <= 0:
-            raise ParameterError(f"alpha must be > 0, got alpha={alpha!r}", errno=173)
-        beta = float(beta)
-        if not np.isfinite(beta):
-            raise ParameterError(f"beta must be finite, got beta={beta!r}")
+        alpha = _alpha(alpha)
+        beta = _beta(beta)
         if kappa is not None:
-            kappa = float(kappa)
-            if not np.isfinite(kappa):
-                raise ParameterError(f"kappa must be finite, got kappa={kappa!r}", errno=172)
+            kappa = _kappa(kappa)
         self.alpha = alpha
         self.beta = beta
         self.kappa = kappa
@@ -148,7 +239,19 @@ class MerweScaledWeights(_CachedFamily):
         return kappa
 
     def _lambda(self, n: int) -> float:
-        return self.alpha**2 * (n + self.kappa_for(n)) - n
+        kappa = self.kappa_for(n)
+        lam = self.alpha**2 * (n + kappa) - n
+        spread = n + lam
+        # lambda is formed as filterpy and g13ej form it, so L + lambda loses the
+        # low bits of alpha**2 (L + kappa): a tiny alpha makes it exactly 0
+        if not (np.isfinite(spread) and spread > 0):
+            raise ParameterError(
+                f"alpha={self.alpha!r} and kappa={kappa!r} give L + lambda = alpha**2 * (L + kappa) "
+                f"= {spread!r} in floating point at L={n}; it must be a positive finite number "
+                "(alpha is too small or too large for this kappa)",
+                errno=self._nonfinite_errno,
+            )
+        return lam
 
     def num_sigmas(self, n: int) -> int:
         """``2 n + 1``."""
@@ -194,6 +297,8 @@ class JulierWeights(MerweScaledWeights):
     kappa : float or None
         ``None`` means ``3 - n`` (Julier and Uhlmann's choice for a Gaussian).
     """
+
+    _nonfinite_errno = 172
 
     def __init__(self, kappa: float | None = None):
         super().__init__(alpha=1.0, beta=0.0, kappa=kappa)
@@ -271,6 +376,16 @@ class FilterpyPoints(_CachedFamily):
     ----------
     points : object
         Has ``n``, ``num_sigmas()``, ``sigma_points(x, P)``, ``Wm`` and ``Wc``.
+
+    Raises
+    ------
+    ParameterError
+        If ``points`` lacks one of those, if its ``n`` is not a positive
+        integer, or if one of the parameters it has (``alpha``, ``beta``,
+        ``kappa``) is not a real number in its domain: ``alpha`` positive and
+        finite, ``beta`` finite, ``kappa`` finite with ``n + kappa > 0``. Using
+        the adapter at a dimension other than ``n``, or a points object whose
+        weights or points are not finite, raises it too.
     """
 
     def __init__(self, points):
@@ -280,8 +395,31 @@ class FilterpyPoints(_CachedFamily):
                     f"points must be a sigma-point family or a filterpy points object; "
                     f"{type(points).__name__} has no attribute {attr!r}"
                 )
+        name = type(points).__name__
+        if hasattr(points, "n"):
+            n = points.n
+            if isinstance(n, (bool, np.bool_)) or not isinstance(n, numbers.Integral) or n < 1:
+                raise ParameterError(f"{name}.n must be a positive integer, got n={n!r}")
+            n = int(n)
+        else:
+            n = len(_real_array(points.Wm, f"{name}.Wm").reshape(-1)) // 2
+        if hasattr(points, "alpha"):
+            self._param(points, "alpha", _alpha)
+        if hasattr(points, "beta"):
+            self._param(points, "beta", _beta)
+        if hasattr(points, "kappa"):
+            kappa = self._param(points, "kappa", _kappa)
+            if not n + kappa > 0:
+                raise ParameterError(f"{name}(n={n}, kappa={kappa!r}): kappa must be > -n = {-n}", errno=172)
         self.points = points
-        self.n = int(getattr(points, "n", len(np.asarray(points.Wm)) // 2))
+        self.n = n
+
+    @staticmethod
+    def _param(points, attr, check):
+        try:
+            return check(getattr(points, attr))
+        except ParameterError as exc:
+            raise ParameterError(f"{type(points).__name__}: {exc}", errno=exc.errno) from None
 
     def __getstate__(self):
         return {"points": self.points, "n": self.n}
@@ -292,7 +430,8 @@ class FilterpyPoints(_CachedFamily):
     def _check(self, n):
         if n != self.n:
             raise ParameterError(
-                f"the filterpy points object was built for n={self.n}, but is used for n={n}"
+                f"the points object {type(self.points).__name__} was built for n={self.n}, but is used "
+                f"for n={n} (the filter's dim_x, or 2 dim_x for an augmented set): build it with n={n}"
             )
 
     def num_sigmas(self, n: int) -> int:
@@ -309,12 +448,18 @@ class FilterpyPoints(_CachedFamily):
             probe.sqrt = cholesky
         if hasattr(probe, "subtract"):
             probe.subtract = np.subtract
-        xi = np.asarray(probe.sigma_points(np.zeros(n), np.eye(n)), dtype=float)
+        xi = _real_array(probe.sigma_points(np.zeros(n), np.eye(n)), f"{type(self.points).__name__}'s points")
+        if xi.size != self.num_sigmas(n) * n:
+            raise ParameterError(
+                f"{type(self.points).__name__}.sigma_points gave {xi.size} numbers for "
+                f"num_sigmas() = {self.num_sigmas(n)} points of dimension {n}"
+            )
         return xi.reshape(self.num_sigmas(n), n)
 
     def _weights(self, n):
         self._check(n)
-        return np.array(self.points.Wm, dtype=float), np.array(self.points.Wc, dtype=float)
+        name = type(self.points).__name__
+        return _real_array(self.points.Wm, f"{name}.Wm"), _real_array(self.points.Wc, f"{name}.Wc")
 
     def as_native(self) -> MerweScaledWeights | None:
         """The equivalent squkf family for Merwe- or Julier-type objects, else None."""
