@@ -1,6 +1,7 @@
 """batch_filter's inputs: any iterable of measurements, progress, per-step arguments, errors at step k."""
 
 import copy
+import io
 import pickle
 import subprocess
 import sys
@@ -518,3 +519,14 @@ def test_squkf_errors_are_value_errors_too():
     with pytest.raises(ValueError, match="at step 0"):
         make().batch_filter([np.array([np.nan, 1.0])])
     assert issubclass(ShapeError, SqukfError)
+
+
+def test_a_failed_run_leaves_a_tqdm_bar_closed_where_it_stopped():
+    zs = measurements(20)
+    zs[7] = np.array([np.inf, 0.0])
+    out = io.StringIO()
+    with pytest.raises(NonFiniteError) as info:
+        make().batch_filter(tqdm(zs, file=out, mininterval=1e9))  # drawn only when opened and closed
+    # closed by batch_filter, not later when the exception (and its traceback) is freed
+    assert info.value.step == 7
+    assert "7/20" in out.getvalue() and out.getvalue().endswith("\n")
