@@ -1,115 +1,436 @@
-"""Batch filtering over a sequence of measurements."""
+"""Batch filtering over a sequence of measurements, and the per-step arguments it shares with the smoother.
+
+Conventions for a per-step argument (``Rs``, ``Qs``, ``dts``, ``fx_args``,
+``hx_args``, here and in :mod:`squkf.smoother`):
+
+- ``None``: the filter's default at every step;
+- one value for every step: a scalar or one matrix (an ndarray of 2
+  dimensions) for ``Rs``/``Qs`` (a scalar ``r`` means ``r * I``), a number
+  for ``dts``, a dict for ``fx_args``/``hx_args``;
+- otherwise one entry per step: a list, a tuple, an ndarray (shape ``(T,)``
+  of scalars or ``(T, d, d)`` of matrices for ``Rs``/``Qs``), or any other
+  iterable, read in step with the measurements.
+
+A per-step argument whose length differs from the number of measurements is a
+:class:`~squkf.errors.ShapeError` naming it; when both lengths are known this
+is found before any step is run, otherwise as soon as one runs out.
+"""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+import numbers
+from collections.abc import Callable, Iterable, Mapping, Set
+from typing import Any
 
 import numpy as np
 
-from .errors import ShapeError
+from .errors import ParameterError, ShapeError, SqukfError
 
 __all__ = ["batch_filter", "per_step"]
 
+# predict()/update() take these themselves, so they cannot be passed through to fx/hx
+_RESERVED = {"fx_args": ("dt", "UT", "fx", "Q"), "hx_args": ("z", "R", "UT", "hx")}
+_END = object()
 
-def per_step(value, n: int, name: str, scalar_ok: bool = False) -> list:
-    """Expand ``None``, one value, or a sequence of ``n`` values into a list of ``n``.
+
+def _is_scalar(value) -> bool:
+    return isinstance(value, numbers.Number) or (isinstance(value, np.ndarray) and value.ndim == 0)
+
+
+def check_dt(value, name: str) -> float:
+    """A time step as a float: finite and ``>= 0`` (``dt = 0`` is a step of zero length).
 
     Parameters
     ----------
-    value : None, scalar/array, or sequence of length n
-    n : int
+    value : float
     name : str
-        For the error message.
-    scalar_ok : bool
-        Treat a scalar as one value for every step (``dts``).
+        For the error message, e.g. ``"dts[3]"``.
 
     Returns
     -------
-    list of length n
+    float
+
+    Raises
+    ------
+    ParameterError
+        ``value`` is not a number, is NaN or inf, or is negative.
     """
+    try:
+        dt = float(value)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{name} must be a finite number >= 0, got {name}={value!r}") from None
+    if not (math.isfinite(dt) and dt >= 0):
+        raise ParameterError(f"{name} must be a finite number >= 0, got {name}={value!r}")
+    return dt
+
+
+def _check_kwargs(value, name: str, reserved: tuple[str, ...]) -> dict:
     if value is None:
-        return [None] * n
-    if scalar_ok and np.ndim(value) == 0:
-        return [value] * n
-    if isinstance(value, np.ndarray) and value.ndim == 2 and not scalar_ok:
-        return [value] * n  # one matrix for every step
-    if isinstance(value, dict):
-        return [value] * n
-    if len(value) != n:
-        raise ShapeError(f"{name} has {len(value)} entries but there are {n} measurements")
-    return list(value)
+        return {}
+    if not isinstance(value, Mapping):
+        raise ParameterError(
+            f"{name} must be a dict of keyword arguments (or None),"
+            f" got {type(value).__name__}: {value!r:.100}"
+        )
+    for key in value:
+        if not isinstance(key, str):
+            raise ParameterError(f"{name} has the key {key!r}; keyword names must be strings")
+        if key in reserved:
+            raise ParameterError(
+                f"{name} has the key {key!r}, which is an argument of the filter step itself,"
+                f" not of the model function; give it as its own argument"
+            )
+    return dict(value)
+
+
+class _Steps:
+    """One per-step argument: the same value at every step, or the ``k``-th entry of a sequence or iterable.
+
+    Parameters
+    ----------
+    value : None, one value, sequence or iterable
+    name : str
+        The argument's name, for messages.
+    kind : {"noise", "dt", "kwargs"}
+    T : int or None
+        The number of steps if known (checked against a sequence's length now).
+    default : object
+        The value of ``None`` at every step (already valid).
+    ref : str
+        What the steps are counted in, for messages (``"zs"`` or ``"Xs"``).
+    """
+
+    def __init__(self, value, name: str, kind: str, T: int | None, default=None, ref: str = "zs"):
+        self.name, self.kind, self.ref = name, kind, ref
+        self.const, self.seq, self.it, self.n = default, None, None, None
+        if value is None:
+            if kind == "kwargs":
+                self.const = {}
+            return
+        if kind == "noise":
+            if isinstance(value, np.ndarray) and value.ndim not in (0, 1, 2, 3):
+                raise ShapeError(
+                    f"{name} has shape {value.shape}: expected a scalar, one matrix (d, d),"
+                    " or one per step, (T,) or (T, d, d)"
+                )
+            single = _is_scalar(value) or (isinstance(value, np.ndarray) and value.ndim == 2)
+        elif kind == "dt":
+            if isinstance(value, np.ndarray) and value.ndim > 1:
+                raise ShapeError(f"{name} has shape {value.shape}: expected a number or one per step, (T,)")
+            single = _is_scalar(value)
+        else:
+            single = isinstance(value, Mapping)
+        if single:
+            self.const = self._check(value, name)
+            return
+        if isinstance(value, (str, bytes, Mapping, Set)) or not isinstance(value, Iterable):
+            raise ParameterError(f"{name} must be {self._what()}, got {type(value).__name__}: {value!r:.200}")
+        if hasattr(value, "__len__") and hasattr(value, "__getitem__"):
+            self.n = len(value)
+            if T is not None and self.n != T:
+                raise ShapeError(f"{name} has {self.n} entries but {ref} has {T}")
+            # entries checked once, before any step (noise matrices are checked by the filter as used)
+            if kind == "noise":
+                self.seq = value
+            else:
+                self.seq = [self._check(v, f"{name}[{k}]") for k, v in enumerate(value)]
+        else:
+            self.it = iter(value)
+
+    def _what(self) -> str:
+        return {
+            "noise": "None, a scalar, a matrix, or a sequence with one per step",
+            "dt": "None, a number, or a sequence with one per step",
+            "kwargs": "None, a dict, or a sequence of dicts with one per step",
+        }[self.kind]
+
+    def _check(self, value, name: str):
+        if self.kind == "dt":
+            return check_dt(value, name)
+        if self.kind == "kwargs":
+            return _check_kwargs(value, name, _RESERVED.get(self.name, ()))
+        return value
+
+    def at(self, k: int):
+        """The value for step ``k`` (an iterable is read once, in order)."""
+        if self.seq is not None:
+            if k >= self.n:
+                raise ShapeError(f"{self.name} has {self.n} entries but {self.ref} has more")
+            return self.seq[k]
+        if self.it is not None:
+            value = next(self.it, _END)
+            if value is _END:
+                raise ShapeError(f"{self.name} ran out after {k} entries but {self.ref} has more")
+            return self._check(value, f"{self.name}[{k}]")
+        return self.const
+
+    def finish(self, T: int) -> None:
+        """Check, after the last of ``T`` measurements, that no entries are left over."""
+        if self.seq is not None and self.n != T:
+            raise ShapeError(f"{self.name} has {self.n} entries but {self.ref} had {T}")
+        if self.it is not None and next(self.it, _END) is not _END:
+            raise ShapeError(f"{self.name} has more entries than the {T} in {self.ref}")
+
+    def as_list(self, T: int) -> list:
+        """All ``T`` values (for the smoother, which reads them backwards)."""
+        values = [self.at(k) for k in range(T)]
+        self.finish(T)
+        return values
+
+
+def per_step(value, T: int, name: str, kind: str, default=None, ref: str = "Xs") -> list:
+    """Expand a per-step argument into a list of ``T`` validated values.
+
+    Parameters
+    ----------
+    value : None, one value, sequence or iterable
+        See the module docstring.
+    T : int
+        Number of steps.
+    name : str
+        Argument name, for messages.
+    kind : {"noise", "dt", "kwargs"}
+        ``Rs``/``Qs``-like, ``dts``-like or ``fx_args``-like.
+    default : object, optional
+        The value at every step when ``value`` is None.
+    ref : str, optional
+        The argument that fixes ``T``, for messages.
+
+    Returns
+    -------
+    list of length T
+
+    Raises
+    ------
+    ShapeError
+        ``value`` does not have ``T`` entries.
+    ParameterError
+        ``value`` is of the wrong kind, or an entry is invalid (naming it, e.g. ``dts[3]``).
+    """
+    return _Steps(value, name, kind, T, default, ref).as_list(T)
+
+
+class _Rows:
+    """Rows of a result array collected as they come (the count may be unknown beforehand)."""
+
+    def __init__(self, shape: tuple[int, ...], capacity: int | None):
+        self.buf = np.empty((capacity if capacity is not None else 64, *shape))
+        self.n = 0
+
+    def append(self, row: np.ndarray) -> None:
+        if self.n == self.buf.shape[0]:
+            grown = np.empty((2 * self.n + 1, *self.buf.shape[1:]))
+            grown[: self.n] = self.buf
+            self.buf = grown
+        self.buf[self.n] = row
+        self.n += 1
+
+    def result(self) -> np.ndarray:
+        if self.n == self.buf.shape[0]:
+            return self.buf
+        return self.buf[: self.n].copy()
+
+
+def _known_length(zs) -> int | None:
+    if not hasattr(zs, "__len__"):
+        return None
+    try:
+        n = len(zs)
+    except TypeError:  # e.g. tqdm over a generator without a total
+        return None
+    return n if isinstance(n, int) else None
+
+
+def _progress_callback(progress, total: int | None):
+    """``(bar, callback)`` for the ``progress`` option (``bar`` is None unless we made one)."""
+    if progress is None or progress is False or (isinstance(progress, np.bool_) and not progress):
+        return None, None
+    if progress is True or isinstance(progress, np.bool_):
+        try:
+            from tqdm.auto import tqdm
+        except ImportError as exc:
+            raise ParameterError(
+                "progress=True needs tqdm, which is not installed: pip install 'squkf[progress]'"
+                " (or pass progress=callable, called with each step's index)"
+            ) from exc
+        bar = tqdm(total=total, desc="batch_filter", unit="step")
+        return bar, lambda k: bar.update(1)
+    if callable(progress):
+        return None, progress
+    raise ParameterError(
+        f"progress must be True, False or a callable taking the step index, got {progress!r}"
+    )
+
+
+def _annotate(exc: BaseException, k: int, partial: tuple, at_step: bool) -> None:
+    """Say where ``exc`` happened and attach the results so far (``exc.partial``, ``exc.step``)."""
+    if at_step:
+        if isinstance(exc, SqukfError):
+            msg = exc.args[0] if exc.args else ""
+            exc.args = (f"at step {k}: {msg}", *exc.args[1:])
+        elif hasattr(exc, "add_note"):  # Python 3.11+; other exceptions keep their message
+            exc.add_note(f"raised at step {k} of batch_filter")
+    try:
+        exc.partial = partial
+        exc.step = k if at_step else None
+    except AttributeError:  # an exception type that takes no attributes
+        pass
 
 
 def batch_filter(
     ukf,
-    zs: Sequence,
+    zs: Iterable,
     Rs=None,
     dts=None,
-    UT=None,
+    UT: Callable | None = None,
     saver=None,
+    *,
     Qs=None,
-    fx_args=None,
-    hx_args=None,
+    fx_args: Mapping[str, Any] | Iterable[Mapping[str, Any] | None] | None = None,
+    hx_args: Mapping[str, Any] | Iterable[Mapping[str, Any] | None] | None = None,
     return_factors: bool = False,
-):
+    progress: bool | Callable[[int], object] = False,
+) -> tuple[np.ndarray, np.ndarray]:
     """Run ``predict`` and ``update`` over all measurements ``zs``.
 
-    The same as a loop of ``ukf.predict(dt=dts[k], Q=Qs[k], **fx_args[k])``
-    and ``ukf.update(zs[k], R=Rs[k], **hx_args[k])``, with filterpy's return
-    values. If a step raises, the filter is restored to its state before the
-    call.
+    The same as a loop of ``ukf.predict(dt=dts[k], UT=UT, Q=Qs[k], **fx_args[k])``
+    and ``ukf.update(zs[k], R=Rs[k], UT=UT, **hx_args[k])``, with filterpy's
+    positional arguments and return values. The measurements are read one at a
+    time, so ``zs`` may be a generator or a ``tqdm`` wrapper; the results are
+    collected as they come.
 
     Parameters
     ----------
     ukf : SquareRootUKF
-    zs : sequence of length T
-        Measurements; ``None`` or an all-NaN entry means no measurement at
-        that step (predict only).
-    Rs : None, matrix, or sequence of T matrices
-        Measurement noise per step (default ``ukf.R``).
-    dts : None, float, or sequence of T floats
-        Time step of the prediction into each step (default ``ukf._dt``).
+    zs : iterable of T measurements
+        A list, tuple, array (one row per step), generator, ``tqdm(...)``...
+        Each is a vector of shape ``(dim_z,)`` (or a scalar when ``dim_z == 1``);
+        ``None`` or an all-NaN vector means no measurement at that step
+        (predict only). Strings and dicts are rejected.
+    Rs : None, scalar, ndarray of shape (dim_z, dim_z), or T entries, optional
+        Measurement noise per step (default ``ukf.R``). A scalar ``r`` means
+        ``r * I`` at every step; a 2-D array is the same matrix at every step;
+        a list, a tuple, an array of shape ``(T,)`` or ``(T, dim_z, dim_z)``,
+        or an iterable gives one per step (each a matrix or a scalar).
+    dts : None, float, or T floats, optional
+        Time step of the prediction into each step (default: the constructor's
+        ``dt``). Every entry must be finite and not negative; these are checked
+        before the first step when ``dts`` is a sequence.
     UT : callable, optional
         Square-root transform (see :func:`squkf.sqrt_unscented_transform`).
     saver : filterpy.common.Saver, optional
         ``saver.save()`` is called after every step.
-    Qs : None, matrix, or sequence of T matrices
-        Process noise of the prediction into each step (default ``ukf.Q``).
-    fx_args, hx_args : None, dict, or sequence of T dicts
-        Keyword arguments for ``fx`` and ``hx`` at each step.
-    return_factors : bool
+    Qs : None, scalar, ndarray of shape (dim_x, dim_x), or T entries, optional
+        Process noise of the prediction into each step (default ``ukf.Q``),
+        in the same forms as ``Rs``.
+    fx_args, hx_args : None, dict, or T dicts (or None), optional
+        Keyword arguments for ``fx`` and ``hx``: one dict for every step, or
+        one per step. Keys must be strings and must not be the step's own
+        arguments (``dt``, ``UT``, ``fx``, ``Q`` for ``fx_args``; ``z``, ``R``,
+        ``UT``, ``hx`` for ``hx_args``).
+    return_factors : bool, optional
         Return the lower factors ``P1_2`` instead of the covariances.
+    progress : bool or callable, optional
+        ``True`` shows a tqdm progress bar on stderr (needs the optional extra
+        ``squkf[progress]``; without tqdm a :class:`~squkf.errors.ParameterError`
+        is raised before any step is run). A callable is called as
+        ``progress(k)`` after step ``k`` (0-based) has completed, including the
+        ``saver``; an exception it raises fails step ``k`` like any other.
+        Default False.
 
     Returns
     -------
     means : ndarray, shape (T, dim_x)
-        Posterior means.
+        Posterior means. ``T = 0`` (no measurements) gives shape ``(0, dim_x)``
+        and leaves the filter as it was.
     covariances : ndarray, shape (T, dim_x, dim_x)
         Posterior covariances (or their lower factors with ``return_factors``).
+
+    Raises
+    ------
+    ShapeError
+        ``zs`` is not an iterable of measurements, or a per-step argument does
+        not have one entry per measurement (the message names it).
+    ParameterError
+        An option of the wrong kind, e.g. ``hx_args`` not a dict, a negative
+        ``dts`` entry, ``progress=True`` without tqdm.
+    SqukfError
+        Any squkf error raised at step ``k`` (a bad measurement, a covariance
+        that lost positive-definiteness, ...), with the same type and
+        ``errno`` and its message starting with ``"at step k: "``.
+
+    Notes
+    -----
+    If anything fails during the run, the filter is put back exactly as it
+    was before the call, and the exception (whatever its type, including
+    ``KeyboardInterrupt``) carries
+
+    - ``exc.partial``: ``(means, covariances)`` as this function would return
+      them, for the steps completed before the failure (shape ``(k, ...)``);
+    - ``exc.step``: the step ``k`` that failed (``None`` when the failure is
+      found after the last step, e.g. ``dts`` longer than a generator ``zs``).
+
+    Exceptions that are not squkf's (for example raised by ``fx`` or ``hx``)
+    keep their message; on Python 3.11+ they get a note naming the step.
+    ``partial`` and ``step`` are not pickled with the exception.
     """
+    if isinstance(zs, (str, bytes, Mapping)):
+        raise ShapeError(f"zs must be an iterable of measurements, got {type(zs).__name__}")
     try:
-        T = len(zs)
+        it = iter(zs)
     except TypeError:
-        raise ShapeError(f"zs must be a sequence of measurements, got {type(zs).__name__}") from None
-    Rs = per_step(Rs, T, "Rs")
-    Qs = per_step(Qs, T, "Qs")
-    dts = per_step(dts, T, "dts", scalar_ok=True)
-    fx_args = per_step(fx_args, T, "fx_args")
-    hx_args = per_step(hx_args, T, "hx_args")
+        raise ShapeError(
+            f"zs must be an iterable of measurements (a list, an array, a generator), "
+            f"got {type(zs).__name__}: {zs!r:.200}"
+        ) from None
+    T = _known_length(zs)
+    if UT is not None and not callable(UT):
+        raise ParameterError(f"UT must be a callable (or None), got {UT!r}")
+    if saver is not None and not callable(getattr(saver, "save", None)):
+        raise ParameterError(f"saver must have a save() method (a filterpy Saver), got {saver!r}")
+    if not isinstance(return_factors, (bool, np.bool_)):
+        raise ParameterError(f"return_factors must be True or False, got {return_factors!r}")
+    steps = [
+        _Steps(Rs, "Rs", "noise", T),
+        _Steps(Qs, "Qs", "noise", T),
+        _Steps(dts, "dts", "dt", T),
+        _Steps(fx_args, "fx_args", "kwargs", T),
+        _Steps(hx_args, "hx_args", "kwargs", T),
+    ]
+    R_k, Q_k, dt_k, fx_k, hx_k = steps
     n = ukf.dim_x
-    means = np.zeros((T, n))
-    covs = np.zeros((T, n, n))
+    means = _Rows((n,), T)
+    covs = _Rows((n, n), T)
+    bar, callback = _progress_callback(progress, T)
     saved = ukf._snapshot()
+    k = 0
+    at_step = True
     try:
-        for k in range(T):
-            ukf.predict(dt=dts[k], UT=UT, Q=Qs[k], **(fx_args[k] or {}))
-            ukf.update(zs[k], R=Rs[k], UT=UT, **(hx_args[k] or {}))
-            means[k] = ukf.x
-            S = ukf._P.factor()
-            covs[k] = S if return_factors else S @ S.T
+        while True:
+            z = next(it, _END)
+            if z is _END:
+                break
+            ukf.predict(dt=dt_k.at(k), UT=UT, Q=Q_k.at(k), **fx_k.at(k))
+            ukf.update(z, R=R_k.at(k), UT=UT, **hx_k.at(k))
+            means.append(ukf.x)
+            S = ukf.P1_2
+            covs.append(S if return_factors else S @ S.T)
             if saver is not None:
                 saver.save()
-    except BaseException:
+            if callback is not None:
+                callback(k)
+            k += 1
+        at_step = False
+        for s in steps:
+            s.finish(k)
+    except BaseException as exc:
         ukf._restore(saved)
+        _annotate(exc, k, (means.result()[:k], covs.result()[:k]), at_step)
         raise
-    return means, covs
+    finally:
+        if bar is not None:
+            bar.close()
+        if it is not zs and hasattr(it, "close"):  # an iterator we made, e.g. tqdm's: let it finish
+            it.close()
+    return means.result(), covs.result()

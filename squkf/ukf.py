@@ -737,17 +737,45 @@ class SquareRootUKF:
         dz = deviations(sigmas_h, as_float_array(z, "z"), hooks.residual_z, "residual_z")
         return (dx.T * Wc) @ dz
 
-    def batch_filter(self, zs, Rs=None, dts=None, UT=None, saver=None, Qs=None, **kwargs):
+    def batch_filter(
+        self,
+        zs,
+        Rs=None,
+        dts=None,
+        UT=None,
+        saver=None,
+        Qs=None,
+        *,
+        fx_args=None,
+        hx_args=None,
+        return_factors: bool = False,
+        progress=False,
+    ):
         """Filter a whole sequence of measurements; see :func:`squkf.batch.batch_filter`.
 
-        Returns ``(means, covariances)`` as filterpy does; also accepts ``Qs``
-        (per-step process noise), ``fx_args``/``hx_args`` and ``return_factors``.
+        Returns ``(means, covariances)`` as filterpy does (the factors instead
+        with ``return_factors``). ``zs`` may be any iterable (a list, an array,
+        a generator, ``tqdm(zs)``); ``progress=True`` shows a bar. An error at
+        step ``k`` says so, carries the first ``k`` results as ``exc.partial``
+        and leaves the filter as it was.
         """
         from .batch import batch_filter
 
-        return batch_filter(self, zs, Rs=Rs, dts=dts, UT=UT, saver=saver, Qs=Qs, **kwargs)
+        return batch_filter(
+            self,
+            zs,
+            Rs,
+            dts,
+            UT,
+            saver,
+            Qs=Qs,
+            fx_args=fx_args,
+            hx_args=hx_args,
+            return_factors=return_factors,
+            progress=progress,
+        )
 
-    def rts_smoother(self, Xs, Ps, Qs=None, dts=None, UT=None, **kwargs):
+    def rts_smoother(self, Xs, Ps, Qs=None, dts=None, UT=None, *, fx_args=None):
         """Square-root unscented RTS smoother; see :func:`squkf.smoother.rts_smoother`.
 
         Returns ``(xs, Ps, Ks)`` as filterpy does. ``Qs[k]`` and ``dts[k]`` are
@@ -756,13 +784,13 @@ class SquareRootUKF:
         """
         from .smoother import rts_smoother
 
-        return rts_smoother(self, Xs, Ps, Qs=Qs, dts=dts, UT=UT, **kwargs)
+        return rts_smoother(self, Xs, Ps, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
 
-    def rts_smoother_factors(self, Xs, P1_2s, Qs=None, dts=None, UT=None, **kwargs):
+    def rts_smoother_factors(self, Xs, P1_2s, Qs=None, dts=None, UT=None, *, fx_args=None):
         """The smoother on lower factors; see :func:`squkf.smoother.rts_smoother_factors`."""
         from .smoother import rts_smoother_factors
 
-        return rts_smoother_factors(self, Xs, P1_2s, Qs=Qs, dts=dts, UT=UT, **kwargs)
+        return rts_smoother_factors(self, Xs, P1_2s, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
 
     # -- transactions, copies, pickling ---------------------------------------
 

@@ -1,4 +1,3 @@
-
 """squkf.nag under bad input: a corrupted comm, non-numeric arguments, bad ROPT.
 
 Every failure is a squkf exception carrying g13ej's IFAIL number (``errno``),
