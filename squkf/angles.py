@@ -1,4 +1,24 @@
-"""Helpers for angle-valued states and measurements (filterpy's hooks, ready-made)."""
+"""Helpers for angle-valued states and measurements (filterpy's hooks, ready-made).
+
+The hooks are small picklable objects that remember which components are
+angles (in radians). Pass them to :class:`squkf.SquareRootUKF` as filterpy's
+hooks: ``x_mean_fn``/``z_mean_fn=AngleMean(idx)``,
+``residual_x``/``residual_z=AngleResidual(idx)`` and
+``state_add=AngleAdd(idx)``.
+
+Examples
+--------
+A bearing measured in the second component of ``z``:
+
+>>> import numpy as np
+>>> from squkf.angles import AngleMean, AngleResidual
+>>> z_mean, residual_z = AngleMean([1]), AngleResidual([1])
+>>> sigmas = np.array([[1.0, 3.1], [2.0, -3.1], [3.0, 3.0]])
+>>> print(np.round(z_mean(sigmas, np.array([0.5, 0.25, 0.25])), 4))
+[1.75   3.0958]
+>>> print(np.round(residual_z([0.0, 3.1], [0.0, -3.1]), 4))
+[ 0.     -0.0832]
+"""
 
 from __future__ import annotations
 
@@ -10,7 +30,25 @@ __all__ = ["wrap", "circular_mean", "AngleMean", "AngleResidual", "AngleAdd"]
 
 
 def wrap(a):
-    """Angles wrapped into ``[-pi, pi)``."""
+    """Angles wrapped into ``[-pi, pi)``.
+
+    Parameters
+    ----------
+    a : array_like
+        Angles in radians, any shape.
+
+    Returns
+    -------
+    ndarray
+        Same shape as ``a``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from squkf.angles import wrap
+    >>> print(np.round(wrap([3.5, -4.0, 7.0]), 4))
+    [-2.7832  2.2832  0.7168]
+    """
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
 
@@ -35,6 +73,22 @@ def circular_mean(angles: np.ndarray, W: np.ndarray, reference: float | None = N
     -------
     float
         The mean, wrapped into ``[-pi, pi)``.
+
+    Examples
+    --------
+    Angles either side of ``pi`` average near ``pi``, not near 0 as their
+    plain weighted mean (1.525) would:
+
+    >>> import numpy as np
+    >>> from squkf.angles import circular_mean
+    >>> round(circular_mean(np.array([3.1, -3.1, 3.0]), np.array([0.5, 0.25, 0.25])), 4)
+    3.0958
+
+    Negative weights (Merwe's points with a small alpha) are fine:
+
+    >>> angles = np.array([3.1, -3.1, 3.0, -3.0, 3.1])
+    >>> round(circular_mean(angles, np.array([-3.0, 1.0, 1.0, 1.0, 1.0])), 4)
+    -3.0168
     """
     angles = np.asarray(angles, dtype=float)
     ref = angles[int(np.argmax(np.abs(W)))] if reference is None else reference
@@ -72,7 +126,15 @@ class AngleResidual(_AngleHook):
 
 
 class AngleAdd(_AngleHook):
-    """``state_add``: ``x + dx`` with the angle components wrapped."""
+    """``state_add``: ``x + dx`` with the angle components wrapped.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from squkf.angles import AngleAdd
+    >>> print(np.round(AngleAdd([1])([0.0, 3.1], [1.0, 0.2]), 4))
+    [ 1.     -2.9832]
+    """
 
     def __call__(self, x, dx) -> np.ndarray:
         s = np.asarray(x, dtype=float) + np.asarray(dx, dtype=float)

@@ -38,6 +38,36 @@ class SqukfError(Exception):
         What went wrong, naming the argument and the offending value.
     errno : int, optional
         The number of the matching g13ej error exit (IFAIL), if any.
+
+    Examples
+    --------
+    Each error is also the built-in exception a caller already catches, and
+    carries g13ej's IFAIL number where it has one:
+
+    >>> import numpy as np
+    >>> from squkf import MerweScaledWeights, ParameterError, SquareRootUKF, SqukfError
+    >>> try:
+    ...     MerweScaledWeights(alpha=0.0)
+    ... except ValueError as exc:
+    ...     print(type(exc).__name__, exc.errno, isinstance(exc, SqukfError))
+    ParameterError 173 True
+
+    Bad input raises and leaves the filter as it was:
+
+    >>> ukf = SquareRootUKF(2, 1, 1.0, hx=lambda x: x[:1], fx=lambda x, dt: x, points=MerweScaledWeights())
+    >>> ukf.x = [1.0, 2.0]
+    >>> try:
+    ...     ukf.P = -np.eye(2)
+    ... except np.linalg.LinAlgError as exc:
+    ...     print(type(exc).__name__)
+    NotPositiveDefiniteError
+    >>> try:
+    ...     ukf.update([np.inf])
+    ... except ValueError as exc:
+    ...     print(type(exc).__name__)
+    NonFiniteError
+    >>> print(ukf.x, ukf.P.diagonal())
+    [1. 2.] [1. 1.]
     """
 
     def __init__(self, message: str, errno: int | None = None):

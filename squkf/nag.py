@@ -68,6 +68,31 @@ Documented errors that do not apply in Python:
   and a change of that capacity between calls is 123.
 - -99 (unexpected error), -399 (licence) and -999 (allocation) have no
   counterpart; Python's own exceptions propagate.
+
+Examples
+--------
+A scalar random walk, ``F(x) = x`` and ``H(x) = x``, over two time points; on a
+linear model the filter is the Kalman filter (here: means 0.992063 and
+1.192296):
+
+>>> import numpy as np
+>>> from squkf.nag import kalman_unscented_state_revcom
+>>> x, st = np.array([0.0]), np.array([[1.0]])
+>>> lx, ly = np.array([[0.5]]), np.array([[0.1]])
+>>> xt, fxt, comm = np.zeros((1, 3)), np.zeros((1, 3)), {}
+>>> irevcm = 0
+>>> for y in ([1.0], [1.2]):
+...     while True:
+...         irevcm, n = kalman_unscented_state_revcom(irevcm, y, ly, x, st, xt, fxt, comm, lx=lx)
+...         if irevcm == 1:
+...             fxt[:, :n] = xt[:, :n]  # F at the columns of xt
+...         elif irevcm == 2:
+...             fxt[:, :n] = xt[:, :n]  # H at the columns of xt
+...         else:
+...             break
+...     print(irevcm, np.round(x, 6), np.round(st, 6))
+3 [0.992063] [[0.099602]]
+3 [1.192296] [[0.09813]]
 """
 
 from __future__ import annotations

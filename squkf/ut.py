@@ -69,6 +69,31 @@ def unscented_transform(
         Lower factor of the output covariance.
     Pxy : ndarray, shape (n, m)
         Only with ``return_cross``.
+
+    Examples
+    --------
+    A linear map is transformed exactly: mean ``A x``, covariance
+    ``A P A^T`` and cross-covariance ``P A^T``.
+
+    >>> import numpy as np
+    >>> from squkf import unscented_transform
+    >>> A = np.array([[1.0, 1.0], [0.0, 1.0]])
+    >>> P1_2 = np.diag([1.0, 0.5])  # P = diag(1, 0.25)
+    >>> mean, S, Pxy = unscented_transform(lambda x: A @ x, [1.0, 2.0], P1_2, return_cross=True)
+    >>> print(np.round(mean, 6))
+    [3. 2.]
+    >>> print(np.round(S @ S.T, 6))
+    [[1.25 0.25]
+     [0.25 0.25]]
+    >>> print(np.round(Pxy, 6))
+    [[1.   0.  ]
+     [0.25 0.25]]
+
+    With ``vectorized=True`` the function receives all points at once, one per row:
+
+    >>> mean, S = unscented_transform(lambda X: X @ A.T, [1.0, 2.0], P1_2, vectorized=True)
+    >>> print(np.round(mean, 6))
+    [3. 2.]
     """
     x = np.asarray(x, dtype=float).reshape(-1)
     n = x.shape[0]

@@ -44,7 +44,29 @@ __all__ = [
 
 @runtime_checkable
 class SigmaPointFamily(Protocol):
-    """The protocol every sigma-point family follows (see the module docstring)."""
+    """The protocol every sigma-point family follows (see the module docstring).
+
+    Examples
+    --------
+    Any object with the three methods is a family; here the cubature rule
+    written from scratch:
+
+    >>> import numpy as np
+    >>> from squkf import SigmaPointFamily, unscented_transform
+    >>> class TwoPoint:
+    ...     def num_sigmas(self, n):
+    ...         return 2 * n
+    ...     def unit_sigma_points(self, n):
+    ...         return np.sqrt(n) * np.vstack([np.eye(n), -np.eye(n)])
+    ...     def weights(self, n):
+    ...         w = np.full(2 * n, 1 / (2 * n))
+    ...         return w, w
+    >>> isinstance(TwoPoint(), SigmaPointFamily)
+    True
+    >>> mean, S = unscented_transform(np.square, [1.0], [[0.5]], points=TwoPoint())
+    >>> print(np.round(mean, 6), np.round(S, 6))
+    [1.25] [[1.]]
+    """
 
     def num_sigmas(self, n: int) -> int: ...
 
@@ -215,6 +237,30 @@ class MerweScaledWeights(_CachedFamily):
         dimension ``L``, for ``kappa <= -L`` (172) or when
         ``L + lambda = alpha**2 (L + kappa)`` is not a positive finite number
         in floating point (173; e.g. alpha below about 1e-8 with ``L + kappa = 3``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from squkf import MerweScaledWeights
+    >>> w = MerweScaledWeights(alpha=0.5, beta=2.0, kappa=0.0)
+    >>> w.num_sigmas(2)
+    5
+    >>> Wm, Wc = w.weights(2)
+    >>> print(Wm, Wc)
+    [-3.  1.  1.  1.  1.] [-0.25  1.    1.    1.    1.  ]
+    >>> round(w.gamma(2), 6)
+    0.707107
+
+    The unit points have mean zero and identity covariance under these weights:
+
+    >>> xi = w.unit_sigma_points(2)
+    >>> bool(np.allclose(Wm @ xi, 0.0)), bool(np.allclose((xi.T * Wc) @ xi, np.eye(2)))
+    (True, True)
+
+    The family of g13ej's augmented second set keeps the spread ``L + kappa``:
+
+    >>> w.augmented(2)
+    MerweScaledWeights(alpha=0.5, beta=2.0, kappa=-2.0)
     """
 
     _nonfinite_errno = 173
@@ -296,6 +342,14 @@ class JulierWeights(MerweScaledWeights):
     ----------
     kappa : float or None
         ``None`` means ``3 - n`` (Julier and Uhlmann's choice for a Gaussian).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from squkf import JulierWeights
+    >>> Wm, Wc = JulierWeights().weights(1)  # kappa = 3 - 1 = 2
+    >>> print(np.round(Wm, 4))
+    [0.6667 0.1667 0.1667]
     """
 
     _nonfinite_errno = 172
@@ -319,6 +373,18 @@ class SimplexWeights(_CachedFamily):
 
     The unit points are the columns of filterpy's ``SimplexSigmaPoints``
     construction (Moireau and Chapelle 2011), so the two agree point for point.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from squkf import SimplexWeights
+    >>> s = SimplexWeights()
+    >>> s.num_sigmas(2)
+    3
+    >>> print(np.round(s.unit_sigma_points(2), 4))
+    [[-1.2247  0.7071]
+     [ 1.2247  0.7071]
+     [ 0.     -1.4142]]
     """
 
     def num_sigmas(self, n: int) -> int:
@@ -347,6 +413,14 @@ class CubatureWeights(_CachedFamily):
     ``2 n`` points ``+/- sqrt(n) e_j`` with equal weights ``1/(2n)``, in the
     order of filterpy's ``CubatureKalmanFilter``: all ``+`` points, then all
     ``-`` points.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from squkf import CubatureWeights
+    >>> Wm, Wc = CubatureWeights().weights(3)
+    >>> print(Wm)
+    [0.16666667 0.16666667 0.16666667 0.16666667 0.16666667 0.16666667]
     """
 
     def num_sigmas(self, n: int) -> int:
@@ -386,6 +460,21 @@ class FilterpyPoints(_CachedFamily):
         finite, ``beta`` finite, ``kappa`` finite with ``n + kappa > 0``. Using
         the adapter at a dimension other than ``n``, or a points object whose
         weights or points are not finite, raises it too.
+
+    Examples
+    --------
+    Passing a filterpy object as ``points`` wraps it automatically; wrapped by
+    hand it gives the same points and weights as the native family:
+
+    >>> import numpy as np
+    >>> from filterpy.kalman import MerweScaledSigmaPoints
+    >>> from squkf import FilterpyPoints, MerweScaledWeights
+    >>> fp = FilterpyPoints(MerweScaledSigmaPoints(2, alpha=0.5, beta=2.0, kappa=0.0))
+    >>> native = MerweScaledWeights(alpha=0.5, beta=2.0, kappa=0.0)
+    >>> bool(np.allclose(fp.unit_sigma_points(2), native.unit_sigma_points(2)))
+    True
+    >>> fp.as_native() == native
+    True
     """
 
     def __init__(self, points):
