@@ -2,6 +2,8 @@
 
     python benchmarks/run.py            # full run (a few minutes), results in benchmarks/results/
     python benchmarks/run.py --quick    # smoke test (CI), well under a minute
+    python benchmarks/run.py --figures [scaling|sweep]  # only those (both by default), a few minutes
+    python benchmarks/run.py --replot   # redraw both figures from results/figures.json, no measuring
 
 Implementations are interleaved over repetitions in one process; times are
 medians of time per predict+update step, and ratios to filterpy are taken per
@@ -27,6 +29,7 @@ import platform
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -46,6 +49,15 @@ def _parse(argv):
     ap.add_argument("--out", default=str(HERE / "results"))
     ap.add_argument("--threads", default="1", help="BLAS threads: a number, or 'default' (leave as is)")
     ap.add_argument("--speed-only", action="store_true", help="only the speed table, as JSON on stdout")
+    ap.add_argument(
+        "--figures",
+        nargs="?",
+        const="both",
+        choices=("both", "scaling", "sweep"),
+        help="measure only the scaling curve and/or the near-singular sweep: redraw their figures and "
+        "rewrite their sections of results.md, leaving the other tables as they are",
+    )
+    ap.add_argument("--replot", action="store_true", help="redraw the figures from figures.json only")
     return ap.parse_args(argv)
 
 
@@ -78,8 +90,12 @@ class Timed:
             self.seconds += time.perf_counter() - t
 
 
-def run_one(impl, sc, steps: int, seed: int) -> dict:
-    """Filter one simulated run; time the steps; return time/step, model time/step, RMSE, NEES, failure."""
+def run_one(impl, sc, steps: int, seed: int, warned: list | None = None) -> dict:
+    """Filter one simulated run; time the steps; return time/step, model time/step, RMSE, NEES, failure.
+
+    With a list as ``warned``, each warning a step raises is recorded in it as (step, category name)
+    instead of being shown (for the sweep, which is not timed).
+    """
     truth, zs = sc.simulate(steps, seed)
     fx, hx = (Timed(sc.fx_vec), Timed(sc.hx_vec)) if impl.vectorized else (Timed(sc.fx), Timed(sc.hx))
     f = impl.make(sc, fx, hx)
@@ -88,7 +104,13 @@ def run_one(impl, sc, steps: int, seed: int) -> dict:
     for k, z in enumerate(zs):
         t0 = time.perf_counter()
         try:
-            impl.step(f, z)
+            if warned is None:
+                impl.step(f, z)
+            else:
+                with warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always")
+                    impl.step(f, z)
+                warned.extend((k, w.category.__name__) for w in caught)
         except Exception as exc:  # noqa: BLE001 - a benchmark records every failure
             failed = (k, type(exc).__name__)
             break
@@ -152,15 +174,21 @@ def scaling(impls, dims, steps, reps) -> dict:
     return out
 
 
-def sweep(impls, P0s, steps) -> dict:
-    """Near-singular model: at which step (if any) each implementation fails, per P0."""
-    out = {}
+def sweep(impls, P0s, steps) -> tuple[dict, dict]:
+    """Near-singular model, per P0: at which step (if any) each implementation fails, and its warnings.
+
+    Returns ``(failed, warned)``: ``failed[(p0, name)]`` is None or (step, exception name);
+    ``warned[(p0, name)]`` is None or (first step that warned, its category, number of warnings).
+    """
+    failed, warned = {}, {}
     for p0 in P0s:
         sc = near_singular(p0)
         for impl in impls:
-            r = run_one(impl, sc, steps, seed=0)
-            out[(p0, impl.name)] = r["failed"]
-    return out
+            caught = []
+            r = run_one(impl, sc, steps, seed=0, warned=caught)
+            failed[(p0, impl.name)] = r["failed"]
+            warned[(p0, impl.name)] = (*caught[0], len(caught)) if caught else None
+    return failed, warned
 
 
 def header(threads: str) -> str:
@@ -182,12 +210,26 @@ def header(threads: str) -> str:
     )
 
 
-def _slope(dims, ts) -> float | None:
-    ts = np.asarray(ts, dtype=float)
-    ok = np.isfinite(ts)
+# Below about n = 16 the time per step is mostly fixed overhead and barely grows; a power law
+# fitted over all sizes would average that flat part with the real growth at large n.
+FIT_FROM = 16
+
+
+def _slope(dims, ts, n_min: int = FIT_FROM) -> float | None:
+    """Exponent of a power law fitted to time against dim_x over the sizes >= n_min (None: < 2 sizes)."""
+    dims, ts = np.asarray(dims, dtype=float), np.asarray(ts, dtype=float)
+    ok = np.isfinite(ts) & (dims >= n_min)
     if ok.sum() < 2:
         return None
-    return float(np.polyfit(np.log(np.asarray(dims)[ok]), np.log(ts[ok]), 1)[0])
+    return float(np.polyfit(np.log(dims[ok]), np.log(ts[ok]), 1)[0])
+
+
+def _local_slopes(dims, ts, n_min: int = FIT_FROM) -> list[float]:
+    """Exponents between successive measured sizes >= n_min (how straight the fitted stretch is)."""
+    dims, ts = np.asarray(dims, dtype=float), np.asarray(ts, dtype=float)
+    ok = np.isfinite(ts) & (dims >= n_min)
+    d, t = np.log(dims[ok]), np.log(ts[ok])
+    return [float(v) for v in np.diff(t) / np.diff(d)]
 
 
 def targets_section(table) -> list[str]:
@@ -287,55 +329,185 @@ def write_results(out: Path, table, scale, dims, swept, P0s, skipped, impls, thr
             pinned = scale.get(name, [np.nan])[-1]
             lines.append(f"| {name} | {1e3 * pinned:.2f} | {1e3 * t:.2f} |")
         lines.append("")
-    lines += ["## Near-singular sweep (R = 1e-12 I, Q = 1e-14 I)", ""]
-    lines += ["| P0 | " + " | ".join(i.name for i in impls) + " |", "|---" * (len(impls) + 1) + "|"]
+    lines += figure_sections(scale, dims, swept, P0s, [i.name for i in impls])
+    (out / "results.md").write_text("\n".join(lines) + "\n")
+    _save_figure_data(out, scale, dims, swept, P0s, [i.name for i in impls])
+    _plots(out, scale, dims, swept, P0s, [i.name for i in impls])
+
+
+def _sweep_cell(failed, warned) -> str:
+    if failed is not None:
+        return f"failed at {failed[0]}" + ("" if warned is None else f" (warned from {warned[0]})")
+    if warned is not None:
+        return f"completed, warned from step {warned[0]} ({warned[2]} {warned[1]})"
+    return "completed"
+
+
+def figure_sections(scale, dims, swept, P0s, names) -> list[str]:
+    """The near-singular sweep and the growth with dim_x: the last two sections of results.md.
+
+    ``swept`` is ``(failed, warned)`` as returned by ``sweep``.
+    """
+    return sweep_section(swept, P0s, names) + [""] + growth_section(scale, dims)
+
+
+def sweep_section(swept, P0s, names) -> list[str]:
+    failed, warned = swept
+    lines = ["## Near-singular sweep (R = 1e-12 I, Q = 1e-14 I)", ""]
+    lines += ["| P0 | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
     for p0 in P0s:
-        cells = [
-            "completed" if swept[(p0, i.name)] is None else f"failed at {swept[(p0, i.name)][0]}"
-            for i in impls
-        ]
+        cells = [_sweep_cell(failed[(p0, n)], warned[(p0, n)]) for n in names]
         lines.append(f"| {p0:.0e} I | " + " | ".join(cells) + " |")
-    lines += ["", "## Growth with dim_x (Lorenz-96)", ""]
+    return lines
+
+
+def growth_section(scale, dims) -> list[str]:
+    lines = [
+        "## Growth with dim_x (Lorenz-96)",
+        "",
+        f"Power law fitted over dim_x >= {FIT_FROM} (below it the time per step is mostly fixed "
+        "overhead); in brackets the exponents between successive sizes.",
+        "",
+    ]
     for name, ts in scale.items():
         slope = _slope(dims, ts)
         if slope is not None:
-            lines.append(f"- {name}: time ~ dim_x^{slope:.2f}")
-    (out / "results.md").write_text("\n".join(lines) + "\n")
-    _plots(out, scale, dims, swept, P0s, impls)
+            local = ", ".join(f"{v:.2f}" for v in _local_slopes(dims, ts))
+            lines.append(f"- {name}: time ~ dim_x^{slope:.2f} ({local})")
+    if all(_slope(dims, ts) is None for ts in scale.values()):
+        lines.append(f"- no two sizes >= {FIT_FROM} measured: no fit")
+    return lines
 
 
-def _plots(out, scale, dims, swept, P0s, impls) -> None:
+def _save_figure_data(out: Path, scale, dims, swept, P0s, names) -> None:
+    """What the two figures are drawn from, so that they can be redrawn without measuring (--replot)."""
+    failed, warned = swept
+    data = {
+        "dims": list(dims),
+        "scale_seconds": {k: [None if not np.isfinite(v) else v for v in ts] for k, ts in scale.items()},
+        "P0s": list(P0s),
+        "names": list(names),
+        "sweep": [
+            {"P0": p, "name": n, "failed": failed[(p, n)], "warned": warned[(p, n)]}
+            for p in P0s
+            for n in names
+        ],
+    }
+    (out / "figures.json").write_text(json.dumps(data, indent=1) + "\n")
+
+
+def _load_figure_data(out: Path):
+    data = json.loads((out / "figures.json").read_text())
+    scale = {k: [np.nan if v is None else v for v in ts] for k, ts in data["scale_seconds"].items()}
+    failed = {(r["P0"], r["name"]): r["failed"] for r in data["sweep"]}
+    warned = {(r["P0"], r["name"]): r["warned"] for r in data["sweep"]}
+    return scale, data["dims"], (failed, warned), data["P0s"], data["names"]
+
+
+# colour-blind-safe colours, one per line: Okabe-Ito's (yellow left out, too light on white), then
+# three of Paul Tol's; each line has its own marker too
+COLOURS = ["#000000", "#0072B2", "#56B4E9", "#D55E00", "#E69F00", "#999999", "#009E73", "#CC79A7"]
+COLOURS += ["#882255", "#999933", "#332288", "#44AA99"]
+MARKERS = ["o", "s", "^", "v", "D", "P", "X", "*", "h", "<", ">", "p"]
+# the sweep's three outcomes, light to dark (readable in grey too), each with a text colour that contrasts
+OUTCOMES = {
+    "completed": ("#EEEEEE", "black"),
+    "completed with warnings": ("#DDCC77", "black"),
+    "failed": ("#882255", "white"),
+}
+
+
+def _plots(out, scale, dims, swept, P0s, names) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker  # noqa: F401 - loads the submodule used by _scaling_plot
 
-    fig, ax = plt.subplots(figsize=(7, 4.5), dpi=90)
-    for name, ts in scale.items():
-        ts = np.array(ts)
+    if scale:
+        _scaling_plot(out, scale, dims, plt)
+    if swept[0]:
+        _failure_map(out, swept, P0s, names, plt)
+
+
+def _scaling_plot(out, scale, dims, plt) -> None:
+    import matplotlib
+
+    dims = np.asarray(dims, dtype=float)
+    fig, ax = plt.subplots(figsize=(10, 5), dpi=90)
+    for i, (name, ts) in enumerate(scale.items()):
+        ts = np.asarray(ts, dtype=float)
         ok = np.isfinite(ts)
         slope = _slope(dims, ts)
-        label = name if slope is None else f"{name} (slope {slope:.2f})"
-        style = "o-" if name.startswith("squkf") else "s--"
-        ax.loglog(np.array(dims)[ok], 1e3 * ts[ok], style, label=label, ms=4)
-    ax.set_xlabel("dim_x (Lorenz-96, every other component observed)")
-    ax.set_ylabel("ms per predict+update")
-    ax.legend(fontsize=6)
+        label = name if slope is None else f"{name}: ~n^{slope:.2f}"
+        colour = COLOURS[i % len(COLOURS)]
+        style = "-" if name.startswith("squkf") else "--"
+        ax.loglog(
+            dims[ok], 1e3 * ts[ok], style, marker=MARKERS[i % len(MARKERS)], color=colour, ms=5, label=label
+        )
+    if any(_slope(dims, ts) is not None for ts in scale.values()):
+        ax.axvspan(FIT_FROM, dims.max(), color="#999999", alpha=0.12, lw=0)
+        ax.text(
+            FIT_FROM * 1.05,
+            0.98,
+            f"power law fitted\nfor n >= {FIT_FROM}",
+            transform=ax.get_xaxis_transform(),
+            va="top",
+            fontsize=9,
+        )
+    ax.set_xticks(dims, [f"{d:g}" for d in dims])
+    ax.xaxis.set_minor_locator(matplotlib.ticker.NullLocator())
+    ax.yaxis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1, 2, 5)))
+    ax.yaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+    ax.yaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    ax.set_xlabel("n = dim_x (Lorenz-96, every other component observed)", fontsize=10)
+    ax.set_ylabel("ms per predict + update (median)", fontsize=10)
+    ax.tick_params(labelsize=9)
+    ax.legend(
+        fontsize=9,
+        loc="upper left",
+        bbox_to_anchor=(1.01, 1),
+        title="time ~ n^k for n >= " + str(FIT_FROM),
+        title_fontsize=9,
+    )
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     fig.savefig(out / "scaling.png")
     plt.close(fig)
 
-    fig, ax = plt.subplots(figsize=(6, 0.6 + 0.35 * len(impls)), dpi=90)
-    grid = np.array([[0.0 if swept[(p, i.name)] is None else 1.0 for p in P0s] for i in impls])
-    ax.imshow(grid, cmap="RdYlGn_r", vmin=0, vmax=1, aspect="auto")
-    for i, impl in enumerate(impls):
+
+def _failure_map(out, swept, P0s, names, plt) -> None:
+    import matplotlib
+    from matplotlib.patches import Patch
+
+    failed, warned = swept
+    fig, ax = plt.subplots(figsize=(10, 1.3 + 0.42 * len(names)), dpi=90)
+    kinds = list(OUTCOMES)
+    grid = np.zeros((len(names), len(P0s)))
+    for i, name in enumerate(names):
         for j, p in enumerate(P0s):
-            f = swept[(p, impl.name)]
-            ax.text(j, i, "ok" if f is None else f"step {f[0]}", ha="center", va="center", fontsize=6)
-    ax.set_xticks(range(len(P0s)), [f"{p:.0e}" for p in P0s])
-    ax.set_yticks(range(len(impls)), [i.name for i in impls], fontsize=7)
-    ax.set_xlabel("P0 (times I); red = failed, green = completed")
+            f, w = failed[(p, name)], warned[(p, name)]
+            kind = "failed" if f is not None else "completed with warnings" if w is not None else "completed"
+            grid[i, j] = kinds.index(kind)
+            text = {"failed": f"failed at step {f[0]}" if f else "", "completed": "ok"}.get(
+                kind, f"ok, warned\nfrom step {w[0]}" if w else ""
+            )
+            ax.text(j, i, text, ha="center", va="center", fontsize=9, color=OUTCOMES[kind][1])
+    cmap = matplotlib.colors.ListedColormap([OUTCOMES[k][0] for k in kinds])
+    ax.imshow(grid, cmap=cmap, vmin=-0.5, vmax=len(kinds) - 0.5, aspect="auto")
+    ax.set_xticks(range(len(P0s)), [f"{p:.0e} I" for p in P0s], fontsize=9)
+    ax.set_yticks(range(len(names)), names, fontsize=9)
+    ax.set_xticks(np.arange(len(P0s) + 1) - 0.5, minor=True)
+    ax.set_yticks(np.arange(len(names) + 1) - 0.5, minor=True)
+    ax.grid(which="minor", color="white", lw=2)
+    ax.tick_params(which="minor", length=0)
+    ax.set_xlabel("initial covariance P0", fontsize=10)
+    ax.set_title(
+        "Near-singular model (R = 1e-12 I, Q = 1e-14 I): first failing or warning step (counted from 0)",
+        fontsize=10,
+    )
+    handles = [Patch(facecolor=OUTCOMES[k][0], edgecolor="#666666", label=k) for k in kinds]
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1), fontsize=9)
     fig.tight_layout()
     fig.savefig(out / "failure_map.png")
     plt.close(fig)
@@ -368,10 +540,53 @@ def _threaded_table(quick: bool) -> dict:
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
+def _replace_section(text: str, lines: list[str]) -> str:
+    """``text`` with the section that starts like ``lines[0]`` (up to the next "## ") set to ``lines``."""
+    title = lines[0].split(" (")[0]
+    new = "\n".join(lines) + "\n"
+    if title not in text:
+        return text.rstrip("\n") + "\n\n" + new
+    before, rest = text.split(title, 1)
+    after = rest.split("\n## ", 1)[1] if "\n## " in rest else None
+    return before + new + ("" if after is None else "\n## " + after)
+
+
+def figures_only(out: Path, impls, size, part: str) -> None:
+    """Measure the scaling curve and/or the sweep (``part``: both, scaling or sweep); redraw the
+    figures and rewrite their sections of results.md. The part not measured is kept from figures.json."""
+    names, dims, P0s = [i.name for i in impls], size["dims"], [1e2, 1e3, 1e4, 1e5, 1e6]
+    scale, swept = {}, ({}, {})
+    if (out / "figures.json").exists():
+        scale, dims_old, swept, P0s_old, names_old = _load_figure_data(out)
+        if part == "sweep":
+            dims = dims_old
+        if part == "scaling":
+            P0s, names = P0s_old, names_old
+    md = out / "results.md"
+    text = md.read_text() if md.exists() else "# Benchmark results\n"
+    if part in ("both", "scaling"):
+        scale = scaling(impls, dims, size["scale_steps"], size["scale_reps"])
+        text = _replace_section(text, growth_section(scale, dims))
+    if part in ("both", "sweep"):
+        swept = sweep(impls, P0s, size["sweep"])
+        text = _replace_section(text, sweep_section(swept, P0s, names))
+    out.mkdir(parents=True, exist_ok=True)
+    md.write_text(text)
+    _save_figure_data(out, scale, dims, swept, P0s, names)
+    _plots(out, scale, dims, swept, P0s, names)
+
+
 def main() -> int:
     args = ARGS
+    if args.replot:
+        _plots(Path(args.out), *_load_figure_data(Path(args.out)))
+        return 0
     impls, skipped = implementations()
     size = _sizes(args.quick)
+    if args.figures:
+        figures_only(Path(args.out), impls, size, args.figures)
+        print((Path(args.out) / "results.md").read_text())
+        return 0
     scenarios = _scenarios(args.quick)
     table = compare(scenarios, impls + inline_impls(), size["steps"], size["reps"])
     if args.speed_only:
