@@ -38,9 +38,9 @@ from .covariance import FactorSlot, as_lower_factor
 from .errors import NonFiniteError, ParameterError, ShapeError, SqukfError
 from .generators import _identity_moments, sigma_points_from_factor
 from .linalg import chol_downdate_columns, kalman_gain, tria
-from .validate import check_values
 from .rows import weight_rows
 from .transform import deviations, factor_rows, sqrt_unscented_transform
+from .validate import check_values
 
 __all__ = ["rts_smoother", "rts_smoother_factors"]
 
