@@ -28,6 +28,7 @@ import numpy as np
 
 from .errors import ParameterError
 from .rows import WeightRows, weight_rows
+from .transform import central_rows
 from .validate import call_hook
 from .weights import as_family
 
@@ -63,10 +64,12 @@ class SigmaSet(NamedTuple):
     rows : WeightRows or None
         The covariance rows of ``(Wm, Wc)``, when the generator prepared them
         (a plan's generators do); None makes the update compute them.
-    axis : tuple (gamma, S) or None
-        Set when ``sigmas`` are the axis points ``[x, x + gamma S^T, x - gamma S^T]``
-        of the lower factor ``S`` (``(..., n, n)``): the update then rotates
-        each ``+/-`` pair of its joint rows (see :mod:`squkf.measurement`).
+    drawn : tuple (UnitSet, S) or None
+        Set when the points are exactly ``x + xi @ S.T`` for the unit set's
+        ``xi`` and the lower factor ``S`` (``(..., n, n)``), with no hook: the
+        update then writes their covariance rows as ``unit.G @ S.T`` (one
+        product), and for axis points rotates each ``+/-`` pair of its joint
+        rows (see :mod:`squkf.measurement`).
     """
 
     sigmas: np.ndarray
@@ -75,7 +78,7 @@ class SigmaSet(NamedTuple):
     moments_exact: bool
     offsets: np.ndarray | None = None
     rows: WeightRows | None = None
-    axis: tuple[float, np.ndarray] | None = None
+    drawn: tuple[UnitSet, np.ndarray] | None = None
 
 
 #: From this dimension on, axis points are built as ``x +/- gamma S^T`` (O(n^2)) rather than by the
@@ -127,16 +130,16 @@ def sigma_points_and_offsets(
     sigmas : ndarray, shape (..., N, n)
     offsets : ndarray, shape (..., N, n)
     """
-    ST = np.swapaxes(S, -1, -2)
+    ST = S.T if S.ndim == 2 else np.swapaxes(S, -1, -2)
     if gamma is None:
-        dx = np.matmul(xi, ST)
+        dx = xi.dot(ST) if ST.ndim == 2 else np.matmul(xi, ST)
     else:
         n = xi.shape[1]
         dx = np.zeros(ST.shape[:-2] + (2 * n + 1, n))
         np.multiply(ST, gamma, out=dx[..., 1 : n + 1, :])
         np.negative(dx[..., 1 : n + 1, :], out=dx[..., n + 1 :, :])
     if state_add is None or state_add is np.add:
-        return dx + x[..., None, :], dx
+        return (dx + x if x.ndim == 1 else dx + x[..., None, :]), dx
     out = np.empty(np.broadcast_shapes(dx.shape, x.shape[:-1] + (1, x.shape[-1])))
     n = x.shape[-1]
     for idx in np.ndindex(out.shape[:-2]):
@@ -182,6 +185,11 @@ class UnitSet:
         The points reproduce the mean and covariance they are drawn for.
     gamma : float or None
         Set for axis points of ``n >= AXIS_MIN_N`` (see :func:`axis_gamma`).
+    G : ndarray, shape (N, n), or None
+        The central form's scaled rows of the unit points themselves (for
+        ``rows.fast``): the rows of the drawn set ``x + xi @ S.T`` are then
+        ``G @ S.T``, exactly what :func:`squkf.transform.central_rows` would
+        write, since the offsets from the central point are ``(xi_i - xi_0) S^T``.
     """
 
     def __init__(self, family, n: int):
@@ -189,13 +197,19 @@ class UnitSet:
         self.rows = weight_rows(*family.weights(n))
         self.exact = _identity_moments(family, n)
         self.gamma = axis_gamma(self.xi)
+        self.G = None
+        if self.rows.fast:
+            G = np.empty(self.xi.shape)
+            central_rows(self.xi, self.rows, G)
+            G.setflags(write=False)
+            self.G = G
 
     def draw(self, x: np.ndarray, S: np.ndarray, state_add=None) -> SigmaSet:
         """The set for mean ``x`` ``(..., n)`` and lower factor ``S`` ``(..., n, n)``."""
         sigmas, offsets = sigma_points_and_offsets(x, S, self.xi, state_add, self.gamma)
-        axis = None if self.gamma is None or state_add is not None else (self.gamma, S)
+        drawn = None if state_add is not None else (self, S)
         rows = self.rows
-        return SigmaSet(sigmas, rows.Wm, rows.Wc, self.exact, offsets, rows, axis)
+        return SigmaSet(sigmas, rows.Wm, rows.Wc, self.exact, offsets, rows, drawn)
 
 
 class Redrawn:

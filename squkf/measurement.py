@@ -14,7 +14,7 @@ posterior covariance whenever the set's covariance ``Pxx`` is the prior's
 no downdate. Every configuration whose set reproduces the prior takes it.
 
 For axis points ``[x, x + gamma S^T, x - gamma S^T]`` with equal pair weights
-(``SigmaSet.axis``) each ``+/-`` pair of joint rows is first rotated by 45
+(``SigmaSet.drawn``) each ``+/-`` pair of joint rows is first rotated by 45
 degrees, an orthogonal change of rows (the same Gram matrix, other
 roundings) that leaves ``n`` rows with no state part; those are
 triangularised first, so the joint QR has ``n + m`` rows instead of
@@ -45,10 +45,13 @@ from .linalg import all_finite, chol_downdate_columns, chol_update, solve_lower,
 from .rows import WeightRows, weight_rows
 from .transform import (
     _row_buffer,
+    batch_shape,
+    block,
     central_rows,
     deviations,
     factor_rows,
     signed_rows,
+    swap_last,
     transform_factor,
     weighted_mean,
 )
@@ -57,6 +60,7 @@ from .validate import call_hook, check_hook_result
 __all__ = ["Posterior", "measurement_update", "gain_from_factors", "check_gain", "observed_noise_factor"]
 
 _TINY = np.finfo(float).tiny
+_ALL = slice(None)
 _INF = float("inf")
 
 
@@ -205,7 +209,7 @@ def measurement_update(
         L21 = np.swapaxes(solve_lower(Sy, np.ascontiguousarray(np.swapaxes(Pxy, -1, -2))), -1, -2)
     y = _per_filter(residual_z, z, z_pred, "residual_z")
     w = solve_lower(Sy, y)
-    dx = np.matmul(L21, w[..., None])[..., 0]
+    dx = L21 @ w if L21.ndim == 2 else np.matmul(L21, w[..., None])[..., 0]
     x_post = _per_filter(state_add, x, dx, "state_add", add=True)
     if L22 is not None:
         S_post = L22
@@ -259,17 +263,21 @@ def _joint_factor(sset, rows, sigmas_h, x, S, R1_2, z_mean_fn, residual_x, resid
     points = sset.sigmas if sset.offsets is None else sset.offsets
     N, m = sigmas_h.shape[-2:]
     n = points.shape[-1]
-    batch = np.broadcast_shapes(sigmas_h.shape[:-2], points.shape[:-2], R1_2.shape[:-2])
+    batch = batch_shape(sigmas_h, points, R1_2)
     neg: tuple | np.ndarray = ()
-    if not hooks and rows.fast and sset.axis is not None and rows.pair_scale is not None:
-        z_pred, L = _paired_joint(sigmas_h, sset.axis, rows, R1_2, batch)
+    drawn = sset.drawn if not hooks and rows.fast else None
+    if drawn is not None and drawn[0].gamma is not None and rows.pair_scale is not None:
+        z_pred, L = _paired_joint(sigmas_h, (drawn[0].gamma, drawn[1]), rows, R1_2, batch)
     else:
         if not hooks and rows.fast:
             # every row enters the QR: write them straight into the buffer
             npos = N
             M = _row_buffer(batch, N + m, m + n)
-            z_pred = central_rows(sigmas_h, rows, M[..., :m])
-            central_rows(points, rows, M[..., m:])
+            z_pred = central_rows(sigmas_h, rows, block(M, _ALL, slice(m)))
+            if drawn is not None:  # the rows of x + xi S^T are G S^T (one product)
+                np.matmul(drawn[0].G, swap_last(drawn[1]), out=block(M, slice(N), slice(m, None)))
+            else:
+                central_rows(points, rows, block(M, _ALL, slice(m, None)))
         else:
             if not hooks and rows.best.central:
                 z_pred, Dz, form = signed_rows(sigmas_h, rows)
@@ -285,15 +293,15 @@ def _joint_factor(sset, rows, sigmas_h, x, S, R1_2, z_mean_fn, residual_x, resid
             M = _row_buffer(batch, npos + m, m + n)
             np.multiply(Dz if pos is None else Dz[..., pos, :], scale, out=M[..., :npos, :m])
             np.multiply(Dx if pos is None else Dx[..., pos, :], scale, out=M[..., :npos, m:])
-        M[..., npos:, :m] = np.swapaxes(R1_2, -1, -2)
-        M[..., npos:, m:] = 0.0
+        block(M, slice(npos, None), slice(m))[...] = swap_last(R1_2)
+        block(M, slice(npos, None), slice(m, None))[...] = 0.0
         L = tria(M)
         for k in neg:
             v = form.scale[k] * np.concatenate([Dz[..., k, :], Dx[..., k, :]], axis=-1)
             L = _downdate_joint(L, v, m, form.weights[k])
-    Sy = L[..., :m, :m]
+    Sy = block(L, slice(m), slice(m))
     check_gain(Sy)
-    return z_pred, Sy, L[..., m:, :m], L[..., m:, m:]
+    return z_pred, Sy, block(L, slice(m, None), slice(m)), block(L, slice(m, None), slice(m, None))
 
 
 def _paired_joint(H, axis, rows: WeightRows, R1_2, batch):
@@ -353,7 +361,7 @@ def _downdate_joint(L: np.ndarray, v: np.ndarray, m: int, weight: float) -> np.n
 
 def check_gain(Sy: np.ndarray) -> None:
     """Raise GainError (IFAIL 302) unless each diagonal entry of ``Sy`` is finite and above ``tiny``."""
-    diag = np.diagonal(Sy, axis1=-2, axis2=-1)
+    diag = Sy.diagonal() if Sy.ndim == 2 else np.diagonal(Sy, axis1=-2, axis2=-1)
     if Sy.ndim == 2:  # one small matrix: a Python loop beats numpy's reductions
         ok = all(_TINY < abs(v) < _INF for v in diag.tolist())  # a NaN fails too
     else:

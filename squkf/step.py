@@ -21,7 +21,7 @@ current estimate (a second sensor at the same time).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -191,7 +191,7 @@ def draw_second_set(
     """
     propagated = state.propagated if state.phase in (PRIOR, UPDATING) else None
     sset = plan.second.draw(x, S, propagated, state.Q1_2, state_add)
-    return replace(state, sset=sset, prior=(x, S))
+    return StepState(state.phase, state.sigmas, state.propagated, state.Q1_2, sset, (x, S))
 
 
 def ask_update(
@@ -225,12 +225,12 @@ def ask_update(
         state.phase in (PRIOR, UPDATING)
         and drawn is not None
         and drawn[1] is S
-        and drawn[0].shape == x.shape
-        and np.array_equal(drawn[0], x)
+        and (drawn[0] is x or (drawn[0].shape == x.shape and np.array_equal(drawn[0], x)))
     ):
         # the estimate is not the one the pending set belongs to: draw afresh from it
         state = draw_second_set(StepState(), plan, x, S, state_add)
-    return replace(state, phase=UPDATING, sigmas=state.sset.sigmas)
+    sset = state.sset
+    return StepState(UPDATING, sset.sigmas, state.propagated, state.Q1_2, sset, state.prior)
 
 
 def tell_update(

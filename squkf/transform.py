@@ -30,6 +30,24 @@ __all__ = [
 ]
 
 
+def batch_shape(*arrays: np.ndarray | None, core: int = 2) -> tuple[int, ...]:
+    """The broadcast leading (batch) shape of ``arrays``, each with ``core`` trailing axes."""
+    shapes = [a.shape[: a.ndim - core] for a in arrays if a is not None and a.ndim > core]
+    if not shapes:
+        return ()
+    return shapes[0] if len(shapes) == 1 else np.broadcast_shapes(*shapes)
+
+
+def block(a: np.ndarray, rows: slice, cols: slice) -> np.ndarray:
+    """The view ``a[..., rows, cols]`` (plain indexing for one matrix: a third of the cost)."""
+    return a[rows, cols] if a.ndim == 2 else a[..., rows, cols]
+
+
+def swap_last(a: np.ndarray) -> np.ndarray:
+    """The transpose of the last two axes (``a.T`` for one matrix)."""
+    return a.T if a.ndim == 2 else np.swapaxes(a, -1, -2)
+
+
 def _batch(a: np.ndarray, core_ndim: int):
     """Indices over the leading batch axes of ``a`` (one empty index for no batch)."""
     return np.ndindex(a.shape[: a.ndim - core_ndim])
@@ -118,12 +136,15 @@ def central_rows(sigmas: np.ndarray, rows: WeightRows, out: np.ndarray) -> np.nd
     mean : ndarray, shape (..., d)
     """
     N = sigmas.shape[-2]
-    ref = sigmas[..., 0, :]
-    E = out[..., : N - 1, :]
-    np.subtract(sigmas[..., 1:, :], ref[..., None, :], out=E)
+    if sigmas.ndim == 2 and out.ndim == 2:  # one filter: plain indexing costs a third of the ellipsis'
+        ref, tail, E, last, ref_b = sigmas[0], sigmas[1:], out[: N - 1], out[N - 1], sigmas[0]
+    else:
+        ref, tail, E, last = sigmas[..., 0, :], sigmas[..., 1:, :], out[..., : N - 1, :], out[..., N - 1, :]
+        ref_b = ref[..., None, :]
+    np.subtract(tail, ref_b, out=E)
     mu = np.matmul(rows.wm_tail, E)
     E *= rows.tail_scale
-    np.multiply(mu, rows.mu_scale, out=out[..., N - 1, :])
+    np.multiply(mu, rows.mu_scale, out=last)
     return ref + mu
 
 
@@ -208,11 +229,11 @@ def factor_rows(
     scale = form.scale if form.pos is None else form.scale[form.pos]
     npos, d = src.shape[-2:]
     extra = 0 if noise_sqrt is None else noise_sqrt.shape[-1]
-    batch = np.broadcast_shapes(D.shape[:-2], () if noise_sqrt is None else noise_sqrt.shape[:-2])
+    batch = batch_shape(D, noise_sqrt)
     rows = _row_buffer(batch, npos + extra, d)
     np.multiply(src, scale[:, None], out=rows[..., :npos, :])
     if extra:
-        rows[..., npos:, :] = np.swapaxes(noise_sqrt, -1, -2)
+        rows[..., npos:, :] = swap_last(noise_sqrt)
     return downdate_rows(tria(rows), D, form, errno, error)
 
 
@@ -283,11 +304,11 @@ def transform_factor(
     if plain and rows.fast:
         N, d = sigmas.shape[-2:]
         extra = 0 if noise_sqrt is None else noise_sqrt.shape[-1]
-        batch = np.broadcast_shapes(sigmas.shape[:-2], () if noise_sqrt is None else noise_sqrt.shape[:-2])
+        batch = batch_shape(sigmas, noise_sqrt)
         buf = _row_buffer(batch, N + extra, d)
         mean = central_rows(sigmas, rows, buf)
         if extra:
-            buf[..., N:, :] = np.swapaxes(noise_sqrt, -1, -2)
+            buf[..., N:, :] = swap_last(noise_sqrt)
         return mean, tria(buf)
     mean, D, form = signed_rows(sigmas, rows, mean_fn, residual_fn, hooks)
     return mean, factor_rows(D, form, noise_sqrt, errno, error)

@@ -23,7 +23,7 @@ from . import step as steps
 from .covariance import FactorSlot
 from .errors import NonFiniteError, ParameterError, ShapeError
 from .generators import as_generator, sigma_points_from_factor
-from .linalg import solve_lower
+from .linalg import all_finite, solve_lower
 from .measurement import gain_from_factors
 from .plan import Hooks, Plan, build_plan
 from .transform import deviations
@@ -629,8 +629,8 @@ class SquareRootUKF:
             else:
                 raise ShapeError(f"z has shape {np.shape(z)}, expected ({self._dim_z},)")
         observed = None
-        finite = np.isfinite(arr)
-        if not finite.all():
+        if not all_finite(arr):
+            finite = np.isfinite(arr)
             nan = np.isnan(arr)
             if not (finite | nan).all():
                 raise NonFiniteError(f"z contains inf (NaN means a missing component): {arr!r}")
