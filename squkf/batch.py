@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Callable, Iterable, Mapping, Set
-from typing import Any
+from collections.abc import Callable, Iterable, Mapping, Set, Sized
+from typing import Any, cast
 
 import numpy as np
 
@@ -103,7 +103,8 @@ class _Steps:
 
     def __init__(self, value, name: str, kind: str, T: int | None, default=None, ref: str = "zs"):
         self.name, self.kind, self.ref = name, kind, ref
-        self.const, self.seq, self.it, self.n = default, None, None, None
+        self.const, self.seq, self.it = default, None, None
+        self.n = 0  # the sequence's length; read only when seq is set
         if value is None:
             if kind == "kwargs":
                 self.const = {}
@@ -127,7 +128,7 @@ class _Steps:
         if isinstance(value, (str, bytes, Mapping, Set)) or not isinstance(value, Iterable):
             raise ParameterError(f"{name} must be {self._what()}, got {type(value).__name__}: {value!r:.200}")
         if hasattr(value, "__len__") and hasattr(value, "__getitem__"):
-            self.n = len(value)
+            self.n = len(cast(Sized, value))  # it has __len__ (checked above)
             if T is not None and self.n != T:
                 raise ShapeError(f"{name} has {self.n} entries but {ref} has {T}")
             # entries checked once, before any step (noise matrices are checked by the filter as used)
@@ -272,8 +273,8 @@ def _annotate(exc: BaseException, k: int, partial: tuple, at_step: bool) -> None
         elif hasattr(exc, "add_note"):  # Python 3.11+; other exceptions keep their message
             exc.add_note(f"raised at step {k} of batch_filter")
     try:
-        exc.partial = partial
-        exc.step = k if at_step else None
+        exc.partial = partial  # type: ignore[attr-defined]
+        exc.step = k if at_step else None  # type: ignore[attr-defined]
     except AttributeError:  # an exception type that takes no attributes
         pass
 

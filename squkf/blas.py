@@ -23,6 +23,7 @@ import ctypes
 import glob
 import os
 from contextlib import contextmanager
+from typing import cast
 
 __all__ = ["MIN_DIM", "one_blas_thread", "blas_controls"]
 
@@ -41,7 +42,7 @@ def _bundled_openblas() -> list[str]:
 
     paths = []
     for pkg in (numpy, scipy):
-        root = os.path.dirname(pkg.__file__)
+        root = os.path.dirname(cast(str, pkg.__file__))  # regular packages, so __file__ is set
         for folder in (root + ".libs", os.path.join(root, ".dylibs")):
             paths += sorted(glob.glob(os.path.join(folder, "*openblas*")))
     return paths

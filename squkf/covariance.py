@@ -174,7 +174,7 @@ class FactorSlot:
         SqukfValueError, NotPositiveDefiniteError
             The edited matrix is not a valid covariance; the edit stays pending.
         """
-        if self.pending():
+        if self._view is not None and self.pending():
             S = self._factor_of(as_matrix(self._view, self.name, self.dim))
             self._factor = S
             self._snap = self._view.tobytes()
@@ -210,7 +210,9 @@ class FactorSlot:
         if value is None and self.semidefinite:
             self._factor, self._view, self._snap = None, None, None
             return
-        S = as_lower_factor(value, f"{self.name}1_2", self.dim, singular_ok=self.semidefinite)
+        S: np.ndarray | None = as_lower_factor(
+            value, f"{self.name}1_2", self.dim, singular_ok=self.semidefinite
+        )
         if self.semidefinite and not np.any(S):
             S = None
         self._factor, self._view, self._snap = S, None, None

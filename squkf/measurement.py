@@ -35,7 +35,7 @@ Every array may carry leading batch axes ``(...)``: one filter has none.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import numpy as np
 
@@ -228,7 +228,7 @@ def _per_filter(
     """``a + b`` / ``a - b``, or the user's hook for it, called and checked per filter."""
     if fn is None:
         return a + b if add else a - b
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out: np.ndarray = np.empty(np.broadcast_shapes(a.shape, b.shape))
     d = out.shape[-1]
     for idx in np.ndindex(out.shape[:-1]):
         out[idx] = call_hook(fn, (a[idx] if a.ndim > 1 else a, b[idx] if b.ndim > 1 else b), (d,), hook)
@@ -252,7 +252,7 @@ def _downdate_posterior(S, L21) -> np.ndarray:
     return chol_downdate_columns(S, L21, errno=303, error=PosteriorFactorError)
 
 
-def _joint_factor(sset, rows, sigmas_h, x, S, R1_2, z_mean_fn, residual_x, residual_z):
+def _joint_factor(sset, rows, sigmas_h, x, S, R1_2, z_mean_fn, residual_x, residual_z) -> tuple:
     """``z_pred`` and the blocks ``Sy``, ``L21``, ``L22`` of the joint factor (module docstring).
 
     Only for a set whose mean and covariance are the prior's: then the
@@ -315,7 +315,7 @@ def _paired_joint(H, axis, rows: WeightRows, R1_2, batch):
     gamma, S = axis
     n = S.shape[-1]
     m = H.shape[-1]
-    c = rows.pair_scale
+    c = cast(float, rows.pair_scale)  # not None: the caller checked
     Z = _row_buffer(batch, n + 1 + m, m)
     M = _row_buffer(batch, n + m, m + n)
     h0 = H[..., 0, :]

@@ -137,6 +137,7 @@ def _ropt_values(ropt) -> list[float]:
     """ROPT as a list of at most 7 floats (errors 181, or 171-173 for an entry that is not a real number)."""
     if ropt is None:
         return []
+    flat: np.ndarray | list  # a list below when the entries are kept as given
     try:
         flat = np.asarray(ropt).reshape(-1)
     except Exception as exc:  # ragged nesting and the like

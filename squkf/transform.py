@@ -14,7 +14,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .errors import DowndateError, NonFiniteError
+from .errors import DowndateError, NonFiniteError, NotPositiveDefiniteError
 from .linalg import all_finite, chol_update, tria
 from .rows import RowForm, WeightRows, weight_rows
 from .validate import as_float_array, call_hook
@@ -196,7 +196,7 @@ def factor_rows(
     form: RowForm,
     noise_sqrt: np.ndarray | None = None,
     errno: int = 301,
-    error: type[DowndateError] = DowndateError,
+    error: type[NotPositiveDefiniteError] = DowndateError,
 ) -> np.ndarray:
     """Lower factor of ``sum_k w_k D_k D_k^T + noise_sqrt @ noise_sqrt.T``.
 
@@ -214,7 +214,7 @@ def factor_rows(
     errno : int
         g13ej error number for a failed downdate.
     error : exception class
-        Raised for a failed downdate (a :class:`DowndateError` subclass).
+        Raised for a failed downdate (a :class:`NotPositiveDefiniteError` subclass).
 
     Returns
     -------
@@ -232,13 +232,13 @@ def factor_rows(
     batch = batch_shape(D, noise_sqrt)
     rows = _row_buffer(batch, npos + extra, d)
     np.multiply(src, scale[:, None], out=rows[..., :npos, :])
-    if extra:
+    if extra and noise_sqrt is not None:
         rows[..., npos:, :] = swap_last(noise_sqrt)
     return downdate_rows(tria(rows), D, form, errno, error)
 
 
 def downdate_rows(
-    S: np.ndarray, D: np.ndarray, form: RowForm, errno: int, error: type[DowndateError]
+    S: np.ndarray, D: np.ndarray, form: RowForm, errno: int, error: type[NotPositiveDefiniteError]
 ) -> np.ndarray:
     """Remove the negative rows of ``form`` from the factor ``S`` (one downdate each).
 
@@ -307,7 +307,7 @@ def transform_factor(
         batch = batch_shape(sigmas, noise_sqrt)
         buf = _row_buffer(batch, N + extra, d)
         mean = central_rows(sigmas, rows, buf)
-        if extra:
+        if extra and noise_sqrt is not None:
             buf[..., N:, :] = swap_last(noise_sqrt)
         return mean, tria(buf)
     mean, D, form = signed_rows(sigmas, rows, mean_fn, residual_fn, hooks)

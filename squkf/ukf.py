@@ -15,6 +15,7 @@ import functools
 import math
 import sys
 from collections.abc import Callable
+from typing import cast
 
 import numpy as np
 
@@ -168,6 +169,10 @@ class SquareRootUKF:
     P = _Covariance()
     Q = _Covariance()
     R = _Covariance()
+    # the slots behind P, Q, R (set through __dict__ in __init__)
+    _P: FactorSlot
+    _Q: FactorSlot
+    _R: FactorSlot
 
     def __init__(
         self,
@@ -194,7 +199,7 @@ class SquareRootUKF:
         self._dim_x = n
         self._dim_z = m
         self._dt = self._check_dt(dt)
-        self._plan: Plan | None = None
+        self._plan = cast(Plan, None)  # the scheme setter below sets it
         self._family = None
         self._generator = None
         self.hx = hx
@@ -230,7 +235,7 @@ class SquareRootUKF:
         self.sigmas_h = np.zeros((self._num_sigmas, m))
         self.y = np.zeros(m)
         self.z = np.array([[None] * m]).T
-        self._K = None
+        self._K: np.ndarray | None = None
         self._L21 = np.zeros((n, m))  # K @ S1_2 of the last update, observed columns
         self._Sy = np.zeros((m, m))  # innovation factor of the last update, observed block
         self._w = np.zeros(m)  # whitened innovation Sy^-1 y of the last update
@@ -258,7 +263,7 @@ class SquareRootUKF:
         self._points = points
         self._family = family
         self._num_sigmas = num
-        self._plan = plan
+        self._plan = cast(Plan, plan)  # None only while __init__ has not set the scheme yet
 
     @property
     def scheme(self):
@@ -320,7 +325,7 @@ class SquareRootUKF:
     @property
     def P1_2(self) -> np.ndarray:
         """Lower Cholesky factor of ``P`` (a fresh copy; assign to change)."""
-        return self._P.factor().copy()
+        return cast(np.ndarray, self._P.factor()).copy()  # P is never singular, so never None
 
     @P1_2.setter
     def P1_2(self, value):
@@ -465,7 +470,7 @@ class SquareRootUKF:
         xu, xs = d["x"], d["_xs"]
         if xu.shape != xs.shape or xu.dtype != xs.dtype or xu.tobytes() != xs.tobytes():
             d["_xs"] = self._as_state(xu, "x")  # edited in place since last checked
-        return d["_xs"], self._P.factor()
+        return d["_xs"], cast(np.ndarray, self._P.factor())  # P is never singular, so never None
 
     def _evaluate(self, fn: Callable, sigmas: np.ndarray, args: tuple, kwargs: dict) -> object:
         if self.vectorized:
@@ -505,7 +510,7 @@ class SquareRootUKF:
         plan = self._plan
         state = steps.ask_predict(self._state, plan, x, S, self._hooks().state_add)
         self._state, self._step_plan = state, plan
-        return state.sigmas.copy()
+        return cast(np.ndarray, state.sigmas).copy()  # set by ask_*
 
     def tell_predict(self, sigmas_f, Q=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of a prediction: the propagated points give the prior.
@@ -555,7 +560,7 @@ class SquareRootUKF:
         x, S = self._current()
         state = steps.ask_update(self._state, self._plan, x, S, self._hooks().state_add)
         self._state = state
-        return state.sigmas.copy()
+        return cast(np.ndarray, state.sigmas).copy()  # set by ask_*
 
     def tell_update(self, sigmas_h, z, R=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of an update: measurement-function values and ``z`` give the posterior.
@@ -671,7 +676,7 @@ class SquareRootUKF:
         plan = self._plan
         hooks = self._hooks()
         state = steps.ask_predict(self._state, plan, x, S, hooks.state_add)
-        values = self._evaluate(fx, state.sigmas.copy(), (dt,), fx_args)
+        values = self._evaluate(fx, cast(np.ndarray, state.sigmas).copy(), (dt,), fx_args)  # set by ask_*
         self._tell_predict(state, plan, values, Q, UT, hooks)
 
     def update(self, z, R=None, UT=None, hx=None, **hx_args) -> None:
@@ -705,7 +710,7 @@ class SquareRootUKF:
         x, S = self._current()
         hooks = self._hooks()
         state = steps.ask_update(self._state, self._plan, x, S, hooks.state_add)
-        values = self._evaluate(hx, state.sigmas.copy(), (), hx_args)
+        values = self._evaluate(hx, cast(np.ndarray, state.sigmas).copy(), (), hx_args)  # set by ask_*
         self._tell_update(state, values, meas[0], meas[1], R, UT, hooks)
 
     def compute_process_sigmas(self, dt, fx=None, **fx_args) -> None:

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import copy
 import numbers
-from typing import Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -149,6 +149,14 @@ def _kappa(value, errno: int | None = 172) -> float:
 
 class _CachedFamily:
     """Caches unit points and weights per dimension (they never change)."""
+
+    if TYPE_CHECKING:
+        # Supplied by each subclass; declared for the type checker only, so nothing changes at run time.
+        def num_sigmas(self, n: int) -> int: ...
+
+        def _unit_points(self, n: int) -> np.ndarray: ...
+
+        def _weights(self, n: int) -> tuple[np.ndarray, np.ndarray]: ...
 
     def _cache(self) -> dict:
         c = self.__dict__.get("_by_n")
