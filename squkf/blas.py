@@ -37,10 +37,16 @@ The rules of the hold:
   limit the BLAS around the filter, not alongside it, or set
   ``squkf.blas.MIN_DIM = None`` to leave the BLAS alone.
 
-:data:`MIN_DIM` is where the hold pays. Entering and leaving it costs about
-5 us with one OpenBLAS and 8 us with numpy's and scipy's two; below n = 16 a
-step's matrices are too small for OpenBLAS to thread and there is nothing to
-gain (``benchmarks/blas_hold.py`` measures both).
+:data:`MIN_DIM` is where the hold pays, measured with ``benchmarks/blas_hold.py``
+(Lorenz-96, numpy's and scipy's OpenBLAS at their default two threads on a
+busy 2-core machine). Up to n = 64 it gained nothing and cost 15 to 25 us per
+enter and exit (both libraries set and restored; 5 us when they already run
+on one thread), 0.1 to 0.4 ms on a step. From n = 65 the step's operations
+thread, and a step took 15 to 50 ms without the hold (n = 65 to 80), 5 ms
+with it. So ``MIN_DIM = 65``; rerun the script when the step's matrices
+change. Fastest of all is the BLAS on one thread for the whole loop
+(``threadpool_limits(1)`` around it, or ``OPENBLAS_NUM_THREADS=1``): with
+the hold a step of 65 to 100 variables still took 0.7 to 2.3 ms more.
 """
 
 from __future__ import annotations
@@ -54,8 +60,8 @@ from typing import Any
 __all__ = ["MIN_DIM", "one_blas_thread"]
 
 #: States of this many variables or more run their steps on one BLAS thread
-#: (below it OpenBLAS does not thread the step's operations anyway). None: never.
-MIN_DIM: int | None = 16
+#: (below it OpenBLAS does not thread the step's operations anyway; measured). None: never.
+MIN_DIM: int | None = 65
 
 # (process-wide libraries, per-thread libraries, threadpoolctl's release of OpenBLAS control or None)
 _Found = tuple[tuple[Any, ...], tuple[Any, ...], Callable[[], None] | None]
