@@ -1,79 +1,343 @@
-"""The filter's own numerics run on one BLAS thread for larger states, and nothing else does."""
+"""The filter's own numerics run on one BLAS thread for larger states, and nothing else is touched.
+
+The counts are read through threadpoolctl's own controllers, independently of
+``squkf.blas``; the numerics are observed from inside a ``UT=`` transform,
+which runs inside the hold (``fx`` and ``hx`` run outside it).
+"""
+
+import subprocess
+import sys
+import threading
+from contextlib import ExitStack
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-import squkf.transform
-from squkf import MerweScaledWeights, SquareRootUKF, blas
+from squkf import MerweScaledWeights, SquareRootUKF, blas, sqrt_unscented_transform
+from squkf.errors import NonFiniteError
 
-CONTROLS = blas.blas_controls()
-pytestmark = pytest.mark.skipif(not CONTROLS, reason="no bundled OpenBLAS found (another BLAS build)")
+_TPC = []
+
+
+def _threadpoolctl():
+    """threadpoolctl (the test is skipped without it), kept for when a test hides it from ``import``."""
+    if not _TPC:
+        _TPC.append(pytest.importorskip("threadpoolctl"))
+    return _TPC[0]
+
+
+def _libs():
+    libs = _threadpoolctl().ThreadpoolController().select(user_api="blas").lib_controllers
+    if not libs:
+        pytest.skip("threadpoolctl finds no BLAS library")
+    return libs
+
+
+def _set_all(libs, n):
+    """Set every library to ``n`` threads (a list: one each) as a user would, then give up that right.
+
+    threadpoolctl >= 3.8 lets one Python thread at a time set a process-wide
+    OpenBLAS; releasing it lets the test's other threads (and the hold) set it.
+    """
+    for lib, k in zip(libs, n if isinstance(n, list) else [n] * len(libs)):
+        lib.set_num_threads(k)
+    release = getattr(_threadpoolctl().OpenBLASController, "clear_controlling_thread", None)
+    if release is not None:
+        release(force=True)
+
+
+def _counts(libs):
+    return [lib.get_num_threads() for lib in libs]
 
 
 @pytest.fixture
-def two_threads():
-    """Every bundled OpenBLAS at two threads for the test, as a multi-core default would be."""
-    before = [get() for get, _ in CONTROLS]
-    for _, set_ in CONTROLS:
-        set_(2)
-    yield
-    for (_, set_), n in zip(CONTROLS, before):
-        set_(n)
+def libs(monkeypatch):
+    """The BLAS libraries at two threads for the test (a multi-core default), put back afterwards."""
+    libs = _libs()
+    before = _counts(libs)
+    monkeypatch.setattr(blas, "MIN_DIM", 8)
+    _set_all(libs, 2)
+    if _counts(libs) != [2] * len(libs):
+        pytest.skip("the BLAS libraries cannot be set to two threads here")
+    yield libs
+    _set_all(libs, before)
 
 
-def _counts():
-    return [get() for get, _ in CONTROLS]
-
-
-def test_context_holds_one_thread_and_restores_on_error(two_threads):
-    with pytest.raises(RuntimeError):
-        with blas.one_blas_thread():
-            assert _counts() == [1] * len(CONTROLS)
-            raise RuntimeError("inside")
-    assert _counts() == [2] * len(CONTROLS)
-
-
-@pytest.mark.parametrize("n, inside", [(blas.MIN_DIM, 1), (blas.MIN_DIM - 1, 2)])
-def test_step_numerics_on_one_thread_user_functions_untouched(two_threads, monkeypatch, n, inside):
-    seen = {"fx": [], "hx": [], "qr": []}
-    real_tria = squkf.transform.tria
-
-    def tria(rows):
-        seen["qr"].append(_counts())
-        return real_tria(rows)
-
-    def fx(x, dt):
-        seen["fx"].append(_counts())
-        return 0.9 * x
-
-    def hx(x):
-        seen["hx"].append(_counts())
-        return x[:2]
-
-    monkeypatch.setattr(squkf.transform, "tria", tria)
+def _filter(n, fx=None, hx=None):
+    fx = fx or (lambda x, dt: 0.9 * x)
+    hx = hx or (lambda x: x[:2])
     f = SquareRootUKF(n, 2, 1.0, hx, fx, MerweScaledWeights(0.5, 2.0, 0.0))
-    f.predict()
-    f.update(np.array([0.1, -0.1]))
-    assert seen["qr"] and all(c == [inside] * len(CONTROLS) for c in seen["qr"])
-    assert all(c == [2] * len(CONTROLS) for c in seen["fx"] + seen["hx"])
-    assert _counts() == [2] * len(CONTROLS)
+    f.Q = np.eye(n) * 0.01
+    return f
 
 
-def test_min_dim_none_leaves_the_blas_alone(two_threads, monkeypatch):
+def _recording_ut(seen, libs, inside=None):
+    """A ``UT=`` transform: the default one, recording the counts (and running ``inside``) first."""
+
+    def UT(*args):
+        seen.append(_counts(libs))
+        if inside is not None:
+            inside()
+        return sqrt_unscented_transform(*args)
+
+    return UT
+
+
+# ---------------------------------------------------------------- with threadpoolctl
+
+
+@pytest.mark.parametrize("n, inside", [(8, 1), (7, 2)])
+def test_numerics_on_one_thread_user_functions_untouched(libs, n, inside):
+    seen = {"fx": [], "hx": [], "UT": []}
+    f = _filter(
+        n,
+        fx=lambda x, dt: seen["fx"].append(_counts(libs)) or 0.9 * x,
+        hx=lambda x: seen["hx"].append(_counts(libs)) or x[:2],
+    )
+    UT = _recording_ut(seen["UT"], libs)
+    f.predict(UT=UT)
+    f.update(np.array([0.1, -0.1]), UT=UT)
+    assert len(seen["UT"]) == 2
+    assert all(c == [inside] * len(libs) for c in seen["UT"])
+    assert seen["fx"] and seen["hx"]
+    assert all(c == [2] * len(libs) for c in seen["fx"] + seen["hx"])
+    assert _counts(libs) == [2] * len(libs)
+
+
+def test_min_dim_none_leaves_the_blas_alone(libs, monkeypatch):
     monkeypatch.setattr(blas, "MIN_DIM", None)
-    counts = []
-    real_tria = squkf.transform.tria
-    monkeypatch.setattr(squkf.transform, "tria", lambda rows: counts.append(_counts()) or real_tria(rows))
-    n = 20
-    f = SquareRootUKF(n, 1, 1.0, lambda x: x[:1], lambda x, dt: x, MerweScaledWeights(0.5, 2.0, 0.0))
-    f.predict()
-    f.update([0.0])
-    assert counts and all(c == [2] * len(CONTROLS) for c in counts)
+    seen = []
+    f = _filter(8)
+    f.predict(UT=_recording_ut(seen, libs))
+    f.update(np.zeros(2), UT=_recording_ut(seen, libs))
+    assert seen == [[2] * len(libs)] * 2
 
 
-def test_failed_step_restores_the_thread_count(two_threads):
-    n = 20
-    f = SquareRootUKF(n, 1, 1.0, lambda x: x[:1], lambda x, dt: x * np.nan, MerweScaledWeights(0.5, 2.0, 0.0))
-    with pytest.raises(squkf.errors.NonFiniteError):
+def test_hold_restores_on_return_and_on_error(libs):
+    with blas.one_blas_thread():
+        assert _counts(libs) == [1] * len(libs)
+    assert _counts(libs) == [2] * len(libs)
+    with pytest.raises(KeyError):
+        with blas.one_blas_thread():
+            assert _counts(libs) == [1] * len(libs)
+            raise KeyError("inside")
+    assert _counts(libs) == [2] * len(libs)
+
+
+def test_failed_step_restores_the_count(libs):
+    f = _filter(8, fx=lambda x, dt: x * np.nan)
+    with pytest.raises(NonFiniteError):
         f.predict()
-    assert _counts() == [2] * len(CONTROLS)
+    assert _counts(libs) == [2] * len(libs)
+
+    def failing(*args):
+        assert _counts(libs) == [1] * len(libs)
+        raise ZeroDivisionError("user transform")
+
+    with pytest.raises(ZeroDivisionError):
+        _filter(8).predict(UT=failing)
+    assert _counts(libs) == [2] * len(libs)
+
+
+def test_hold_nests(libs):
+    with blas.one_blas_thread():
+        with blas.one_blas_thread():
+            assert _counts(libs) == [1] * len(libs)
+        assert _counts(libs) == [1] * len(libs)
+    assert _counts(libs) == [2] * len(libs)
+
+
+def test_a_count_changed_during_the_step_is_not_overwritten(libs):
+    seen = []
+    f = _filter(8)
+    f.predict(UT=_recording_ut(seen, libs, inside=lambda: _set_all(libs, 3)))
+    assert seen == [[1] * len(libs)]
+    assert _counts(libs) == [3] * len(libs)
+
+
+def test_a_threadpool_limits_block_ending_during_the_step_stands(libs):
+    # The block starts before the step (2 -> 3) and ends inside it, putting back 2;
+    # the hold, which saw 3 on entry, must not write 3 back over that.
+    threadpoolctl = _threadpoolctl()
+    seen = []
+    with ExitStack() as stack:
+        stack.enter_context(threadpoolctl.threadpool_limits(limits=3, user_api="blas"))
+        assert _counts(libs) == [3] * len(libs)
+        _filter(8).predict(UT=_recording_ut(seen, libs, inside=stack.close))
+    assert seen == [[1] * len(libs)]
+    assert _counts(libs) == [2] * len(libs)
+
+
+def test_a_library_already_at_one_thread_stays_there(libs):
+    _set_all(libs, [1] + [2] * (len(libs) - 1))
+    with blas.one_blas_thread():
+        assert _counts(libs) == [1] * len(libs)
+    assert _counts(libs) == [1] + [2] * (len(libs) - 1)
+
+
+def test_filters_stepped_in_several_threads_at_once(libs):
+    k = 3
+    barrier = threading.Barrier(k, timeout=30)
+    seen, errors = [], []
+
+    def run(i):
+        try:
+            f = _filter(8 + i)
+            # every thread inside its hold at once, then each leaves at its own time
+            UT = _recording_ut(seen, libs, inside=barrier.wait)
+            for j in range(4):
+                f.predict(UT=UT)
+                f.update(np.array([0.1, -0.1]) * j)
+        except BaseException as exc:  # noqa: BLE001 - reported by the main thread
+            errors.append(exc)
+            barrier.abort()
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(k)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert not errors
+    assert len(seen) == 4 * k and all(c == [1] * len(libs) for c in seen)
+    assert _counts(libs) == [2] * len(libs)
+
+
+def test_unsynchronised_threads_leave_the_count_as_found(libs):
+    errors = []
+
+    def run(seed):
+        try:
+            rng = np.random.default_rng(seed)
+            f = _filter(8)
+            for _ in range(30):
+                f.predict()
+                f.update(rng.standard_normal(2) * 0.1)
+        except BaseException as exc:  # noqa: BLE001 - reported by the main thread
+            errors.append(exc)
+
+    threads = [threading.Thread(target=run, args=(s,)) for s in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert not errors
+    assert _counts(libs) == [2] * len(libs)
+
+
+# ---------------------------------------------------------------- the hold's rules, on model libraries
+
+
+class _ModelLib:
+    """A BLAS library as threadpoolctl presents it: one count for the process, or one per thread."""
+
+    def __init__(self, per_thread: bool, start: int = 2):
+        self.internal_api = "model"
+        self.start = start
+        self.per_thread = per_thread
+        self._local = threading.local()
+        self._shared = start
+
+    def get_num_threads(self):
+        return getattr(self._local, "n", self.start) if self.per_thread else self._shared
+
+    def set_num_threads(self, n):
+        if self.per_thread:
+            self._local.n = n
+        else:
+            self._shared = n
+
+
+@pytest.mark.parametrize("per_thread", [False, True])
+def test_concurrent_holds_on_model_libraries(monkeypatch, per_thread):
+    lib = _ModelLib(per_thread)
+    monkeypatch.setattr(blas, "_found", ((), (lib,), None) if per_thread else ((lib,), (), None))
+    k = 4
+    barrier = threading.Barrier(k, timeout=30)
+    inside, after, errors = [], [], []
+
+    def run():
+        try:
+            for _ in range(3):
+                with blas.one_blas_thread():
+                    barrier.wait()  # every thread inside its hold at once
+                    inside.append(lib.get_num_threads())
+                    barrier.wait()
+                after.append(lib.get_num_threads())  # per thread: this thread's own count, put back
+        except BaseException as exc:  # noqa: BLE001 - reported by the main thread
+            errors.append(exc)
+            barrier.abort()
+
+    threads = [threading.Thread(target=run) for _ in range(k)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert not errors
+    assert inside == [1] * (3 * k)
+    if per_thread:
+        assert after == [2] * (3 * k)
+    assert lib.get_num_threads() == 2
+
+
+def test_late_holder_stays_held_until_it_leaves(monkeypatch):
+    lib = _ModelLib(per_thread=False)
+    monkeypatch.setattr(blas, "_found", ((lib,), (), None))
+    entered, first_left, seen = threading.Event(), threading.Event(), []
+
+    def late():
+        with blas.one_blas_thread():
+            entered.set()
+            first_left.wait(30)
+            seen.append(lib.get_num_threads())
+
+    with blas.one_blas_thread():
+        t = threading.Thread(target=late)
+        t.start()
+        entered.wait(30)
+    first_left.set()
+    t.join(30)
+    assert seen == [1]
+    assert lib.get_num_threads() == 2
+
+
+# ---------------------------------------------------------------- without threadpoolctl
+
+
+def test_without_threadpoolctl_the_hold_does_nothing(monkeypatch):
+    monkeypatch.setitem(sys.modules, "threadpoolctl", None)  # makes `import threadpoolctl` fail
+    monkeypatch.setattr(blas, "_found", None)
+    monkeypatch.setattr(blas, "MIN_DIM", 8)
+    with blas.one_blas_thread():
+        pass
+    f = _filter(8)
+    f.predict()
+    f.update(np.zeros(2))
+    assert np.all(np.isfinite(f.x))
+
+
+def test_without_threadpoolctl_counts_are_untouched(libs, monkeypatch):
+    monkeypatch.setitem(sys.modules, "threadpoolctl", None)
+    monkeypatch.setattr(blas, "_found", None)
+    seen = []
+    f = _filter(8)
+    f.predict(UT=_recording_ut(seen, libs))
+    assert seen == [[2] * len(libs)]
+
+
+def test_a_failed_inspection_warns_and_leaves_the_blas_alone(libs, monkeypatch):
+    threadpoolctl = _threadpoolctl()
+
+    def broken():
+        raise OSError("no /proc here")
+
+    monkeypatch.setattr(threadpoolctl, "ThreadpoolController", broken)
+    monkeypatch.setattr(blas, "_found", None)
+    with pytest.warns(RuntimeWarning):
+        with blas.one_blas_thread():
+            assert _counts(libs) == [2] * len(libs)
+
+
+def test_importing_squkf_does_not_import_threadpoolctl():
+    code = "import sys, squkf; sys.exit('threadpoolctl' in sys.modules)"
+    assert subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).parents[1]).returncode == 0
