@@ -819,7 +819,11 @@ class SquareRootUKF:
             if isinstance(value, np.ndarray):
                 value = value.copy()
             elif isinstance(value, FactorSlot):
-                value = copy.deepcopy(value)
+                # the factor is never changed in place, so it is shared: a pending step recognises
+                # it as the prior its second set was drawn from; the matrix handed out is copied
+                value = copy.copy(value)
+                if value._view is not None:
+                    value._view = value._view.copy()
             d[key] = value
         for name in ("P", "Q", "R"):
             d[name] = d["_" + name].matrix()
