@@ -431,6 +431,8 @@ class SquareRootUKF:
 
     @staticmethod
     def _check_dt(dt) -> float:
+        if np.iscomplexobj(dt):  # before float(), which would drop the imaginary part with a warning
+            raise ParameterError(f"dt must be a finite real number, got dt={dt!r}")
         try:
             value = float(dt)
         except (TypeError, ValueError):
