@@ -436,6 +436,8 @@ class SquareRootUKF:
 
     @staticmethod
     def _check_dt(dt) -> float:
+        if np.iscomplexobj(dt):  # before float(), which would drop the imaginary part with a warning
+            raise ParameterError(f"dt must be a finite real number, got dt={dt!r}")
         try:
             value = float(dt)
         except (TypeError, ValueError):
@@ -824,7 +826,11 @@ class SquareRootUKF:
             if isinstance(value, np.ndarray):
                 value = value.copy()
             elif isinstance(value, FactorSlot):
-                value = copy.deepcopy(value)
+                # the factor is never changed in place, so it is shared: a pending step recognises
+                # it as the prior its second set was drawn from; the matrix handed out is copied
+                value = copy.copy(value)
+                if value._view is not None:
+                    value._view = value._view.copy()
             d[key] = value
         for name in ("P", "Q", "R"):
             d[name] = d["_" + name].matrix()
