@@ -18,6 +18,7 @@ from .errors import (
     SqukfError,
     SqukfValueError,
 )
+from .fleet import Fleet, FleetResult, FleetStepError
 from .generators import Augmented, Propagated, Redrawn, SigmaSet
 from .transform import sqrt_unscented_transform
 from .ukf import SquareRootUKF
@@ -33,6 +34,9 @@ from .weights import (
 
 __all__ = [
     "SquareRootUKF",
+    "Fleet",
+    "FleetResult",
+    "FleetStepError",
     "sqrt_unscented_transform",
     "unscented_transform",
     "MerweScaledWeights",

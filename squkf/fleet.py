@@ -1,0 +1,846 @@
+"""``Fleet``: K independent square-root UKFs with one model, advanced in one array step.
+
+Every filter of a fleet runs the same step as :class:`squkf.SquareRootUKF`
+(the transitions of :mod:`squkf.step` over a plan of :mod:`squkf.plan`), on
+arrays with a leading filter axis: states ``(K, n)``, factors ``(K, n, n)``,
+sigma points ``(K, N, n)``. The model functions are called once per step with
+the points of all filters; a function written with ``X[..., i]`` indexing
+serves a fleet and ``SquareRootUKF(vectorized=True)`` alike.
+
+Failure isolation
+-----------------
+Bad *input* (shapes, an infinite ``z``, a bad ``R``) raises for the whole call
+and changes nothing, as for one filter. A *numerical* failure of one filter
+in a step (its images are not finite, a factor would lose positive
+definiteness, its innovation factor is singular, its result is not finite)
+is that filter's alone: it keeps its state from before the step, it is
+flagged in :attr:`Fleet.failed` with the reason in :attr:`Fleet.failure`, and
+every other filter completes the step, bit for bit as in a fleet without the
+failing filter (each filter's arithmetic never depends on the others').
+
+A flagged filter is frozen: later steps leave it as it is (its model images
+are still computed with the others', and ignored) until it is reset with
+:meth:`Fleet.reset`, which clears the flag and, optionally, sets its state.
+With ``on_error="raise"`` a step with a failing filter instead raises
+:class:`FleetStepError`, naming the filters, and changes no filter.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from . import step as steps
+from .covariance import as_lower_factor, as_matrix
+from .errors import NonFiniteError, NotPositiveDefiniteError, ParameterError, ShapeError, SqukfError
+from .generators import SigmaSet, as_generator
+from .linalg import factor_covariance
+from .plan import Hooks, Plan, build_plan
+from .validate import as_float_array
+from .weights import as_family
+
+__all__ = ["Fleet", "FleetResult", "FleetStepError"]
+
+_LOG_2PI = math.log(2.0 * math.pi)
+
+
+class FleetStepError(SqukfError, ArithmeticError):
+    """A fleet step with ``on_error="raise"`` in which some filters failed numerically.
+
+    No filter was changed. ``filters`` holds the indices of the failing
+    filters and ``reasons`` what went wrong with each.
+    """
+
+    def __init__(self, message: str, filters: Sequence[int] = (), reasons: Sequence[str] = ()):
+        super().__init__(message)
+        self.filters = tuple(int(k) for k in filters)
+        self.reasons = tuple(reasons)
+
+    def __reduce__(self):
+        return (type(self), (self.args[0], self.filters, self.reasons))
+
+
+@dataclass
+class FleetResult:
+    """What :meth:`Fleet.batch_filter` returns.
+
+    Attributes
+    ----------
+    means : ndarray, shape (K, T, n), or None
+        Posterior means (None with ``keep="final"``).
+    P1_2s : ndarray, shape (K, T, n, n), or None
+        Posterior lower factors (only with ``keep="all"``).
+    variances : ndarray, shape (K, T, n), or None
+        The diagonals of the posterior covariances (with ``keep="all"`` or ``"diagonals"``).
+    log_likelihood : ndarray, shape (K, T)
+        Of each step's measurement (0 where a filter had no measurement or had failed).
+    failed : ndarray of bool, shape (K,)
+        Filters flagged by the end of the run (their later entries repeat their last good state).
+    x, P1_2 : ndarray, shapes (K, n) and (K, n, n)
+        The final state.
+    """
+
+    means: np.ndarray | None
+    P1_2s: np.ndarray | None
+    variances: np.ndarray | None
+    log_likelihood: np.ndarray
+    failed: np.ndarray
+    x: np.ndarray
+    P1_2: np.ndarray
+
+
+def _take(sset: SigmaSet, idx: np.ndarray | slice) -> SigmaSet:
+    """The set of the filters ``idx`` (rows of every stacked field)."""
+    if isinstance(idx, slice):
+        return sset
+    drawn = None if sset.drawn is None else (sset.drawn[0], sset.drawn[1][idx])
+    offsets = None if sset.offsets is None else sset.offsets[idx]
+    return sset._replace(sigmas=sset.sigmas[idx], offsets=offsets, drawn=drawn)
+
+
+def _rows_of(a: np.ndarray | None, idx: np.ndarray | slice, core: int) -> np.ndarray | None:
+    """``a[idx]`` when ``a`` is per filter (more than ``core`` axes), else ``a`` (shared)."""
+    if a is None or a.ndim == core:
+        return a
+    return a[idx]
+
+
+def _numerical(exc: BaseException) -> bool:
+    return isinstance(exc, (NotPositiveDefiniteError, NonFiniteError)) or (
+        isinstance(exc, SqukfError) and getattr(exc, "errno", None) in (301, 302, 303)
+    )
+
+
+class Fleet:
+    """K independent square-root UKFs with one model and one configuration.
+
+    Parameters
+    ----------
+    n_filters : int
+        Number of filters ``K``.
+    dim_x, dim_z : int
+        State and measurement dimensions.
+    dt : float
+        Default time step passed to ``fx``.
+    hx : callable
+        ``hx(X, **hx_args)`` maps sigma points ``(K, N, dim_x)`` to ``(K, N, dim_z)``.
+    fx : callable
+        ``fx(X, dt, **fx_args)`` maps ``(K, N, dim_x)`` to ``(K, N, dim_x)``.
+    points : sigma-point family or filterpy points object
+        As for :class:`squkf.SquareRootUKF`.
+    scheme : {"redrawn", "augmented", "propagated"} or generator
+        How the second sigma-point set is formed.
+    x_mean_fn, z_mean_fn, residual_x, residual_z, state_add : callable, optional
+        filterpy's hooks (e.g. :mod:`squkf.angles`), called per filter.
+    on_error : {"flag", "raise"}
+        What a numerical failure of some filters does (module docstring).
+
+    Attributes
+    ----------
+    x : ndarray, shape (K, dim_x)
+    P, P1_2 : ndarray, shape (K, dim_x, dim_x)
+        Read as fresh arrays; assign to change (a single ``(dim_x,)`` or
+        ``(dim_x, dim_x)`` value is given to every filter).
+    Q, R, Q1_2, R1_2 : ndarray
+        Shared ``(d, d)`` or per filter ``(K, d, d)``.
+    x_prior, x_post, P1_2_prior, P1_2_post : ndarray
+        Records of the last prediction and update.
+    y : ndarray, shape (K, dim_z)
+        Innovations of the last update (NaN where a component was missing).
+    log_likelihood, likelihood, mahalanobis : ndarray, shape (K,)
+        Of the last update (0, 1 and 0 for a filter without measurement).
+    failed : ndarray of bool, shape (K,)
+    failure : ndarray of str, shape (K,)
+        Why each flagged filter failed ("" for the others).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from squkf import Fleet, MerweScaledWeights
+    >>> def fx(X, dt):
+    ...     return X
+    >>> def hx(X):
+    ...     return X[..., :1]
+    >>> fleet = Fleet(3, 2, 1, 1.0, hx, fx, MerweScaledWeights())
+    >>> fleet.update(np.array([[1.0], [np.nan], [-1.0]]))  # filter 1 has no measurement
+    >>> np.round(fleet.x[:, 0], 3)
+    array([ 0.5,  0. , -0.5])
+    """
+
+    def __init__(
+        self,
+        n_filters: int,
+        dim_x: int,
+        dim_z: int,
+        dt: float,
+        hx: Callable,
+        fx: Callable,
+        points,
+        *,
+        scheme="redrawn",
+        x_mean_fn: Callable | None = None,
+        z_mean_fn: Callable | None = None,
+        residual_x: Callable | None = None,
+        residual_z: Callable | None = None,
+        state_add: Callable | None = None,
+        on_error: str = "flag",
+    ):
+        for name, v in (("n_filters", n_filters), ("dim_x", dim_x), ("dim_z", dim_z)):
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise ParameterError(f"{name} must be a positive integer, got {name}={v!r}")
+        if on_error not in ("flag", "raise"):
+            raise ParameterError(f"on_error must be 'flag' or 'raise', got on_error={on_error!r}")
+        K, n, m = int(n_filters), int(dim_x), int(dim_z)
+        self._K, self._n, self._m = K, n, m
+        self._dt = self._check_dt(dt)
+        self.hx, self.fx = hx, fx
+        self.points_fn = points
+        self._family = as_family(points)
+        self._generator = as_generator(scheme)
+        self._plan: Plan = build_plan(self._family, self._generator, n)
+        self.x_mean, self.z_mean = x_mean_fn, z_mean_fn
+        self.residual_x, self.residual_z, self.state_add = residual_x, residual_z, state_add
+        self.on_error = on_error
+        self._x = np.zeros((K, n))
+        self._S = np.broadcast_to(np.eye(n), (K, n, n)).copy()
+        self._Q1_2: np.ndarray | None = np.eye(n)
+        self._R1_2: np.ndarray = np.eye(m)
+        self._state = steps.StepState()
+        self._failed = np.zeros(K, dtype=bool)
+        self._failure = np.full(K, "", dtype=object)
+        self.x_prior, self.x_post = self._x.copy(), self._x.copy()
+        self.P1_2_prior, self.P1_2_post = self._S.copy(), self._S.copy()
+        self.y = np.zeros((K, m))
+        self._loglik = np.zeros(K)
+        self._maha = np.zeros(K)
+
+    # -- configuration and sizes ----------------------------------------------
+
+    @property
+    def n_filters(self) -> int:
+        """Number of filters ``K``."""
+        return self._K
+
+    @property
+    def dim_x(self) -> int:
+        """State dimension."""
+        return self._n
+
+    @property
+    def dim_z(self) -> int:
+        """Measurement dimension."""
+        return self._m
+
+    @property
+    def scheme(self):
+        """The second-set generator."""
+        return self._generator
+
+    def _hooks(self) -> Hooks:
+        return Hooks(self.x_mean, self.z_mean, self.residual_x, self.residual_z, self.state_add)
+
+    @staticmethod
+    def _check_dt(dt) -> float:
+        try:
+            value = float(dt)
+        except (TypeError, ValueError):
+            raise ParameterError(f"dt must be a finite number, got dt={dt!r}") from None
+        if isinstance(dt, complex) or not math.isfinite(value):
+            raise ParameterError(f"dt must be a finite number, got dt={dt!r}")
+        return value
+
+    # -- state ------------------------------------------------------------------
+
+    def _per_filter(self, value, name: str, core: int) -> np.ndarray:
+        """``value`` as ``(K, *core_shape)``: one value broadcast, or one per filter, checked."""
+        a = as_float_array(value, name)
+        shape = (self._n,) if core == 1 else (self._n, self._n)
+        if a.shape == shape:
+            a = np.broadcast_to(a, (self._K,) + shape).copy()
+        if a.shape != (self._K,) + shape:
+            raise ShapeError(f"{name} has shape {a.shape}, expected {shape} or {(self._K,) + shape}")
+        if not np.all(np.isfinite(a)):
+            bad = np.flatnonzero(~np.isfinite(a.reshape(self._K, -1)).all(axis=1))
+            raise NonFiniteError(f"{name} contains NaN or inf (filters {bad[:10].tolist()})")
+        return a
+
+    @property
+    def x(self) -> np.ndarray:
+        """States, shape ``(K, dim_x)`` (a fresh array; assign to change)."""
+        return self._x.copy()
+
+    @x.setter
+    def x(self, value):
+        self._x = self._per_filter(value, "x", 1)
+        self._state = steps.StepState()
+
+    @property
+    def P1_2(self) -> np.ndarray:
+        """Lower factors of the covariances, shape ``(K, dim_x, dim_x)`` (fresh)."""
+        return self._S.copy()
+
+    @P1_2.setter
+    def P1_2(self, value):
+        S = self._per_filter(value, "P1_2", 2)
+        self._S = np.stack(
+            [as_lower_factor(S[k], f"P1_2[{k}]", self._n, singular_ok=False) for k in range(self._K)]
+        )
+        self._state = steps.StepState()
+
+    @property
+    def P(self) -> np.ndarray:
+        """Covariances, shape ``(K, dim_x, dim_x)`` (formed fresh; assign to change)."""
+        return self._S @ np.swapaxes(self._S, -1, -2)
+
+    @P.setter
+    def P(self, value):
+        a = as_float_array(value, "P")
+        if a.shape == (self._n, self._n):  # one matrix for all: factored once
+            S = factor_covariance(as_matrix(a, "P", self._n), "P")
+            self._S = np.broadcast_to(S, (self._K, self._n, self._n)).copy()
+        else:
+            A = self._per_filter(a, "P", 2)
+            self._S = np.stack(
+                [factor_covariance(as_matrix(A[k], f"P[{k}]", self._n), f"P[{k}]") for k in range(self._K)]
+            )
+        self._state = steps.StepState()
+
+    def _noise(self, value, name: str, dim: int, semidefinite: bool = True) -> np.ndarray | None:
+        """A shared ``(dim, dim)`` or per-filter ``(K, dim, dim)`` covariance as its lower factor."""
+        if value is None:
+            return None
+        a = as_float_array(value, name)
+        if a.ndim == 3:
+            if a.shape != (self._K, dim, dim):
+                raise ShapeError(
+                    f"{name} has shape {a.shape}, expected ({dim}, {dim}) or ({self._K}, {dim}, {dim})"
+                )
+            return np.stack([self._noise_one(a[k], f"{name}[{k}]", dim) for k in range(self._K)])
+        return self._noise_one(a, name, dim)
+
+    @staticmethod
+    def _noise_one(a, name: str, dim: int) -> np.ndarray:
+        A = as_matrix(a, name, dim)
+        if not np.any(A):
+            return np.zeros((dim, dim))
+        return factor_covariance(A, name, semidefinite=True)
+
+    @property
+    def Q(self) -> np.ndarray:
+        """Process noise, shared ``(n, n)`` or per filter ``(K, n, n)`` (fresh)."""
+        S = self._Q1_2
+        if S is None:
+            return np.zeros((self._n, self._n))
+        return S @ np.swapaxes(S, -1, -2)
+
+    @Q.setter
+    def Q(self, value):
+        S = self._noise(value, "Q", self._n)
+        self._Q1_2 = None if S is None or not np.any(S) else S
+
+    @property
+    def Q1_2(self) -> np.ndarray:
+        """Lower factor(s) of ``Q`` (fresh)."""
+        return np.zeros((self._n, self._n)) if self._Q1_2 is None else self._Q1_2.copy()
+
+    @Q1_2.setter
+    def Q1_2(self, value):
+        self._Q1_2 = self._factor_noise(value, "Q1_2", self._n)
+
+    @property
+    def R(self) -> np.ndarray:
+        """Measurement noise, shared ``(m, m)`` or per filter ``(K, m, m)`` (fresh)."""
+        return self._R1_2 @ np.swapaxes(self._R1_2, -1, -2)
+
+    @R.setter
+    def R(self, value):
+        S = self._noise(value, "R", self._m)
+        self._R1_2 = np.zeros((self._m, self._m)) if S is None else S
+
+    @property
+    def R1_2(self) -> np.ndarray:
+        """Lower factor(s) of ``R`` (fresh)."""
+        return self._R1_2.copy()
+
+    @R1_2.setter
+    def R1_2(self, value):
+        S = self._factor_noise(value, "R1_2", self._m)
+        self._R1_2 = np.zeros((self._m, self._m)) if S is None else S
+
+    def _factor_noise(self, value, name: str, dim: int) -> np.ndarray | None:
+        a = as_float_array(value, name)
+        if a.ndim == 3:
+            if a.shape != (self._K, dim, dim):
+                raise ShapeError(
+                    f"{name} has shape {a.shape}, expected ({dim}, {dim}) or ({self._K}, {dim}, {dim})"
+                )
+            return np.stack(
+                [as_lower_factor(a[k], f"{name}[{k}]", dim, singular_ok=True) for k in range(self._K)]
+            )
+        S = as_lower_factor(a, name, dim, singular_ok=True)
+        return S if np.any(S) else None
+
+    @property
+    def P_prior(self) -> np.ndarray:
+        """Covariances after the last prediction (fresh)."""
+        return self.P1_2_prior @ np.swapaxes(self.P1_2_prior, -1, -2)
+
+    @property
+    def P_post(self) -> np.ndarray:
+        """Covariances after the last update (fresh)."""
+        return self.P1_2_post @ np.swapaxes(self.P1_2_post, -1, -2)
+
+    @property
+    def failed(self) -> np.ndarray:
+        """Which filters are flagged, shape ``(K,)`` (a copy)."""
+        return self._failed.copy()
+
+    @property
+    def failure(self) -> np.ndarray:
+        """Why each flagged filter failed ("" for the others), shape ``(K,)`` (a copy)."""
+        return self._failure.copy()
+
+    @property
+    def log_likelihood(self) -> np.ndarray:
+        """Log-likelihood of each filter's last measurement, shape ``(K,)``."""
+        return self._loglik.copy()
+
+    @property
+    def likelihood(self) -> np.ndarray:
+        """``exp(log_likelihood)``, never below the smallest normal float, shape ``(K,)``."""
+        return np.maximum(np.exp(self._loglik), np.finfo(float).tiny)
+
+    @property
+    def mahalanobis(self) -> np.ndarray:
+        """Mahalanobis distance of each filter's last innovation, shape ``(K,)``."""
+        return self._maha.copy()
+
+    def reset(self, filters=None, x=None, P=None) -> None:
+        """Clear the flag of ``filters`` (default: every flagged one), optionally setting their state.
+
+        Parameters
+        ----------
+        filters : int, sequence of int or bool mask, optional
+        x : array_like, shape (dim_x,) or (len(filters), dim_x), optional
+        P : array_like, shape (dim_x, dim_x) or (len(filters), dim_x, dim_x), optional
+        """
+        idx = np.flatnonzero(self._failed) if filters is None else np.arange(self._K)[filters]
+        idx = np.atleast_1d(idx)
+        new_x, new_S = self._x.copy(), self._S.copy()
+        if x is not None:
+            xs = as_float_array(x, "x")
+            new_x[idx] = np.broadcast_to(xs, (idx.size, self._n))
+            if not np.all(np.isfinite(new_x[idx])):
+                raise NonFiniteError("x contains NaN or inf")
+        if P is not None:
+            Ps = np.broadcast_to(as_float_array(P, "P"), (idx.size, self._n, self._n))
+            for j, k in enumerate(idx):
+                new_S[k] = factor_covariance(as_matrix(Ps[j], f"P[{k}]", self._n), f"P[{k}]")
+        self._x, self._S = new_x, new_S
+        self._failed[idx] = False
+        self._failure[idx] = ""
+        self._state = steps.StepState()
+
+    # -- the step ---------------------------------------------------------------
+
+    def _with_filter_axis(self, kwargs: dict) -> dict:
+        """Per-filter array arguments (leading axis K) get a sigma-point axis, to broadcast against X."""
+        out = {}
+        for key, v in kwargs.items():
+            if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == self._K:
+                v = v.reshape((self._K, 1) + v.shape[1:])
+            out[key] = v
+        return out
+
+    def _fail(self, fails: dict[int, str], idx: np.ndarray, reason: str) -> None:
+        for k in idx.tolist():
+            fails.setdefault(int(k), reason)
+
+    def _commit_failures(self, fails: dict[int, str]) -> None:
+        if not fails:
+            return
+        if self.on_error == "raise":
+            ks = sorted(fails)
+            raise FleetStepError(
+                f"{len(ks)} filter(s) failed numerically: "
+                + "; ".join(f"filter {k}: {fails[k]}" for k in ks[:5])
+                + (" ..." if len(ks) > 5 else ""),
+                ks,
+                [fails[k] for k in ks],
+            )
+
+    def _finite_rows(self, A: np.ndarray) -> np.ndarray:
+        return np.isfinite(A.reshape(A.shape[0], -1)).all(axis=1)
+
+    def _isolated(self, fn: Callable, idx: np.ndarray, fails: dict[int, str]):
+        """Run ``fn(idx)`` on the filters ``idx`` at once; on a numerical error, one by one.
+
+        Each filter's arithmetic is independent of the others', so the filters
+        that succeed get the same numbers either way. Returns the indices that
+        succeeded and their results (a tuple of arrays over those filters).
+        """
+        if idx.size == 0:
+            return idx, None
+        try:
+            # every filter at once: plain views instead of fancy-indexed copies
+            return idx, fn(slice(None) if idx.size == self._K else idx)
+        except SqukfError as exc:
+            if not _numerical(exc):
+                raise
+        good, parts = [], []
+        for k in idx.tolist():
+            one = np.array([k])
+            try:
+                parts.append(fn(one))
+                good.append(k)
+            except SqukfError as exc:
+                if not _numerical(exc):
+                    raise
+                fails.setdefault(k, f"{type(exc).__name__}: {exc}")
+        if not good:
+            return np.array([], dtype=int), None
+        results = tuple(np.concatenate([p[i] for p in parts]) for i in range(len(parts[0])))
+        return np.array(good), results
+
+    def ask_predict(self) -> np.ndarray:
+        """First half of a prediction: the first sigma-point sets, shape ``(K, N, dim_x)`` (fresh)."""
+        state = steps.ask_predict(self._state, self._plan, self._x, self._S, self.state_add)
+        self._state = state
+        return state.sigmas.copy()  # type: ignore[union-attr]
+
+    def predict(self, dt=None, **fx_args) -> None:
+        """Predict every filter one step ahead (flagged filters stay as they are).
+
+        Parameters
+        ----------
+        dt : float, optional
+            Time step (default: the constructor's); any finite value.
+        **fx_args
+            Passed to ``fx``; arrays with a leading axis of length K are per
+            filter and get a sigma-point axis (``u[k]`` becomes ``u[:, None]``).
+        """
+        dt = self._dt if dt is None else self._check_dt(dt)
+        state = steps.ask_predict(self._state, self._plan, self._x, self._S, self.state_add)
+        X = state.sigmas
+        assert X is not None
+        F = self.fx(X.copy(), dt, **self._with_filter_axis(fx_args))
+        self._tell_predict(state, F)
+
+    def tell_predict(self, sigmas_f) -> None:
+        """Second half of a prediction: ``fx`` at the points from :meth:`ask_predict`, ``(K, N, dim_x)``."""
+        self._tell_predict(self._state, sigmas_f)
+
+    def _tell_predict(self, state: steps.StepState, values) -> None:
+        if state.phase != steps.PREDICTING or state.sigmas is None:
+            raise steps.CallSequenceError(
+                f"tell_predict needs a pending ask_predict, but the step is {state.phase!r}"
+            )
+        X = state.sigmas
+        F = as_float_array(values, "fx values")
+        if F.shape != X.shape:
+            raise ShapeError(f"fx values have shape {F.shape}, expected {X.shape}")
+        fails: dict[int, str] = {}
+        active = ~self._failed
+        finite = self._finite_rows(F)
+        self._fail(fails, np.flatnonzero(active & ~finite), "fx values are not finite")
+        F = np.where(finite[:, None, None], F, X)  # a failing filter's rows: harmless stand-ins
+        idx = np.flatnonzero(active & finite)
+        plan, hooks, Q = self._plan, self._hooks(), self._Q1_2
+
+        def prior(ix):
+            sub = steps.StepState(steps.PREDICTING, X[ix])
+            _, x, S = steps.tell_predict(sub, plan, F[ix], _rows_of(Q, ix, 2), hooks)
+            return x, S
+
+        good, res = self._isolated(prior, idx, fails)
+        self._commit_failures(fails)
+        x_new, S_new = self._x.copy(), self._S.copy()
+        if res is not None:
+            x_new[good], S_new[good] = res
+        Qall = None if Q is None else (Q if Q.ndim == 2 else Q)
+        new = steps.StepState(steps.PRIOR, None, F, Qall)
+        new = steps.draw_second_set(new, plan, x_new, S_new, self.state_add)
+        # commit
+        self._state = new
+        self._x, self._S = x_new, S_new
+        self._flag(fails)
+        self.x_prior, self.P1_2_prior = x_new.copy(), S_new.copy()
+
+    def _flag(self, fails: dict[int, str]) -> None:
+        for k, why in fails.items():
+            self._failed[k] = True
+            self._failure[k] = why
+
+    def ask_update(self) -> np.ndarray:
+        """First half of an update: the second sigma-point sets, shape ``(K, N2, dim_x)`` (fresh)."""
+        state = steps.ask_update(self._state, self._plan, self._x, self._S, self.state_add)
+        self._state = state
+        return state.sigmas.copy()  # type: ignore[union-attr]
+
+    def update(self, z, R=None, **hx_args) -> None:
+        """Update every filter with its measurement.
+
+        Parameters
+        ----------
+        z : array_like, shape (K, dim_z)
+            One row per filter; an all-NaN row means no measurement for that
+            filter, NaN entries are missing components.
+        R : array_like, optional
+            Measurement noise for this update: ``(m, m)`` shared or ``(K, m, m)``.
+        **hx_args
+            Passed to ``hx`` (per-filter arrays as for :meth:`predict`).
+        """
+        zz = self._as_measurements(z)
+        R1_2 = self._R1_2 if R is None else self._noise(R, "R", self._m)
+        state = steps.ask_update(self._state, self._plan, self._x, self._S, self.state_add)
+        assert state.sigmas is not None
+        H = self.hx(state.sigmas.copy(), **self._with_filter_axis(hx_args))
+        self._tell_update(state, H, zz, R1_2)
+
+    def tell_update(self, sigmas_h, z, R=None) -> None:
+        """Second half of an update: ``hx`` at the points from :meth:`ask_update`, and ``z`` ``(K, dim_z)``."""
+        zz = self._as_measurements(z)
+        R1_2 = self._R1_2 if R is None else self._noise(R, "R", self._m)
+        self._tell_update(self._state, sigmas_h, zz, R1_2)
+
+    def _as_measurements(self, z) -> np.ndarray:
+        if isinstance(z, np.ma.MaskedArray):
+            z = np.ma.filled(np.ma.asarray(z, dtype=float), np.nan)
+        zz = as_float_array(z, "z")
+        if zz.shape == (self._K,) and self._m == 1:
+            zz = zz[:, None]
+        if zz.shape != (self._K, self._m):
+            raise ShapeError(f"z has shape {zz.shape}, expected ({self._K}, {self._m})")
+        if np.isinf(zz).any():
+            k = int(np.flatnonzero(np.isinf(zz).any(axis=1))[0])
+            raise NonFiniteError(f"z contains inf (row {k}; NaN means a missing component)")
+        return zz
+
+    def _tell_update(self, state: steps.StepState, values, z: np.ndarray, R1_2) -> None:
+        if state.phase != steps.UPDATING or state.sset is None or state.prior is None:
+            raise steps.CallSequenceError(
+                f"tell_update needs a pending ask_update, but the step is {state.phase!r}"
+            )
+        sset = state.sset
+        K, m = self._K, self._m
+        H = as_float_array(values, "hx values")
+        if H.shape != sset.sigmas.shape[:-1] + (m,):
+            raise ShapeError(f"hx values have shape {H.shape}, expected {sset.sigmas.shape[:-1] + (m,)}")
+        x0, S0 = state.prior
+        observed = ~np.isnan(z)
+        measured = observed.any(axis=1)
+        active = ~self._failed
+        fails: dict[int, str] = {}
+        finite = self._finite_rows(H)
+        self._fail(fails, np.flatnonzero(active & measured & ~finite), "hx values are not finite")
+        todo = active & measured & finite
+        x_new, S_new = x0.copy(), S0.copy()
+        y = np.full((K, m), np.nan)
+        loglik, maha = np.zeros(K), np.zeros(K)
+        hooks = self._hooks()
+        # filters with the same missing components are updated together (one stacked update each)
+        todo_idx = np.flatnonzero(todo)
+        if observed[todo].all():  # the usual case: one group
+            patterns, which = np.ones((1, m), dtype=bool), np.zeros(todo_idx.size, dtype=int)
+        else:
+            patterns, which = np.unique(observed[todo], axis=0, return_inverse=True)
+        for p, obs in enumerate(patterns):
+            group = todo_idx[which.reshape(-1) == p]
+            mask = None if obs.all() else obs
+
+            def posterior(ix, mask=mask):
+                sub = steps.StepState(steps.UPDATING, None, None, None, _take(sset, ix), (x0[ix], S0[ix]))
+                _, post, _ = steps.tell_update(sub, H[ix], z[ix], _rows_of(R1_2, ix, 2), mask, hooks)
+                w = post.w
+                logdet = 2.0 * np.log(np.abs(np.diagonal(post.Sy, axis1=-2, axis2=-1))).sum(axis=-1)
+                ll = -0.5 * (w.shape[-1] * _LOG_2PI + logdet + (w * w).sum(axis=-1))
+                return post.x, post.S, post.y, ll, np.sqrt((w * w).sum(axis=-1))
+
+            good, res = self._isolated(posterior, group, fails)
+            if res is not None:
+                x_new[good], S_new[good] = res[0], res[1]
+                if obs.all():
+                    y[good] = res[2]
+                else:
+                    y[np.ix_(good, np.flatnonzero(obs))] = res[2]
+                loglik[good], maha[good] = res[3], res[4]
+        self._commit_failures(fails)
+        # commit
+        self._state = steps.StepState()
+        self._x, self._S = x_new, S_new
+        self._flag(fails)
+        self.x_post, self.P1_2_post = x_new.copy(), S_new.copy()
+        self.y, self._loglik, self._maha = y, loglik, maha
+
+    # -- many steps ---------------------------------------------------------------
+
+    def batch_filter(self, zs, *, dts=None, keep: str = "all", fx_args=None, hx_args=None) -> FleetResult:
+        """Filter ``T`` steps of measurements for every filter.
+
+        Parameters
+        ----------
+        zs : array_like, shape (K, T, dim_z)
+            NaN rows and entries are missing measurements (as for :meth:`update`).
+        dts : float or array_like of shape (T,), optional
+            Time step of each prediction (default: the constructor's).
+        keep : {"all", "diagonals", "means", "final"}
+            What to store: everything; means and the covariances' diagonals;
+            means only; or only the final state (for long runs).
+        fx_args, hx_args : dict, optional
+            Passed to ``fx`` and ``hx`` at every step.
+
+        Returns
+        -------
+        FleetResult
+            The fleet itself is left after the last step, as after a loop of
+            ``predict`` and ``update``.
+        """
+        if keep not in ("all", "diagonals", "means", "final"):
+            raise ParameterError(f"keep must be 'all', 'diagonals', 'means' or 'final', got keep={keep!r}")
+        Z = as_float_array(zs, "zs")
+        if Z.ndim == 2 and self._m == 1:
+            Z = Z[..., None]
+        if Z.ndim != 3 or Z.shape[0] != self._K or Z.shape[2] != self._m:
+            raise ShapeError(f"zs has shape {Z.shape}, expected ({self._K}, T, {self._m})")
+        T = Z.shape[1]
+        dt_list = [self._dt] * T if dts is None else [self._check_dt(d) for d in np.broadcast_to(dts, (T,))]
+        for name, a in (("fx_args", fx_args), ("hx_args", hx_args)):
+            if a is not None and not isinstance(a, dict):
+                raise ParameterError(f"{name} must be a dict, got {type(a).__name__}")
+        K, n = self._K, self._n
+        means = None if keep == "final" else np.empty((K, T, n))
+        factors = np.empty((K, T, n, n)) if keep == "all" else None
+        variances = np.empty((K, T, n)) if keep in ("all", "diagonals") else None
+        loglik = np.zeros((K, T))
+        for t in range(T):
+            self.predict(dt_list[t], **(fx_args or {}))
+            if np.isnan(Z[:, t]).all():
+                self._state = steps.StepState()
+            else:
+                self.update(Z[:, t], **(hx_args or {}))
+                loglik[:, t] = self._loglik
+            if means is not None:
+                means[:, t] = self._x
+            if factors is not None:
+                factors[:, t] = self._S
+            if variances is not None:
+                variances[:, t] = np.einsum("kij,kij->ki", self._S, self._S)
+        return FleetResult(
+            means, factors, variances, loglik, self._failed.copy(), self._x.copy(), self._S.copy()
+        )
+
+    # -- one filter and back --------------------------------------------------------
+
+    def __getitem__(self, k: int):
+        """Filter ``k`` as a :class:`squkf.SquareRootUKF` (vectorised, with its state and configuration)."""
+        from .ukf import SquareRootUKF
+
+        k = int(np.arange(self._K)[k])
+        f = SquareRootUKF(
+            self._n,
+            self._m,
+            self._dt,
+            self.hx,
+            self.fx,
+            self.points_fn,
+            x_mean_fn=self.x_mean,
+            z_mean_fn=self.z_mean,
+            residual_x=self.residual_x,
+            residual_z=self.residual_z,
+            state_add=self.state_add,
+            scheme=self._generator,
+            vectorized=True,
+        )
+        f.x = self._x[k]
+        f.P1_2 = self._S[k]
+        Q = self._Q1_2
+        f.Q1_2 = None if Q is None else (Q if Q.ndim == 2 else Q[k])
+        f.R1_2 = self._R1_2 if self._R1_2.ndim == 2 else self._R1_2[k]
+        return f
+
+    def __len__(self) -> int:
+        return self._K
+
+    @classmethod
+    def from_filters(cls, filters: Sequence[Any], *, on_error: str = "flag") -> Fleet:
+        """Stack :class:`squkf.SquareRootUKF` filters of one configuration into a fleet.
+
+        The filters must share dimensions, ``dt``, model functions (which must
+        be vectorised: ``vectorized=True``), sigma-point family, scheme and hooks.
+
+        Raises
+        ------
+        ParameterError
+            If the filters differ in configuration.
+        """
+        filters = list(filters)
+        if not filters:
+            raise ParameterError("from_filters needs at least one filter")
+        f0 = filters[0]
+        hook = lambda f, name, default: None if getattr(f, name) is default else getattr(f, name)  # noqa: E731
+
+        def config(f):
+            return (
+                f.dim_x,
+                f.dim_z,
+                f._dt,
+                f.hx,
+                f.fx,
+                f._family,
+                type(f.scheme),
+                f.x_mean,
+                f.z_mean,
+                hook(f, "residual_x", np.subtract),
+                hook(f, "residual_z", np.subtract),
+                hook(f, "state_add", np.add),
+            )
+
+        c0 = config(f0)
+        for k, f in enumerate(filters):
+            if not f.vectorized:
+                raise ParameterError(
+                    f"filters[{k}] is not vectorized: a fleet calls fx and hx with all points"
+                )
+            if config(f) != c0:
+                raise ParameterError(f"filters[{k}] differs in configuration from filters[0]")
+        fleet = cls(
+            len(filters),
+            f0.dim_x,
+            f0.dim_z,
+            f0._dt,
+            f0.hx,
+            f0.fx,
+            f0.points_fn,
+            scheme=f0.scheme,
+            x_mean_fn=c0[7],
+            z_mean_fn=c0[8],
+            residual_x=c0[9],
+            residual_z=c0[10],
+            state_add=c0[11],
+            on_error=on_error,
+        )
+        fleet._x = np.stack([f.x for f in filters])
+        fleet._S = np.stack([f.P1_2 for f in filters])
+        Qs = [f.Q1_2 for f in filters]
+        Rs = [f.R1_2 for f in filters]
+        Q = Qs[0] if all(np.array_equal(q, Qs[0]) for q in Qs) else np.stack(Qs)
+        fleet._Q1_2 = Q if np.any(Q) else None
+        fleet._R1_2 = Rs[0] if all(np.array_equal(r, Rs[0]) for r in Rs) else np.stack(Rs)
+        return fleet
+
+    def __copy__(self):
+        new = type(self).__new__(type(self))
+        new.__dict__.update(
+            {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in self.__dict__.items()}
+        )
+        return new
+
+    def __deepcopy__(self, memo):
+        new = copy.copy(self)
+        memo[id(self)] = new
+        return new
