@@ -603,7 +603,7 @@ class Fleet:
         self._tell_update(state, H, zz, R1_2)
 
     def tell_update(self, sigmas_h, z, R=None) -> None:
-        """Second half of an update: ``hx`` at the points from :meth:`ask_update`, and ``z`` ``(K, dim_z)``."""
+        """Second half of an update: ``hx`` at the points from :meth:`ask_update`, and ``z`` (K, dim_z)."""
         zz = self._as_measurements(z)
         R1_2 = self._R1_2 if R is None else self._noise(R, "R", self._m)
         self._tell_update(self._state, sigmas_h, zz, R1_2)
