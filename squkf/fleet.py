@@ -77,8 +77,9 @@ class FleetResult:
         Posterior lower factors (only with ``keep="all"``).
     variances : ndarray, shape (K, T, n), or None
         The diagonals of the posterior covariances (with ``keep="all"`` or ``"diagonals"``).
-    log_likelihood : ndarray, shape (K, T)
-        Of each step's measurement (0 where a filter had no measurement or had failed).
+    log_likelihood : ndarray, shape (K, T), or (K,) with ``keep="final"``
+        Of each step's measurement (0 where a filter had no measurement or had
+        failed); with ``keep="final"`` their sum over the run.
     failed : ndarray of bool, shape (K,)
         Filters flagged by the end of the run (their later entries repeat their last good state).
     x, P1_2 : ndarray, shapes (K, n) and (K, n, n)
@@ -716,14 +717,17 @@ class Fleet:
         means = None if keep == "final" else np.empty((K, T, n))
         factors = np.empty((K, T, n, n)) if keep == "all" else None
         variances = np.empty((K, T, n)) if keep in ("all", "diagonals") else None
-        loglik = np.zeros((K, T))
+        loglik = np.zeros((K, T)) if keep != "final" else np.zeros(K)
         for t in range(T):
             self.predict(dt_list[t], **(fx_args or {}))
             if np.isnan(Z[:, t]).all():
                 self._state = steps.StepState()
             else:
                 self.update(Z[:, t], **(hx_args or {}))
-                loglik[:, t] = self._loglik
+                if keep == "final":
+                    loglik += self._loglik
+                else:
+                    loglik[:, t] = self._loglik
             if means is not None:
                 means[:, t] = self._x
             if factors is not None:
@@ -765,6 +769,26 @@ class Fleet:
 
     def __len__(self) -> int:
         return self._K
+
+    def subset(self, rows) -> Fleet:
+        """A new fleet of the filters ``rows`` (a slice, indices or mask), with their state and noise.
+
+        The configuration is shared; every array is the new fleet's own. A
+        pending ask/tell step is not carried over.
+        """
+        idx = np.arange(self._K)[rows]
+        idx = np.atleast_1d(idx)
+        new = copy.copy(self)
+        new._K = int(idx.size)
+        new._x, new._S = self._x[idx], self._S[idx]
+        new._Q1_2 = _rows_of(self._Q1_2, idx, 2)
+        new._R1_2 = _rows_of(self._R1_2, idx, 2)  # type: ignore[assignment]
+        new._failed, new._failure = self._failed[idx], self._failure[idx]
+        new._state = steps.StepState()
+        new.x_prior, new.x_post = self.x_prior[idx], self.x_post[idx]
+        new.P1_2_prior, new.P1_2_post = self.P1_2_prior[idx], self.P1_2_post[idx]
+        new.y, new._loglik, new._maha = self.y[idx], self._loglik[idx], self._maha[idx]
+        return new
 
     @classmethod
     def from_filters(cls, filters: Sequence[Any], *, on_error: str = "flag") -> Fleet:

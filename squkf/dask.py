@@ -1,0 +1,295 @@
+"""``squkf.dask``: a fleet of filters fanned out over Dask (``pip install "squkf[dask]"``).
+
+Each chunk of filters (a block of rows along the filters axis) is filtered by
+a :class:`squkf.Fleet` holding that chunk's rows of the template fleet's
+state and noise (:meth:`squkf.Fleet.subset`); the template is not changed.
+Every filter's arithmetic is independent of the others', so the results are
+bit-identical to :meth:`squkf.Fleet.batch_filter` in one process, whatever
+the chunking and whichever scheduler runs the graph (threads, processes, a
+``distributed.Client``, whose scheduler reruns the tasks of a lost worker).
+
+Importing :mod:`squkf` never imports this module or Dask.
+
+- :func:`batch_filter`: a ``dask.array`` of measurements ``(K, T, dim_z)``
+  in, a :class:`squkf.FleetResult` of lazy dask arrays out.
+- :func:`filter_frame`: long-format data in a ``dask.dataframe`` (one row per
+  series and time step), filtered per series, estimates out as a dask
+  dataframe aligned with the input.
+
+The model functions travel to the workers with the template fleet, so for a
+process-based scheduler they must be importable there (module-level functions
+of an installed module).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import dask
+import dask.array as da
+import dask.dataframe as dd
+import numpy as np
+import pandas as pd
+
+from .errors import ParameterError, ShapeError
+from .fleet import Fleet, FleetResult
+
+__all__ = ["batch_filter", "compute", "filter_frame"]
+
+_KEEP = ("all", "diagonals", "means", "final")
+_FIELDS = ("means", "P1_2s", "variances", "log_likelihood", "failed", "x", "P1_2")
+
+
+def _run_chunk(template: Fleet, lo: int, hi: int, block: np.ndarray, options: dict) -> FleetResult:
+    return template.subset(slice(lo, hi)).batch_filter(block, **options)
+
+
+def batch_filter(
+    fleet: Fleet,
+    zs,
+    *,
+    keep: str = "all",
+    dts=None,
+    fx_args: dict | None = None,
+    hx_args: dict | None = None,
+) -> FleetResult:
+    """Filter every series of a dask array with the template ``fleet``, one task per chunk of filters.
+
+    Parameters
+    ----------
+    fleet : Fleet
+        The template: its configuration, and each filter's initial state and
+        noise (row ``k`` for series ``k``). It is not changed.
+    zs : dask.array.Array or array_like, shape (K, T, dim_z)
+        Measurements, NaN where missing. Chunked along the filters axis; any
+        chunking of the other two axes is merged into one chunk (the time
+        recursion runs through all steps of a filter in one task).
+    keep : {"all", "diagonals", "means", "final"}
+        What to store, as for :meth:`squkf.Fleet.batch_filter` (``"means"`` or
+        ``"final"`` for runs too large to keep every factor).
+    dts, fx_args, hx_args
+        As for :meth:`squkf.Fleet.batch_filter`.
+
+    Returns
+    -------
+    FleetResult
+        Whose arrays are lazy dask arrays chunked like ``zs`` along the
+        filters axis. Compute the fields together (:func:`compute`, or
+        ``dask.compute(result.means, result.log_likelihood)``): each chunk's
+        task then runs once.
+
+    Raises
+    ------
+    ShapeError, ParameterError
+        Before anything is scheduled: ``zs`` not 3-D, its K or dim_z not the
+        template's, an unknown ``keep``.
+    """
+    if not isinstance(fleet, Fleet):
+        raise ParameterError(f"fleet must be a squkf.Fleet, got {type(fleet).__name__}")
+    if keep not in _KEEP:
+        raise ParameterError(f"keep must be one of {_KEEP}, got keep={keep!r}")
+    Z = zs if isinstance(zs, da.Array) else da.from_array(np.asarray(zs, dtype=float))
+    if Z.ndim != 3:
+        raise ShapeError(f"zs must have 3 axes (filters, time, measurement), got shape {Z.shape}")
+    K, T, m = Z.shape
+    if any(math_nan(v) for v in (K, T, m)):
+        raise ShapeError("zs has unknown chunk sizes; call zs.compute_chunk_sizes() first")
+    if K != fleet.n_filters:
+        raise ShapeError(f"zs has {K} series but the template fleet has {fleet.n_filters} filters")
+    if m != fleet.dim_z:
+        raise ShapeError(f"zs has measurements of length {m} but the fleet's dim_z is {fleet.dim_z}")
+    if not np.issubdtype(Z.dtype, np.number) or np.issubdtype(Z.dtype, np.complexfloating):
+        raise ShapeError(f"zs must hold real numbers, got dtype {Z.dtype}")
+    for name, a in (("fx_args", fx_args), ("hx_args", hx_args)):
+        if a is not None and not isinstance(a, dict):
+            raise ParameterError(f"{name} must be a dict, got {type(a).__name__}")
+    if len(Z.chunks[1]) > 1 or len(Z.chunks[2]) > 1:
+        Z = Z.rechunk({1: -1, 2: -1})
+    Z = Z.astype(float)
+    options = {"keep": keep, "dts": dts, "fx_args": fx_args, "hx_args": hx_args}
+    template = dask.delayed(fleet, pure=True)
+    n = fleet.dim_x
+    blocks = Z.to_delayed().reshape(-1)
+    fields: dict[str, list] = {
+        f: [] for f in ("means", "P1_2s", "variances", "log_likelihood", "failed", "x", "P1_2")
+    }
+    lo = 0
+    for block, size in zip(blocks, Z.chunks[0]):
+        part = dask.delayed(_run_chunk, pure=True)(template, lo, lo + size, block, options)
+        shapes = {
+            "means": (size, T, n),
+            "P1_2s": (size, T, n, n),
+            "variances": (size, T, n),
+            "log_likelihood": (size,) if keep == "final" else (size, T),
+            "failed": (size,),
+            "x": (size, n),
+            "P1_2": (size, n, n),
+        }
+        for name, shape in shapes.items():
+            dtype = bool if name == "failed" else float
+            fields[name].append(da.from_delayed(getattr(part, name), shape, dtype=dtype))
+        lo += size
+    stored = {
+        "means": keep != "final",
+        "P1_2s": keep == "all",
+        "variances": keep in ("all", "diagonals"),
+    }
+    out: dict[str, Any] = {}
+    for name, parts in fields.items():
+        out[name] = da.concatenate(parts, axis=0) if stored.get(name, True) else None
+    return FleetResult(**out)
+
+
+def math_nan(v) -> bool:
+    """Whether a dask shape entry is unknown (NaN)."""
+    return isinstance(v, float) and v != v
+
+
+def compute(result: FleetResult, **kwargs) -> FleetResult:
+    """Compute every lazy field of ``result`` at once (each chunk's task runs once).
+
+    Parameters
+    ----------
+    result : FleetResult
+        From :func:`batch_filter`.
+    **kwargs
+        Passed to ``dask.compute`` (e.g. ``scheduler="synchronous"``).
+
+    Returns
+    -------
+    FleetResult
+        With numpy arrays.
+    """
+    lazy = {k: getattr(result, k) for k in _FIELDS if getattr(result, k) is not None}
+    values = dask.compute(*lazy.values(), **kwargs)
+    done = dict(zip(lazy, values))
+    return FleetResult(**{k: done.get(k) for k in _FIELDS})  # type: ignore[arg-type]
+
+
+def filter_frame(
+    frame,
+    fleet: Fleet,
+    *,
+    key: str,
+    time: str,
+    columns: Sequence[str],
+    x0=None,
+    P0=None,
+    state_names: Sequence[str] | None = None,
+):
+    """Filter each series of a long-format dask dataframe; estimates out, aligned with the input.
+
+    Parameters
+    ----------
+    frame : dask.dataframe.DataFrame
+        One row per series and time step. Its index is the series key, sorted
+        with known divisions (``frame.set_index(key)``, or read partitioned by
+        the key), so that no series is split across partitions.
+    key : str
+        The name of the series key (the frame's index).
+    fleet : Fleet
+        The template: its configuration, noise (shared ``Q`` and ``R``) and
+        filter 0's state as the default initial state.
+    time : str
+        The time column (each series is filtered in its order; the fleet's
+        ``dt`` is the step).
+    columns : sequence of str
+        The measurement columns, ``dim_z`` of them; NaN means missing.
+    x0 : callable ``key -> (dim_x,)`` or pandas.DataFrame, optional
+        Initial states per series (a frame indexed by key with ``dim_x``
+        columns); default filter 0's state of the template.
+    P0 : callable ``key -> (dim_x, dim_x)`` or array_like, optional
+        Initial covariances per series, or one for all; default filter 0's.
+    state_names : sequence of str, optional
+        Output column names (default ``x0, x1, ...``); the standard deviations
+        are ``std_<name>``.
+
+    Returns
+    -------
+    dask.dataframe.DataFrame
+        With the input's index and row order per partition, the state columns
+        and their standard deviations.
+
+    Raises
+    ------
+    ParameterError, ShapeError
+        Before anything is scheduled: unknown divisions, missing columns, a
+        wrong number of measurement columns, shared noise required.
+    """
+    if not isinstance(frame, dd.DataFrame):
+        raise ParameterError(f"frame must be a dask.dataframe.DataFrame, got {type(frame).__name__}")
+    if not isinstance(fleet, Fleet):
+        raise ParameterError(f"fleet must be a squkf.Fleet, got {type(fleet).__name__}")
+    columns = list(columns)
+    if len(columns) != fleet.dim_z:
+        raise ShapeError(f"{len(columns)} measurement columns given but the fleet's dim_z is {fleet.dim_z}")
+    missing = [c for c in [time, *columns] if c not in frame.columns]
+    if missing:
+        raise ParameterError(f"frame has no column(s) {missing}")
+    if frame.index.name != key or not frame.known_divisions:
+        raise ParameterError(
+            "filter_frame needs the series key as a sorted index with known divisions, so that no "
+            "series is split across partitions: use frame.set_index(key) (or set_index(key, sorted=True))"
+        )
+    if fleet.Q.ndim != 2 or fleet.R.ndim != 2:
+        raise ParameterError("filter_frame needs a template fleet with shared Q and R")
+    names = list(state_names) if state_names is not None else [f"x{i}" for i in range(fleet.dim_x)]
+    if len(names) != fleet.dim_x:
+        raise ShapeError(f"{len(names)} state names given but dim_x is {fleet.dim_x}")
+    if isinstance(x0, pd.DataFrame) and x0.shape[1] != fleet.dim_x:
+        raise ShapeError(f"x0 has {x0.shape[1]} columns but dim_x is {fleet.dim_x}")
+    meta = pd.DataFrame(
+        {**{c: pd.Series(dtype=float) for c in names}, **{f"std_{c}": pd.Series(dtype=float) for c in names}}
+    )
+    meta.index = frame._meta.index
+    template = fleet.subset([0])
+    return frame.map_partitions(
+        _filter_partition, template, time, columns, x0, P0, names, meta=meta, align_dataframes=False
+    )
+
+
+def _initial(spec, key, default: np.ndarray, name: str) -> np.ndarray:
+    if spec is None:
+        return default
+    if callable(spec):
+        return np.asarray(spec(key), dtype=float)
+    if isinstance(spec, pd.DataFrame):
+        if key not in spec.index:
+            raise ParameterError(f"{name} has no row for series {key!r}")
+        return spec.loc[key].to_numpy(dtype=float)
+    return np.asarray(spec, dtype=float)
+
+
+def _filter_partition(
+    part: pd.DataFrame,
+    template: Fleet,
+    time: str,
+    columns: list[str],
+    x0: Callable | pd.DataFrame | None,
+    P0,
+    names: list[str],
+) -> pd.DataFrame:
+    out = pd.DataFrame(np.nan, index=part.index, columns=names + [f"std_{c}" for c in names])
+    if len(part) == 0:
+        return out
+    keys = part.index.to_numpy()
+    uniq, inverse = np.unique(keys, return_inverse=True)
+    # position of each row within its series, in time order
+    pos = np.empty(len(part), dtype=int)
+    t_order = np.lexsort((part[time].to_numpy(), inverse))
+    counts = np.bincount(inverse, minlength=uniq.size)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    pos[t_order] = np.arange(len(part)) - np.repeat(starts, counts)
+    K, T, m = uniq.size, int(counts.max()), len(columns)
+    Z = np.full((K, T, m), np.nan)
+    Z[inverse, pos] = part[columns].to_numpy(dtype=float)
+    fleet = template.subset(np.zeros(K, dtype=int))
+    x_default, P_default = template.x[0], template.P[0]
+    fleet.x = np.stack([_initial(x0, k, x_default, "x0") for k in uniq])
+    fleet.P = np.stack([_initial(P0, k, P_default, "P0") for k in uniq])
+    res = fleet.batch_filter(Z, keep="diagonals")
+    assert res.means is not None and res.variances is not None
+    out[names] = res.means[inverse, pos]
+    out[[f"std_{c}" for c in names]] = np.sqrt(res.variances[inverse, pos])
+    return out

@@ -1,0 +1,238 @@
+"""squkf.dask: the fleet on Dask, against Fleet.batch_filter in one process."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+dask = pytest.importorskip("dask")
+da = pytest.importorskip("dask.array")
+dd = pytest.importorskip("dask.dataframe")
+pd = pytest.importorskip("pandas")
+distributed = pytest.importorskip("distributed")
+
+from dask_models import cv_fx, nan_for_big_fx, range_hx, slow_fx  # noqa: E402
+
+import squkf.dask as sd  # noqa: E402
+from squkf import Fleet, MerweScaledWeights, ParameterError, ShapeError  # noqa: E402
+
+TESTS = Path(__file__).resolve().parent
+FIELDS = ("means", "P1_2s", "variances", "log_likelihood", "failed", "x", "P1_2")
+
+
+def make_fleet(K, fx=cv_fx, seed=0, per_filter_R=False):
+    rng = np.random.default_rng(seed)
+    f = Fleet(K, 2, 2, 0.1, range_hx, fx, MerweScaledWeights(0.5))
+    f.x = rng.normal(size=(K, 2))
+    f.P = np.diag([1.0, 0.5])
+    f.Q = 0.01 * np.eye(2)
+    if per_filter_R:
+        f.R = np.stack([np.diag([0.1 + 0.01 * k, 0.2]) for k in range(K)])
+    else:
+        f.R = 0.1 * np.eye(2)
+    return f
+
+
+def measurements(K, T, seed=1):
+    rng = np.random.default_rng(seed)
+    zs = rng.normal(size=(K, T, 2)) + 1.5
+    zs[3 % K, 5 % T] = np.nan  # a missing row
+    zs[7 % K, 2 % T, 1] = np.nan  # a missing component
+    return zs
+
+
+def same(a, b):
+    for name in FIELDS:
+        x, y = getattr(a, name), getattr(b, name)
+        assert (x is None) == (y is None), name
+        if x is not None:
+            assert np.array_equal(x, y), name
+
+
+def in_process(fleet, zs, **options):
+    return fleet.subset(slice(None)).batch_filter(zs, **options)
+
+
+@pytest.mark.parametrize("chunks", [(40, 12, 2), (7, 5, 1), (1, 12, 2), (25, -1, -1)])
+@pytest.mark.parametrize("keep", ["all", "diagonals", "means", "final"])
+def test_bit_identical_to_the_fleet_whatever_the_chunking(chunks, keep):
+    fleet = make_fleet(40, per_filter_R=True)
+    zs = measurements(40, 12)
+    before = fleet.x, fleet.P1_2
+    lazy = sd.batch_filter(fleet, da.from_array(zs, chunks=chunks), keep=keep)
+    assert isinstance(lazy.log_likelihood, da.Array)
+    got = sd.compute(lazy, scheduler="synchronous")
+    same(got, in_process(fleet, zs, keep=keep))
+    assert np.array_equal(fleet.x, before[0]) and np.array_equal(fleet.P1_2, before[1])  # template unchanged
+
+
+def test_fields_computed_separately_agree_and_threads_scheduler():
+    fleet = make_fleet(30)
+    zs = measurements(30, 8)
+    lazy = sd.batch_filter(fleet, da.from_array(zs, chunks=(10, 8, 2)))
+    ref = in_process(fleet, zs)
+    assert np.array_equal(lazy.means.compute(scheduler="threads"), ref.means)
+    assert np.array_equal(lazy.P1_2s.compute(scheduler="threads"), ref.P1_2s)
+
+
+def test_a_failing_filter_is_flagged_and_the_others_are_untouched():
+    K, T = 24, 10
+    fleet = make_fleet(K, fx=nan_for_big_fx)
+    x = fleet.x
+    x[13, 0] = 1e7  # filter 13's fx returns NaN: it fails at the first step
+    fleet.x = x
+    zs = measurements(K, T)
+    got = sd.compute(sd.batch_filter(fleet, da.from_array(zs, chunks=(5, T, 2))), scheduler="synchronous")
+    assert got.failed.tolist() == [k == 13 for k in range(K)]
+    assert np.array_equal(got.means[13], np.broadcast_to(x[13], (T, 2)))  # kept its state
+    others = np.arange(K) != 13
+    clean = make_fleet(K).subset(others)
+    ref = clean.batch_filter(zs[others])
+    assert np.array_equal(got.means[others], ref.means)
+    assert np.array_equal(got.P1_2s[others], ref.P1_2s)
+
+
+@pytest.mark.parametrize(
+    "zs, error",
+    [
+        (np.zeros((39, 5, 2)), ShapeError),  # K mismatched with the template
+        (np.zeros((40, 5, 3)), ShapeError),  # dim_z mismatched
+        (np.zeros((40, 5)), ShapeError),
+        (np.zeros((40, 5, 2), dtype=complex), ShapeError),
+    ],
+)
+def test_bad_input_raises_before_anything_is_scheduled(zs, error):
+    with dask.config.set(scheduler="synchronous"):
+        with pytest.raises(error):
+            sd.batch_filter(make_fleet(40), da.from_array(zs))
+
+
+def test_bad_options():
+    with pytest.raises(ParameterError):
+        sd.batch_filter(make_fleet(4), da.zeros((4, 3, 2)), keep="some")
+    with pytest.raises(ParameterError):
+        sd.batch_filter(make_fleet(4), da.zeros((4, 3, 2)), hx_args=[1])
+    with pytest.raises(ParameterError):
+        sd.batch_filter(object(), da.zeros((4, 3, 2)))
+
+
+def test_importing_squkf_does_not_import_dask():
+    code = "import sys, squkf; print(any(m == 'dask' or m.startswith('dask.') for m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+# -- a distributed cluster on this machine -------------------------------------------------------
+
+
+@pytest.fixture
+def cluster(monkeypatch):
+    # worker processes import the model functions by name: put this folder on their path
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")]))
+    c = distributed.LocalCluster(
+        n_workers=2,
+        threads_per_worker=1,
+        processes=True,
+        host="127.0.0.1",
+        dashboard_address=None,
+        silence_logs=40,
+    )
+    client = distributed.Client(c)
+    try:
+        yield client
+    finally:
+        client.close()
+        c.close()
+
+
+@pytest.mark.slow
+def test_local_cluster_gives_the_same_numbers(cluster):
+    fleet = make_fleet(60, per_filter_R=True)
+    zs = measurements(60, 10)
+    got = sd.compute(sd.batch_filter(fleet, da.from_array(zs, chunks=(15, 10, 2))))
+    same(got, in_process(fleet, zs))
+
+
+@pytest.mark.slow
+def test_a_worker_killed_mid_computation_changes_nothing(cluster):
+    K, T = 40, 40  # slow_fx: about 0.8 s per chunk
+    fleet = make_fleet(K, fx=slow_fx)
+    zs = measurements(K, T)
+    lazy = sd.batch_filter(fleet, da.from_array(zs, chunks=(5, T, 2)), keep="means")
+    futures = cluster.compute([lazy.means, lazy.log_likelihood])
+    pids = cluster.run(os.getpid)
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:  # wait until a chunk is running
+        if any(cluster.processing().values()):
+            break
+        time.sleep(0.05)
+    time.sleep(0.3)
+    victim = next(iter(pids.values()))
+    os.kill(victim, signal.SIGKILL)
+    means, loglik = cluster.gather(futures)
+    ref = fleet.subset(slice(None)).batch_filter(zs, keep="means")
+    assert np.array_equal(means, ref.means)
+    assert np.array_equal(loglik, ref.log_likelihood)
+    assert victim not in cluster.run(os.getpid).values()  # the worker really was replaced
+
+
+# -- long-format frames ----------------------------------------------------------------------------
+
+
+def long_frame(n_series=12, seed=3):
+    rng = np.random.default_rng(seed)
+    rows = []
+    for k in range(n_series):
+        T = 5 + k % 4
+        for t in rng.permutation(T):  # rows in any order within a series
+            rows.append({"series": k, "t": float(t), "r": 1.5 + rng.normal(), "v": rng.normal()})
+    df = pd.DataFrame(rows)
+    df.loc[3, "v"] = np.nan
+    return df
+
+
+def test_filter_frame_matches_a_fleet_per_series():
+    df = long_frame()
+    frame = dd.from_pandas(df, npartitions=3).set_index("series", sorted=False)
+    template = make_fleet(1)
+    x0 = pd.DataFrame({"p": np.linspace(-1, 1, 12), "v": 0.0}, index=range(12))
+    out = sd.filter_frame(
+        frame, template, key="series", time="t", columns=["r", "v"], x0=x0, state_names=["p", "v"]
+    )
+    assert list(out.columns) == ["p", "v", "std_p", "std_v"]
+    got = out.compute(scheduler="synchronous")
+    src = frame.compute()
+    assert len(got) == len(src) and np.array_equal(got.index.to_numpy(), src.index.to_numpy())
+    for k in range(12):  # each series against one filter run over it in time order
+        rows = src.loc[[k]].reset_index()
+        order = np.argsort(rows["t"].to_numpy(), kind="stable")
+        f = template.subset([0])
+        f.x = x0.loc[k].to_numpy()
+        ref = f.batch_filter(rows[["r", "v"]].to_numpy()[order][None], keep="diagonals")
+        est = got.loc[[k]].reset_index(drop=True).iloc[order]
+        np.testing.assert_array_equal(est[["p", "v"]].to_numpy(), ref.means[0])
+        np.testing.assert_array_equal(est[["std_p", "std_v"]].to_numpy(), np.sqrt(ref.variances[0]))
+
+
+def test_filter_frame_rejects_frames_it_cannot_filter_per_series():
+    df = long_frame()
+    template = make_fleet(1)
+    unindexed = dd.from_pandas(df, npartitions=3)  # the key is a column: a series may be split
+    with pytest.raises(ParameterError, match="sorted index"):
+        sd.filter_frame(unindexed, template, key="series", time="t", columns=["r", "v"])
+    frame = dd.from_pandas(df, npartitions=3).set_index("series")
+    with pytest.raises(ParameterError, match="no column"):
+        sd.filter_frame(frame, template, key="series", time="t", columns=["r", "speed"])
+    with pytest.raises(ShapeError):
+        sd.filter_frame(frame, template, key="series", time="t", columns=["r"])
+    # unknown divisions: nothing says a series is not split across partitions
+    split = dd.from_pandas(df, npartitions=3).set_index("series", sorted=False).clear_divisions()
+    with pytest.raises(ParameterError, match="known divisions"):
+        sd.filter_frame(split, template, key="series", time="t", columns=["r", "v"])
