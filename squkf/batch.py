@@ -375,6 +375,39 @@ def batch_filter(
     Exceptions that are not squkf's (for example raised by ``fx`` or ``hx``)
     keep their message; on Python 3.11+ they get a note naming the step.
     ``partial`` and ``step`` are not pickled with the exception.
+
+    Examples
+    --------
+    ``None`` marks a step without a measurement; ``return_factors`` gives the
+    lower factors of the covariances:
+
+    >>> import numpy as np
+    >>> from squkf import MerweScaledWeights, SquareRootUKF
+    >>> F = np.array([[1.0, 1.0], [0.0, 1.0]])
+    >>> ukf = SquareRootUKF(
+    ...     2, 1, 1.0, hx=lambda x: x[:1], fx=lambda x, dt: F @ x, points=MerweScaledWeights()
+    ... )
+    >>> ukf.Q, ukf.R = np.diag([0.01, 0.01]), [[0.25]]
+    >>> zs = [[1.1], [1.9], None, [3.9], [5.1]]
+    >>> means, covs = ukf.batch_filter(zs)
+    >>> print(np.round(means, 4))
+    [[0.9783 0.4867]
+     [1.8145 0.7188]
+     [2.5332 0.7188]
+     [3.8137 0.9172]
+     [4.9662 0.9901]]
+    >>> ukf.x, ukf.P = np.zeros(2), np.eye(2)
+    >>> means2, P1_2s = ukf.batch_filter(zs, return_factors=True)
+    >>> bool(np.allclose(means2, means)), bool(np.allclose(P1_2s @ np.swapaxes(P1_2s, 1, 2), covs))
+    (True, True)
+
+    ``Qs[k]`` is the process noise of the prediction into step ``k``:
+
+    >>> ukf.x, ukf.P = np.zeros(2), np.eye(2)
+    >>> Qs = [np.diag([0.01, 0.01])] * 2 + [np.eye(2)] + [np.diag([0.01, 0.01])] * 2
+    >>> means, covs = ukf.batch_filter(zs, Qs=Qs)
+    >>> print(np.round(np.sqrt(covs[:, 0, 0]), 4))
+    [0.4715 0.4481 1.2974 0.4835 0.4488]
     """
     if isinstance(zs, (str, bytes, Mapping)):
         raise ShapeError(f"zs must be an iterable of measurements, got {type(zs).__name__}")

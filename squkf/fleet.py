@@ -41,7 +41,7 @@ from .errors import NonFiniteError, NotPositiveDefiniteError, ParameterError, Sh
 from .generators import SigmaSet, as_generator
 from .linalg import factor_covariance
 from .plan import Hooks, Plan, build_plan
-from .validate import as_float_array
+from .validate import as_float_array, check_time_step
 from .weights import as_family
 
 __all__ = ["Fleet", "FleetResult", "FleetStepError"]
@@ -247,13 +247,7 @@ class Fleet:
 
     @staticmethod
     def _check_dt(dt) -> float:
-        try:
-            value = float(dt)
-        except (TypeError, ValueError):
-            raise ParameterError(f"dt must be a finite number, got dt={dt!r}") from None
-        if isinstance(dt, complex) or not math.isfinite(value):
-            raise ParameterError(f"dt must be a finite number, got dt={dt!r}")
-        return value
+        return check_time_step(dt)
 
     # -- state ------------------------------------------------------------------
 

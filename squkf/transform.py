@@ -345,6 +345,30 @@ def sqrt_unscented_transform(
     mean : ndarray, shape (..., d)
     S : ndarray, shape (..., d, d)
         Lower factor of the transformed covariance.
+
+    Examples
+    --------
+    Points of ``N(3, 4)`` and additive noise of variance 2.25 give variance
+    ``4 + 2.25 = 6.25``, factor 2.5:
+
+    >>> import numpy as np
+    >>> from squkf import MerweScaledWeights, sqrt_unscented_transform
+    >>> w = MerweScaledWeights()
+    >>> Wm, Wc = w.weights(1)
+    >>> sigmas = 3.0 + 2.0 * w.unit_sigma_points(1)
+    >>> mean, S = sqrt_unscented_transform(sigmas, Wm, Wc, noise_sqrt=np.array([[1.5]]))
+    >>> print(np.round(mean, 6), np.round(S, 6))
+    [3.] [[2.5]]
+
+    It is filterpy's ``unscented_transform`` on factors:
+
+    >>> from filterpy.kalman import unscented_transform
+    >>> sigmas = np.array([[1.0, 2.0], [2.0, 2.5], [0.5, 1.0]])
+    >>> W = np.array([0.4, 0.3, 0.3])
+    >>> mean, S = sqrt_unscented_transform(sigmas, W, W)
+    >>> mean_fp, P_fp = unscented_transform(sigmas, W, W)
+    >>> bool(np.allclose(mean, mean_fp)), bool(np.allclose(S @ S.T, P_fp))
+    (True, True)
     """
     sigmas = as_float_array(sigmas, "sigmas")
     if not all_finite(sigmas):

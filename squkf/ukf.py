@@ -28,7 +28,7 @@ from .linalg import all_finite, solve_lower
 from .measurement import gain_from_factors
 from .plan import Hooks, Plan, build_plan
 from .transform import deviations
-from .validate import as_float_array, check_values
+from .validate import as_float_array, check_time_step, check_values
 from .weights import as_family
 
 __all__ = ["SquareRootUKF"]
@@ -163,6 +163,40 @@ class SquareRootUKF:
     Wm, Wc : ndarray
         Weights of the first sigma-point set.
     log_likelihood, likelihood, mahalanobis : float
+
+    Examples
+    --------
+    A constant-velocity target whose position is measured once per second:
+
+    >>> import numpy as np
+    >>> from squkf import MerweScaledWeights, SquareRootUKF
+    >>> def fx(x, dt):
+    ...     return np.array([x[0] + dt * x[1], x[1]])
+    >>> def hx(x):
+    ...     return x[:1]
+    >>> ukf = SquareRootUKF(dim_x=2, dim_z=1, dt=1.0, hx=hx, fx=fx, points=MerweScaledWeights(alpha=0.5))
+    >>> ukf.P *= 10.0
+    >>> ukf.Q = np.diag([1e-4, 1e-2])
+    >>> ukf.R = [[0.25]]
+    >>> for z in [1.1, 1.9, 3.2, 3.9, 5.1]:
+    ...     ukf.predict()
+    ...     ukf.update([z])
+    >>> print(np.round(ukf.x, 4))
+    [5.037  1.0003]
+    >>> print(np.round(ukf.P1_2, 4))
+    [[0.3904 0.    ]
+     [0.1401 0.1546]]
+
+    The same step in halves (ask for sigma points, tell their images):
+
+    >>> X = ukf.ask_predict()
+    >>> X.shape
+    (5, 2)
+    >>> x_prior, P1_2_prior = ukf.tell_predict([fx(x, 1.0) for x in X])
+    >>> Y = ukf.ask_update()
+    >>> x_post, P1_2_post = ukf.tell_update([hx(y) for y in Y], [6.0])
+    >>> print(np.round(x_post, 4))
+    [6.0168 0.9937]
     """
 
     x = _State()
@@ -436,15 +470,7 @@ class SquareRootUKF:
 
     @staticmethod
     def _check_dt(dt) -> float:
-        if np.iscomplexobj(dt):  # before float(), which would drop the imaginary part with a warning
-            raise ParameterError(f"dt must be a finite real number, got dt={dt!r}")
-        try:
-            value = float(dt)
-        except (TypeError, ValueError):
-            raise ParameterError(f"dt must be a finite number, got dt={dt!r}") from None
-        if isinstance(dt, complex) or not math.isfinite(value):
-            raise ParameterError(f"dt must be a finite number, got dt={dt!r}")
-        return value
+        return check_time_step(dt)
 
     def _noise_factor(self, value, name: str, dim: int) -> np.ndarray | None:
         """Lower factor of ``Q`` or ``R`` (``value`` for this call, else the attribute's); None: zero."""
@@ -507,6 +533,25 @@ class SquareRootUKF:
         sigmas : ndarray, shape (N, dim_x)
             One point per row (a fresh array); evaluate the state transition
             at each and pass the results to :meth:`tell_predict`.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from squkf import MerweScaledWeights, SquareRootUKF
+        >>> ukf = SquareRootUKF(
+        ...     2, 1, 1.0, hx=lambda x: x[:1], fx=lambda x, dt: x, points=MerweScaledWeights()
+        ... )
+        >>> X = ukf.ask_predict()  # x = 0, P = I: the unit points, gamma = sqrt(3)
+        >>> print(np.round(X, 4))
+        [[ 0.      0.    ]
+         [ 1.7321  0.    ]
+         [ 0.      1.7321]
+         [-1.7321  0.    ]
+         [ 0.     -1.7321]]
+        >>> x_prior, P1_2_prior = ukf.tell_predict(X)  # the identity model: the prior adds Q = I
+        >>> print(np.round(P1_2_prior @ P1_2_prior.T, 6))
+        [[2. 0.]
+         [0. 2.]]
         """
         x, S = self._current()
         plan = self._plan

@@ -8,14 +8,15 @@ argument (or the function) and the value; none keeps a reference to its input.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
 
-from .errors import NonFiniteError, ShapeError
+from .errors import NonFiniteError, ParameterError, ShapeError
 from .linalg import all_finite
 
-__all__ = ["as_float_array", "check_values", "check_hook_result", "call_hook"]
+__all__ = ["as_float_array", "check_time_step", "check_values", "check_hook_result", "call_hook"]
 
 
 def as_float_array(value, name: str) -> np.ndarray:
@@ -124,3 +125,22 @@ def check_hook_result(value, shape: tuple[int, ...], hook: str) -> np.ndarray:
 def call_hook(fn: Callable, args: tuple, shape: tuple[int, ...], hook: str) -> np.ndarray:
     """Call a user's hook and validate its result (see :func:`check_hook_result`)."""
     return check_hook_result(fn(*args), shape, hook)
+
+
+def check_time_step(dt) -> float:
+    """A time step as a float: any finite real number (``0`` is a step of zero length, as in filterpy).
+
+    Raises
+    ------
+    ParameterError
+        ``dt`` is complex, not a number, NaN or infinite.
+    """
+    if np.iscomplexobj(dt):  # before float(), which would drop the imaginary part with a warning
+        raise ParameterError(f"dt must be a finite real number, got dt={dt!r}")
+    try:
+        value = float(dt)
+    except (TypeError, ValueError):
+        raise ParameterError(f"dt must be a finite number, got dt={dt!r}") from None
+    if not math.isfinite(value):
+        raise ParameterError(f"dt must be a finite number, got dt={dt!r}")
+    return value
