@@ -122,7 +122,7 @@ def corrupt(data, comm):
         value = getattr(machine, attr)
         how = data.draw(st.sampled_from(["junk", "delete", "flip_byte", "reshape", "complex", "phase"]))
         if how == "delete":
-            object.__delattr__(machine, attr)  # the step state is frozen: corrupt it by force
+            object.__delattr__(machine, attr)  # corrupt the kept step state
         elif how == "phase":
             object.__setattr__(
                 machine,
@@ -235,7 +235,7 @@ def test_a_comm_from_the_other_exit_is_refused():
 
 def test_state_changed_inside_the_kept_machine_is_191():
     a = at_exit(1)
-    kept = a["comm"]["machine"]  # a frozen step state: a corrupted copy takes its place
+    kept = a["comm"]["machine"]  # a corrupted copy of the kept step state
     a["comm"]["machine"] = dataclasses.replace(kept, sigmas=kept.sigmas * 1.5)  # same shape, other values
     expect_errno(a, 191)
     b = at_exit(2, ropt=[2])
