@@ -851,7 +851,7 @@ class Fleet:
         """Square-root unscented RTS smoother for every filter at once.
 
         The same backward recursion as :meth:`squkf.SquareRootUKF.rts_smoother_factors`
-        (one function, :func:`squkf.smoother._backward`, on stacked arrays), with
+        (one function, ``squkf.smoother._backward``, on stacked arrays), with
         ``fx`` called once per backward step with the points of all filters,
         ``(K, N, dim_x)``, and the fleet's ``Q`` (shared or per filter). The fleet
         itself is not changed.

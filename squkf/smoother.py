@@ -27,7 +27,7 @@ zero length, is accepted, as by the filter).
 
 One algorithm, written once
 ---------------------------
-The backward recursion is one pure function, :func:`_backward`, on stacked
+The backward recursion is one pure function, ``_backward``, on stacked
 arrays: means ``(..., T, n)`` and factors ``(..., T, n, n)`` with any leading
 batch shape. One filter (:func:`rts_smoother_factors`) runs it with no batch
 axis, on plain matrices (LAPACK directly, as the filter step does); a
@@ -248,7 +248,7 @@ def rts_smoother_factors(
 
 
 class Smoothed(NamedTuple):
-    """What :func:`_backward` returns.
+    """What ``_backward`` returns.
 
     Attributes
     ----------
@@ -439,11 +439,11 @@ def _backward(
     T, n = xs.shape[-2:]
     xs_s, Ss_s = xs.copy(), Ss.copy()
     Gs = np.zeros(batch + (T, n, n))
-    failed = np.zeros(batch, dtype=bool) if isolate is None else isolate.copy()
+    if isolate is not None and (len(batch) != 1 or isolate.shape != batch):
+        raise ParameterError(f"isolate needs a batch of one axis and one flag per filter, got {batch}")
+    failed = np.zeros(batch, dtype=bool) if isolate is None else isolate.astype(bool)
     failure = np.full(batch, "", dtype=object)
-    failure[failed] = "failed in the filter"
-    if isolate is not None and len(batch) != 1:
-        raise ParameterError(f"isolate needs a batch of one axis, got the batch shape {batch}")
+    failure[failed] = "flagged in the filtered result: returned unsmoothed"
     K = batch[0] if batch else 1
     state_add = hooks.state_add
     k = T - 2
@@ -472,9 +472,8 @@ def _backward(
                 out = _smooth_step(
                     x[ix], S[ix], X[ix], F[ix], x_next[ix], S_next[ix], _rows(Q1_2, ix, 2), unit, hooks, ut
                 )
-                bad = [j for j, ok in enumerate(_finite_per_filter(out)) if not ok]
-                if bad:
-                    raise NonFiniteError(f"the smoothed estimate is not finite (filter {bad[0]} of the call)")
+                if not _finite_per_filter(out).all():
+                    raise NonFiniteError("the smoothed estimate is not finite")
                 return out
 
             good, res = _isolated(step, idx, K, fails)
