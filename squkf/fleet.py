@@ -862,3 +862,50 @@ class Fleet:
         new = copy.copy(self)
         memo[id(self)] = new
         return new
+
+    # -- smoothing --------------------------------------------------------------------
+
+    def rts_smoother(self, result: FleetResult, dts=None, fx_args=None):
+        """Square-root unscented RTS smoother for every filter at once.
+
+        The same backward recursion as :meth:`squkf.SquareRootUKF.rts_smoother_factors`
+        (one function, ``squkf.smoother._backward``, on stacked arrays), with
+        ``fx`` called once per backward step with the points of all filters,
+        ``(K, N, dim_x)``, and the fleet's ``Q`` (shared or per filter). The fleet
+        itself is not changed.
+
+        Parameters
+        ----------
+        result : FleetResult
+            From :meth:`batch_filter` with ``keep="all"`` (its means and factors).
+        dts : float or array_like of shape (T,), optional
+            ``dts[k]``: time step of the prediction into step ``k``, as given to
+            :meth:`batch_filter` (default: the constructor's).
+        fx_args : dict, optional
+            Passed to ``fx`` at every step (per-filter arrays as for :meth:`predict`).
+
+        Returns
+        -------
+        FleetSmoothed
+            Unpacks as ``(means, P1_2s, Gs)`` of shapes ``(K, T, dim_x)``,
+            ``(K, T, dim_x, dim_x)`` (lower factors) and ``(K, T, dim_x, dim_x)``
+            (gains, zero at the last step); ``failed`` ``(K,)`` and ``failure``
+            are attached. A filter flagged in ``result.failed``, or one that fails
+            numerically while smoothing, is returned unsmoothed (its filtered
+            values, zero gains) and flagged; the others are unaffected. With
+            ``on_error="raise"``, a smoothing failure raises instead.
+
+        Raises
+        ------
+        ParameterError
+            ``result`` is not a FleetResult, or was kept without factors (``keep``
+            other than ``"all"``); ``fx_args`` not a dict; a non-finite ``dts`` entry.
+        ShapeError, NonFiniteError
+            ``result`` does not fit this fleet, or holds NaN or inf; ``dts`` of
+            the wrong length; ``fx`` values of the wrong shape.
+        FleetStepError
+            With ``on_error="raise"``, if some filters failed numerically.
+        """
+        from .smoother import fleet_rts_smoother
+
+        return fleet_rts_smoother(self, result, dts=dts, fx_args=fx_args)

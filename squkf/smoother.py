@@ -24,25 +24,52 @@ must be finite, the factors lower triangular with a non-zero diagonal, and
 the per-step arguments (see :mod:`squkf.batch`) must have one entry per step;
 ``dts`` entries must be finite and not negative (``dt = 0``, a prediction of
 zero length, is accepted, as by the filter).
+
+One algorithm, written once
+---------------------------
+The backward recursion is one pure function, ``_backward``, on stacked
+arrays: means ``(..., T, n)`` and factors ``(..., T, n, n)`` with any leading
+batch shape. One filter (:func:`rts_smoother_factors`) runs it with no batch
+axis, on plain matrices (LAPACK directly, as the filter step does); a
+:class:`squkf.Fleet` (:func:`fleet_rts_smoother`, behind
+:meth:`squkf.Fleet.rts_smoother`) runs it with the filter axis ``(K,)``,
+calling ``fx`` once per backward step with the points of all filters
+``(K, N, n)``. filterpy's hooks are called per filter and per point.
+
+For a fleet, a numerical failure of one filter while smoothing (non-finite
+``fx`` values, a singular predicted factor, a failed downdate, a non-finite
+result) is that filter's alone, as in the fleet's filtering: its whole output
+is its filtered input, unsmoothed, and it is flagged in the result's
+``failed`` mask with the reason in ``failure``; every other filter is smoothed
+as if the failing one were absent. Filters already flagged in the
+:class:`squkf.FleetResult` are returned unsmoothed and flagged likewise. With
+the fleet's ``on_error="raise"`` a smoothing failure raises
+:class:`squkf.FleetStepError` instead.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from .batch import per_step
 from .covariance import FactorSlot, as_lower_factor
-from .errors import NonFiniteError, ParameterError, ShapeError, SqukfError
-from .generators import _identity_moments, sigma_points_from_factor
+from .errors import (
+    NonFiniteError,
+    NotPositiveDefiniteError,
+    ParameterError,
+    ShapeError,
+    SqukfError,
+)
+from .generators import UnitSet, sigma_points_from_factor
 from .linalg import chol_downdate_columns, kalman_gain, tria
-from .rows import weight_rows
-from .transform import deviations, factor_rows, sqrt_unscented_transform
-from .validate import check_values
+from .plan import Hooks
+from .transform import deviations, factor_rows, swap_last, transform_factor
+from .validate import as_float_array, call_hook, check_values
 
-__all__ = ["rts_smoother", "rts_smoother_factors"]
+__all__ = ["rts_smoother", "rts_smoother_factors", "fleet_rts_smoother", "FleetSmoothed"]
 
 
 def _as_stack(value, name: str, tail: tuple[int, ...], T: int | None = None) -> np.ndarray:
@@ -194,47 +221,443 @@ def rts_smoother_factors(
     for k in range(T):
         S_in[k] = as_lower_factor(S_in[k], f"P1_2s[{k}]", n, singular_ok=False)
     _check_UT(UT)
-    dts = per_step(dts, T, "dts", "dt", default=ukf._dt)
-    fx_args = per_step(fx_args, T, "fx_args", "kwargs")
+    dt_list = per_step(dts, T, "dts", "dt", default=ukf._dt)
+    kw_list = per_step(fx_args, T, "fx_args", "kwargs")
     Q_list = per_step(Qs, T, "Qs", "noise")
-    family = ukf._family
-    xi = family.unit_sigma_points(n)
-    Wm, Wc = family.weights(n)
-    exact = _identity_moments(family, n)
-    mean_rows = weight_rows(Wm, Wc).mean_form
-    hooks = ukf._hooks()
-    residual_x = hooks.residual_x
-    state_add = hooks.state_add
-    ut = sqrt_unscented_transform if UT is None else UT
 
-    xs = Xs.copy()
-    Ss = S_in.copy()
-    Ks = np.zeros((T, n, n))
+    def fx_eval(k: int, X: np.ndarray):
+        return ukf._evaluate(ukf.fx, X, (dt_list[k + 1],), kw_list[k + 1])
+
+    def noise(k: int) -> np.ndarray | None:
+        return ukf._noise_factor(Q_list[k + 1], "Q", n)
+
+    out = _backward(
+        Xs,
+        S_in,
+        fx_eval,
+        noise,
+        UnitSet(ukf._family, n),
+        ukf._hooks(),
+        ut=UT,
+        label=lambda k: f"Qs[{k + 1}], dts[{k + 1}], fx_args[{k + 1}]",
+    )
+    return out.xs, out.Ss, out.Gs
+
+
+# -- the backward recursion on stacked arrays -----------------------------------------
+
+
+class Smoothed(NamedTuple):
+    """What ``_backward`` returns.
+
+    Attributes
+    ----------
+    xs : ndarray, shape (..., T, n)
+        Smoothed means.
+    Ss : ndarray, shape (..., T, n, n)
+        Lower factors of the smoothed covariances.
+    Gs : ndarray, shape (..., T, n, n)
+        Smoother gains (zero at the last step, and for a failed filter).
+    failed : ndarray of bool, shape (...)
+        Filters returned unsmoothed (only set with ``isolate``).
+    failure : ndarray of str, shape (...)
+        Why each of them failed ("" for the others).
+    """
+
+    xs: np.ndarray
+    Ss: np.ndarray
+    Gs: np.ndarray
+    failed: np.ndarray
+    failure: np.ndarray
+
+
+def _combine(fn: Callable | None, a: np.ndarray, b: np.ndarray, default: Callable, hook: str) -> np.ndarray:
+    """``fn(a, b)`` per filter (``a``, ``b`` of shape ``(..., n)``), or ``default(a, b)`` without a hook."""
+    if fn is None or fn is default:
+        return default(a, b)
+    n = a.shape[-1]
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    for idx in np.ndindex(out.shape[:-1]):
+        out[idx] = call_hook(fn, (a[idx], b[idx]), (n,), hook)
+    return out
+
+
+def _matvec(A: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``A @ v`` for stacks of matrices ``(..., n, m)`` and vectors ``(..., m)``."""
+    return A @ v if A.ndim == 2 else np.matmul(A, v[..., None])[..., 0]
+
+
+def _smooth_step(
+    x: np.ndarray,
+    S: np.ndarray,
+    X: np.ndarray,
+    F: np.ndarray,
+    x_next: np.ndarray,
+    S_next: np.ndarray,
+    Q1_2: np.ndarray | None,
+    unit: UnitSet,
+    hooks: Hooks,
+    ut: Callable | None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One backward step, for every filter of the batch at once (pure).
+
+    Parameters
+    ----------
+    x, S : ndarray, shapes (..., n) and (..., n, n)
+        Filtered mean and lower factor at step ``k``.
+    X, F : ndarray, shape (..., N, n)
+        Their sigma points and the points' images under ``fx`` (finite).
+    x_next, S_next : ndarray, shapes (..., n) and (..., n, n)
+        Smoothed mean and factor at step ``k + 1``.
+    Q1_2 : ndarray, shape (n, n) or (..., n, n), or None
+        Lower factor of the process noise of the prediction into ``k + 1``.
+    unit : UnitSet
+        The first set's unit points, weights and rows.
+    hooks : Hooks
+    ut : callable or None
+        A user's square-root transform (default: :func:`squkf.transform.transform_factor`).
+
+    Returns
+    -------
+    x_s : ndarray, shape (..., n)
+    S_s : ndarray, shape (..., n, n)
+    G : ndarray, shape (..., n, n)
+    """
+    rows = unit.rows
+    residual_x = hooks.residual_x
+    if ut is None:
+        x_pred, S_pred = transform_factor(F, rows, Q1_2, hooks.x_mean_fn, residual_x)
+    else:
+        x_pred, S_pred = ut(F, rows.Wm, rows.Wc, Q1_2, hooks.x_mean_fn, residual_x)
+    dF = deviations(F, x_pred, residual_x, "residual_x")
+    dX = deviations(X, x, residual_x, "residual_x")
+    C = np.matmul(swap_last(dX) * rows.Wc, dF)
+    G = kalman_gain(C, S_pred)
+    diff = _combine(residual_x, x_next, x_pred, np.subtract, "residual_x")
+    x_s = _combine(hooks.state_add, x, _matvec(G, diff), np.add, "state_add")
+    GS = np.matmul(G, S_next)
+    if unit.exact:
+        # the points reproduce P[k]: P[k] - G P_pred G^T = sum Wc (dX - G dF)(...)^T + G Q G^T
+        extra = GS if Q1_2 is None else np.concatenate([np.matmul(G, Q1_2), GS], axis=-1)
+        S_s = factor_rows(dX - np.matmul(dF, swap_last(G)), rows.mean_form, extra)
+    else:
+        base = chol_downdate_columns(S, np.matmul(G, S_pred))
+        S_s = tria(np.concatenate([swap_last(base), swap_last(GS)], axis=-2))
+    return x_s, S_s, G
+
+
+def _numerical(exc: BaseException) -> bool:
+    """A failure of one filter's arithmetic (as opposed to bad input or a broken model function)."""
+    return isinstance(exc, (NotPositiveDefiniteError, NonFiniteError)) or (
+        isinstance(exc, SqukfError) and getattr(exc, "errno", None) in (301, 302, 303)
+    )
+
+
+def _isolated(fn: Callable, idx: np.ndarray, K: int, fails: dict[int, str]):
+    """``fn(idx)`` for the filters ``idx`` at once; after a numerical error, one filter at a time.
+
+    Each filter's arithmetic is independent of the others', so the filters that
+    succeed get the same numbers either way. Returns the indices that succeeded
+    and their results (a tuple of arrays over those filters), or None.
+    """
+    if idx.size == 0:
+        return idx, None
+    try:
+        return idx, fn(slice(None) if idx.size == K else idx)
+    except SqukfError as exc:
+        if not _numerical(exc):
+            raise
+    good, parts = [], []
+    for k in idx.tolist():
+        try:
+            parts.append(fn(np.array([k])))
+            good.append(k)
+        except SqukfError as exc:
+            if not _numerical(exc):
+                raise
+            fails.setdefault(k, f"{type(exc).__name__}: {exc}")
+    if not good:
+        return np.array([], dtype=int), None
+    return np.array(good), tuple(np.concatenate([p[i] for p in parts]) for i in range(len(parts[0])))
+
+
+def _rows(a: np.ndarray | None, ix, core: int) -> np.ndarray | None:
+    """``a[ix]`` when ``a`` is per filter (more than ``core`` axes), else ``a`` (shared)."""
+    return a if a is None or a.ndim == core else a[ix]
+
+
+def _backward(
+    xs: np.ndarray,
+    Ss: np.ndarray,
+    fx_eval: Callable[[int, np.ndarray], Any],
+    Q1_2_at: Callable[[int], np.ndarray | None],
+    unit: UnitSet,
+    hooks: Hooks,
+    *,
+    ut: Callable | None = None,
+    isolate: np.ndarray | None = None,
+    label: Callable[[int], str] | None = None,
+) -> Smoothed:
+    """The square-root unscented RTS backward recursion on stacked arrays.
+
+    Parameters
+    ----------
+    xs : ndarray, shape (..., T, n)
+        Filtered means (finite).
+    Ss : ndarray, shape (..., T, n, n)
+        Their lower factors (lower triangular, non-negative non-zero diagonal).
+    fx_eval : callable ``fx_eval(k, X) -> array_like (..., N, n)``
+        ``fx`` at the points ``X`` (shape ``(..., N, n)``, all filters at once)
+        for the prediction into step ``k + 1``.
+    Q1_2_at : callable ``Q1_2_at(k) -> None or ndarray (n, n) or (..., n, n)``
+        Lower factor of the process noise of the prediction into step ``k + 1``.
+    unit : UnitSet
+        The first sigma-point set's unit points, weights and rows.
+    hooks : Hooks
+        filterpy's hooks (``x_mean_fn``, ``residual_x``, ``state_add``), called per filter.
+    ut : callable, optional
+        A square-root transform with the signature of
+        :func:`squkf.sqrt_unscented_transform`.
+    isolate : ndarray of bool, shape (K,), optional
+        With a batch of one axis ``(K,)``: isolate numerical failures per filter,
+        the filters marked True being already failed. A failed filter's output
+        is its input (unsmoothed, zero gains). Without it, every error raises.
+    label : callable ``label(k) -> str``, optional
+        The per-step arguments of backward step ``k``, for error messages.
+
+    Returns
+    -------
+    Smoothed
+
+    Raises
+    ------
+    SqukfError
+        Any error of backward step ``k`` not isolated; its message is prefixed
+        with ``"at smoothing step k"``.
+    """
+    batch = xs.shape[:-2]
+    T, n = xs.shape[-2:]
+    xs_s, Ss_s = xs.copy(), Ss.copy()
+    Gs = np.zeros(batch + (T, n, n))
+    if isolate is not None and (len(batch) != 1 or isolate.shape != batch):
+        raise ParameterError(f"isolate needs a batch of one axis and one flag per filter, got {batch}")
+    failed = np.zeros(batch, dtype=bool) if isolate is None else isolate.astype(bool)
+    failure = np.full(batch, "", dtype=object)
+    failure[failed] = "flagged in the filtered result: returned unsmoothed"
+    K = batch[0] if batch else 1
+    state_add = hooks.state_add
     k = T - 2
     try:
         for k in range(T - 2, -1, -1):
-            Q1_2 = ukf._noise_factor(Q_list[k + 1], "Q", n)
-            x, S = Xs[k], S_in[k]
-            X = sigma_points_from_factor(x, S, xi, state_add)
-            F = check_values(ukf._evaluate(ukf.fx, X, (dts[k + 1],), fx_args[k + 1]), X.shape, "fx values")
-            x_pred, S_pred = ut(F, Wm, Wc, Q1_2, ukf.x_mean, residual_x)
-            dF = deviations(F, x_pred, residual_x)
-            dX = deviations(X, x, residual_x)
-            C = (dX.T * Wc) @ dF
-            G = kalman_gain(C, S_pred)
-            diff = xs[k + 1] - x_pred if residual_x is None else residual_x(xs[k + 1], x_pred)
-            step = G @ diff
-            xs[k] = x + step if state_add is None else state_add(x, step)
-            GS = G @ Ss[k + 1]
-            if exact:
-                extra = GS if Q1_2 is None else np.hstack([G @ Q1_2, GS])
-                Ss[k] = factor_rows(dX - dF @ G.T, mean_rows, extra)
-            else:
-                base = chol_downdate_columns(S, G @ S_pred)
-                Ss[k] = tria(np.vstack([base.T, GS.T]))
-            Ks[k] = G
+            Q1_2 = Q1_2_at(k)
+            x, S = xs[..., k, :], Ss[..., k, :, :]
+            X = sigma_points_from_factor(x, S, unit.xi, state_add)
+            if isolate is None:
+                F = check_values(fx_eval(k, X), X.shape, "fx values")
+                xs_s[..., k, :], Ss_s[..., k, :, :], Gs[..., k, :, :] = _smooth_step(
+                    x, S, X, F, xs_s[..., k + 1, :], Ss_s[..., k + 1, :, :], Q1_2, unit, hooks, ut
+                )
+                continue
+            F = as_float_array(fx_eval(k, X), "fx values")
+            if F.shape != X.shape:
+                raise ShapeError(f"fx values have shape {F.shape}, expected {X.shape} (a row per point)")
+            fails: dict[int, str] = {}
+            finite = np.isfinite(F.reshape(K, -1)).all(axis=1)
+            for j in np.flatnonzero(~failed & ~finite).tolist():
+                fails[j] = "fx values are not finite"
+            idx = np.flatnonzero(~failed & finite)
+            x_next, S_next = xs_s[:, k + 1], Ss_s[:, k + 1]
+
+            def step(ix, X=X, F=F, x=x, S=S, x_next=x_next, S_next=S_next, Q1_2=Q1_2):
+                out = _smooth_step(
+                    x[ix], S[ix], X[ix], F[ix], x_next[ix], S_next[ix], _rows(Q1_2, ix, 2), unit, hooks, ut
+                )
+                if not _finite_per_filter(out).all():
+                    raise NonFiniteError("the smoothed estimate is not finite")
+                return out
+
+            good, res = _isolated(step, idx, K, fails)
+            if res is not None:
+                xs_s[good, k], Ss_s[good, k], Gs[good, k] = res
+            for j, why in fails.items():
+                failed[j], failure[j] = True, f"{_where(k, label)}: {why}"
     except SqukfError as exc:
         msg = exc.args[0] if exc.args else ""
-        exc.args = (f"at smoothing step {k} (Qs[{k + 1}], dts[{k + 1}], fx_args[{k + 1}]): {msg}",)
+        exc.args = (f"{_where(k, label)}: {msg}",)
         raise
-    return xs, Ss, Ks
+    if failed.any():
+        xs_s[failed], Ss_s[failed], Gs[failed] = xs[failed], Ss[failed], 0.0
+    return Smoothed(xs_s, Ss_s, Gs, failed, failure)
+
+
+def _where(k: int, label: Callable[[int], str] | None) -> str:
+    return f"at smoothing step {k}" + (f" ({label(k)})" if label is not None else "")
+
+
+def _finite_per_filter(arrays: tuple[np.ndarray, ...]) -> np.ndarray:
+    """Whether each filter's slice (leading axis) of every array is finite."""
+    ok = np.ones(arrays[0].shape[0], dtype=bool)
+    for a in arrays:
+        ok &= np.isfinite(a.reshape(a.shape[0], -1)).all(axis=1)
+    return ok
+
+
+# -- a fleet -------------------------------------------------------------------------------
+
+
+class FleetSmoothed(tuple):
+    """What :meth:`squkf.Fleet.rts_smoother` returns: ``(means, P1_2s, Gs)``, with the failures attached.
+
+    It unpacks as a 3-tuple; the arrays are also attributes.
+
+    Attributes
+    ----------
+    means : ndarray, shape (K, T, n)
+        Smoothed means.
+    P1_2s : ndarray, shape (K, T, n, n)
+        Lower factors of the smoothed covariances.
+    Gs : ndarray, shape (K, T, n, n)
+        Smoother gains (zero at the last step and for a failed filter).
+    failed : ndarray of bool, shape (K,)
+        Filters returned unsmoothed (their filtered values): flagged in the
+        :class:`squkf.FleetResult`, or failed numerically while smoothing.
+    failure : ndarray of str, shape (K,)
+        Why each of them failed ("" for the others).
+    """
+
+    failed: np.ndarray
+    failure: np.ndarray
+
+    def __new__(cls, means, P1_2s, Gs, failed, failure):
+        self = super().__new__(cls, (means, P1_2s, Gs))
+        self.failed, self.failure = failed, failure
+        return self
+
+    def __reduce__(self):
+        return (type(self), (*self, self.failed, self.failure))
+
+    @property
+    def means(self) -> np.ndarray:
+        """Smoothed means, shape ``(K, T, n)``."""
+        return self[0]
+
+    @property
+    def P1_2s(self) -> np.ndarray:
+        """Lower factors of the smoothed covariances, shape ``(K, T, n, n)``."""
+        return self[1]
+
+    @property
+    def Gs(self) -> np.ndarray:
+        """Smoother gains, shape ``(K, T, n, n)``."""
+        return self[2]
+
+    @property
+    def Ps(self) -> np.ndarray:
+        """Smoothed covariances ``P1_2s @ P1_2s^T``, shape ``(K, T, n, n)`` (formed fresh)."""
+        return self[1] @ np.swapaxes(self[1], -1, -2)
+
+
+def _fleet_dts(fleet, dts, T: int) -> list[float]:
+    if dts is None:
+        return [fleet._dt] * T
+    if isinstance(dts, (str, bytes, Mapping)):
+        raise ParameterError(f"dts must be a number or one per step, got {type(dts).__name__}: {dts!r:.100}")
+    a = np.asarray(dts, dtype=object)
+    if a.ndim == 0:
+        return [fleet._check_dt(dts)] * T
+    if a.shape != (T,):
+        raise ShapeError(f"dts has shape {a.shape}, expected a number or ({T},): one per step of the result")
+    return [fleet._check_dt(d) for d in a]
+
+
+def fleet_rts_smoother(fleet, result, dts=None, fx_args: Mapping[str, Any] | None = None) -> FleetSmoothed:
+    """The square-root unscented RTS smoother for every filter of a fleet.
+
+    See :meth:`squkf.Fleet.rts_smoother`.
+
+    Parameters
+    ----------
+    fleet : Fleet
+        Supplies ``fx``, the sigma-point family, the hooks, ``Q`` (shared or
+        per filter) and ``dt``.
+    result : FleetResult
+        From ``fleet.batch_filter(zs, keep="all")``.
+    dts : None, float or array_like of shape (T,)
+        ``dts[k]``: time step of the prediction into step ``k`` (as given to
+        ``batch_filter``; default the fleet's ``dt``).
+    fx_args : dict, optional
+        Keyword arguments of ``fx`` at every step (arrays with a leading axis
+        of length K are per filter, as for :meth:`squkf.Fleet.predict`).
+
+    Returns
+    -------
+    FleetSmoothed
+        ``(means (K, T, n), P1_2s (K, T, n, n), Gs (K, T, n, n))`` with
+        ``failed`` and ``failure`` attached.
+    """
+    from .fleet import FleetResult, FleetStepError
+
+    if not isinstance(result, FleetResult):
+        raise ParameterError(
+            "result must be the FleetResult of Fleet.batch_filter(..., keep='all'),"
+            f" got {type(result).__name__}"
+        )
+    if result.means is None or result.P1_2s is None:
+        raise ParameterError(
+            "result holds no factors: the smoother needs every step's mean and factor, "
+            "from Fleet.batch_filter(..., keep='all')"
+        )
+    K, n = fleet._K, fleet._n
+    xs = as_float_array(result.means, "result.means")
+    if xs.ndim != 3 or xs.shape[0] != K or xs.shape[2] != n:
+        raise ShapeError(f"result.means has shape {xs.shape}, expected ({K}, T, {n})")
+    T = xs.shape[1]
+    Ss = as_float_array(result.P1_2s, "result.P1_2s")
+    if Ss.shape != (K, T, n, n):
+        raise ShapeError(f"result.P1_2s has shape {Ss.shape}, expected {(K, T, n, n)}")
+    failed = np.asarray(result.failed)
+    if failed.shape != (K,) or failed.dtype != bool:
+        raise ShapeError(f"result.failed must be bools of shape ({K},), got {failed.dtype} {failed.shape}")
+    for name, a in (("result.means", xs), ("result.P1_2s", Ss)):
+        finite = np.isfinite(a.reshape(K, T, -1)).all(axis=2)
+        if not finite.all():
+            j, k = (int(i) for i in np.argwhere(~finite)[0])
+            raise NonFiniteError(f"{name}[{j}, {k}] (filter {j}, step {k}) contains NaN or inf")
+    if np.any(np.triu(Ss, 1)):
+        j, k = (int(i) for i in np.argwhere(np.triu(Ss, 1).any(axis=(2, 3)))[0])
+        raise ParameterError(f"result.P1_2s[{j}, {k}] is not lower triangular")
+    diag = np.diagonal(Ss, axis1=-2, axis2=-1)
+    if not np.all(diag[~failed] != 0):
+        j, k = (int(i) for i in np.argwhere((diag == 0).any(axis=2) & ~failed[:, None])[0])
+        raise NotPositiveDefiniteError(f"result.P1_2s[{j}, {k}] has a zero on its diagonal")
+    Ss = Ss * np.copysign(1.0, diag)[..., None, :]  # a column's sign leaves S S^T unchanged
+    dt_list = _fleet_dts(fleet, dts, T)
+    if fx_args is not None and not isinstance(fx_args, Mapping):
+        raise ParameterError(f"fx_args must be a dict, got {type(fx_args).__name__}")
+    kwargs = fleet._with_filter_axis(dict(fx_args or {}))
+    Q1_2 = fleet._Q1_2
+
+    def fx_eval(k: int, X: np.ndarray):
+        return fleet.fx(X.copy(), dt_list[k + 1], **kwargs)
+
+    out = _backward(
+        xs,
+        Ss,
+        fx_eval,
+        lambda k: Q1_2,
+        fleet._plan.first,
+        fleet._hooks(),
+        isolate=failed.copy(),
+        label=lambda k: f"dts[{k + 1}]",
+    )
+    new = np.flatnonzero(out.failed & ~failed)
+    if fleet.on_error == "raise" and new.size:
+        ks = new.tolist()
+        raise FleetStepError(
+            f"{len(ks)} filter(s) failed numerically while smoothing: "
+            + "; ".join(f"filter {j}: {out.failure[j]}" for j in ks[:5])
+            + (" ..." if len(ks) > 5 else ""),
+            ks,
+            [out.failure[j] for j in ks],
+        )
+    return FleetSmoothed(out.xs, out.Ss, out.Gs, out.failed, out.failure)
