@@ -25,7 +25,7 @@ extensions = [
     "numpydoc",
 ]
 
-exclude_patterns = ["_build", "examples_pending.md"]
+exclude_patterns = ["_build"]
 source_suffix = {".rst": "restructuredtext"}
 root_doc = "index"
 

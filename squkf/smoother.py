@@ -154,6 +154,29 @@ def rts_smoother(
         ``Ps[k]`` not symmetric or not positive definite.
     ParameterError
         A negative or non-finite ``dts`` entry, ``fx_args`` not dicts.
+
+    Examples
+    --------
+    On a linear model the smoother is the Rauch-Tung-Striebel smoother of
+    filterpy's ``KalmanFilter``:
+
+    >>> import numpy as np
+    >>> from filterpy.kalman import KalmanFilter
+    >>> from squkf import MerweScaledWeights, SquareRootUKF
+    >>> F, H = np.array([[1.0, 1.0], [0.0, 1.0]]), np.array([[1.0, 0.0]])
+    >>> ukf = SquareRootUKF(2, 1, 1.0, hx=lambda x: H @ x, fx=lambda x, dt: F @ x, points=MerweScaledWeights())
+    >>> ukf.Q, ukf.R = np.diag([0.01, 0.01]), [[0.25]]
+    >>> zs = [[1.1], [1.9], [3.2], [3.9], [5.1]]
+    >>> means, covs = ukf.batch_filter(zs)
+    >>> xs, Ps, Ks = ukf.rts_smoother(means, covs)
+    >>> print(np.round(xs[0], 4))
+    [1.0726 0.9727]
+    >>> kf = KalmanFilter(dim_x=2, dim_z=1)
+    >>> kf.F, kf.H, kf.Q, kf.R = F, H, ukf.Q, ukf.R
+    >>> mk, ck, _, _ = kf.batch_filter(np.array(zs))
+    >>> xk, Pk, _, _ = kf.rts_smoother(mk, ck)
+    >>> bool(np.allclose(xk.reshape(xs.shape), xs)), bool(np.allclose(Pk, Ps))
+    (True, True)
     """
     n = ukf.dim_x
     Xs = _as_stack(Xs, "Xs", (n,))
@@ -213,6 +236,24 @@ def rts_smoother_factors(
         Raised during the backward pass at step ``k`` (e.g. by ``fx`` values,
         or ``Qs[k + 1]`` of the wrong size): its message starts with
         ``"at smoothing step k"``.
+
+    Examples
+    --------
+    The smoother on factors gives the same result without forming a covariance:
+
+    >>> import numpy as np
+    >>> from squkf import MerweScaledWeights, SquareRootUKF
+    >>> F = np.array([[1.0, 1.0], [0.0, 1.0]])
+    >>> ukf = SquareRootUKF(2, 1, 1.0, hx=lambda x: x[:1], fx=lambda x, dt: F @ x, points=MerweScaledWeights())
+    >>> ukf.Q, ukf.R = np.diag([0.01, 0.01]), [[0.25]]
+    >>> zs = [[1.1], [1.9], [3.2], [3.9], [5.1]]
+    >>> means, P1_2s = ukf.batch_filter(zs, return_factors=True)
+    >>> xs, S_s, Ks = ukf.rts_smoother_factors(means, P1_2s)
+    >>> xs2, Ps, _ = ukf.rts_smoother(means, P1_2s @ np.swapaxes(P1_2s, 1, 2))
+    >>> bool(np.allclose(xs, xs2)), bool(np.allclose(S_s @ np.swapaxes(S_s, 1, 2), Ps))
+    (True, True)
+    >>> bool(np.all(np.triu(S_s, 1) == 0))
+    True
     """
     n = ukf.dim_x
     Xs = _as_stack(Xs, "Xs", (n,))

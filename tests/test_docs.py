@@ -5,7 +5,6 @@ The HTML build and Sphinx's doctest builder run in subprocesses, as CI would run
 docstring the pages document, so an example in a public docstring is tested here.
 """
 
-import doctest
 import os
 import subprocess
 import sys
@@ -17,10 +16,17 @@ import squkf
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
-PENDING = DOCS / "examples_pending.md"
 
 # modules documented on pages of their own, besides the names in squkf.__all__
-MODULES = ["squkf.nag", "squkf.batch", "squkf.smoother", "squkf.angles", "squkf.ut", "squkf.errors"]
+MODULES = [
+    "squkf.nag",
+    "squkf.batch",
+    "squkf.smoother",
+    "squkf.angles",
+    "squkf.ut",
+    "squkf.errors",
+    "squkf.dask",
+]
 
 
 @pytest.fixture(scope="module")
@@ -62,11 +68,3 @@ def test_doctests_of_pages_and_docstrings_pass(tmp_path, doctrees):
     for page in ("index", "guide/filterpy", "guide/g13ej", "api/protocols", "api/weights", "api/errors"):
         assert f"Document: {page}\n" in report, f"no doctests ran in {page}"
     assert " 0 failures in tests" in report
-
-
-@pytest.mark.skipif(not PENDING.exists(), reason="all pending examples have been pasted into docstrings")
-def test_pending_examples():
-    """The examples waiting to be pasted into docstrings still hold for the current code."""
-    result = doctest.testfile(str(PENDING), module_relative=False, verbose=False, report=True)
-    assert result.attempted > 0
-    assert result.failed == 0
