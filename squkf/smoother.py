@@ -164,7 +164,9 @@ def rts_smoother(
     >>> from filterpy.kalman import KalmanFilter
     >>> from squkf import MerweScaledWeights, SquareRootUKF
     >>> F, H = np.array([[1.0, 1.0], [0.0, 1.0]]), np.array([[1.0, 0.0]])
-    >>> ukf = SquareRootUKF(2, 1, 1.0, hx=lambda x: H @ x, fx=lambda x, dt: F @ x, points=MerweScaledWeights())
+    >>> ukf = SquareRootUKF(
+    ...     2, 1, 1.0, hx=lambda x: H @ x, fx=lambda x, dt: F @ x, points=MerweScaledWeights()
+    ... )
     >>> ukf.Q, ukf.R = np.diag([0.01, 0.01]), [[0.25]]
     >>> zs = [[1.1], [1.9], [3.2], [3.9], [5.1]]
     >>> means, covs = ukf.batch_filter(zs)
@@ -244,7 +246,9 @@ def rts_smoother_factors(
     >>> import numpy as np
     >>> from squkf import MerweScaledWeights, SquareRootUKF
     >>> F = np.array([[1.0, 1.0], [0.0, 1.0]])
-    >>> ukf = SquareRootUKF(2, 1, 1.0, hx=lambda x: x[:1], fx=lambda x, dt: F @ x, points=MerweScaledWeights())
+    >>> ukf = SquareRootUKF(
+    ...     2, 1, 1.0, hx=lambda x: x[:1], fx=lambda x, dt: F @ x, points=MerweScaledWeights()
+    ... )
     >>> ukf.Q, ukf.R = np.diag([0.01, 0.01]), [[0.25]]
     >>> zs = [[1.1], [1.9], [3.2], [3.9], [5.1]]
     >>> means, P1_2s = ukf.batch_filter(zs, return_factors=True)
