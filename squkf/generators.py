@@ -6,9 +6,9 @@ A *generator* is any object with one method::
 
 called after the time update with
 
-- ``x`` ``(n,)`` and ``S`` ``(n, n)``: the predicted mean and lower factor;
+- ``x`` ``(..., n)`` and ``S`` ``(..., n, n)``: the predicted mean and lower factor;
 - ``family``: the first set's sigma-point family (for defaults);
-- ``propagated`` ``(N1, n)``: the first set's images under ``fx``, or ``None``
+- ``propagated`` ``(..., N1, n)``: the first set's images under ``fx``, or ``None``
   when no prediction precedes this update (a second update at the same time,
   or an update straight after the state was assigned);
 - ``Q1_2`` ``(n, n)`` or ``None``: the process-noise factor of that prediction;
@@ -18,6 +18,14 @@ It returns a :class:`SigmaSet`: the points (rows), their weights, and whether
 their weighted mean and covariance equal ``(x, S @ S.T)`` exactly. The filter
 uses that flag to pick the downdate-free QR form of the measurement update,
 which is identical to the downdate form only when it holds.
+
+A generator may also offer ``prepare(family, n)``, returning an object with
+``draw(x, S, propagated, Q1_2, state_add) -> SigmaSet`` that holds what does
+not change between steps (unit points, their covariance rows); the filter's
+plan (:mod:`squkf.plan`) calls it once per configuration. The built-in
+generators do; a generator with ``second_set`` only is adapted, and its
+weights' rows are computed at each draw. Every array may carry leading batch
+axes ``(...)``.
 """
 
 from __future__ import annotations
