@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from . import step as steps
+from .angles import _AngleHook
 from .covariance import as_lower_factor, as_matrix
 from .errors import NonFiniteError, NotPositiveDefiniteError, ParameterError, ShapeError, SqukfError
 from .generators import SigmaSet, as_generator
@@ -729,6 +730,8 @@ class Fleet:
             k, t = (int(i[0]) for i in np.nonzero(np.isinf(Z).any(axis=2)))
             raise NonFiniteError(f"zs contains inf (filter {k}, step {t}; NaN means a missing component)")
         T = Z.shape[1]
+        if dts is not None and np.ndim(dts) != 0 and np.shape(dts) != (T,):
+            raise ShapeError(f"dts has shape {np.shape(dts)}, expected a number or ({T},)")
         dt_list = [self._dt] * T if dts is None else [self._check_dt(d) for d in np.broadcast_to(dts, (T,))]
         for name, a in (("fx_args", fx_args), ("hx_args", hx_args)):
             if a is not None and not isinstance(a, dict):
@@ -818,6 +821,9 @@ class Fleet:
         f0 = filters[0]
         hook = lambda f, name, default: None if getattr(f, name) is default else getattr(f, name)  # noqa: E731
 
+        def same(h):  # squkf's angle hooks are equal when they wrap the same components
+            return (type(h), tuple(h.angle_indices)) if isinstance(h, _AngleHook) else h
+
         def config(f):
             return (
                 f.dim_x,
@@ -827,6 +833,8 @@ class Fleet:
                 f.fx,
                 f._family,
                 type(f.scheme),
+                # a generator's parameters (Augmented(weights=...)), not only its kind
+                tuple(sorted(vars(f.scheme).items())) if hasattr(f.scheme, "__dict__") else f.scheme,
                 f.x_mean,
                 f.z_mean,
                 hook(f, "residual_x", np.subtract),
@@ -834,13 +842,16 @@ class Fleet:
                 hook(f, "state_add", np.add),
             )
 
+        def key(f):
+            return tuple(same(v) for v in config(f))
+
         c0 = config(f0)
         for k, f in enumerate(filters):
             if not f.vectorized:
                 raise ParameterError(
                     f"filters[{k}] is not vectorized: a fleet calls fx and hx with all points"
                 )
-            if config(f) != c0:
+            if key(f) != key(f0):
                 raise ParameterError(f"filters[{k}] differs in configuration from filters[0]")
         fleet = cls(
             len(filters),
@@ -851,11 +862,11 @@ class Fleet:
             f0.fx,
             f0.points_fn,
             scheme=f0.scheme,
-            x_mean_fn=c0[7],
-            z_mean_fn=c0[8],
-            residual_x=c0[9],
-            residual_z=c0[10],
-            state_add=c0[11],
+            x_mean_fn=c0[8],
+            z_mean_fn=c0[9],
+            residual_x=c0[10],
+            residual_z=c0[11],
+            state_add=c0[12],
             on_error=on_error,
         )
         fleet._x = np.stack([f.x for f in filters])

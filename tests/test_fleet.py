@@ -24,6 +24,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from squkf import (
+    Augmented,
     CallSequenceError,
     CubatureWeights,
     Fleet,
@@ -561,6 +562,22 @@ def test_two_filters_equal_one_bit_for_bit(scheme):
         assert_rows_equal(big, small, keep, f"t={t}")
 
 
+def test_nan_hx_isolated_only_where_measured():
+    K = 4
+    big, small, keep, zs = pair_with_and_without(K, 1)
+    scale = np.array([1.0, np.nan, 1.0, np.nan])  # filters 1 and 3 give NaN images
+    zs[3, 0] = np.nan  # filter 3 has no measurement: its images are not used
+    big.predict()
+    small.predict()
+    x_1 = big.x[1]
+    big.update(zs[:, 0], scale=scale)
+    small.update(zs[keep, 0], scale=scale[keep])
+    assert big.failed.tolist() == [False, True, False, False]
+    assert "hx" in big.failure[1]
+    np.testing.assert_array_equal(big.x[1], x_1)
+    assert_rows_equal(big, small, keep, "nan hx")
+
+
 def test_singular_innovation_with_missing_component_isolated():
     """Same, with filter k and some others missing a component (grouped updates)."""
     K, k = 5, 1
@@ -862,6 +879,7 @@ def test_from_filters_rejects_mixed_configurations():
         single(points=JulierWeights()),
         single(points=MerweScaledWeights(alpha=0.5)),
         single(scheme="augmented"),
+        single(scheme=Augmented(weights=JulierWeights(kappa=0.0))),
         single(fx=turn_fx),
         single(hx=turn_hx),
         single(dt=0.25),
@@ -880,6 +898,21 @@ def test_from_filters_rejects_mixed_configurations():
     with pytest.raises(ParameterError):
         Fleet.from_filters([])
     assert Fleet.from_filters([base, single()]).n_filters == 2
+
+    # hooks: squkf's angle hooks of the same components are one configuration, others are not
+    def hooked(**kw):
+        return SquareRootUKF(N_X, N_Z, DT, rb_hx, cv_fx, MerweScaledWeights(), vectorized=True, **kw)
+
+    fs = [hooked(z_mean_fn=AngleMean([1]), residual_z=AngleResidual([1])) for _ in range(2)]
+    assert Fleet.from_filters(fs).n_filters == 2
+    with pytest.raises(ParameterError):
+        Fleet.from_filters([fs[0], hooked(z_mean_fn=AngleMean([0]), residual_z=AngleResidual([1]))])
+    with pytest.raises(ParameterError):
+        Fleet.from_filters([hooked(residual_z=lambda a, b: a - b), hooked(residual_z=lambda a, b: a - b)])
+    a, b = single(scheme=Augmented(weights=JulierWeights(kappa=0.0))), single(scheme="augmented")
+    with pytest.raises(ParameterError):
+        Fleet.from_filters([a, b])
+    assert Fleet.from_filters([a, single(scheme=Augmented(weights=JulierWeights(kappa=0.0)))]).n_filters == 2
 
 
 # -- batch_filter ---------------------------------------------------------------------------------
@@ -991,6 +1024,8 @@ def test_batch_filter_bad_input_changes_nothing():
         (lambda: fleet.batch_filter(zs[0]), ShapeError),
         (lambda: fleet.batch_filter(zs, dts=[0.5, np.nan, 0.5, 0.5, 0.5]), ParameterError),
         (lambda: fleet.batch_filter(zs, fx_args=[1]), ParameterError),
+        (lambda: fleet.batch_filter(zs, dts=[0.5] * (T + 1)), ShapeError),
+        (lambda: fleet.batch_filter(zs, dts=np.ones((T, 1))), ShapeError),
         (lambda: fleet.batch_filter(late_inf), NonFiniteError),
     ]
     for call, exc in calls:
