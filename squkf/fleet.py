@@ -28,6 +28,7 @@ With ``on_error="raise"`` a step with a failing filter instead raises
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -36,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from . import step as steps
+from .angles import _AngleHook
 from .covariance import as_lower_factor, as_matrix
 from .errors import NonFiniteError, NotPositiveDefiniteError, ParameterError, ShapeError, SqukfError
 from .generators import SigmaSet, as_generator
@@ -429,11 +431,17 @@ class Fleet:
         new_x, new_S = self._x.copy(), self._S.copy()
         if x is not None:
             xs = as_float_array(x, "x")
-            new_x[idx] = np.broadcast_to(xs, (idx.size, self._n))
+            if xs.shape not in ((self._n,), (idx.size, self._n)):
+                raise ShapeError(f"x has shape {xs.shape}, expected ({self._n},) or ({idx.size}, {self._n})")
+            new_x[idx] = xs
             if not np.all(np.isfinite(new_x[idx])):
                 raise NonFiniteError("x contains NaN or inf")
         if P is not None:
-            Ps = np.broadcast_to(as_float_array(P, "P"), (idx.size, self._n, self._n))
+            Ps = as_float_array(P, "P")
+            shape = (self._n, self._n)
+            if Ps.shape not in (shape, (idx.size,) + shape):
+                raise ShapeError(f"P has shape {Ps.shape}, expected {shape} or {(idx.size,) + shape}")
+            Ps = np.broadcast_to(Ps, (idx.size,) + shape)
             for j, k in enumerate(idx):
                 new_S[k] = factor_covariance(as_matrix(Ps[j], f"P[{k}]", self._n), f"P[{k}]")
         self._x, self._S = new_x, new_S
@@ -481,9 +489,18 @@ class Fleet:
         """
         if idx.size == 0:
             return idx, None
-        try:
+
+        def run(ix: np.ndarray):
+            if ix.size == 1:
+                # numpy's stacked kernels (einsum, matmul) may take another path, with other
+                # roundings, for a stack of one: compute one filter as a stack of two copies,
+                # so that its numbers never depend on how many filters are computed with it
+                return tuple(r[:1] for r in fn(np.repeat(ix, 2)))
             # every filter at once: plain views instead of fancy-indexed copies
-            return idx, fn(slice(None) if idx.size == self._K else idx)
+            return fn(slice(None) if ix.size == self._K else ix)
+
+        try:
+            return idx, run(idx)
         except SqukfError as exc:
             if not _numerical(exc):
                 raise
@@ -491,7 +508,7 @@ class Fleet:
         for k in idx.tolist():
             one = np.array([k])
             try:
-                parts.append(fn(one))
+                parts.append(run(one))
                 good.append(k)
             except SqukfError as exc:
                 if not _numerical(exc):
@@ -702,7 +719,12 @@ class Fleet:
             Z = Z[..., None]
         if Z.ndim != 3 or Z.shape[0] != self._K or Z.shape[2] != self._m:
             raise ShapeError(f"zs has shape {Z.shape}, expected ({self._K}, T, {self._m})")
+        if np.isinf(Z).any():
+            k, t = (int(i[0]) for i in np.nonzero(np.isinf(Z).any(axis=2)))
+            raise NonFiniteError(f"zs contains inf (filter {k}, step {t}; NaN means a missing component)")
         T = Z.shape[1]
+        if dts is not None and np.ndim(dts) != 0 and np.shape(dts) != (T,):
+            raise ShapeError(f"dts has shape {np.shape(dts)}, expected a number or ({T},)")
         dt_list = [self._dt] * T if dts is None else [self._check_dt(d) for d in np.broadcast_to(dts, (T,))]
         for name, a in (("fx_args", fx_args), ("hx_args", hx_args)):
             if a is not None and not isinstance(a, dict):
@@ -712,13 +734,29 @@ class Fleet:
         factors = np.empty((K, T, n, n)) if keep == "all" else None
         variances = np.empty((K, T, n)) if keep in ("all", "diagonals") else None
         loglik = np.zeros((K, T)) if keep != "final" else np.zeros(K)
-        for t in range(T):
-            self.predict(dt_list[t], **(fx_args or {}))
-            if np.isnan(Z[:, t]).all():
+        before = copy.copy(self)
+        try:
+            self._run(Z, dt_list, fx_args or {}, hx_args or {}, means, factors, variances, loglik)
+        except BaseException:
+            # an error at any step (a model function's, or a failure with on_error="raise")
+            # leaves the fleet as it was before the call
+            self.__dict__.update(before.__dict__)
+            raise
+        return FleetResult(
+            means, factors, variances, loglik, self._failed.copy(), self._x.copy(), self._S.copy()
+        )
+
+    def _run(self, Z, dt_list, fx_args, hx_args, means, factors, variances, loglik) -> None:
+        K, m = self._K, self._m
+        for t in range(len(dt_list)):
+            self.predict(dt_list[t], **fx_args)
+            if np.isnan(Z[:, t]).all():  # no measurement at all: as update() would leave it
                 self._state = steps.StepState()
+                self.x_post, self.P1_2_post = self._x.copy(), self._S.copy()
+                self.y, self._loglik, self._maha = np.full((K, m), np.nan), np.zeros(K), np.zeros(K)
             else:
-                self.update(Z[:, t], **(hx_args or {}))
-                if keep == "final":
+                self.update(Z[:, t], **hx_args)
+                if loglik.ndim == 1:  # keep="final": the run's total
                     loglik += self._loglik
                 else:
                     loglik[:, t] = self._loglik
@@ -728,9 +766,6 @@ class Fleet:
                 factors[:, t] = self._S
             if variances is not None:
                 variances[:, t] = np.einsum("kij,kij->ki", self._S, self._S)
-        return FleetResult(
-            means, factors, variances, loglik, self._failed.copy(), self._x.copy(), self._S.copy()
-        )
 
     # -- one filter and back --------------------------------------------------------
 
@@ -802,6 +837,9 @@ class Fleet:
         f0 = filters[0]
         hook = lambda f, name, default: None if getattr(f, name) is default else getattr(f, name)  # noqa: E731
 
+        def same(h):  # squkf's angle hooks are equal when they wrap the same components
+            return (type(h), tuple(h.angle_indices)) if isinstance(h, _AngleHook) else h
+
         def config(f):
             return (
                 f.dim_x,
@@ -811,6 +849,8 @@ class Fleet:
                 f.fx,
                 f._family,
                 type(f.scheme),
+                # a generator's parameters (Augmented(weights=...)), not only its kind
+                tuple(sorted(vars(f.scheme).items())) if hasattr(f.scheme, "__dict__") else f.scheme,
                 f.x_mean,
                 f.z_mean,
                 hook(f, "residual_x", np.subtract),
@@ -818,13 +858,16 @@ class Fleet:
                 hook(f, "state_add", np.add),
             )
 
+        def key(f):
+            return tuple(same(v) for v in config(f))
+
         c0 = config(f0)
         for k, f in enumerate(filters):
             if not f.vectorized:
                 raise ParameterError(
                     f"filters[{k}] is not vectorized: a fleet calls fx and hx with all points"
                 )
-            if config(f) != c0:
+            if key(f) != key(f0):
                 raise ParameterError(f"filters[{k}] differs in configuration from filters[0]")
         fleet = cls(
             len(filters),
@@ -835,11 +878,11 @@ class Fleet:
             f0.fx,
             f0.points_fn,
             scheme=f0.scheme,
-            x_mean_fn=c0[7],
-            z_mean_fn=c0[8],
-            residual_x=c0[9],
-            residual_z=c0[10],
-            state_add=c0[11],
+            x_mean_fn=c0[8],
+            z_mean_fn=c0[9],
+            residual_x=c0[10],
+            residual_z=c0[11],
+            state_add=c0[12],
             on_error=on_error,
         )
         fleet._x = np.stack([f.x for f in filters])
@@ -853,9 +896,19 @@ class Fleet:
 
     def __copy__(self):
         new = type(self).__new__(type(self))
-        new.__dict__.update(
-            {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in self.__dict__.items()}
-        )
+        copies: dict[int, np.ndarray] = {}
+        d = {}
+        for key, v in self.__dict__.items():
+            if isinstance(v, np.ndarray):
+                v = copies.setdefault(id(v), v.copy())
+            d[key] = v
+        state = self._state
+        if state.prior is not None:
+            # ask_update knows the pending second set by the identity of the estimate it was
+            # drawn from: the copy's pending set must belong to the copy's estimate
+            x, S = state.prior
+            d["_state"] = dataclasses.replace(state, prior=(copies.get(id(x), x), copies.get(id(S), S)))
+        new.__dict__.update(d)
         return new
 
     def __deepcopy__(self, memo):

@@ -1,0 +1,1166 @@
+"""``Fleet``: K filters in one array step equal K ``SquareRootUKF`` run alone, and fail alone.
+
+The reference for every filter of a fleet is :class:`squkf.SquareRootUKF` with
+``vectorized=True`` on the same data, stepped on its own. The fleet's stacked
+arrays go through numpy's stacked QR and matmul while a single filter calls LAPACK
+directly (see tests/test_core_stacked.py), so they agree to rounding, not bit for bit:
+measured at most 1e-13 relative on these models (filterpy's points with alpha 0.3,
+weights near 1e1). ``RTOL = 1e-10`` leaves a margin of 1000 and is far below any real
+difference (a wrong weight, a dropped row, filters mixed up: 1e-3 or more).
+
+Failure isolation is bit for bit: a fleet with a failing filter ``k`` is compared with
+``np.array_equal`` against a fleet of the other K-1 filters on the same data.
+"""
+
+from __future__ import annotations
+
+import copy
+import pickle
+
+import numpy as np
+import pytest
+from filterpy.kalman import MerweScaledSigmaPoints
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from squkf import (
+    Augmented,
+    CallSequenceError,
+    CubatureWeights,
+    Fleet,
+    FleetResult,
+    FleetStepError,
+    JulierWeights,
+    MerweScaledWeights,
+    NonFiniteError,
+    NotPositiveDefiniteError,
+    ParameterError,
+    ShapeError,
+    SimplexWeights,
+    SquareRootUKF,
+    SqukfError,
+    SqukfValueError,
+)
+from squkf.angles import AngleAdd, AngleMean, AngleResidual
+
+RTOL = 1e-10
+N_X, N_Z, DT = 4, 2, 0.5
+P0 = np.diag([1.0, 0.1, 1.0, 0.1])
+
+# -- models: X[..., i] indexing, so they serve a fleet (K, N, n) and one vectorised filter (N, n) --
+
+
+def cv_fx(X, dt, u=None, bad=None, kick=None):
+    """Constant velocity, state [px, vx, py, vy]; ``u`` an acceleration (per filter in a fleet).
+
+    ``bad`` (a flag per filter) makes the images NaN; ``kick`` moves every non-central point
+    by the same amount (an indefinite weighted covariance with a negative weight).
+    """
+    out = np.stack([X[..., 0] + dt * X[..., 1], X[..., 1], X[..., 2] + dt * X[..., 3], X[..., 3]], axis=-1)
+    if u is not None:
+        u = np.asarray(u, dtype=float)
+        out = out + dt * np.stack([0.5 * dt * u[..., 0], u[..., 0], 0.5 * dt * u[..., 1], u[..., 1]], axis=-1)
+    if bad is not None:
+        out = np.where(np.asarray(bad)[..., None], np.nan, out)
+    if kick is not None:
+        noncentral = (np.arange(X.shape[-2]) != 0)[:, None]
+        out = out + np.asarray(kick)[..., None] * noncentral
+    return out
+
+
+def rb_hx(X, scale=None):
+    """Range and bearing from the origin; ``scale`` 0 makes the measurement constant."""
+    h = np.stack([np.hypot(X[..., 0], X[..., 2]), np.arctan2(X[..., 2], X[..., 0])], axis=-1)
+    if scale is not None:
+        h = h * np.asarray(scale)[..., None]
+    return h
+
+
+def turn_fx(X, dt):
+    """State [px, py, heading, speed]: the heading is an angle and keeps turning."""
+    return np.stack(
+        [
+            X[..., 0] + dt * np.cos(X[..., 2]) * X[..., 3],
+            X[..., 1] + dt * np.sin(X[..., 2]) * X[..., 3],
+            X[..., 2] + 0.8 * dt,
+            X[..., 3],
+        ],
+        axis=-1,
+    )
+
+
+def turn_hx(X):
+    """Range and bearing of [px, py] (the bearing near +-pi, where wrapping matters)."""
+    return np.stack([np.hypot(X[..., 0], X[..., 1]), np.arctan2(X[..., 1], X[..., 0])], axis=-1)
+
+
+FAMILIES = {
+    "merwe": lambda: MerweScaledWeights(),
+    "merwe-alpha0.3": lambda: MerweScaledWeights(alpha=0.3),
+    "julier": lambda: JulierWeights(),
+    "simplex": lambda: SimplexWeights(),
+    "cubature": lambda: CubatureWeights(),
+    "filterpy-merwe": lambda: MerweScaledSigmaPoints(N_X, alpha=0.3, beta=2.0, kappa=-1.0),
+}
+SCHEMES = ("redrawn", "augmented", "propagated")
+SYMMETRIC = {"merwe", "merwe-alpha0.3", "julier", "filterpy-merwe"}
+
+
+def data(K, T, seed=0, model="cv"):
+    """Initial states (K, n), per-filter Q (K, n, n) and R (K, m, m), measurements (K, T, m)."""
+    rng = np.random.default_rng(seed)
+    if model == "cv":
+        x0 = np.array([10.0, 1.0, 5.0, -0.5]) + rng.normal(0, 1.0, (K, N_X))
+        fx, hx = cv_fx, rb_hx
+    else:
+        x0 = np.array([-8.0, 0.5, 1.5, 2.0]) + rng.normal(0, 0.3, (K, N_X))
+        fx, hx = turn_fx, turn_hx
+    truth = [x0 + rng.normal(0, 0.3, (K, N_X))]
+    for _ in range(T - 1):
+        truth.append(fx(truth[-1], DT))
+    zs = np.stack([hx(t) for t in truth], axis=1) + rng.normal(0, 0.05, (K, T, N_Z))
+    if model == "turn":
+        zs[..., 1] = np.arctan2(np.sin(zs[..., 1]), np.cos(zs[..., 1]))
+    Q = np.stack([np.diag([0.01, 0.02, 0.01, 0.02]) * (1 + 0.5 * k) for k in range(K)])
+    R = np.stack([np.array([[0.05, 0.01], [0.01, 0.02]]) * (1 + 0.3 * k) for k in range(K)])
+    return x0, Q, R, zs
+
+
+def make_fleet(K, points, scheme="redrawn", model="cv", **kw):
+    fx, hx = (cv_fx, rb_hx) if model == "cv" else (turn_fx, turn_hx)
+    return Fleet(K, N_X, N_Z, DT, hx, fx, points, scheme=scheme, **kw)
+
+
+def make_single(points, scheme="redrawn", model="cv", **kw):
+    fx, hx = (cv_fx, rb_hx) if model == "cv" else (turn_fx, turn_hx)
+    return SquareRootUKF(N_X, N_Z, DT, hx, fx, points, scheme=scheme, vectorized=True, **kw)
+
+
+def angle_hooks(model):
+    z = {"z_mean_fn": AngleMean([1]), "residual_z": AngleResidual([1])}
+    if model == "turn":
+        z.update(x_mean_fn=AngleMean([2]), residual_x=AngleResidual([2]), state_add=AngleAdd([2]))
+    return z
+
+
+def assert_close(a, b, what):
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    assert a.shape == b.shape, what
+    scale = max(float(np.max(np.abs(b))), 1e-300)
+    err = float(np.max(np.abs(a - b)))
+    assert err <= RTOL * scale, f"{what}: max difference {err:.3g}, scale {scale:.3g}"
+
+
+def run_and_compare(fleet, singles, zs, R_step=None, fx_args=None, hx_args=None):
+    """Step the fleet and each single filter through ``zs`` (K, T, m), comparing every step."""
+    K, T = zs.shape[:2]
+    fx_args, hx_args = fx_args or {}, hx_args or {}
+    for t in range(T):
+        fleet.predict(**fx_args)
+        fleet.update(zs[:, t], R=R_step, **hx_args)
+        for k, f in enumerate(singles):
+            f.predict(**{a: v[k] if isinstance(v, np.ndarray) else v for a, v in fx_args.items()})
+            x_prior, S_prior = f.x.copy(), f.P1_2.copy()
+            Rk = None if R_step is None else (R_step[k] if np.ndim(R_step) == 3 else R_step)
+            f.update(
+                zs[k, t], R=Rk, **{a: v[k] if isinstance(v, np.ndarray) else v for a, v in hx_args.items()}
+            )
+            where = f"t={t} k={k}"
+            assert_close(fleet.x_prior[k], x_prior, "x_prior " + where)
+            assert_close(fleet.P1_2_prior[k], S_prior, "P1_2_prior " + where)
+            assert_close(fleet.x[k], f.x, "x " + where)
+            assert_close(fleet.P1_2[k], f.P1_2, "P1_2 " + where)
+            assert_close(fleet.x_post[k], f.x_post, "x_post " + where)
+            assert_close(fleet.P1_2_post[k], f.P1_2_post, "P1_2_post " + where)
+            if np.isnan(zs[k, t]).all():  # no measurement: nothing was updated
+                assert fleet.log_likelihood[k] == 0.0 and fleet.mahalanobis[k] == 0.0
+                assert fleet.likelihood[k] == 1.0
+                assert np.isnan(fleet.y[k]).all()
+                np.testing.assert_array_equal(fleet.x[k], fleet.x_prior[k])
+            else:
+                assert_close(fleet.log_likelihood[k], f.log_likelihood, "log_likelihood " + where)
+                assert_close(fleet.likelihood[k], f.likelihood, "likelihood " + where)
+                assert_close(fleet.mahalanobis[k], f.mahalanobis, "mahalanobis " + where)
+                np.testing.assert_array_equal(np.isnan(fleet.y[k]), np.isnan(f.y))
+                ok = ~np.isnan(f.y)
+                assert_close(fleet.y[k][ok], f.y[ok], "y " + where)
+    assert not fleet.failed.any()
+
+
+def setup_pair(K, name, scheme, model="cv", per_filter=True, hooks=None, seed=0, T=6):
+    x0, Q, R, zs = data(K, T, seed, model)
+    hooks = hooks or {}
+    fleet = make_fleet(K, FAMILIES[name](), scheme, model, **hooks)
+    fleet.x, fleet.P = x0, P0
+    fleet.Q = Q if per_filter else Q[0]
+    fleet.R = R if per_filter else R[0]
+    singles = []
+    for k in range(K):
+        f = make_single(FAMILIES[name](), scheme, model, **hooks)
+        f.x, f.P = x0[k].copy(), P0.copy()
+        f.Q = Q[k] if per_filter else Q[0]
+        f.R = R[k] if per_filter else R[0]
+        singles.append(f)
+    return fleet, singles, zs
+
+
+# -- every filter equals the SquareRootUKF run alone ----------------------------------------
+
+
+CONFIGS = [
+    (name, scheme) for name in FAMILIES for scheme in SCHEMES if scheme != "augmented" or name in SYMMETRIC
+]
+
+
+@pytest.mark.parametrize("per_filter", [True, False], ids=["per-filter-QR", "shared-QR"])
+@pytest.mark.parametrize(("name", "scheme"), CONFIGS)
+def test_each_filter_equals_squareroot_ukf(name, scheme, per_filter):
+    K = 4
+    fleet, singles, zs = setup_pair(K, name, scheme, per_filter=per_filter)
+    zs[1, 2] = np.nan  # filter 1 has no measurement at step 2
+    zs[2, 3, 0] = np.nan  # filter 2 misses the range at step 3
+    zs[0, 3, 1] = np.nan  # filter 0 misses the bearing at step 3 (another pattern)
+    zs[3, 4, 1] = np.nan
+    zs[:, 5] = np.nan  # nobody measures at step 5
+    run_and_compare(fleet, singles, zs)
+
+
+@pytest.mark.parametrize(("name", "scheme"), CONFIGS)
+def test_each_filter_equals_squareroot_ukf_with_angle_hooks(name, scheme):
+    K = 3
+    model = "turn"
+    fleet, singles, zs = setup_pair(K, name, scheme, model, hooks=angle_hooks(model), T=8)
+    zs[1, 3] = np.nan
+    run_and_compare(fleet, singles, zs)
+    # the hooks mattered: the heading went round past pi and was wrapped by state_add
+    assert np.all(np.abs(fleet.x[:, 2]) <= np.pi)
+
+
+def test_angle_hooks_on_measurement_only():
+    fleet, singles, zs = setup_pair(3, "merwe", "redrawn", hooks=angle_hooks("cv"))
+    zs[2, 1] = np.nan
+    run_and_compare(fleet, singles, zs)
+
+
+def test_augmented_needs_pairs_as_for_one_filter():
+    for name in ("simplex", "cubature"):
+        with pytest.raises(ParameterError):
+            make_single(FAMILIES[name](), "augmented")
+        with pytest.raises(ParameterError):
+            make_fleet(3, FAMILIES[name](), "augmented")
+
+
+def test_update_R_argument_shared_and_per_filter():
+    K = 3
+    fleet, singles, zs = setup_pair(K, "merwe", "redrawn")
+    R_step = np.stack([np.diag([0.2, 0.05]) * (k + 1) for k in range(K)])
+    run_and_compare(fleet, singles, zs[:, :3], R_step=R_step)
+    run_and_compare(fleet, singles, zs[:, 3:], R_step=np.diag([0.3, 0.01]))
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    K=st.integers(1, 5),
+    seed=st.integers(0, 2**16),
+    scheme=st.sampled_from(SCHEMES),
+    missing=st.lists(st.tuples(st.integers(0, 4), st.integers(0, 3), st.integers(0, 2)), max_size=6),
+)
+def test_equals_single_filters_property(K, seed, scheme, missing):
+    """Any fleet size, data, scheme and pattern of missing rows (2) and components (0, 1)."""
+    fleet, singles, zs = setup_pair(K, "merwe", scheme, seed=seed, T=4)
+    for k, t, what in missing:
+        if k < K:
+            if what == 2:
+                zs[k, t] = np.nan
+            else:
+                zs[k, t, what] = np.nan
+    run_and_compare(fleet, singles, zs)
+
+
+def test_per_filter_fx_args_reach_fx_with_a_point_axis():
+    K = 4
+    fleet, singles, zs = setup_pair(K, "merwe", "redrawn")
+    u = np.random.default_rng(3).normal(0, 1.0, (K, 2))
+    seen = []
+
+    def fx(X, dt, u=None):
+        seen.append(np.shape(u))
+        return cv_fx(X, dt, u=u)
+
+    fleet.fx = fx
+    run_and_compare(fleet, singles, zs[:, :3], fx_args={"u": u})
+    assert seen and all(s == (K, 1, 2) for s in seen)
+    # the control changed the result (it reached fx): the fleet without it differs
+    other, _, _ = setup_pair(K, "merwe", "redrawn")
+    for t in range(3):
+        other.predict()
+        other.update(zs[:, t])
+    assert np.abs(other.x - fleet.x).max() > 1e-3
+
+
+def test_per_filter_hx_args_and_shared_scalars():
+    K = 3
+    fleet, singles, zs = setup_pair(K, "merwe", "redrawn")
+    scale = np.array([1.0, 1.1, 0.9])
+    singles_scaled = singles
+    run_and_compare(fleet, singles_scaled, zs[:, :2] * scale[:, None, None], hx_args={"scale": scale})
+    # a scalar argument is passed as it is to every filter
+    run_and_compare(fleet, singles, zs[:, 2:4], hx_args={"scale": 1.0})
+
+
+# -- state and noise, per filter or shared -------------------------------------------------
+
+
+def test_state_assignment_broadcasts_and_checks():
+    K = 3
+    fleet = make_fleet(K, MerweScaledWeights())
+    fleet.x = np.arange(4.0)
+    np.testing.assert_array_equal(fleet.x, np.tile(np.arange(4.0), (K, 1)))
+    fleet.P = P0
+    np.testing.assert_allclose(fleet.P, np.broadcast_to(P0, (K, 4, 4)), rtol=1e-14)
+    S = np.linalg.cholesky(P0)
+    for k in range(K):
+        np.testing.assert_allclose(fleet.P1_2[k], S, rtol=1e-14)
+    Ps = np.stack([P0 * (k + 1) for k in range(K)])
+    fleet.P = Ps
+    np.testing.assert_allclose(fleet.P, Ps, rtol=1e-14)
+    Ss = np.stack([S * (k + 1) for k in range(K)])
+    fleet.P1_2 = Ss
+    np.testing.assert_array_equal(fleet.P1_2, Ss)
+    fleet.P1_2 = S
+    np.testing.assert_array_equal(fleet.P1_2, np.broadcast_to(S, (K, 4, 4)))
+    # fresh arrays: editing what was read changes nothing
+    fleet.x[0, 0] = 99.0
+    fleet.P1_2[0, 0, 0] = 99.0
+    fleet.P[0, 0, 0] = 99.0
+    assert fleet.x[0, 0] == 0.0 and fleet.P1_2[0, 0, 0] == S[0, 0]
+
+    x_before, S_before = fleet.x, fleet.P1_2
+    for attr, bad, exc in [
+        ("x", np.zeros(3), ShapeError),
+        ("x", np.zeros((K + 1, 4)), ShapeError),
+        ("x", np.full(4, np.nan), NonFiniteError),
+        ("x", np.r_[0.0, np.inf, 0, 0], NonFiniteError),
+        ("P", np.eye(3), ShapeError),
+        ("P", -np.eye(4), NotPositiveDefiniteError),
+        ("P", np.stack([P0, P0, -P0]), NotPositiveDefiniteError),
+        ("P", np.full((4, 4), np.nan), NonFiniteError),
+        ("P1_2", np.ones((4, 4)), SqukfValueError),  # not lower triangular
+        ("P1_2", np.zeros((K, 4, 4)), SqukfError),  # singular
+        ("P1_2", np.eye(5), ShapeError),
+    ]:
+        with pytest.raises(exc):
+            setattr(fleet, attr, bad)
+        np.testing.assert_array_equal(fleet.x, x_before)
+        np.testing.assert_array_equal(fleet.P1_2, S_before)
+
+
+def test_noise_shared_or_per_filter():
+    K = 3
+    fleet = make_fleet(K, MerweScaledWeights())
+    Q = np.diag([0.1, 0.2, 0.3, 0.4])
+    fleet.Q = Q
+    assert fleet.Q.shape == (4, 4) and fleet.Q1_2.shape == (4, 4)
+    np.testing.assert_allclose(fleet.Q, Q, rtol=1e-14)
+    Qs = np.stack([Q * (k + 1) for k in range(K)])
+    fleet.Q = Qs
+    np.testing.assert_allclose(fleet.Q, Qs, rtol=1e-14)
+    fleet.Q = np.zeros((4, 4))
+    np.testing.assert_array_equal(fleet.Q, np.zeros((4, 4)))
+    np.testing.assert_array_equal(fleet.Q1_2, np.zeros((4, 4)))
+    fleet.Q1_2 = np.linalg.cholesky(Qs)
+    np.testing.assert_allclose(fleet.Q, Qs, rtol=1e-14)
+    Rs = np.stack([np.diag([0.1, 0.01]) * (k + 1) for k in range(K)])
+    fleet.R = Rs
+    np.testing.assert_allclose(fleet.R, Rs, rtol=1e-14)
+    np.testing.assert_allclose(fleet.R1_2, np.linalg.cholesky(Rs), rtol=1e-14)
+    fleet.R1_2 = np.diag([0.5, 0.2])
+    np.testing.assert_allclose(fleet.R, np.diag([0.25, 0.04]), rtol=1e-14)
+    for attr, bad in [
+        ("Q", np.eye(3)),
+        ("Q", np.ones((K + 1, 4, 4))),
+        ("R", np.eye(3)),
+        ("R", np.ones((K - 1, 2, 2))),
+        ("R1_2", np.ones((K, 3, 3))),
+    ]:
+        before = getattr(fleet, attr)
+        with pytest.raises(ShapeError):
+            setattr(fleet, attr, bad)
+        np.testing.assert_array_equal(getattr(fleet, attr), before)
+    with pytest.raises(SqukfError):
+        fleet.R = np.stack([np.eye(2), -np.eye(2), np.eye(2)])
+    np.testing.assert_allclose(fleet.R, np.diag([0.25, 0.04]), rtol=1e-14)
+
+
+def test_constructor_checks():
+    for kw in ({"n_filters": 0}, {"n_filters": True}, {"n_filters": 2.0}, {"dim_x": 0}, {"dim_z": -1}):
+        args = {"n_filters": 2, "dim_x": 4, "dim_z": 2} | kw
+        with pytest.raises(ParameterError):
+            Fleet(args["n_filters"], args["dim_x"], args["dim_z"], DT, rb_hx, cv_fx, MerweScaledWeights())
+    with pytest.raises(ParameterError):
+        make_fleet(2, MerweScaledWeights(), on_error="ignore")
+    with pytest.raises(ParameterError):
+        make_fleet(2, MerweScaledWeights(), scheme="nope")
+    for dt in (np.nan, np.inf, "a", 1j, None):
+        with pytest.raises(ParameterError):
+            Fleet(2, 4, 2, dt, rb_hx, cv_fx, MerweScaledWeights())
+    fleet = make_fleet(3, MerweScaledWeights())
+    assert (fleet.n_filters, fleet.dim_x, fleet.dim_z, len(fleet)) == (3, 4, 2, 3)
+
+
+# -- failure isolation -------------------------------------------------------------------------
+
+
+def fleet_state(fleet):
+    """Copies of everything a failed call must leave unchanged."""
+    snap = {
+        a: np.array(getattr(fleet, a), copy=True)
+        for a in (
+            "x",
+            "P1_2",
+            "Q1_2",
+            "R1_2",
+            "x_prior",
+            "x_post",
+            "P1_2_prior",
+            "P1_2_post",
+            "y",
+            "log_likelihood",
+            "mahalanobis",
+            "failed",
+            "failure",
+        )
+    }
+    snap["phase"] = fleet._state.phase
+    return snap
+
+
+def assert_fleet_state(fleet, snap):
+    now = fleet_state(fleet)
+    assert now["phase"] == snap["phase"]
+    for a, v in snap.items():
+        if a != "phase":
+            np.testing.assert_array_equal(now[a], v, err_msg=a)
+
+
+def assert_rows_equal(big, small, keep, what):
+    """Filters ``keep`` of ``big`` are bit for bit those of ``small``."""
+    for a in ("x", "P1_2", "x_prior", "P1_2_prior", "x_post", "P1_2_post", "log_likelihood", "mahalanobis"):
+        np.testing.assert_array_equal(getattr(big, a)[keep], getattr(small, a), err_msg=f"{a} {what}")
+    np.testing.assert_array_equal(big.y[keep], small.y, err_msg=f"y {what}")
+    np.testing.assert_array_equal(big.failed[keep], small.failed)
+
+
+def pair_with_and_without(K, k, scheme="redrawn", name="merwe", seed=1, **kw):
+    """A fleet of K filters and one of the K-1 others, same data (per-filter Q and R)."""
+    x0, Q, R, zs = data(K, 6, seed)
+    keep = np.array([j for j in range(K) if j != k], dtype=int)
+    big = make_fleet(K, FAMILIES[name](), scheme, **kw)
+    small = make_fleet(K - 1, FAMILIES[name](), scheme, **kw)
+    for fl, idx in ((big, np.arange(K)), (small, keep)):
+        fl.x, fl.P, fl.Q, fl.R = x0[idx], P0, Q[idx], R[idx]
+    return big, small, keep, zs
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(K=st.integers(2, 5), data_=st.data(), scheme=st.sampled_from(SCHEMES))
+def test_nan_fx_isolated_and_frozen(K, data_, scheme):
+    k = data_.draw(st.integers(0, K - 1))
+    big, small, keep, zs = pair_with_and_without(K, k, scheme)
+    bad = np.zeros(K, dtype=bool)
+    for t in range(2):  # two good steps
+        big.predict(bad=bad)
+        big.update(zs[:, t])
+        small.predict()
+        small.update(zs[keep, t])
+    assert_rows_equal(big, small, keep, "before the failure")
+    x_k, S_k = big.x[k], big.P1_2[k]
+    bad[k] = True
+    big.predict(bad=bad)
+    small.predict()
+    assert big.failed[k] and big.failed.sum() == 1
+    assert "fx" in big.failure[k] and all(big.failure[j] == "" for j in keep)
+    np.testing.assert_array_equal(big.x[k], x_k)
+    np.testing.assert_array_equal(big.P1_2[k], S_k)
+    big.update(zs[:, 2])
+    small.update(zs[keep, 2])
+    assert_rows_equal(big, small, keep, "at the failure")
+    np.testing.assert_array_equal(big.x[k], x_k)
+    np.testing.assert_array_equal(big.P1_2[k], S_k)
+    assert big.log_likelihood[k] == 0.0
+    # later steps leave it frozen, even with good fx values
+    bad[k] = False
+    for t in range(3, 5):
+        big.predict(bad=bad)
+        big.update(zs[:, t])
+        small.predict()
+        small.update(zs[keep, t])
+        assert_rows_equal(big, small, keep, f"after the failure t={t}")
+        np.testing.assert_array_equal(big.x[k], x_k)
+        np.testing.assert_array_equal(big.P1_2[k], S_k)
+        assert big.failed[k]
+    # reset: the flag goes, the filter resumes from the state given, as a single filter would
+    x_new, P_new = small.x[0] if K > 1 else x_k, 2.0 * P0
+    big.reset(k, x_new, P_new)
+    assert not big.failed.any() and big.failure[k] == ""
+    np.testing.assert_array_equal(big.x[k], x_new)
+    one = big[k]
+    big.predict(bad=bad)
+    big.update(zs[:, 5])
+    small.predict()
+    small.update(zs[keep, 5])
+    one.predict()
+    one.update(zs[k, 5])
+    assert not big.failed.any()
+    assert_rows_equal(big, small, keep, "after the reset")
+    assert_close(big.x[k], one.x, "x after reset")
+    assert_close(big.P1_2[k], one.P1_2, "P1_2 after reset")
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+@pytest.mark.parametrize(("K", "k"), [(4, 2), (2, 0), (3, 2)])
+def test_singular_innovation_isolated(scheme, K, k):
+    """Filter k's R is zero and its hx constant: its innovation factor is singular.
+
+    The stack fails, so the others are updated one by one: their numbers must still be those
+    of the K-1 fleet updated as one stack (numpy's kernels treat a stack of one differently).
+    """
+    big, small, keep, zs = pair_with_and_without(K, k, scheme)
+    R = big.R
+    R[k] = 0.0
+    big.R = R
+    scale = np.ones(K)
+    scale[k] = 0.0
+    for t in range(2):
+        big.predict()
+        small.predict()
+        x_k, S_k = big.x[k], big.P1_2[k]
+        big.update(zs[:, t], scale=scale)
+        small.update(zs[keep, t], scale=scale[keep])
+        assert_rows_equal(big, small, keep, f"t={t}")
+        assert big.failed[k] and big.failed.sum() == 1
+        assert "GainError" in big.failure[k]
+        if t == 0:  # it keeps its prior, from before the failing update
+            np.testing.assert_array_equal(big.x[k], x_k)
+            np.testing.assert_array_equal(big.P1_2[k], S_k)
+            frozen = big.x[k], big.P1_2[k]
+        else:  # frozen through the later prediction and update
+            np.testing.assert_array_equal(big.x[k], frozen[0])
+            np.testing.assert_array_equal(big.P1_2[k], frozen[1])
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_two_filters_equal_one_bit_for_bit(scheme):
+    """A fleet of 2 without a failure, against the fleet of its filter 0 alone (a stack of one)."""
+    big, small, keep, zs = pair_with_and_without(2, 1, scheme)
+    zs[0, 2, 1] = np.nan
+    for t in range(5):
+        big.predict()
+        small.predict()
+        big.update(zs[:, t])
+        small.update(zs[keep, t])
+        assert_rows_equal(big, small, keep, f"t={t}")
+
+
+def test_nan_hx_isolated_only_where_measured():
+    K = 4
+    big, small, keep, zs = pair_with_and_without(K, 1)
+    scale = np.array([1.0, np.nan, 1.0, np.nan])  # filters 1 and 3 give NaN images
+    zs[3, 0] = np.nan  # filter 3 has no measurement: its images are not used
+    big.predict()
+    small.predict()
+    x_1 = big.x[1]
+    big.update(zs[:, 0], scale=scale)
+    small.update(zs[keep, 0], scale=scale[keep])
+    assert big.failed.tolist() == [False, True, False, False]
+    assert "hx" in big.failure[1]
+    np.testing.assert_array_equal(big.x[1], x_1)
+    assert_rows_equal(big, small, keep, "nan hx")
+
+
+def test_singular_innovation_with_missing_component_isolated():
+    """Same, with filter k and some others missing a component (grouped updates)."""
+    K, k = 5, 1
+    big, small, keep, zs = pair_with_and_without(K, k)
+    R = big.R
+    R[k] = 0.0
+    big.R = R
+    scale = np.ones(K)
+    scale[k] = 0.0
+    zs[[0, 1, 3], 0, 1] = np.nan
+    big.predict()
+    small.predict()
+    big.update(zs[:, 0], scale=scale)
+    small.update(zs[keep, 0], scale=scale[keep])
+    assert_rows_equal(big, small, keep, "grouped")
+    assert big.failed.tolist() == [j == k for j in range(K)]
+
+
+def test_downdate_failure_isolated():
+    """A negative weight (Merwe, beta 0) and points moved together: filter k's downdate fails."""
+    K, k = 4, 3
+    fam = lambda: MerweScaledWeights(alpha=0.3, beta=0.0)  # noqa: E731
+    FAMILIES_LOCAL = {"merwe-beta0": fam}
+    x0, Q, R, zs = data(K, 3, 4)
+    keep = np.arange(K - 1)
+    big = make_fleet(K, FAMILIES_LOCAL["merwe-beta0"]())
+    small = make_fleet(K - 1, fam())
+    for fl, idx in ((big, np.arange(K)), (small, keep)):
+        fl.x, fl.P, fl.Q, fl.R = x0[idx], P0, Q[idx], R[idx]
+    kick = np.zeros(K)
+    kick[k] = 5.0
+    x_k, S_k = big.x[k], big.P1_2[k]
+    big.predict(kick=kick)
+    small.predict(kick=kick[keep])
+    assert big.failed.tolist() == [False, False, False, True]
+    assert "DowndateError" in big.failure[k]
+    np.testing.assert_array_equal(big.x[k], x_k)
+    np.testing.assert_array_equal(big.P1_2[k], S_k)
+    big.update(zs[:, 0])
+    small.update(zs[keep, 0])
+    assert_rows_equal(big, small, keep, "downdate")
+    # a single filter fails the same way
+    one = make_single(fam())
+    one.x, one.P, one.Q = x0[k], P0, Q[k]
+    with pytest.raises(SqukfError):
+        one.predict(kick=5.0)
+
+
+def test_several_failures_at_once_and_reset_all():
+    K = 5
+    x0, Q, R, zs = data(K, 3, 2)
+    fleet = make_fleet(K, MerweScaledWeights())
+    fleet.x, fleet.P, fleet.Q, fleet.R = x0, P0, Q, R
+    bad = np.array([True, False, True, False, False])
+    fleet.predict(bad=bad)
+    np.testing.assert_array_equal(fleet.failed, bad)
+    fleet.update(zs[:, 0])
+    fleet.reset()  # every flagged filter, state kept
+    assert not fleet.failed.any() and all(r == "" for r in fleet.failure)
+    np.testing.assert_array_equal(fleet.x[bad], x0[bad])
+    fleet.predict()
+    fleet.update(zs[:, 1])
+    assert not fleet.failed.any()
+    assert np.all(fleet.x[bad] != x0[bad])
+    # reset with a mask and one x per filter
+    fleet.predict(bad=bad)
+    fleet.reset(bad, x=x0[bad] + 1.0)
+    np.testing.assert_array_equal(fleet.x[bad], x0[bad] + 1.0)
+    assert not fleet.failed.any()
+
+
+def test_reset_bad_input_changes_nothing():
+    fleet = make_fleet(3, MerweScaledWeights())
+    fleet.x = np.arange(4.0)
+    fleet.predict(bad=np.array([False, True, False]))
+    snap = fleet_state(fleet)
+    for kw, exc in [
+        ({"x": np.zeros(3)}, ShapeError),
+        ({"x": np.full(4, np.nan)}, NonFiniteError),
+        ({"P": np.eye(3)}, ShapeError),
+        ({"P": -np.eye(4)}, NotPositiveDefiniteError),
+        ({"x": np.zeros(4), "P": -np.eye(4)}, NotPositiveDefiniteError),
+    ]:
+        with pytest.raises(exc):
+            fleet.reset(1, **kw)
+        assert_fleet_state(fleet, snap)
+
+
+@pytest.mark.parametrize("where", ["predict", "update"])
+def test_on_error_raise_changes_no_filter(where):
+    K, k = 4, 1
+    big, _, _, zs = pair_with_and_without(K, k, on_error="raise")
+    big.predict()
+    big.update(zs[:, 0])
+    bad = np.zeros(K, dtype=bool)
+    bad[k] = True
+    if where == "update":  # filter k's R zero and its hx constant: a singular innovation factor
+        R = big.R
+        R[k] = 0.0
+        big.R = R
+        big.predict()
+    other = copy.deepcopy(big)
+    snap = fleet_state(big)
+    with pytest.raises(FleetStepError) as info:
+        if where == "predict":
+            big.predict(bad=bad)
+        else:
+            big.update(zs[:, 1], scale=np.where(bad, 0.0, 1.0))
+    assert info.value.filters == (k,)
+    assert len(info.value.reasons) == 1 and info.value.reasons[0]
+    assert str(k) in str(info.value)
+    assert isinstance(info.value, SqukfError) and isinstance(info.value, ArithmeticError)
+    assert_fleet_state(big, snap)
+    assert not big.failed.any()
+    again = pickle.loads(pickle.dumps(info.value))
+    assert again.filters == (k,) and again.reasons == info.value.reasons
+    # the fleet goes on as if the failing call had not been made
+    if where == "predict":
+        big.predict()
+        other.predict()
+    else:
+        big.update(zs[:, 1])
+        other.update(zs[:, 1])
+    assert_fleet_state(big, fleet_state(other))
+
+
+def test_on_error_raise_downdate_names_the_filters():
+    K = 4
+    fam = MerweScaledWeights(alpha=0.3, beta=0.0)
+    x0, Q, R, zs = data(K, 2, 4)
+    fleet = make_fleet(K, fam, on_error="raise")
+    fleet.x, fleet.P, fleet.Q, fleet.R = x0, P0, Q, R
+    snap = fleet_state(fleet)
+    kick = np.array([5.0, 0.0, 5.0, 0.0])
+    with pytest.raises(FleetStepError) as info:
+        fleet.predict(kick=kick)
+    assert info.value.filters == (0, 2)
+    assert all("DowndateError" in r for r in info.value.reasons)
+    assert_fleet_state(fleet, snap)
+
+
+# -- bad input raises for the whole call and changes nothing ------------------------------
+
+
+def test_bad_input_changes_nothing():
+    K = 3
+    fleet, _, zs = setup_pair(K, "merwe", "augmented")
+    fleet.predict()
+    fleet.update(zs[:, 0])
+    fleet.predict()
+    reference = copy.deepcopy(fleet)
+    snap = fleet_state(fleet)
+    z = zs[:, 1]
+    z_inf = z.copy()
+    z_inf[1, 0] = np.inf
+    R_bad = np.stack([np.eye(2)] * K)
+    R_bad[2] = -np.eye(2)
+    calls = [
+        (lambda: fleet.update(z[:2]), ShapeError),
+        (lambda: fleet.update(z[:, :1]), ShapeError),
+        (lambda: fleet.update(z.ravel()), ShapeError),
+        (lambda: fleet.update(z_inf), NonFiniteError),
+        (lambda: fleet.update(-z_inf), NonFiniteError),
+        (lambda: fleet.update(z, R=np.eye(3)), ShapeError),
+        (lambda: fleet.update(z, R=np.ones((K + 1, 2, 2))), ShapeError),
+        (lambda: fleet.update(z, R=R_bad), SqukfError),
+        (lambda: fleet.update(z, R=np.full((2, 2), np.nan)), NonFiniteError),
+        (lambda: fleet.tell_update(np.zeros((K, 3, 2)), z), CallSequenceError),
+        (lambda: fleet.tell_predict(np.zeros((K, 9, 4))), CallSequenceError),
+    ]
+    for call, exc in calls:
+        with pytest.raises(exc):
+            call()
+        assert_fleet_state(fleet, snap)
+    # the pending update still works, as in the fleet that never saw the bad calls
+    fleet.update(z)
+    reference.update(z)
+    np.testing.assert_array_equal(fleet.x, reference.x)
+    np.testing.assert_array_equal(fleet.P1_2, reference.P1_2)
+    snap = fleet_state(fleet)
+    for dt in (np.nan, np.inf, "a", 1j, np.complex128(1.0)):
+        with pytest.raises(ParameterError):
+            fleet.predict(dt)
+        assert_fleet_state(fleet, snap)
+    # tell_predict with values of the wrong shape, mid ask/tell
+    X = fleet.ask_predict()
+    snap = fleet_state(fleet)
+    with pytest.raises(ShapeError):
+        fleet.tell_predict(cv_fx(X, DT)[:, :-1])
+    assert_fleet_state(fleet, snap)
+    fleet.tell_predict(cv_fx(X, DT))
+    X2 = fleet.ask_update()
+    snap = fleet_state(fleet)
+    with pytest.raises(ShapeError):
+        fleet.tell_update(rb_hx(X2)[..., :1], z)
+    assert_fleet_state(fleet, snap)
+
+
+def test_masked_z_and_scalar_measurement():
+    K = 3
+    x0, Q, R, zs = data(K, 2, 0)
+    fleet = make_fleet(K, MerweScaledWeights())
+    fleet.x, fleet.Q, fleet.R = x0, Q, R
+    other = copy.deepcopy(fleet)
+    z = np.ma.masked_array(zs[:, 0], mask=[[False, False], [True, True], [False, True]])
+    fleet.update(z)
+    znan = zs[:, 0].copy()
+    znan[1] = np.nan
+    znan[2, 1] = np.nan
+    other.update(znan)
+    np.testing.assert_array_equal(fleet.x, other.x)
+    np.testing.assert_array_equal(fleet.P1_2, other.P1_2)
+    # dim_z 1: z may be given as (K,)
+    f1 = Fleet(K, 2, 1, 1.0, lambda X: X[..., :1], lambda X, dt: X, MerweScaledWeights())
+    f2 = copy.deepcopy(f1)
+    f1.update(np.array([1.0, np.nan, -1.0]))
+    f2.update(np.array([[1.0], [np.nan], [-1.0]]))
+    np.testing.assert_array_equal(f1.x, f2.x)
+    np.testing.assert_array_equal(f1.x[1], [0.0, 0.0])
+
+
+# -- one filter and back ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("name", "scheme"), [("merwe", "augmented"), ("filterpy-merwe", "propagated")])
+def test_getitem_is_that_filter(name, scheme):
+    K = 4
+    fleet, singles, zs = setup_pair(K, name, scheme)
+    for t in range(2):
+        fleet.predict()
+        fleet.update(zs[:, t])
+    for k in (0, 2, -1):
+        f = fleet[k]
+        kk = k % K
+        assert isinstance(f, SquareRootUKF) and f.vectorized
+        np.testing.assert_array_equal(f.x, fleet.x[kk])
+        np.testing.assert_array_equal(f.P1_2, fleet.P1_2[kk])
+        np.testing.assert_array_equal(f.Q1_2, fleet.Q1_2[kk])
+        np.testing.assert_array_equal(f.R1_2, fleet.R1_2[kk])
+        assert f.fx is fleet.fx and f.hx is fleet.hx and type(f.scheme) is type(fleet.scheme)
+        assert (f.dim_x, f.dim_z) == (N_X, N_Z)
+    ones = [fleet[k] for k in range(K)]
+    run_and_compare(fleet, ones, zs[:, 2:])
+    with pytest.raises(IndexError):
+        fleet[K]
+
+
+def test_getitem_shared_noise_and_no_process_noise():
+    fleet, _, _ = setup_pair(3, "merwe", "redrawn", per_filter=False)
+    fleet.Q = np.zeros((4, 4))
+    f = fleet[1]
+    np.testing.assert_array_equal(f.Q, np.zeros((4, 4)))
+    np.testing.assert_array_equal(f.R1_2, fleet.R1_2)
+
+
+def test_from_filters_round_trip():
+    K = 4
+    _, singles, zs = setup_pair(K, "julier", "augmented", hooks=angle_hooks("cv"))
+    for k, f in enumerate(singles):
+        f.predict()
+        f.update(zs[k, 0])
+    fleet = Fleet.from_filters(singles)
+    assert fleet.n_filters == K and fleet.Q.shape == (K, 4, 4) and fleet.R.shape == (K, 2, 2)
+    for k, f in enumerate(singles):
+        g = fleet[k]
+        np.testing.assert_array_equal(g.x, f.x)
+        np.testing.assert_array_equal(g.P1_2, f.P1_2)
+        np.testing.assert_array_equal(g.Q1_2, f.Q1_2)
+        np.testing.assert_array_equal(g.R1_2, f.R1_2)
+        assert g.z_mean is f.z_mean and g.residual_z is f.residual_z
+    run_and_compare(fleet, singles, zs[:, 1:])
+    # shared noise stays shared; zero Q gives no process noise
+    for f in singles:
+        f.Q = np.zeros((4, 4))
+        f.R = np.eye(2) * 0.1
+    fleet = Fleet.from_filters(singles, on_error="raise")
+    assert fleet.Q.shape == (4, 4) and not fleet.Q.any() and fleet.R.shape == (2, 2)
+    assert fleet.on_error == "raise"
+    np.testing.assert_array_equal(Fleet.from_filters(singles[:1])[0].x, singles[0].x)
+
+
+def test_from_filters_rejects_mixed_configurations():
+    def single(**kw):
+        args = {"points": MerweScaledWeights(), "scheme": "redrawn", "fx": cv_fx, "hx": rb_hx, "dt": DT}
+        args |= kw
+        return SquareRootUKF(
+            N_X,
+            N_Z,
+            args["dt"],
+            args["hx"],
+            args["fx"],
+            args["points"],
+            scheme=args["scheme"],
+            vectorized=True,
+        )
+
+    base = single()
+    others = [
+        single(points=JulierWeights()),
+        single(points=MerweScaledWeights(alpha=0.5)),
+        single(scheme="augmented"),
+        single(scheme=Augmented(weights=JulierWeights(kappa=0.0))),
+        single(fx=turn_fx),
+        single(hx=turn_hx),
+        single(dt=0.25),
+        SquareRootUKF(N_X, 1, DT, rb_hx, cv_fx, MerweScaledWeights(), vectorized=True),
+        SquareRootUKF(
+            N_X, N_Z, DT, rb_hx, cv_fx, MerweScaledWeights(), residual_z=AngleResidual([1]), vectorized=True
+        ),
+    ]
+    for other in others:
+        with pytest.raises(ParameterError):
+            Fleet.from_filters([base, other])
+    with pytest.raises(ParameterError):
+        Fleet.from_filters([SquareRootUKF(N_X, N_Z, DT, rb_hx, cv_fx, MerweScaledWeights())])
+    with pytest.raises(ParameterError):
+        Fleet.from_filters([base, SquareRootUKF(N_X, N_Z, DT, rb_hx, cv_fx, MerweScaledWeights())])
+    with pytest.raises(ParameterError):
+        Fleet.from_filters([])
+    assert Fleet.from_filters([base, single()]).n_filters == 2
+
+    # hooks: squkf's angle hooks of the same components are one configuration, others are not
+    def hooked(**kw):
+        return SquareRootUKF(N_X, N_Z, DT, rb_hx, cv_fx, MerweScaledWeights(), vectorized=True, **kw)
+
+    fs = [hooked(z_mean_fn=AngleMean([1]), residual_z=AngleResidual([1])) for _ in range(2)]
+    assert Fleet.from_filters(fs).n_filters == 2
+    with pytest.raises(ParameterError):
+        Fleet.from_filters([fs[0], hooked(z_mean_fn=AngleMean([0]), residual_z=AngleResidual([1]))])
+    with pytest.raises(ParameterError):
+        Fleet.from_filters([hooked(residual_z=lambda a, b: a - b), hooked(residual_z=lambda a, b: a - b)])
+    a, b = single(scheme=Augmented(weights=JulierWeights(kappa=0.0))), single(scheme="augmented")
+    with pytest.raises(ParameterError):
+        Fleet.from_filters([a, b])
+    assert Fleet.from_filters([a, single(scheme=Augmented(weights=JulierWeights(kappa=0.0)))]).n_filters == 2
+
+
+# -- batch_filter ---------------------------------------------------------------------------------
+
+
+def batch_setup(K=3, T=7, scheme="redrawn"):
+    fleet, singles, zs = setup_pair(K, "merwe-alpha0.3", scheme, T=T)
+    zs[0, 2] = np.nan
+    zs[1, T - 3, 1] = np.nan
+    zs[:, T - 2] = np.nan
+    return fleet, singles, zs
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_batch_filter_equals_loop_and_singles(scheme):
+    K, T = 3, 7
+    fleet, singles, zs = batch_setup(K, T, scheme)
+    loop = copy.deepcopy(fleet)
+    res = fleet.batch_filter(zs)
+    assert isinstance(res, FleetResult)
+    assert res.means.shape == (K, T, 4) and res.P1_2s.shape == (K, T, 4, 4)
+    assert res.variances.shape == (K, T, 4) and res.log_likelihood.shape == (K, T)
+    assert res.failed.shape == (K,) and not res.failed.any()
+    lls = np.zeros((K, T))
+    for t in range(T):
+        loop.predict()
+        loop.update(zs[:, t])
+        np.testing.assert_array_equal(res.means[:, t], loop.x)
+        np.testing.assert_array_equal(res.P1_2s[:, t], loop.P1_2)
+        np.testing.assert_allclose(res.variances[:, t], np.diagonal(loop.P, axis1=1, axis2=2), rtol=1e-13)
+        lls[:, t] = loop.log_likelihood
+    np.testing.assert_array_equal(res.log_likelihood, lls)
+    np.testing.assert_array_equal(res.x, loop.x)
+    np.testing.assert_array_equal(res.P1_2, loop.P1_2)
+    # the fleet is left as after the loop
+    assert_fleet_state(fleet, fleet_state(loop))
+    for k, f in enumerate(singles):
+        means, factors = f.batch_filter(list(zs[k]), return_factors=True)
+        assert_close(res.means[k], means, f"means[{k}]")
+        assert_close(res.P1_2s[k], factors, f"P1_2s[{k}]")
+
+
+def test_batch_filter_leaves_the_records_of_a_loop_when_the_last_step_has_no_measurement():
+    fleet, _, zs = batch_setup(3, 5)
+    zs[:, -1] = np.nan
+    loop = copy.deepcopy(fleet)
+    fleet.batch_filter(zs)
+    for t in range(5):
+        loop.predict()
+        loop.update(zs[:, t])
+    assert_fleet_state(fleet, fleet_state(loop))
+    assert not fleet.log_likelihood.any() and np.isnan(fleet.y).all()
+
+
+def test_batch_filter_keep():
+    fleet, _, zs = batch_setup()
+    full = copy.deepcopy(fleet).batch_filter(zs)
+    for keep, present in [
+        ("diagonals", ("means", "variances")),
+        ("means", ("means",)),
+        ("final", ()),
+    ]:
+        res = copy.deepcopy(fleet).batch_filter(zs, keep=keep)
+        for field in ("means", "P1_2s", "variances"):
+            if field in present:
+                np.testing.assert_array_equal(getattr(res, field), getattr(full, field))
+            else:
+                assert getattr(res, field) is None, (keep, field)
+        for field in ("failed", "x", "P1_2"):
+            np.testing.assert_array_equal(getattr(res, field), getattr(full, field))
+        if keep == "final":  # the run's total per filter, in the order the steps added it
+            total = np.zeros(full.log_likelihood.shape[0])
+            for t in range(full.log_likelihood.shape[1]):
+                total += full.log_likelihood[:, t]
+            np.testing.assert_array_equal(res.log_likelihood, total)
+        else:
+            np.testing.assert_array_equal(res.log_likelihood, full.log_likelihood)
+
+
+def test_batch_filter_dts_args_and_failures():
+    K, T = 4, 5
+    fleet, _, zs = batch_setup(K, T)
+    loop = copy.deepcopy(fleet)
+    dts = np.array([0.5, 0.25, 0.5, 1.0, 0.5])
+    bad = np.array([False, False, True, False])
+    scale = np.array([1.0, 1.0, 1.0, 1.02])
+    res = fleet.batch_filter(zs, dts=dts, fx_args={"bad": bad}, hx_args={"scale": scale})
+    for t in range(T):
+        loop.predict(dts[t], bad=bad)
+        loop.update(zs[:, t], scale=scale)
+        np.testing.assert_array_equal(res.means[:, t], loop.x)
+    np.testing.assert_array_equal(res.failed, bad)
+    # the failed filter's later entries repeat its last good state (here: the initial one)
+    np.testing.assert_array_equal(res.means[2], np.broadcast_to(res.means[2, 0], (T, 4)))
+    assert not res.log_likelihood[2].any()
+    # a scalar dt for every step
+    a, b = copy.deepcopy(loop), copy.deepcopy(loop)
+    a.reset()
+    b.reset()
+    ra = a.batch_filter(zs, dts=0.3)
+    rb = b.batch_filter(zs, dts=[0.3] * T)
+    np.testing.assert_array_equal(ra.means, rb.means)
+
+
+def test_batch_filter_bad_input_changes_nothing():
+    K, T = 3, 5
+    fleet, _, zs = batch_setup(K, T)
+    fleet.predict()
+    snap = fleet_state(fleet)
+    late_inf = zs.copy()
+    late_inf[1, 3, 0] = np.inf
+    calls = [
+        (lambda: fleet.batch_filter(zs, keep="some"), ParameterError),
+        (lambda: fleet.batch_filter(zs[:2]), ShapeError),
+        (lambda: fleet.batch_filter(zs[..., :1]), ShapeError),
+        (lambda: fleet.batch_filter(zs[0]), ShapeError),
+        (lambda: fleet.batch_filter(zs, dts=[0.5, np.nan, 0.5, 0.5, 0.5]), ParameterError),
+        (lambda: fleet.batch_filter(zs, fx_args=[1]), ParameterError),
+        (lambda: fleet.batch_filter(zs, dts=[0.5] * (T + 1)), ShapeError),
+        (lambda: fleet.batch_filter(zs, dts=np.ones((T, 1))), ShapeError),
+        (lambda: fleet.batch_filter(late_inf), NonFiniteError),
+    ]
+    for call, exc in calls:
+        with pytest.raises(exc):
+            call()
+        assert_fleet_state(fleet, snap)
+
+
+def test_batch_filter_on_error_raise_changes_nothing():
+    K, T = 3, 4
+    fleet, _, zs = batch_setup(K, T)
+    fleet.on_error = "raise"
+    snap = fleet_state(fleet)
+
+    def fx(X, dt):
+        fx.calls += 1
+        out = cv_fx(X, dt)
+        if fx.calls == 3:  # the third prediction fails for filter 1
+            out[1] = np.nan
+        return out
+
+    fx.calls = 0
+    fleet.fx = fx
+    with pytest.raises(FleetStepError) as info:
+        fleet.batch_filter(zs)
+    assert info.value.filters == (1,)
+    assert_fleet_state(fleet, snap)
+
+
+# -- ask / tell, copies, pickles ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_ask_tell_equals_predict_update(scheme):
+    K = 3
+    fleet, _, zs = setup_pair(K, "merwe", scheme)
+    ref = copy.deepcopy(fleet)
+    N = 2 * N_X + 1
+    for t in range(3):
+        X = fleet.ask_predict()
+        assert X.shape == (K, N, N_X)
+        X[:] = 0.0  # a fresh array: the fleet's points are not changed through it
+        X = fleet.ask_predict()
+        fleet.tell_predict(cv_fx(X, DT))
+        X2 = fleet.ask_update()
+        n2 = 4 * N_X + 1 if scheme == "augmented" else N
+        assert X2.shape == (K, n2, N_X)
+        fleet.tell_update(rb_hx(X2), zs[:, t])
+        ref.predict()
+        ref.update(zs[:, t])
+        assert_fleet_state(fleet, fleet_state(ref))
+    with pytest.raises(CallSequenceError):
+        fleet.tell_predict(np.zeros((K, N, N_X)))
+    fleet.ask_predict()
+    with pytest.raises(CallSequenceError):
+        fleet.ask_update()
+
+
+def test_ask_update_without_prediction_redraws():
+    fleet, singles, zs = setup_pair(2, "merwe", "propagated")
+    X = fleet.ask_update()
+    fleet.tell_update(rb_hx(X), zs[:, 0], R=np.eye(2) * 0.1)
+    for k, f in enumerate(singles):
+        f.update(zs[k, 0], R=np.eye(2) * 0.1)
+        assert_close(fleet.x[k], f.x, "x")
+        assert_close(fleet.P1_2[k], f.P1_2, "P1_2")
+
+
+def advance(fleet, zs, t):
+    fleet.predict()
+    fleet.update(zs[:, t])
+
+
+@pytest.mark.parametrize("how", ["pickle", "copy", "deepcopy"])
+@pytest.mark.parametrize("phase", ["idle", "asked-predict", "told-predict", "asked-update"])
+def test_copies_are_independent(how, phase):
+    K = 3
+    fleet, _, zs = setup_pair(K, "merwe", "augmented")
+    fleet.predict(bad=np.array([False, True, False]))  # with a flagged filter
+    fleet.update(zs[:, 0])
+    if phase != "idle":
+        X = fleet.ask_predict()
+        if phase != "asked-predict":
+            fleet.tell_predict(cv_fx(X, DT))
+            if phase == "asked-update":
+                fleet.ask_update()
+    clone = {"pickle": lambda f: pickle.loads(pickle.dumps(f)), "copy": copy.copy, "deepcopy": copy.deepcopy}[
+        how
+    ](fleet)
+    assert_fleet_state(clone, fleet_state(fleet))
+
+    def finish(f):
+        if phase == "asked-predict":
+            f.tell_predict(cv_fx(f._state.sigmas, DT))
+        if phase in ("asked-predict", "told-predict"):
+            f.ask_update()
+        if phase != "idle":
+            f.tell_update(rb_hx(f._state.sigmas), zs[:, 1])
+
+    finish(fleet)
+    finish(clone)
+    assert_fleet_state(clone, fleet_state(fleet))
+    # changing one leaves the other alone
+    snap = fleet_state(clone)
+    fleet.x = np.zeros(4)
+    fleet.R = np.eye(2)
+    fleet.reset()
+    advance(fleet, zs, 2)
+    assert_fleet_state(clone, snap)
+    assert clone.failed[1] and not fleet.failed[1]
+    advance(clone, zs, 2)
+    assert np.abs(clone.x - fleet.x).max() > 1e-3
+
+
+def test_ask_tell_values_may_be_edited_by_the_caller():
+    """The arrays handed out and told are the caller's: editing them later changes nothing."""
+    fleet, _, zs = setup_pair(2, "merwe", "propagated")
+    ref = copy.deepcopy(fleet)
+    X = fleet.ask_predict()
+    F = cv_fx(X, DT)
+    fleet.tell_predict(F)
+    F[:] = np.nan
+    X2 = fleet.ask_update()
+    H = rb_hx(X2)
+    z = zs[:, 0].copy()
+    fleet.tell_update(H, z)
+    H[:] = 0.0
+    z[:] = 0.0
+    ref.predict()
+    ref.update(zs[:, 0])
+    assert_fleet_state(fleet, fleet_state(ref))
