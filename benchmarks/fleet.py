@@ -375,7 +375,7 @@ def fleet_memory(model, K: int, seed: int) -> dict:
 def steps_for(K: int, quick: bool) -> int:
     if quick:
         return 4
-    return 20 if K <= 100 else 10 if K <= 1000 else 3 if K <= 10_000 else 2
+    return 20 if K <= 100 else 10 if K <= 1000 else 2
 
 
 def reps_for(K: int, quick: bool) -> int:
