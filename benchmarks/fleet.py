@@ -3,6 +3,7 @@
     python benchmarks/fleet.py            # full run (about ten minutes), results in benchmarks/results/
     python benchmarks/fleet.py --quick    # smoke test, well under 30 s
     python benchmarks/fleet.py --skip dynamax   # without the JAX peer
+    python benchmarks/fleet.py --Ks 10000 --models n4 --out DIR   # one K of one model
 
 Two models: a 2-D constant-velocity target seen by a range-bearing sensor
 (n = 4, m = 2) and five independent 2-D oscillators seen through cubic sensors
@@ -64,6 +65,8 @@ def _parse(argv):
     ap.add_argument("--out", default=str(HERE / "results"))
     ap.add_argument("--skip", nargs="*", default=[], choices=PEERS, help="peers not to run")
     ap.add_argument("--loop-budget", type=float, default=20.0, help="seconds per loop run, at most")
+    ap.add_argument("--Ks", type=int, nargs="+", help="numbers of filters (default 1 to 10^5)")
+    ap.add_argument("--models", nargs="+", choices=("n4", "n10"), default=["n4", "n10"])
     return ap.parse_args(argv)
 
 
@@ -597,7 +600,7 @@ def main(args) -> int:
             impls["dynamax"] = Dynamax().run
         except Exception as exc:  # noqa: BLE001 - any import problem: skip the peer, say why
             skipped.append(f"{LABELS['dynamax']} ({type(exc).__name__}: {exc})")
-    Ks = [1, 10] if args.quick else [1, 10, 100, 1000, 10_000, 100_000]
+    Ks = args.Ks or ([1, 10] if args.quick else [1, 10, 100, 1000, 10_000, 100_000])
     results = {
         "machine": versions(impls),
         "quick": args.quick,
@@ -607,7 +610,8 @@ def main(args) -> int:
         "models": {},
     }
     ok = True
-    for i, model in enumerate((ConstantVelocity(), Oscillators())):
+    models = {"n4": ConstantVelocity, "n10": Oscillators}
+    for i, model in enumerate(models[m]() for m in args.models):
         log(f"{model.name}")
         # quick: the accuracy run has the shape of the last timed one (one compilation less for dynamax)
         acc = accuracy(
@@ -622,7 +626,9 @@ def main(args) -> int:
         results["models"][model.name] = {"timing": tm, "memory": mem, "accuracy": acc}
     results["targets"] = targets(results)
     command = "python benchmarks/fleet.py" + (" --quick" if args.quick else "")
-    command += "".join(f" --skip {s}" for s in args.skip)
+    command += f" --skip {' '.join(args.skip)}" if args.skip else ""
+    command += f" --Ks {' '.join(map(str, args.Ks))}" if args.Ks else ""
+    command += f" --models {' '.join(args.models)}" if args.models != ["n4", "n10"] else ""
     write_markdown(out, results, command)
     plot(out, results)
     (out / "fleet.json").write_text(json.dumps(results, indent=1, default=str))
