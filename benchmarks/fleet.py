@@ -1,0 +1,644 @@
+"""K filters at once: ``squkf.Fleet`` against loops of filters and dynamax under ``jax.vmap`` + ``jax.jit``.
+
+    python benchmarks/fleet.py            # full run (about ten minutes), results in benchmarks/results/
+    python benchmarks/fleet.py --quick    # smoke test, well under 30 s
+    python benchmarks/fleet.py --skip dynamax   # without the JAX peer
+    python benchmarks/fleet.py --Ks 10000 --models n4 --out DIR   # one K of one model
+
+Two models: a 2-D constant-velocity target seen by a range-bearing sensor
+(n = 4, m = 2) and five independent 2-D oscillators seen through cubic sensors
+``z_i = p_i + 0.05 p_i**3`` (n = 10, m = 5). Each of the K filters has its
+own simulated truth and measurements.
+
+Implementations, all Merwe's scaled points (alpha = 1, beta = 2, kappa = 0)
+and the redrawn scheme (the second sigma-point set drawn from the prior):
+
+* ``Fleet``: one ``predict`` and one ``update`` per step for all K filters;
+* a loop of K ``SquareRootUKF(vectorized=True)`` with the same model functions;
+* a loop of K filterpy ``UnscentedKalmanFilter`` with per-point ``math`` functions;
+* dynamax's ``unscented_kalman_filter`` (a full-covariance UKF), ``jax.vmap``-ed
+  over the filters and ``jax.jit``-ed, float64 on the CPU; compiled once per
+  shape before timing. It updates before it predicts, so it starts from the
+  prediction of the others' first step (exact here: both models' dynamics are
+  linear) and runs the same T updates and T predictions.
+
+Timing: the time per filter-step is a run's time divided by K * T (T steps of
+K filters; only the steps are timed, not building the filters). At each K the
+implementations are interleaved over repetitions in one process (their order
+rotated); the table gives medians, and ratios are taken per repetition (median
+of the ratios). A loop is run at a K only when its median at the previous K,
+times K * T, is under ``--loop-budget`` seconds (20 s): what is not measured
+is not reported. BLAS is held to one thread (set before numpy is imported).
+
+Memory: the peak of Python-heap allocations (``tracemalloc``, which numpy
+reports its arrays to) during one fleet ``predict`` + ``update``, above what was
+allocated before the step, and the fleet's own state (its arrays). XLA's
+buffers are invisible to ``tracemalloc``, so dynamax has no memory column.
+
+Accuracy: on a separate, untimed run, the fleet's estimates are compared with
+the loop of ``SquareRootUKF`` (the same filter: RMSE equal to 1e-9 or the run
+fails), with filterpy and with dynamax (the largest difference of an estimate
+is reported; dynamax forms full covariances and solves with them, so it
+agrees to rounding amplified by the conditioning, not bit for bit).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import sys
+import time
+import tracemalloc
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS")
+PEERS = ("loop", "filterpy", "dynamax")
+
+
+def _parse(argv):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="tiny sizes, for the smoke test")
+    ap.add_argument("--out", default=str(HERE / "results"))
+    ap.add_argument("--skip", nargs="*", default=[], choices=PEERS, help="peers not to run")
+    ap.add_argument("--loop-budget", type=float, default=20.0, help="seconds per loop run, at most")
+    ap.add_argument("--Ks", type=int, nargs="+", help="numbers of filters (default 1 to 10^5)")
+    ap.add_argument("--models", nargs="+", choices=("n4", "n10"), default=["n4", "n10"])
+    return ap.parse_args(argv)
+
+
+ARGS = _parse(sys.argv[1:]) if __name__ == "__main__" else None
+if ARGS is not None:
+    for var in THREAD_VARS:  # must happen before numpy loads its BLAS
+        os.environ[var] = "1"
+
+import numpy as np  # noqa: E402
+
+ROOT = HERE.parent
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from squkf import Fleet, MerweScaledWeights, SquareRootUKF  # noqa: E402
+
+ALPHA, BETA, KAPPA = 1.0, 2.0, 0.0
+OKABE_ITO = {"fleet": "#0072B2", "loop": "#E69F00", "filterpy": "#009E73", "dynamax": "#CC79A7"}
+LABELS = {
+    "fleet": "squkf Fleet",
+    "loop": "loop of SquareRootUKF (vectorized)",
+    "filterpy": "loop of filterpy UKF",
+    "dynamax": "dynamax UKF, vmap + jit",
+}
+
+
+# -- models ---------------------------------------------------------------------------------------
+
+
+class ConstantVelocity:
+    """2-D constant velocity (white-noise acceleration), range and bearing from the origin."""
+
+    name, n, m, dt = "CV range-bearing n=4", 4, 2, 1.0
+
+    def __init__(self):
+        q, dt = 0.05, self.dt
+        blk = q * np.array([[dt**3 / 3, dt**2 / 2], [dt**2 / 2, dt]])
+        self.Q = np.kron(np.eye(2), blk)
+        self.R = np.diag([5.0**2, 2e-3**2])
+        self.x0 = np.array([1000.0, 5.0, 1500.0, -3.0])
+        self.P0 = np.diag([30.0**2, 2.0**2, 30.0**2, 2.0**2])
+        self.F = np.array([[1, dt, 0, 0], [0, 1, 0, 0], [0, 0, 1, dt], [0, 0, 0, 1.0]])
+
+    @staticmethod
+    def fx(X, dt):  # any leading axes: (n,), (N, n) or (K, N, n)
+        return np.stack(
+            [X[..., 0] + dt * X[..., 1], X[..., 1], X[..., 2] + dt * X[..., 3], X[..., 3]], axis=-1
+        )
+
+    @staticmethod
+    def hx(X):
+        return np.stack([np.hypot(X[..., 0], X[..., 2]), np.arctan2(X[..., 2], X[..., 0])], axis=-1)
+
+    @staticmethod
+    def fx_point(x, dt):
+        x0, x1, x2, x3 = x.tolist()
+        return np.array([x0 + dt * x1, x1, x2 + dt * x3, x3])
+
+    @staticmethod
+    def hx_point(x):
+        x0, x2 = float(x[0]), float(x[2])
+        return np.array([math.hypot(x0, x2), math.atan2(x2, x0)])
+
+    def jax_functions(self):
+        import jax.numpy as jnp
+
+        dt = self.dt
+
+        def f(x):
+            return jnp.array([x[0] + dt * x[1], x[1], x[2] + dt * x[3], x[3]])
+
+        def h(x):
+            return jnp.array([jnp.hypot(x[0], x[2]), jnp.arctan2(x[2], x[0])])
+
+        return f, h
+
+    def measure(self, X):
+        return self.hx(X)
+
+
+class Oscillators:
+    """Five independent undamped 2-D oscillators (position, velocity), each seen through a cubic sensor."""
+
+    name, n, m, dt = "5 oscillators, cubic sensors n=10", 10, 5, 0.1
+    c = 0.05
+
+    def __init__(self):
+        self.omega = np.array([0.5, 0.8, 1.1, 1.4, 1.7])
+        dt, w = self.dt, self.omega
+        self.cs, self.sn = np.cos(w * dt), np.sin(w * dt)
+        self.F = np.zeros((10, 10))
+        for i in range(5):
+            self.F[2 * i : 2 * i + 2, 2 * i : 2 * i + 2] = [
+                [self.cs[i], self.sn[i] / w[i]],
+                [-w[i] * self.sn[i], self.cs[i]],
+            ]
+        self.Q = np.kron(np.eye(5), np.diag([1e-4, 1e-3]))
+        self.R = np.eye(5) * 0.05**2
+        self.x0 = np.tile([1.0, 0.0], 5)
+        self.P0 = np.kron(np.eye(5), np.diag([0.3**2, 0.3**2]))
+        self._cs, self._sw, self._ws = self.cs.tolist(), (self.sn / w).tolist(), (w * self.sn).tolist()
+
+    def fx(self, X, dt):
+        P, V = X[..., 0::2], X[..., 1::2]
+        out = np.empty_like(X)
+        out[..., 0::2] = self.cs * P + self.sn / self.omega * V
+        out[..., 1::2] = -self.omega * self.sn * P + self.cs * V
+        return out
+
+    def hx(self, X):
+        P = X[..., 0::2]
+        return P + self.c * P**3
+
+    def fx_point(self, x, dt):
+        v = x.tolist()
+        out = []
+        for i in range(5):
+            p, q = v[2 * i], v[2 * i + 1]
+            out += [self._cs[i] * p + self._sw[i] * q, -self._ws[i] * p + self._cs[i] * q]
+        return np.array(out)
+
+    def hx_point(self, x):
+        c = self.c
+        return np.array([p + c * p * p * p for p in x[0::2].tolist()])
+
+    def jax_functions(self):
+        import jax.numpy as jnp
+
+        F = jnp.asarray(self.F)
+        c = self.c
+
+        def f(x):
+            return F @ x
+
+        def h(x):
+            p = x[0::2]
+            return p + c * p**3
+
+        return f, h
+
+    def measure(self, X):
+        return self.hx(X)
+
+
+def simulate(model, K: int, T: int, seed: int):
+    """Truths ``(K, T, n)`` and measurements ``(K, T, m)``; truth 0 is drawn from N(x0, P0)."""
+    rng = np.random.default_rng(seed)
+    LP, LQ, LR = (np.linalg.cholesky(a) for a in (model.P0, model.Q, model.R))
+    x = model.x0 + rng.standard_normal((K, model.n)) @ LP.T
+    truth = np.empty((K, T, model.n))
+    zs = np.empty((K, T, model.m))
+    for t in range(T):
+        x = x @ model.F.T + rng.standard_normal((K, model.n)) @ LQ.T
+        truth[:, t] = x
+        zs[:, t] = model.measure(x) + rng.standard_normal((K, model.m)) @ LR.T
+    return truth, zs
+
+
+# -- implementations: each returns (seconds for the T steps of K filters, final/all estimates) --------
+
+
+def points():
+    return MerweScaledWeights(ALPHA, BETA, KAPPA)
+
+
+def run_fleet(model, zs, keep=False):
+    K, T, _ = zs.shape
+    f = Fleet(K, model.n, model.m, model.dt, model.hx, model.fx, points())
+    f.x, f.P, f.Q, f.R = model.x0, model.P0, model.Q, model.R
+    est = np.empty((K, T, model.n)) if keep else None
+    t0 = time.perf_counter()
+    for t in range(T):
+        f.predict()
+        f.update(zs[:, t])
+        if est is not None:
+            est[:, t] = f.x
+    return time.perf_counter() - t0, est, f
+
+
+def run_loop(model, zs, keep=False):
+    K, T, _ = zs.shape
+    filters = []
+    for _ in range(K):
+        g = SquareRootUKF(model.n, model.m, model.dt, model.hx, model.fx, points(), vectorized=True)
+        g.x, g.P, g.Q, g.R = model.x0.copy(), model.P0.copy(), model.Q.copy(), model.R.copy()
+        filters.append(g)
+    est = np.empty((K, T, model.n)) if keep else None
+    t0 = time.perf_counter()
+    for t in range(T):
+        for k, g in enumerate(filters):
+            g.predict()
+            g.update(zs[k, t])
+            if est is not None:
+                est[k, t] = g.x
+    return time.perf_counter() - t0, est, None
+
+
+def run_filterpy(model, zs, keep=False):
+    from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+    K, T, _ = zs.shape
+    filters = []
+    for _ in range(K):
+        pts = MerweScaledSigmaPoints(model.n, ALPHA, BETA, KAPPA)
+        g = UnscentedKalmanFilter(model.n, model.m, model.dt, model.hx_point, model.fx_point, pts)
+        g.x, g.P, g.Q, g.R = model.x0.copy(), model.P0.copy(), model.Q.copy(), model.R.copy()
+        filters.append(g)
+    est = np.empty((K, T, model.n)) if keep else None
+    t0 = time.perf_counter()
+    for t in range(T):
+        for k, g in enumerate(filters):
+            g.predict()
+            g.update(zs[k, t])
+            if est is not None:
+                est[k, t] = g.x
+    return time.perf_counter() - t0, est, None
+
+
+class Dynamax:
+    """dynamax's UKF, vmapped over filters and jitted; compiled once per (K, T) before timing."""
+
+    def __init__(self):
+        import jax
+
+        jax.config.update("jax_enable_x64", True)
+        jax.config.update("jax_platforms", "cpu")
+        from dynamax.nonlinear_gaussian_ssm import ParamsNLGSSM, UKFHyperParams, unscented_kalman_filter
+
+        self.jax = jax
+        self.Params, self.Hyper, self.ukf = ParamsNLGSSM, UKFHyperParams, unscented_kalman_filter
+        self.version = __import__("dynamax").__version__
+        self._compiled: dict = {}
+
+    def _fn(self, model, K, T):
+        key = (model.name, K, T)
+        if key not in self._compiled:
+            jax, jnp = self.jax, self.jax.numpy
+            f, h = model.jax_functions()
+            # dynamax updates first: start it at the others' first prediction (exact: linear dynamics)
+            m1 = model.F @ model.x0
+            P1 = model.F @ model.P0 @ model.F.T + model.Q
+            params = self.Params(
+                initial_mean=jnp.asarray(m1),
+                initial_covariance=jnp.asarray(P1),
+                dynamics_function=f,
+                dynamics_covariance=jnp.asarray(model.Q),
+                emission_function=h,
+                emission_covariance=jnp.asarray(model.R),
+            )
+            hyper = self.Hyper(alpha=ALPHA, beta=BETA, kappa=KAPPA)
+
+            def one(z):
+                return self.ukf(params, z, hyper, output_fields=["filtered_means"]).filtered_means
+
+            fn = jax.jit(jax.vmap(one))
+            fn(np.broadcast_to(model.measure(model.x0), (K, T, model.m)).copy()).block_until_ready()
+            self._compiled[key] = fn
+        return self._compiled[key]
+
+    def run(self, model, zs, keep=False):
+        K, T, _ = zs.shape
+        fn = self._fn(model, K, T)
+        z = self.jax.device_put(zs)
+        t0 = time.perf_counter()
+        out = fn(z).block_until_ready()
+        dt = time.perf_counter() - t0
+        return dt, (np.asarray(out) if keep else None), None
+
+
+# -- measuring --------------------------------------------------------------------------------------
+
+
+def rmse(est, truth):
+    return float(np.sqrt(np.mean((est - truth) ** 2)))
+
+
+def accuracy(model, impls, K: int, T: int, seed: int) -> dict:
+    """RMSE of every implementation on the same runs, and the largest difference from the fleet."""
+    truth, zs = simulate(model, K, T, seed)
+    _, ref, _ = run_fleet(model, zs, keep=True)
+    out = {"K": K, "T": T, "fleet": {"rmse": rmse(ref, truth)}}
+    for name, fn in impls.items():
+        if name == "fleet":
+            continue
+        _, est, _ = fn(model, zs, keep=True)
+        out[name] = {"rmse": rmse(est, truth), "max_abs_diff": float(np.max(np.abs(est - ref)))}
+    return out
+
+
+def fleet_memory(model, K: int, seed: int) -> dict:
+    """tracemalloc peak during one predict + update of a K-filter fleet, above the allocations before it."""
+    truth, zs = simulate(model, K, 2, seed)
+    f = Fleet(K, model.n, model.m, model.dt, model.hx, model.fx, points())
+    f.x, f.P, f.Q, f.R = model.x0, model.P0, model.Q, model.R
+    f.predict()
+    f.update(zs[:, 0])  # a warm step first (records, caches)
+    z = zs[:, 1].copy()
+    tracemalloc.start()
+    before = tracemalloc.get_traced_memory()[0]
+    tracemalloc.reset_peak()
+    f.predict()
+    f.update(z)
+    current, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    state = sum(v.nbytes for v in vars(f).values() if isinstance(v, np.ndarray))
+    return {"K": K, "peak_MB": (peak - before) / 1e6, "state_MB": state / 1e6}
+
+
+def steps_for(K: int, quick: bool) -> int:
+    if quick:
+        return 4
+    return 20 if K <= 100 else 10 if K <= 1000 else 2
+
+
+def reps_for(K: int, quick: bool) -> int:
+    if quick:
+        return 2
+    return 7 if K <= 1000 else 5
+
+
+def timing(model, impls, Ks, quick: bool, budget: float, seed: int, log) -> dict:
+    """Per K: the time per filter-step of each implementation (median) and the fleet's speed-up (median)."""
+    rows: dict = {}
+    last: dict[str, float] = {}  # median seconds per filter-step at the previous K
+    for K in Ks:
+        T = steps_for(K, quick)
+        reps = reps_for(K, quick)
+        names = []
+        for name in impls:
+            if name == "dynamax":
+                run = not (quick and K == 1)  # quick: one compilation less
+            elif name == "fleet":
+                run = True
+            else:  # a loop: while its run at the previous K predicts a run under the budget
+                run = (not rows and name not in last) or (name in last and last[name] * K * T < budget)
+            if run:
+                names.append(name)
+        times: dict[str, list[float]] = {name: [] for name in names}
+        for r in range(reps):
+            _, zs = simulate(model, K, T, seed + r)
+            order = names[r % len(names) :] + names[: r % len(names)]
+            for name in order:
+                seconds, _, _ = impls[name](model, zs)
+                times[name].append(seconds / (K * T))
+        row = {"T": T, "reps": reps}
+        for name in names:
+            row[name] = {"us": float(np.median(times[name]) * 1e6)}
+            if name != "fleet":
+                ratios = np.array(times[name]) / np.array(times["fleet"])
+                row[name]["speedup"] = float(np.median(ratios))
+            last[name] = float(np.median(times[name]))
+        for name in impls:
+            if name not in names:
+                last.pop(name, None)
+        rows[K] = row
+        log(
+            f"  K={K:>6}: "
+            + ", ".join(f"{n} {row[n]['us']:.3g} us" for n in names)
+            + (f"  (T={T}, {reps} reps)")
+        )
+    return rows
+
+
+# -- reporting ----------------------------------------------------------------------------------------
+
+
+def versions(impls) -> str:
+    import filterpy
+    import scipy
+
+    parts = [
+        f"Python {platform.python_version()}",
+        f"numpy {np.__version__}",
+        f"scipy {scipy.__version__}",
+        f"filterpy {filterpy.__version__}",
+    ]
+    if "dynamax" in impls:
+        import jax
+
+        parts.append(f"jax {jax.__version__}, dynamax {__import__('dynamax').__version__}")
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"Machine: {cpu}, {os.cpu_count()} cores; " + ", ".join(parts) + "; BLAS threads: 1."
+
+
+def _fmt(x: float) -> str:
+    return f"{x:.3g}" if x < 1000 else f"{x:,.0f}"
+
+
+def write_markdown(out: Path, results: dict, command: str) -> None:
+    lines = [
+        "# Fleet benchmark: K filters at once",
+        "",
+        f"Produced by `{command}`; {results['machine']}",
+        "",
+        "Time per filter-step is the time of T steps (predict + update) of K filters divided by K * T "
+        "(medians over interleaved repetitions); a loop is measured only up to the K where a run takes "
+        f"under {results['loop_budget']:g} s, and blank cells were not measured. Speed-up is the median "
+        "over repetitions of (that implementation's time) / (the fleet's time) in the same repetition. "
+        "Memory is tracemalloc's peak during one fleet predict + update above the allocations before it "
+        "(Python-heap allocations, which include numpy's arrays).",
+        "",
+    ]
+    if results["skipped"]:
+        lines += ["Skipped: " + "; ".join(results["skipped"]) + ".", ""]
+    for mname, res in results["models"].items():
+        names = [n for n in ("fleet", "loop", "filterpy", "dynamax") if n in results["impls"]]
+        lines += [f"## {mname}", ""]
+        head = ["K", "T x reps"] + [f"{LABELS[n]} us/filter-step" for n in names]
+        head += [f"speed-up vs {n}" for n in names if n != "fleet"]
+        head += ["fleet step peak MB", "fleet state MB"]
+        lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for K, row in res["timing"].items():
+            cells = [f"{int(K):,}", f"{row['T']} x {row['reps']}"]
+            cells += [_fmt(row[n]["us"]) if n in row else "" for n in names]
+            cells += [f"{row[n]['speedup']:.3g}" if n in row else "" for n in names if n != "fleet"]
+            mem = res["memory"].get(str(K)) or res["memory"].get(K)
+            cells += [f"{mem['peak_MB']:.3g}", f"{mem['state_MB']:.3g}"] if mem else ["", ""]
+            lines.append("| " + " | ".join(cells) + " |")
+        acc = res["accuracy"]
+        lines += [
+            "",
+            f"Accuracy (untimed, K = {acc['K']}, T = {acc['T']}): fleet RMSE {acc['fleet']['rmse']:.6g}; "
+            + "; ".join(
+                f"{LABELS[n]} RMSE {acc[n]['rmse']:.6g} "
+                f"(largest |estimate - fleet's| {acc[n]['max_abs_diff']:.2g})"
+                for n in names
+                if n != "fleet" and n in acc
+            )
+            + ".",
+            "",
+        ]
+    tg = results.get("targets")
+    if tg:
+        lines += ["## Targets (K = 10^4 and 10^5, n = 4)", "", "| target | measured | met |", "|---|---|---|"]
+        for t in tg:
+            lines.append(f"| {t['target']} | {t['measured']} | {t['met']} |")
+        lines.append("")
+    (out / "fleet.md").write_text("\n".join(lines))
+
+
+def targets(results: dict) -> list[dict]:
+    res = results["models"].get(ConstantVelocity.name)
+    if res is None:
+        return []
+    out = []
+    row = res["timing"].get(10_000)
+    wanted = (
+        ("loop", ">= 40x faster than the loop of SquareRootUKF", 40.0),
+        ("filterpy", ">= 80x faster than the loop of filterpy UKFs", 80.0),
+    )
+    for name, text, need in wanted:
+        if row is not None and name in row:
+            s = row[name]["speedup"]
+            out.append(
+                {"target": f"K = 10^4: {text}", "measured": f"{s:.3g}x", "met": "yes" if s >= need else "no"}
+            )
+        else:
+            out.append({"target": f"K = 10^4: {text}", "measured": "not measured", "met": "-"})
+    if row is not None and "dynamax" in row:
+        s = row["dynamax"]["speedup"]  # dynamax time / fleet time
+        out.append(
+            {
+                "target": "K = 10^4: within 3x of dynamax + vmap + jit",
+                "measured": f"fleet takes {1 / s:.3g}x dynamax's time",
+                "met": "yes" if 1 / s <= 3 else "no",
+            }
+        )
+    else:
+        out.append(
+            {"target": "K = 10^4: within 3x of dynamax + vmap + jit", "measured": "not measured", "met": "-"}
+        )
+    mem = res["memory"].get(100_000)
+    out.append(
+        {
+            "target": "K = 10^5: one step's peak memory < 200 MB",
+            "measured": f"{mem['peak_MB']:.3g} MB" if mem else "not measured",
+            "met": ("yes" if mem["peak_MB"] < 200 else "no") if mem else "-",
+        }
+    )
+    return out
+
+
+def plot(out: Path, results: dict) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    models = list(results["models"])
+    fig, axes = plt.subplots(1, len(models), figsize=(5.2 * len(models), 4.2), squeeze=False)
+    for ax, mname in zip(axes[0], models):
+        tm = results["models"][mname]["timing"]
+        for name in ("fleet", "loop", "filterpy", "dynamax"):
+            Ks = [int(K) for K, row in tm.items() if name in row]
+            if not Ks:
+                continue
+            us = [tm[K][name]["us"] for K in tm if name in tm[K]]
+            ax.loglog(Ks, us, "o-", color=OKABE_ITO[name], label=LABELS[name])
+        ax.set_xlabel("number of filters K")
+        ax.set_ylabel("time per filter-step (µs)")
+        ax.set_title(mname)
+        ax.grid(True, which="major", alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle("Median time per predict + update of one filter (BLAS 1 thread)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(out / "fleet.png", dpi=120)
+    plt.close(fig)
+
+
+def main(args) -> int:
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    log = lambda s: print(s, flush=True)  # noqa: E731
+    impls = {"fleet": run_fleet, "loop": run_loop, "filterpy": run_filterpy}
+    skipped = []
+    for name in ("loop", "filterpy"):
+        if name in args.skip:
+            impls.pop(name)
+            skipped.append(f"{LABELS[name]} (--skip)")
+    if "dynamax" in args.skip:
+        skipped.append(f"{LABELS['dynamax']} (--skip)")
+    else:
+        try:
+            impls["dynamax"] = Dynamax().run
+        except Exception as exc:  # noqa: BLE001 - any import problem: skip the peer, say why
+            skipped.append(f"{LABELS['dynamax']} ({type(exc).__name__}: {exc})")
+    Ks = args.Ks or ([1, 10] if args.quick else [1, 10, 100, 1000, 10_000, 100_000])
+    results = {
+        "machine": versions(impls),
+        "quick": args.quick,
+        "impls": list(impls),
+        "skipped": skipped,
+        "loop_budget": args.loop_budget,
+        "models": {},
+    }
+    ok = True
+    models = {"n4": ConstantVelocity, "n10": Oscillators}
+    for i, model in enumerate(models[m]() for m in args.models):
+        log(f"{model.name}")
+        # quick: the accuracy run has the shape of the last timed one (one compilation less for dynamax)
+        acc = accuracy(
+            model, impls, 10 if args.quick else 50, steps_for(10, True) if args.quick else 30, 1000 + i
+        )
+        d = abs(acc["fleet"]["rmse"] - acc["loop"]["rmse"]) if "loop" in acc else None
+        acc["fleet_equals_loop"] = None if d is None else d <= 1e-9  # None: the loop was not run
+        ok &= d is None or acc["fleet_equals_loop"]
+        log(f"  accuracy: {json.dumps(acc)}")
+        mem = {K: fleet_memory(model, K, 7) for K in Ks}
+        tm = timing(model, impls, Ks, args.quick, args.loop_budget, 100 * (i + 1), log)
+        results["models"][model.name] = {"timing": tm, "memory": mem, "accuracy": acc}
+    results["targets"] = targets(results)
+    command = "python benchmarks/fleet.py" + (" --quick" if args.quick else "")
+    command += f" --skip {' '.join(args.skip)}" if args.skip else ""
+    command += f" --Ks {' '.join(map(str, args.Ks))}" if args.Ks else ""
+    command += f" --models {' '.join(args.models)}" if args.models != ["n4", "n10"] else ""
+    write_markdown(out, results, command)
+    plot(out, results)
+    (out / "fleet.json").write_text(json.dumps(results, indent=1, default=str))
+    for t in results["targets"]:
+        log(f"  target {t['target']}: {t['measured']} ({t['met']})")
+    if not ok:
+        log("ACCURACY CHECK FAILED: the fleet's RMSE differs from the loop's by more than 1e-9")
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(ARGS))
