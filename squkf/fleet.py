@@ -560,7 +560,8 @@ class Fleet:
         active = ~self._failed
         finite = self._finite_rows(F)
         self._fail(fails, np.flatnonzero(active & ~finite), "fx values are not finite")
-        F = np.where(finite[:, None, None], F, X)  # a failing filter's rows: harmless stand-ins
+        if not finite.all():
+            F = np.where(finite[:, None, None], F, X)  # a failing filter's rows: harmless stand-ins
         idx = np.flatnonzero(active & finite)
         plan, hooks, Q = self._plan, self._hooks(), self._Q1_2
 

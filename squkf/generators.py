@@ -254,6 +254,8 @@ class Redrawn:
 
 
 class _RedrawnSet:
+    uses_propagated = False  # the step need not keep the first set's images for it
+
     def __init__(self, unit: UnitSet):
         self.unit = unit
 

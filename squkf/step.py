@@ -196,7 +196,9 @@ def draw_second_set(
     """
     propagated = state.propagated if state.phase in (PRIOR, UPDATING) else None
     sset = plan.second.draw(x, S, propagated, state.Q1_2, state_add)
-    return StepState(state.phase, state.sigmas, state.propagated, state.Q1_2, sset, (x, S))
+    if not getattr(plan.second, "uses_propagated", True):
+        propagated = None  # not kept where the second set never reads it (memory, for a fleet)
+    return StepState(state.phase, state.sigmas, propagated, state.Q1_2, sset, (x, S))
 
 
 def ask_update(
