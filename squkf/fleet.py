@@ -50,6 +50,9 @@ __all__ = ["Fleet", "FleetResult", "FleetStepError"]
 
 _LOG_2PI = math.log(2.0 * math.pi)
 
+#: Filters computed together in one block of the core's numerics (bounds the temporary arrays).
+BLOCK = 4096
+
 
 class FleetStepError(SqukfError, ArithmeticError):
     """A fleet step with ``on_error="raise"`` in which some filters failed numerically.
@@ -99,7 +102,7 @@ class FleetResult:
 
 def _take(sset: SigmaSet, idx: np.ndarray | slice) -> SigmaSet:
     """The set of the filters ``idx`` (rows of every stacked field)."""
-    if isinstance(idx, slice):
+    if isinstance(idx, slice) and idx == slice(None):
         return sset
     drawn = None if sset.drawn is None else (sset.drawn[0], sset.drawn[1][idx])
     offsets = None if sset.offsets is None else sset.offsets[idx]
@@ -481,26 +484,44 @@ class Fleet:
         return np.isfinite(A.reshape(A.shape[0], -1)).all(axis=1)
 
     def _isolated(self, fn: Callable, idx: np.ndarray, fails: dict[int, str]):
-        """Run ``fn(idx)`` on the filters ``idx`` at once; on a numerical error, one by one.
+        """Run ``fn`` on the filters ``idx``, a block at a time; on a numerical error, one by one.
 
         Each filter's arithmetic is independent of the others', so the filters
-        that succeed get the same numbers either way. Returns the indices that
-        succeeded and their results (a tuple of arrays over those filters).
+        that succeed get the same numbers however they are grouped. Blocks of at
+        most :data:`BLOCK` filters bound the step's temporary arrays. Returns the
+        indices that succeeded and their results (a tuple of arrays over those filters).
         """
         if idx.size == 0:
             return idx, None
+        every = idx.size == self._K and bool(np.all(idx == np.arange(self._K)))
+        cuts = list(range(0, idx.size, BLOCK)) + [idx.size]
+        if len(cuts) > 2 and cuts[-1] - cuts[-2] < 2:
+            del cuts[-2]  # no block of one filter (see run)
+        goods, parts = [], []
+        for lo, hi in zip(cuts[:-1], cuts[1:]):
+            good, res = self._isolated_block(fn, idx[lo:hi], slice(lo, hi) if every else None, fails)
+            if res is not None:
+                goods.append(good)
+                parts.append(res)
+        if not parts:
+            return np.array([], dtype=int), None
+        if len(parts) == 1:
+            return goods[0], parts[0]
+        return np.concatenate(goods), tuple(
+            np.concatenate([p[i] for p in parts]) for i in range(len(parts[0]))
+        )
 
-        def run(ix: np.ndarray):
+    def _isolated_block(self, fn: Callable, idx: np.ndarray, rows: slice | None, fails: dict[int, str]):
+        def run(ix: np.ndarray, view: slice | None = None):
             if ix.size == 1:
                 # numpy's stacked kernels (einsum, matmul) may take another path, with other
                 # roundings, for a stack of one: compute one filter as a stack of two copies,
                 # so that its numbers never depend on how many filters are computed with it
                 return tuple(r[:1] for r in fn(np.repeat(ix, 2)))
-            # every filter at once: plain views instead of fancy-indexed copies
-            return fn(slice(None) if ix.size == self._K else ix)
+            return fn(ix if view is None else view)  # a run of all filters: plain views, no copies
 
         try:
-            return idx, run(idx)
+            return idx, run(idx, rows)
         except SqukfError as exc:
             if not _numerical(exc):
                 raise
@@ -540,7 +561,8 @@ class Fleet:
         state = steps.ask_predict(self._state, self._plan, self._x, self._S, self.state_add)
         X = state.sigmas
         assert X is not None
-        F = self.fx(X.copy(), dt, **self._with_filter_axis(fx_args))
+        # the points themselves (no copy, for memory): the step reads only their shape afterwards
+        F = self.fx(X, dt, **self._with_filter_axis(fx_args))
         self._tell_predict(state, F)
 
     def tell_predict(self, sigmas_f) -> None:
@@ -553,7 +575,11 @@ class Fleet:
                 f"tell_predict needs a pending ask_predict, but the step is {state.phase!r}"
             )
         X = state.sigmas
-        F = as_float_array(values, "fx values")
+        if isinstance(values, np.ndarray) and values.dtype == np.float64:
+            # validated here; copied below only if the step keeps it (memory, for large fleets)
+            F = values
+        else:
+            F = as_float_array(values, "fx values")
         if F.shape != X.shape:
             raise ShapeError(f"fx values have shape {F.shape}, expected {X.shape}")
         fails: dict[int, str] = {}
@@ -576,6 +602,8 @@ class Fleet:
         if res is not None:
             x_new[good], S_new[good] = res
         Qall = None if Q is None else (Q if Q.ndim == 2 else Q)
+        if F is values and getattr(plan.second, "uses_propagated", True):
+            F = F.copy()  # kept for the second set: the step's own copy
         new = steps.StepState(steps.PRIOR, None, F, Qall)
         new = steps.draw_second_set(new, plan, x_new, S_new, self.state_add)
         # commit

@@ -23,6 +23,7 @@ from filterpy.kalman import MerweScaledSigmaPoints
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+import squkf.fleet
 from squkf import (
     Augmented,
     CallSequenceError,
@@ -1164,3 +1165,15 @@ def test_ask_tell_values_may_be_edited_by_the_caller():
     ref.predict()
     ref.update(zs[:, 0])
     assert_fleet_state(fleet, fleet_state(ref))
+
+
+@pytest.mark.parametrize("block", [2, 3, 5])
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_blocks_of_the_core_change_no_bit(monkeypatch, block, scheme):
+    """The core runs a block of filters at a time (squkf.fleet.BLOCK): any block size, same numbers."""
+    fleet, _, zs = batch_setup(K=11, T=6, scheme=scheme)
+    whole = copy.deepcopy(fleet).batch_filter(zs)
+    monkeypatch.setattr(squkf.fleet, "BLOCK", block)
+    blocked = copy.deepcopy(fleet).batch_filter(zs)
+    for field in ("means", "P1_2s", "log_likelihood", "x", "P1_2"):
+        assert np.array_equal(getattr(blocked, field), getattr(whole, field)), field
