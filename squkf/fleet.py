@@ -923,7 +923,7 @@ class Fleet:
         fleet._R1_2 = Rs[0] if all(np.array_equal(r, Rs[0]) for r in Rs) else np.stack(Rs)
         return fleet
 
-    def __copy__(self):
+    def __copy__(self) -> Fleet:
         new = type(self).__new__(type(self))
         copies: dict[int, np.ndarray] = {}
         d = {}

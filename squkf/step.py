@@ -22,7 +22,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import cast
 
 import numpy as np
 
@@ -155,7 +154,7 @@ def tell_predict(
             f"tell_predict needs a pending ask_predict, but the step is {state.phase!r}"
             + (" (the prediction was already told)" if state.phase == PRIOR else "")
         )
-    shape = cast(np.ndarray, state.sigmas).shape  # set in phase PREDICTING
+    shape = state.sigmas.shape  # type: ignore[union-attr]  # set in phase PREDICTING
     F = check_values(values, shape, name)
     rows = plan.first.rows
     if UT is None:
@@ -236,7 +235,7 @@ def ask_update(
     ):
         # the estimate is not the one the pending set belongs to: draw afresh from it
         state = draw_second_set(StepState(), plan, x, S, state_add)
-    sset = cast(SigmaSet, state.sset)  # drawn with the prior
+    sset: SigmaSet = state.sset  # type: ignore[assignment]  # drawn with the prior
     return StepState(UPDATING, sset.sigmas, state.propagated, state.Q1_2, sset, state.prior)
 
 
@@ -284,13 +283,13 @@ def tell_update(
             + (" (the update was already told)" if state.phase == IDLE else "")
         )
     m = z.shape[-1]
-    sset = cast(SigmaSet, state.sset)  # set in phase UPDATING, as is the prior
+    sset: SigmaSet = state.sset  # type: ignore[assignment]  # set in phase UPDATING, as is the prior
     sigmas = sset.sigmas
     H = check_values(values, sigmas.shape[:-1] + (m,), name)
     Ho, zo, Ro = H, z, R1_2
     if observed is not None and not observed.all():
         Ho, zo, Ro = H[..., observed], z[..., observed], observed_noise_factor(R1_2, observed)
-    x, S = cast("tuple[np.ndarray, np.ndarray]", state.prior)
+    x, S = state.prior  # type: ignore[misc]
     post = measurement_update(
         x,
         S,

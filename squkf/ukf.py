@@ -65,13 +65,36 @@ class _Covariance:
     def __get__(self, obj, owner=None):
         if obj is None:
             return self
-        return obj.__dict__[self.name]
+        value = obj.__dict__[self.name]
+        if isinstance(value, _Unformed):
+            value = obj.__dict__[self.name] = value.slot.matrix()
+        return value
 
     def __set__(self, obj, value):
         slot = obj.__dict__[self.slot]
         slot.set_matrix(value)
         obj.__dict__[self.name] = slot.matrix()
         obj._covariance_assigned(self.name)
+
+
+class _Unformed:
+    """Stands in the ``__dict__`` for a matrix nobody has read since the step changed its factor.
+
+    Reading the attribute forms the matrix (:class:`_Covariance`); a deep copy
+    of the ``__dict__`` (what filterpy's ``Saver`` takes) gets the matrix
+    itself, so a saved history holds arrays, formed only when saved.
+    """
+
+    __slots__ = ("slot",)
+
+    def __init__(self, slot: FactorSlot):
+        self.slot = slot
+
+    def __deepcopy__(self, memo):
+        return self.slot.matrix().copy()
+
+    def __copy__(self):
+        return self.slot.matrix().copy()
 
 
 class _State:
@@ -498,7 +521,7 @@ class SquareRootUKF:
         xu, xs = d["x"], d["_xs"]
         if xu.shape != xs.shape or xu.dtype != xs.dtype or xu.tobytes() != xs.tobytes():
             d["_xs"] = self._as_state(xu, "x")  # edited in place since last checked
-        return d["_xs"], cast(np.ndarray, self._P.factor())  # P is never singular, so never None
+        return d["_xs"], self._P.factor()  # type: ignore[return-value]  # P is never singular
 
     def _evaluate(self, fn: Callable, sigmas: np.ndarray, args: tuple, kwargs: dict) -> object:
         if self.vectorized:
@@ -521,7 +544,7 @@ class SquareRootUKF:
         d["x"] = x.copy()
         slot = d["_P"]
         slot.set_trusted_factor(S)
-        d["P"] = slot.matrix()
+        d["P"] = _Unformed(slot)  # formed when read: most steps nobody reads P
 
     # -- ask/tell: the step in halves ----------------------------------------
 
@@ -557,7 +580,7 @@ class SquareRootUKF:
         plan = self._plan
         state = steps.ask_predict(self._state, plan, x, S, self._hooks().state_add)
         self._state, self._step_plan = state, plan
-        return cast(np.ndarray, state.sigmas).copy()  # set by ask_*
+        return state.sigmas.copy()  # type: ignore[union-attr]  # set by ask_*
 
     def tell_predict(self, sigmas_f, Q=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of a prediction: the propagated points give the prior.
@@ -607,7 +630,7 @@ class SquareRootUKF:
         x, S = self._current()
         state = steps.ask_update(self._state, self._plan, x, S, self._hooks().state_add)
         self._state = state
-        return cast(np.ndarray, state.sigmas).copy()  # set by ask_*
+        return state.sigmas.copy()  # type: ignore[union-attr]  # set by ask_*
 
     def tell_update(self, sigmas_h, z, R=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of an update: measurement-function values and ``z`` give the posterior.
@@ -723,7 +746,7 @@ class SquareRootUKF:
         plan = self._plan
         hooks = self._hooks()
         state = steps.ask_predict(self._state, plan, x, S, hooks.state_add)
-        values = self._evaluate(fx, cast(np.ndarray, state.sigmas).copy(), (dt,), fx_args)  # set by ask_*
+        values = self._evaluate(fx, state.sigmas.copy(), (dt,), fx_args)  # type: ignore[union-attr]  # set by ask_*
         self._tell_predict(state, plan, values, Q, UT, hooks)
 
     def update(self, z, R=None, UT=None, hx=None, **hx_args) -> None:
@@ -757,7 +780,7 @@ class SquareRootUKF:
         x, S = self._current()
         hooks = self._hooks()
         state = steps.ask_update(self._state, self._plan, x, S, hooks.state_add)
-        values = self._evaluate(hx, cast(np.ndarray, state.sigmas).copy(), (), hx_args)  # set by ask_*
+        values = self._evaluate(hx, state.sigmas.copy(), (), hx_args)  # type: ignore[union-attr]  # set by ask_*
         self._tell_update(state, values, meas[0], meas[1], R, UT, hooks)
 
     def compute_process_sigmas(self, dt, fx=None, **fx_args) -> None:
@@ -854,8 +877,10 @@ class SquareRootUKF:
         copied.
         """
         state = dict(self.__dict__)
-        for key in ("_P", "_Q", "_R"):
-            state[key] = copy.copy(state[key])
+        for name in ("P", "Q", "R"):
+            slot = state["_" + name] = copy.copy(state["_" + name])
+            if isinstance(state[name], _Unformed):
+                state[name] = _Unformed(slot)
         return state
 
     def _restore(self, state: dict) -> None:
@@ -882,9 +907,22 @@ class SquareRootUKF:
         new.__dict__.update(d)
         return new
 
+    def __deepcopy__(self, memo):
+        new = type(self).__new__(type(self))
+        memo[id(self)] = new
+        d = copy.deepcopy(self.__dict__, memo)
+        for name in ("P", "Q", "R"):
+            if isinstance(self.__dict__[name], _Unformed):  # the copy's matrix is its slot's
+                d[name] = d["_" + name].matrix()
+        new.__dict__.update(d)
+        return new
+
     def __getstate__(self):
         state = self.__dict__.copy()
         state["_noise_cache"] = {}
+        for name in ("P", "Q", "R"):
+            if isinstance(state[name], _Unformed):
+                del state[name]  # formed again from the slot when unpickled
         return state
 
     def __setstate__(self, state):
