@@ -260,7 +260,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     logging.getLogger("distributed").setLevel(logging.ERROR)
     if args.quick:
-        K, T, chunk, reps, K_mem, chunk_mem = 2_000, 10, 500, args.reps or 1, 4_000, 1_000
+        K, T, chunk, reps, K_mem, chunk_mem = 1_000, 5, 250, args.reps or 1, 2_000, 500
     else:
         K, T, chunk, reps, K_mem, chunk_mem = 100_000, 40, 25_000, args.reps or 3, 1_000_000, 50_000
     clients = {"1 worker": start_cluster(1), "2 workers": start_cluster(2)}
