@@ -184,7 +184,7 @@ def memory_run(client, K: int, T: int, chunk: int, seed: int = 1, poll: float = 
     }
 
 
-def report(tp: dict, mem: dict, quick: bool) -> str:
+def report(tp: dict, mem: dict, quick: bool, command: str) -> str:
     K, T = tp["K"], tp["T"]
     steps = K * T
     med = {name: statistics.median(v) for name, v in tp["runs"].items()}
@@ -256,24 +256,29 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="tiny sizes, one repetition (a smoke test)")
     ap.add_argument("--out", type=Path, default=HERE / "results", help="folder for dask.md")
-    ap.add_argument("--reps", type=int, default=None)
+    ap.add_argument("--reps", type=int, default=None, help="repetitions of the throughput runs (default 3)")
+    ap.add_argument("--mem-K", type=int, default=None, help="filters in the memory run (default 10**6)")
+    ap.add_argument("--mem-T", type=int, default=None, help="steps in the memory run (default 40)")
     args = ap.parse_args(argv)
     logging.getLogger("distributed").setLevel(logging.ERROR)
     if args.quick:
-        K, T, chunk, reps, K_mem, chunk_mem = 1_000, 5, 250, args.reps or 1, 2_000, 500
+        K, T, chunk, reps, K_mem, T_mem, chunk_mem = 1_000, 5, 250, 1, 2_000, 5, 500
     else:
-        K, T, chunk, reps, K_mem, chunk_mem = 100_000, 40, 25_000, args.reps or 3, 1_000_000, 50_000
+        K, T, chunk, reps, K_mem, T_mem, chunk_mem = 100_000, 40, 25_000, 3, 1_000_000, 40, 50_000
+    reps = args.reps or reps
+    K_mem, T_mem = args.mem_K or K_mem, args.mem_T or T_mem
     clients = {"1 worker": start_cluster(1), "2 workers": start_cluster(2)}
     try:
         tp = throughput(K, T, chunk, reps, clients)
         print(f"throughput done: {tp['runs']}", flush=True)
         stop_cluster(clients.pop("1 worker"))
-        mem = memory_run(clients["2 workers"], K_mem, T, chunk_mem)
+        mem = memory_run(clients["2 workers"], K_mem, T_mem, chunk_mem)
         print(f"memory run done: {mem}", flush=True)
     finally:
         for c in clients.values():
             stop_cluster(c)
-    text = report(tp, mem, args.quick)
+    given = [a for a in (argv if argv is not None else sys.argv[1:]) if not a.startswith("--out")]
+    text = report(tp, mem, args.quick, " ".join(["python benchmarks/dask_bench.py", *given]))
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "dask.md").write_text(text)
     print(text)
