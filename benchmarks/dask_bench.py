@@ -201,9 +201,7 @@ def report(tp: dict, mem: dict, quick: bool, command: str) -> str:
         "range-bearing radar (m = 2), Merwe points (alpha=1, beta=2, kappa=0), redrawn scheme. Measurements "
         "are simulated on the workers per chunk and persisted before timing; a timed run filters "
         '`keep="means"` and gathers the means to the client (in process: `Fleet.batch_filter(keep="means")` '
-        "on the same measurements). Command: `python benchmarks/dask_bench.py"
-        + (" --quick" if quick else "")
-        + "`.",
+        f"on the same measurements). Command: `{command}`.",
         "",
         f"## Throughput at K = {K:,}, T = {T}, chunks of {tp['chunk']:,} filters",
         "",
@@ -277,8 +275,13 @@ def main(argv=None) -> int:
     finally:
         for c in clients.values():
             stop_cluster(c)
-    given = [a for a in (argv if argv is not None else sys.argv[1:]) if not a.startswith("--out")]
-    text = report(tp, mem, args.quick, " ".join(["python benchmarks/dask_bench.py", *given]))
+    options = ["--quick"] if args.quick else []
+    options += [
+        f"--{name.replace('_', '-')} {v}"
+        for name, v in vars(args).items()
+        if name in ("reps", "mem_K", "mem_T") and v
+    ]
+    text = report(tp, mem, args.quick, " ".join(["python benchmarks/dask_bench.py", *options]))
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "dask.md").write_text(text)
     print(text)
