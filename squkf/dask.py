@@ -41,8 +41,8 @@ _KEEP = ("all", "diagonals", "means", "final")
 _FIELDS = ("means", "P1_2s", "variances", "log_likelihood", "failed", "x", "P1_2")
 
 
-def _run_chunk(template: Fleet, lo: int, hi: int, block: np.ndarray, options: dict) -> FleetResult:
-    return template.subset(slice(lo, hi)).batch_filter(block, **options)
+def _run_chunk(chunk: Fleet, block: np.ndarray, options: dict) -> FleetResult:
+    return chunk.subset(slice(None)).batch_filter(block, **options)  # the task's input stays as it was
 
 
 def batch_filter(
@@ -108,7 +108,6 @@ def batch_filter(
         Z = Z.rechunk({1: -1, 2: -1})
     Z = Z.astype(float)
     options = {"keep": keep, "dts": dts, "fx_args": fx_args, "hx_args": hx_args}
-    template = dask.delayed(fleet, pure=True)
     n = fleet.dim_x
     blocks = Z.to_delayed().reshape(-1)
     fields: dict[str, list] = {
@@ -116,7 +115,9 @@ def batch_filter(
     }
     lo = 0
     for block, size in zip(blocks, Z.chunks[0]):
-        part = dask.delayed(_run_chunk, pure=True)(template, lo, lo + size, block, options)
+        # each task carries only its chunk's filters (not the whole template): a worker holds a few chunks
+        chunk = fleet.subset(slice(lo, lo + size))
+        part = dask.delayed(_run_chunk, pure=True)(chunk, block, options)
         shapes = {
             "means": (size, T, n),
             "P1_2s": (size, T, n, n),
