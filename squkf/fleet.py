@@ -30,7 +30,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -720,13 +720,18 @@ class Fleet:
 
     # -- many steps ---------------------------------------------------------------
 
-    def batch_filter(self, zs, *, dts=None, keep: str = "all", fx_args=None, hx_args=None) -> FleetResult:
+    def batch_filter(
+        self, zs, *, dts=None, keep: str = "all", fx_args=None, hx_args=None, progress=False
+    ) -> FleetResult:
         """Filter ``T`` steps of measurements for every filter.
 
         Parameters
         ----------
-        zs : array_like, shape (K, T, dim_z)
+        zs : array_like, shape (K, T, dim_z), or an iterable of (K, dim_z) arrays
             NaN rows and entries are missing measurements (as for :meth:`update`).
+            Any other iterable (a generator, ``tqdm(...)``) yields one step's
+            measurements at a time; it is read to its end before the run starts.
+            Lists and tuples are read as the ``(K, T, dim_z)`` array.
         dts : float or array_like of shape (T,), optional
             Time step of each prediction (default: the constructor's).
         keep : {"all", "diagonals", "means", "final"}
@@ -734,15 +739,24 @@ class Fleet:
             means only; or only the final state (for long runs).
         fx_args, hx_args : dict, optional
             Passed to ``fx`` and ``hx`` at every step.
+        progress : bool or callable
+            ``True`` shows a tqdm bar (the ``progress`` extra); a callable is
+            called with the step index after each step.
 
         Returns
         -------
         FleetResult
             The fleet itself is left after the last step, as after a loop of
-            ``predict`` and ``update``.
+            ``predict`` and ``update``; an error leaves it as it was before the call.
         """
         if keep not in ("all", "diagonals", "means", "final"):
             raise ParameterError(f"keep must be 'all', 'diagonals', 'means' or 'final', got keep={keep!r}")
+        if not (isinstance(progress, bool) or callable(progress)):
+            raise ParameterError(f"progress must be True, False or a callable, got {progress!r}")
+        if isinstance(zs, Iterable) and not isinstance(zs, (np.ndarray, list, tuple, str, bytes)):
+            # a generator, an iterator, tqdm(...): one (K, dim_z) array per step
+            steps_read = [as_float_array(z, f"zs[{t}]") for t, z in enumerate(zs)]
+            zs = np.stack(steps_read, axis=1) if steps_read else np.zeros((self._K, 0, self._m))
         Z = as_float_array(zs, "zs")
         if Z.ndim == 2 and self._m == 1:
             Z = Z[..., None]
@@ -765,7 +779,7 @@ class Fleet:
         loglik = np.zeros((K, T)) if keep != "final" else np.zeros(K)
         before = copy.copy(self)
         try:
-            self._run(Z, dt_list, fx_args or {}, hx_args or {}, means, factors, variances, loglik)
+            self._run(Z, dt_list, fx_args or {}, hx_args or {}, means, factors, variances, loglik, progress)
         except BaseException:
             # an error at any step (a model function's, or a failure with on_error="raise")
             # leaves the fleet as it was before the call
@@ -775,7 +789,21 @@ class Fleet:
             means, factors, variances, loglik, self._failed.copy(), self._x.copy(), self._S.copy()
         )
 
-    def _run(self, Z, dt_list, fx_args, hx_args, means, factors, variances, loglik) -> None:
+    def _run(self, Z, dt_list, fx_args, hx_args, means, factors, variances, loglik, progress) -> None:
+        bar = None
+        if progress is True:
+            try:
+                from tqdm.auto import tqdm
+            except ImportError:
+                raise ParameterError("progress=True needs tqdm: pip install 'squkf[progress]'") from None
+            bar = tqdm(total=len(dt_list), unit="step")
+        try:
+            self._steps(Z, dt_list, fx_args, hx_args, means, factors, variances, loglik, progress, bar)
+        finally:
+            if bar is not None:
+                bar.close()
+
+    def _steps(self, Z, dt_list, fx_args, hx_args, means, factors, variances, loglik, progress, bar) -> None:
         K, m = self._K, self._m
         for t in range(len(dt_list)):
             self.predict(dt_list[t], **fx_args)
@@ -795,6 +823,10 @@ class Fleet:
                 factors[:, t] = self._S
             if variances is not None:
                 variances[:, t] = np.einsum("kij,kij->ki", self._S, self._S)
+            if bar is not None:
+                bar.update(1)
+            elif callable(progress) and progress is not False:
+                progress(t)
 
     # -- one filter and back --------------------------------------------------------
 

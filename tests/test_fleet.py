@@ -1177,3 +1177,19 @@ def test_blocks_of_the_core_change_no_bit(monkeypatch, block, scheme):
     blocked = copy.deepcopy(fleet).batch_filter(zs)
     for field in ("means", "P1_2s", "log_likelihood", "x", "P1_2"):
         assert np.array_equal(getattr(blocked, field), getattr(whole, field)), field
+
+
+def test_batch_filter_takes_an_iterator_of_steps_and_reports_progress(capsys):
+    fleet, _, zs = batch_setup(K=4, T=6)
+    whole = copy.deepcopy(fleet).batch_filter(zs)
+    seen = []
+    steps = copy.deepcopy(fleet).batch_filter((zs[:, t] for t in range(zs.shape[1])), progress=seen.append)
+    assert seen == list(range(zs.shape[1]))
+    for field in ("means", "P1_2s", "log_likelihood", "x", "P1_2"):
+        assert np.array_equal(getattr(steps, field), getattr(whole, field)), field
+    tqdm = pytest.importorskip("tqdm")
+    barred = copy.deepcopy(fleet).batch_filter(tqdm.tqdm(list(zs.transpose(1, 0, 2))), progress=True)
+    assert np.array_equal(barred.means, whole.means)
+    assert "6/6" in capsys.readouterr().err
+    with pytest.raises(ParameterError):
+        copy.deepcopy(fleet).batch_filter(zs, progress="yes")
