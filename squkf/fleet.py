@@ -39,8 +39,9 @@ import numpy as np
 from . import step as steps
 from .angles import _AngleHook
 from .covariance import as_lower_factor, as_matrix
-from .errors import NonFiniteError, NotPositiveDefiniteError, ParameterError, ShapeError, SqukfError
+from .errors import NonFiniteError, ParameterError, ShapeError, SqukfError
 from .generators import SigmaSet, as_generator
+from .isolate import BLOCK, run_isolated
 from .linalg import factor_covariance
 from .plan import Hooks, Plan, build_plan
 from .validate import as_float_array, check_time_step
@@ -49,9 +50,6 @@ from .weights import as_family
 __all__ = ["Fleet", "FleetResult", "FleetStepError"]
 
 _LOG_2PI = math.log(2.0 * math.pi)
-
-#: Filters computed together in one block of the core's numerics (bounds the temporary arrays).
-BLOCK = 4096
 
 
 class FleetStepError(SqukfError, ArithmeticError):
@@ -114,12 +112,6 @@ def _rows_of(a: np.ndarray | None, idx: np.ndarray | slice, core: int) -> np.nda
     if a is None or a.ndim == core:
         return a
     return a[idx]
-
-
-def _numerical(exc: BaseException) -> bool:
-    return isinstance(exc, (NotPositiveDefiniteError, NonFiniteError)) or (
-        isinstance(exc, SqukfError) and getattr(exc, "errno", None) in (301, 302, 303)
-    )
 
 
 class Fleet:
@@ -484,61 +476,8 @@ class Fleet:
         return np.isfinite(A.reshape(A.shape[0], -1)).all(axis=1)
 
     def _isolated(self, fn: Callable, idx: np.ndarray, fails: dict[int, str]):
-        """Run ``fn`` on the filters ``idx``, a block at a time; on a numerical error, one by one.
-
-        Each filter's arithmetic is independent of the others', so the filters
-        that succeed get the same numbers however they are grouped. Blocks of at
-        most :data:`BLOCK` filters bound the step's temporary arrays. Returns the
-        indices that succeeded and their results (a tuple of arrays over those filters).
-        """
-        if idx.size == 0:
-            return idx, None
-        every = idx.size == self._K and bool(np.all(idx == np.arange(self._K)))
-        cuts = list(range(0, idx.size, BLOCK)) + [idx.size]
-        if len(cuts) > 2 and cuts[-1] - cuts[-2] < 2:
-            del cuts[-2]  # no block of one filter (see run)
-        goods, parts = [], []
-        for lo, hi in zip(cuts[:-1], cuts[1:]):
-            good, res = self._isolated_block(fn, idx[lo:hi], slice(lo, hi) if every else None, fails)
-            if res is not None:
-                goods.append(good)
-                parts.append(res)
-        if not parts:
-            return np.array([], dtype=int), None
-        if len(parts) == 1:
-            return goods[0], parts[0]
-        return np.concatenate(goods), tuple(
-            np.concatenate([p[i] for p in parts]) for i in range(len(parts[0]))
-        )
-
-    def _isolated_block(self, fn: Callable, idx: np.ndarray, rows: slice | None, fails: dict[int, str]):
-        def run(ix: np.ndarray, view: slice | None = None):
-            if ix.size == 1:
-                # numpy's stacked kernels (einsum, matmul) may take another path, with other
-                # roundings, for a stack of one: compute one filter as a stack of two copies,
-                # so that its numbers never depend on how many filters are computed with it
-                return tuple(r[:1] for r in fn(np.repeat(ix, 2)))
-            return fn(ix if view is None else view)  # a run of all filters: plain views, no copies
-
-        try:
-            return idx, run(idx, rows)
-        except SqukfError as exc:
-            if not _numerical(exc):
-                raise
-        good, parts = [], []
-        for k in idx.tolist():
-            one = np.array([k])
-            try:
-                parts.append(run(one))
-                good.append(k)
-            except SqukfError as exc:
-                if not _numerical(exc):
-                    raise
-                fails.setdefault(k, f"{type(exc).__name__}: {exc}")
-        if not good:
-            return np.array([], dtype=int), None
-        results = tuple(np.concatenate([p[i] for p in parts]) for i in range(len(parts[0])))
-        return np.array(good), results
+        """``fn`` over the filters ``idx`` with failure isolation (:func:`squkf.isolate.run_isolated`)."""
+        return run_isolated(fn, idx, self._K, fails, BLOCK)
 
     def ask_predict(self) -> np.ndarray:
         """First half of a prediction: the first sigma-point sets, shape ``(K, N, dim_x)`` (fresh)."""

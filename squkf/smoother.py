@@ -64,6 +64,7 @@ from .errors import (
     SqukfError,
 )
 from .generators import UnitSet, sigma_points_from_factor
+from .isolate import run_isolated
 from .linalg import chol_downdate_columns, kalman_gain, tria
 from .plan import Hooks
 from .transform import deviations, factor_rows, swap_last, transform_factor
@@ -391,41 +392,6 @@ def _smooth_step(
     return x_s, S_s, G
 
 
-def _numerical(exc: BaseException) -> bool:
-    """A failure of one filter's arithmetic (as opposed to bad input or a broken model function)."""
-    return isinstance(exc, (NotPositiveDefiniteError, NonFiniteError)) or (
-        isinstance(exc, SqukfError) and getattr(exc, "errno", None) in (301, 302, 303)
-    )
-
-
-def _isolated(fn: Callable, idx: np.ndarray, K: int, fails: dict[int, str]):
-    """``fn(idx)`` for the filters ``idx`` at once; after a numerical error, one filter at a time.
-
-    Each filter's arithmetic is independent of the others', so the filters that
-    succeed get the same numbers either way. Returns the indices that succeeded
-    and their results (a tuple of arrays over those filters), or None.
-    """
-    if idx.size == 0:
-        return idx, None
-    try:
-        return idx, fn(slice(None) if idx.size == K else idx)
-    except SqukfError as exc:
-        if not _numerical(exc):
-            raise
-    good, parts = [], []
-    for k in idx.tolist():
-        try:
-            parts.append(fn(np.array([k])))
-            good.append(k)
-        except SqukfError as exc:
-            if not _numerical(exc):
-                raise
-            fails.setdefault(k, f"{type(exc).__name__}: {exc}")
-    if not good:
-        return np.array([], dtype=int), None
-    return np.array(good), tuple(np.concatenate([p[i] for p in parts]) for i in range(len(parts[0])))
-
-
 def _rows(a: np.ndarray | None, ix, core: int) -> np.ndarray | None:
     """``a[ix]`` when ``a`` is per filter (more than ``core`` axes), else ``a`` (shared)."""
     return a if a is None or a.ndim == core else a[ix]
@@ -521,7 +487,7 @@ def _backward(
                     raise NonFiniteError("the smoothed estimate is not finite")
                 return out
 
-            good, res = _isolated(step, idx, K, fails)
+            good, res = run_isolated(step, idx, K, fails)
             if res is not None:
                 xs_s[good, k], Ss_s[good, k], Gs[good, k] = res
             for j, why in fails.items():
