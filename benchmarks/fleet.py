@@ -253,7 +253,13 @@ def run_loop(model, zs, keep=False):
         g = SquareRootUKF(model.n, model.m, model.dt, model.hx, model.fx, points(), vectorized=True)
         g.x, g.P, g.Q, g.R = model.x0.copy(), model.P0.copy(), model.Q.copy(), model.R.copy()
         filters.append(g)
-    est = np.empty((K, T, model.n)) if keep else None
+    return _time_loop(filters, zs, model.n, keep)
+
+
+def _time_loop(filters, zs, n, keep):
+    """Seconds for T steps of a loop over the filters (and their estimates, with ``keep``)."""
+    K, T, _ = zs.shape
+    est = np.empty((K, T, n)) if keep else None
     t0 = time.perf_counter()
     for t in range(T):
         for k, g in enumerate(filters):
@@ -274,15 +280,7 @@ def run_filterpy(model, zs, keep=False):
         g = UnscentedKalmanFilter(model.n, model.m, model.dt, model.hx_point, model.fx_point, pts)
         g.x, g.P, g.Q, g.R = model.x0.copy(), model.P0.copy(), model.Q.copy(), model.R.copy()
         filters.append(g)
-    est = np.empty((K, T, model.n)) if keep else None
-    t0 = time.perf_counter()
-    for t in range(T):
-        for k, g in enumerate(filters):
-            g.predict()
-            g.update(zs[k, t])
-            if est is not None:
-                est[k, t] = g.x
-    return time.perf_counter() - t0, est, None
+    return _time_loop(filters, zs, model.n, keep)
 
 
 class Dynamax:

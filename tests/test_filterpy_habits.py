@@ -301,9 +301,8 @@ def _copies(f):
     }
 
 
-@pytest.mark.parametrize("kind", ["copy", "deepcopy", "pickle"])
-@pytest.mark.parametrize("where", ["idle", "after ask_predict", "after tell_predict"])
-def test_editing_a_copy_in_place_does_not_touch_the_original(kind, where):
+def _stopped_at(where):
+    """An augmented filter after one step, stopped ``where`` in the next, its twin, and the points asked."""
     f, ref = make("augmented"), make("augmented")
     step(f, Z[0])
     step(ref, Z[0])
@@ -312,6 +311,22 @@ def test_editing_a_copy_in_place_does_not_touch_the_original(kind, where):
         X = f.ask_predict()
     elif where == "after tell_predict":
         f.tell_predict([fx(s, DT) for s in f.ask_predict()])
+    return f, ref, X
+
+
+def _finish_step(g, where, X):
+    """Finish the step :func:`_stopped_at` stopped, with the update by ``Z[1]``."""
+    if where == "after ask_predict":
+        g.tell_predict([fx(s, DT) for s in X])
+    elif where == "idle":
+        g.predict()
+    g.update(Z[1])
+
+
+@pytest.mark.parametrize("kind", ["copy", "deepcopy", "pickle"])
+@pytest.mark.parametrize("where", ["idle", "after ask_predict", "after tell_predict"])
+def test_editing_a_copy_in_place_does_not_touch_the_original(kind, where):
+    f, ref, X = _stopped_at(where)
     c = _copies(f)[kind]
     c.P *= 10.0
     c.Q[0, 0] += 1.0
@@ -319,11 +334,7 @@ def test_editing_a_copy_in_place_does_not_touch_the_original(kind, where):
     c.x[0] = -99.0
     c.predict()  # and running the copy does not either
     c.update(Z[3])
-    if where == "after ask_predict":
-        f.tell_predict([fx(s, DT) for s in X])
-    elif where == "idle":
-        f.predict()
-    f.update(Z[1])
+    _finish_step(f, where, X)
     step(ref, Z[1])
     assert_same_estimate(f, ref)
     assert not np.allclose(c.x, f.x)
@@ -332,21 +343,10 @@ def test_editing_a_copy_in_place_does_not_touch_the_original(kind, where):
 @pytest.mark.parametrize("kind", ["copy", "deepcopy", "pickle"])
 @pytest.mark.parametrize("where", ["idle", "after ask_predict", "after tell_predict"])
 def test_copy_mid_step_finishes_the_step(kind, where):
-    f, ref = make("augmented"), make("augmented")
-    step(f, Z[0])
-    step(ref, Z[0])
-    X = None
-    if where == "after ask_predict":
-        X = f.ask_predict()
-    elif where == "after tell_predict":
-        f.tell_predict([fx(s, DT) for s in f.ask_predict()])
+    f, ref, X = _stopped_at(where)
     c = _copies(f)[kind]
     for g in (c, f):  # the copy first: it must not disturb the original
-        if where == "after ask_predict":
-            g.tell_predict([fx(s, DT) for s in X])
-        elif where == "idle":
-            g.predict()
-        g.update(Z[1])
+        _finish_step(g, where, X)
         step(g, Z[2])
     step(ref, Z[1])
     step(ref, Z[2])
