@@ -207,10 +207,10 @@ def measurement_update(
         Dx = _state_deviations(sset, x, residual_x)
         Pxy = np.matmul(np.swapaxes(Dx, -1, -2) * sset.Wc, Dz)
         L21 = np.swapaxes(solve_lower(Sy, np.ascontiguousarray(np.swapaxes(Pxy, -1, -2))), -1, -2)
-    y = _per_filter(residual_z, z, z_pred, "residual_z")
+    y = z - z_pred if residual_z is None else _per_filter(residual_z, z, z_pred, "residual_z")
     w = solve_lower(Sy, y)
-    dx = L21 @ w if L21.ndim == 2 else np.matmul(L21, w[..., None])[..., 0]
-    x_post = _per_filter(state_add, x, dx, "state_add", add=True)
+    dx = L21.dot(w) if L21.ndim == 2 else np.matmul(L21, w[..., None])[..., 0]
+    x_post = x + dx if state_add is None else _per_filter(state_add, x, dx, "state_add")
     if L22 is not None:
         S_post = L22
     elif sset.moments_exact:
@@ -222,12 +222,8 @@ def measurement_update(
     return Posterior(x_post, S_post, y, z_pred, Sy, L21, w)
 
 
-def _per_filter(
-    fn: Callable | None, a: np.ndarray, b: np.ndarray, hook: str, add: bool = False
-) -> np.ndarray:
-    """``a + b`` / ``a - b``, or the user's hook for it, called and checked per filter."""
-    if fn is None:
-        return a + b if add else a - b
+def _per_filter(fn: Callable, a: np.ndarray, b: np.ndarray, hook: str) -> np.ndarray:
+    """The user's hook for ``a + b`` or ``a - b``, called and checked per filter."""
     out: np.ndarray = np.empty(np.broadcast_shapes(a.shape, b.shape))
     d = out.shape[-1]
     for idx in np.ndindex(out.shape[:-1]):
@@ -275,7 +271,8 @@ def _joint_factor(sset, rows, sigmas_h, x, S, R1_2, z_mean_fn, residual_x, resid
             M = _row_buffer(batch, N + m, m + n)
             z_pred = central_rows(sigmas_h, rows, block(M, _ALL, slice(m)))
             if drawn is not None:  # the rows of x + xi S^T are G S^T (one product)
-                np.matmul(drawn[0].G, swap_last(drawn[1]), out=block(M, slice(N), slice(m, None)))
+                G, ST = drawn[0].G, swap_last(drawn[1])
+                block(M, slice(N), slice(m, None))[...] = G.dot(ST) if ST.ndim == 2 else np.matmul(G, ST)
             else:
                 central_rows(points, rows, block(M, _ALL, slice(m, None)))
         else:
@@ -363,7 +360,11 @@ def check_gain(Sy: np.ndarray) -> None:
     """Raise GainError (IFAIL 302) unless each diagonal entry of ``Sy`` is finite and above ``tiny``."""
     diag = Sy.diagonal() if Sy.ndim == 2 else np.diagonal(Sy, axis1=-2, axis2=-1)
     if Sy.ndim == 2:  # one small matrix: a Python loop beats numpy's reductions
-        ok = all(_TINY < abs(v) < _INF for v in diag.tolist())  # a NaN fails too
+        ok = True
+        for v in diag.tolist():
+            if not _TINY < abs(v) < _INF:  # a NaN fails too
+                ok = False
+                break
     else:
         d = np.abs(diag)
         ok = bool(np.all(d > _TINY) and np.all(d < _INF))

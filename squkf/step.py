@@ -155,7 +155,8 @@ def tell_predict(
             + (" (the prediction was already told)" if state.phase == PRIOR else "")
         )
     shape = state.sigmas.shape  # type: ignore[union-attr]  # set in phase PREDICTING
-    F = check_values(values, shape, name)
+    keep = getattr(plan.second, "uses_propagated", True)  # F is kept for the second set
+    F = check_values(values, shape, name, private=keep)
     rows = plan.first.rows
     if UT is None:
         x, S = transform_factor(

@@ -32,10 +32,12 @@ __all__ = [
 
 def batch_shape(*arrays: np.ndarray | None, core: int = 2) -> tuple[int, ...]:
     """The broadcast leading (batch) shape of ``arrays``, each with ``core`` trailing axes."""
-    shapes = [a.shape[: a.ndim - core] for a in arrays if a is not None and a.ndim > core]
-    if not shapes:
-        return ()
-    return shapes[0] if len(shapes) == 1 else np.broadcast_shapes(*shapes)
+    shape: tuple[int, ...] = ()
+    for a in arrays:  # a plain loop: called every step, usually with no batch axis at all
+        if a is not None and a.ndim > core:
+            lead = a.shape[: a.ndim - core]
+            shape = lead if not shape or lead == shape else np.broadcast_shapes(shape, lead)
+    return shape
 
 
 def block(a: np.ndarray, rows: slice, cols: slice) -> np.ndarray:

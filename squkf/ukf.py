@@ -746,7 +746,8 @@ class SquareRootUKF:
         plan = self._plan
         hooks = self._hooks()
         state = steps.ask_predict(self._state, plan, x, S, hooks.state_add)
-        values = self._evaluate(fx, state.sigmas.copy(), (dt,), fx_args)  # type: ignore[union-attr]  # set by ask_*
+        # not copied: these points are never read again (the step keeps only their shape)
+        values = self._evaluate(fx, state.sigmas, (dt,), fx_args)  # type: ignore[arg-type]  # set by ask_*
         self._tell_predict(state, plan, values, Q, UT, hooks)
 
     def update(self, z, R=None, UT=None, hx=None, **hx_args) -> None:

@@ -52,10 +52,12 @@ def as_float_array(value, name: str) -> np.ndarray:
             except (TypeError, ValueError):
                 pass
         raise ShapeError(f"{name} could not be read as a real float array (dtype {probe.dtype}): {value!r}")
+    if isinstance(value, (list, tuple)) and probe.dtype == np.float64:
+        return probe  # built from a list: already a new array (per-point images), no second copy
     return np.array(probe, dtype=float)
 
 
-def check_values(values, shape: tuple[int, ...], name: str) -> np.ndarray:
+def check_values(values, shape: tuple[int, ...], name: str, private: bool = True) -> np.ndarray:
     """Validate the images of a sigma-point set returned by the caller.
 
     Parameters
@@ -66,16 +68,23 @@ def check_values(values, shape: tuple[int, ...], name: str) -> np.ndarray:
         Expected shape: one row per sigma point (after any batch axes).
     name : str
         Used in the error message.
+    private : bool
+        Return a private copy (the default). With False a float64 array is
+        returned as it is (maybe the caller's own): for values read within
+        the call only, never kept.
 
     Returns
     -------
-    values : ndarray, shape ``shape``, float64, a private copy
+    values : ndarray, shape ``shape``, float64
 
     Raises
     ------
     ShapeError, NonFiniteError
     """
-    arr = as_float_array(values, name)
+    if not private and type(values) is np.ndarray and values.dtype == np.float64:
+        arr = values
+    else:
+        arr = as_float_array(values, name)
     if arr.shape != shape:
         # per-point functions returning column vectors, or scalars for a 1-d measurement
         if arr.shape == shape + (1,) or (shape[-1] == 1 and arr.shape == shape[:-1]):

@@ -146,8 +146,9 @@ def test_editing_factor_records_changes_nothing(scheme):
     assert f.log_likelihood == twin.log_likelihood
 
 
-def test_arrays_of_ask_and_tell_are_not_read_back():
-    f, twin = make(), make()
+@pytest.mark.parametrize("scheme", ["redrawn", "augmented", "propagated"])
+def test_arrays_of_ask_and_tell_are_not_read_back(scheme):
+    f, twin = make(scheme), make(scheme)
     step(twin, Z[0])
     X = f.ask_predict()
     F = [fx(s, DT) for s in X]
@@ -168,6 +169,34 @@ def test_arrays_of_ask_and_tell_are_not_read_back():
     step(f, Z[1])
     step(twin, Z[1])
     assert_same_estimate(f, twin)
+
+
+@pytest.mark.parametrize("scheme", ["redrawn", "augmented", "propagated"])
+@pytest.mark.parametrize("vectorized", [False, True])
+def test_model_functions_that_scribble_on_their_points_change_nothing(scheme, vectorized):
+    """fx and hx may overwrite the points they are given (and return them): the step is unchanged."""
+
+    def fx_scribble(X, dt):
+        out = np.stack([fx(s, dt) for s in X]) if vectorized else fx(X, dt)
+        X[...] = out  # the images written over the points, and the points' own array returned
+        return X
+
+    def hx_scribble(X):
+        out = np.stack([hx(s) for s in X]) if vectorized else hx(X)
+        X[...] = -1e9
+        return out
+
+    fxv = (lambda X, dt: np.stack([fx(s, dt) for s in X])) if vectorized else fx
+    hxv = (lambda X: np.stack([hx(s) for s in X])) if vectorized else hx
+    f = make(scheme, vectorized=vectorized)
+    twin = make(scheme, vectorized=vectorized)
+    f.fx, f.hx, twin.fx, twin.hx = fx_scribble, hx_scribble, fxv, hxv
+    for z in Z[:3]:
+        step(f, z)
+        step(twin, z)
+        assert_same_estimate(f, twin)
+        for name in ("sigmas_f", "sigmas_h"):
+            np.testing.assert_array_equal(getattr(f, name), getattr(twin, name), err_msg=name)
 
 
 # -- in-place edits ---------------------------------------------------------------------------
