@@ -76,16 +76,30 @@ def simulated(K: int, T: int, chunk: int, seed: int) -> da.Array:
     return da.concatenate(blocks, axis=0)
 
 
-def start_cluster(n_workers: int) -> distributed.Client:
-    cluster = distributed.LocalCluster(
-        n_workers=n_workers,
-        threads_per_worker=1,
-        processes=True,
-        host="127.0.0.1",
-        dashboard_address=None,
-        silence_logs=40,
-    )
-    return distributed.Client(cluster)
+def start_cluster(n_workers: int, tuned: bool = True) -> distributed.Client:
+    """``squkf.dask.local_cluster`` (or, untuned, a LocalCluster under dask's default environment)."""
+    # a nanny writes its pre-spawn variables into this process's environment, which later workers
+    # inherit: an untuned cluster must not see an earlier tuned one's
+    os.environ.pop("MALLOC_MMAP_THRESHOLD_", None)
+    options = {"host": "127.0.0.1", "dashboard_address": None, "silence_logs": 40}
+    if tuned:
+        cluster = sd.local_cluster(n_workers, **options)
+    else:
+        one_thread = {"threads_per_worker": 1, "processes": True}
+        cluster = distributed.LocalCluster(n_workers=n_workers, **one_thread, **options)
+    client = distributed.Client(cluster)
+    seen = set(client.run(_mmap_threshold).values())
+    want = {str(sd.MMAP_THRESHOLD) if tuned else None}
+    if seen != want:
+        raise RuntimeError(f"workers' MALLOC_MMAP_THRESHOLD_ is {seen}, expected {want}")
+    return client
+
+
+def _mmap_threshold() -> str | None:
+    return os.environ.get("MALLOC_MMAP_THRESHOLD_")
+
+
+UNTUNED = "1 worker, dask's default environment"
 
 
 def stop_cluster(client: distributed.Client) -> None:
@@ -166,7 +180,7 @@ def memory_run(client, K: int, T: int, chunk: int, seed: int = 1, poll: float = 
     dt = time.perf_counter() - t0
     stop.set()
     thread.join()
-    template_mb = len(distributed.protocol.pickle.dumps(fleet)) / 1e6
+    template_mb = len(distributed.protocol.pickle.dumps(fleet.subset(slice(0, chunk)))) / 1e6
     return {
         "K": K,
         "T": T,
@@ -188,14 +202,16 @@ def report(tp: dict, mem: dict, quick: bool, command: str) -> str:
     K, T = tp["K"], tp["T"]
     steps = K * T
     med = {name: statistics.median(v) for name, v in tp["runs"].items()}
-    one, two, inproc = med["1 worker"], med["2 workers"], med["in-process Fleet"]
+    one, two, inproc, untuned = med["1 worker"], med["2 workers"], med["in-process Fleet"], med[UNTUNED]
     lines = [
         "# squkf.dask on a LocalCluster" + (" (--quick: sizes too small to mean anything)" if quick else ""),
         "",
         f"Machine: {platform.machine()}, {os.cpu_count()} cores, shared with other jobs; Python "
         f"{platform.python_version()}, numpy {np.__version__}, dask {dask.__version__}, distributed "
         f"{distributed.__version__}, squkf {squkf.__version__}. BLAS threads 1; workers are processes "
-        "with one thread each (`LocalCluster(n_workers, threads_per_worker=1, processes=True)`).",
+        "with one thread each, started by `squkf.dask.local_cluster(n_workers)` (a `LocalCluster` with "
+        "`threads_per_worker=1, processes=True` under `squkf.dask.worker_environ()`) except where a row "
+        "says otherwise.",
         "",
         "Model: `benchmarks/dask_bench_models.py`, a constant-velocity target in the plane (n = 4) and a "
         "range-bearing radar (m = 2), Merwe points (alpha=1, beta=2, kappa=0), redrawn scheme. Measurements "
@@ -219,6 +235,10 @@ def report(tp: dict, mem: dict, quick: bool, command: str) -> str:
         "",
         f"- two workers / one worker: **{one / two:.2f}x** speed-up (target >= 1.6x; at most 2x on 2 cores).",
         f"- one worker / in-process fleet: **{one / inproc:.2f}x** the time (target <= 1.25x).",
+        f"- one worker under dask's default environment / in-process fleet: **{untuned / inproc:.2f}x**: "
+        "dask's nanny sets `MALLOC_TRIM_THRESHOLD_`, which under glibc pins malloc's mmap threshold at "
+        "128 KiB, so each of the step's ~1 MB temporaries is a fresh zero-filled mapping; "
+        "`worker_environ()` adds `MALLOC_MMAP_THRESHOLD_` (16 MiB).",
         f"- means bit-identical to the in-process fleet's in every repetition: {tp['identical']}.",
         "",
         f'## K = {mem["K"]:,}, T = {mem["T"]}, keep="means", 2 workers, chunks of {mem["chunk"]:,}',
@@ -239,12 +259,17 @@ def report(tp: dict, mem: dict, quick: bool, command: str) -> str:
     ]
     for i, w in enumerate(sorted(mem["peak_mb"])):
         lines.append(f"| {i} | {mem['baseline_mb'][w]:.0f} | {mem['peak_mb'][w]:.0f} |")
+    per_chunk = mem["chunk_means_mb"] + mem["chunk_sim_mb"] + mem["template_mb"]
+    above = max(mem["peak_mb"][w] - mem["baseline_mb"][w] for w in mem["peak_mb"])
     lines += [
         "",
+        f"The largest peak is {above:.0f} MB above its worker's resting size: about {above / per_chunk:.1f} "
+        f"chunks' worth of data ({per_chunk:.0f} MB each, counted below).",
+        "",
         f"Per chunk: means {mem['chunk_means_mb']:.0f} MB, simulated truth and measurements "
-        f"{mem['chunk_sim_mb']:.0f} MB. The template fleet (every filter's initial state and the fleet's "
-        f"records, pickled) is {mem['template_mb']:.0f} MB and is held once by each worker that runs a chunk "
-        "(`squkf.dask.batch_filter` sends the whole template as one key and subsets it in the task).",
+        f"{mem['chunk_sim_mb']:.0f} MB; each task carries its chunk's rows of the template fleet "
+        f"(initial states, factors and records, {mem['template_mb']:.0f} MB pickled), "
+        "not the whole template.",
         "",
     ]
     return "\n".join(lines)
@@ -265,11 +290,13 @@ def main(argv=None) -> int:
         K, T, chunk, reps, K_mem, T_mem, chunk_mem = 100_000, 40, 25_000, 3, 1_000_000, 40, 50_000
     reps = args.reps or reps
     K_mem, T_mem = args.mem_K or K_mem, args.mem_T or T_mem
-    clients = {"1 worker": start_cluster(1), "2 workers": start_cluster(2)}
+    untuned = start_cluster(1, tuned=False)  # first: see start_cluster
+    clients = {"1 worker": start_cluster(1), "2 workers": start_cluster(2), UNTUNED: untuned}
     try:
         tp = throughput(K, T, chunk, reps, clients)
         print(f"throughput done: {tp['runs']}", flush=True)
         stop_cluster(clients.pop("1 worker"))
+        stop_cluster(clients.pop(UNTUNED))
         mem = memory_run(clients["2 workers"], K_mem, T_mem, chunk_mem)
         print(f"memory run done: {mem}", flush=True)
     finally:

@@ -541,7 +541,7 @@ class Fleet:
         if res is not None:
             x_new[good], S_new[good] = res
         Qall = None if Q is None else (Q if Q.ndim == 2 else Q)
-        if F is values and getattr(plan.second, "uses_propagated", True):
+        if F is values and plan.keeps_propagated:
             F = F.copy()  # kept for the second set: the step's own copy
         new = steps.StepState(steps.PRIOR, None, F, Qall)
         new = steps.draw_second_set(new, plan, x_new, S_new, self.state_add)

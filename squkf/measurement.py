@@ -271,8 +271,11 @@ def _joint_factor(sset, rows, sigmas_h, x, S, R1_2, z_mean_fn, residual_x, resid
             M = _row_buffer(batch, N + m, m + n)
             z_pred = central_rows(sigmas_h, rows, block(M, _ALL, slice(m)))
             if drawn is not None:  # the rows of x + xi S^T are G S^T (one product)
-                G, ST = drawn[0].G, swap_last(drawn[1])
-                block(M, slice(N), slice(m, None))[...] = G.dot(ST) if ST.ndim == 2 else np.matmul(G, ST)
+                G, ST, rows_x = drawn[0].G, swap_last(drawn[1]), block(M, slice(N), slice(m, None))
+                if ST.ndim == 2:
+                    rows_x[...] = G.dot(ST)  # one matrix: BLAS, then a copy, beats matmul into a view
+                else:
+                    np.matmul(G, ST, out=rows_x)  # a stack: no temporary of the stack's size
             else:
                 central_rows(points, rows, block(M, _ALL, slice(m, None)))
         else:

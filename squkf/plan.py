@@ -64,6 +64,11 @@ class Plan:
         """Points in the first set."""
         return self.first.xi.shape[0]
 
+    @property
+    def keeps_propagated(self) -> bool:
+        """Whether the second set reads the first set's images (augmented, propagated), kept by the step."""
+        return bool(getattr(self.second, "uses_propagated", True))
+
 
 def build_plan(family, generator, n: int) -> Plan:
     """The plan for ``family`` and ``generator`` at dimension ``n``.

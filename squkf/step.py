@@ -155,7 +155,7 @@ def tell_predict(
             + (" (the prediction was already told)" if state.phase == PRIOR else "")
         )
     shape = state.sigmas.shape  # type: ignore[union-attr]  # set in phase PREDICTING
-    keep = getattr(plan.second, "uses_propagated", True)  # F is kept for the second set
+    keep = plan.keeps_propagated
     F = check_values(values, shape, name, private=keep)
     rows = plan.first.rows
     if UT is None:
@@ -168,7 +168,7 @@ def tell_predict(
         S = check_hook_result(S, shape[:-2] + (shape[-1], shape[-1]), "UT")
     if not (all_finite(x) and all_finite(S)):
         raise NonFiniteError("the predicted mean or factor is not finite")
-    return StepState(PRIOR, None, F, Q1_2), x, S
+    return StepState(PRIOR, None, F if keep else None, Q1_2), x, S
 
 
 def draw_second_set(
@@ -196,7 +196,7 @@ def draw_second_set(
     """
     propagated = state.propagated if state.phase in (PRIOR, UPDATING) else None
     sset = plan.second.draw(x, S, propagated, state.Q1_2, state_add)
-    if not getattr(plan.second, "uses_propagated", True):
+    if not plan.keeps_propagated:
         propagated = None  # not kept where the second set never reads it (memory, for a fleet)
     return StepState(state.phase, state.sigmas, propagated, state.Q1_2, sset, (x, S))
 

@@ -76,6 +76,8 @@ def check_values(values, shape: tuple[int, ...], name: str, private: bool = True
     Returns
     -------
     values : ndarray, shape ``shape``, float64
+        A private copy, unless ``private=False`` and ``values`` was already
+        a float64 array: then ``values`` itself.
 
     Raises
     ------

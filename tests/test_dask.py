@@ -129,6 +129,20 @@ def test_importing_squkf_does_not_import_dask():
     assert out.stdout.strip() == "False"
 
 
+def test_worker_environ_adds_the_mmap_threshold_and_keeps_dasks_settings():
+    base = dask.config.get("distributed.nanny.pre-spawn-environ")
+    env = sd.worker_environ()
+    assert env["MALLOC_MMAP_THRESHOLD_"] == sd.MMAP_THRESHOLD == 16 * 2**20
+    assert {k: v for k, v in env.items() if k != "MALLOC_MMAP_THRESHOLD_"} == base  # dask's own kept
+    assert dask.config.get("distributed.nanny.pre-spawn-environ") == base  # the config is not changed
+    with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_MMAP_THRESHOLD_": 4096}):
+        assert sd.worker_environ()["MALLOC_MMAP_THRESHOLD_"] == 4096  # a user's value wins
+
+
+def _mmap_threshold():
+    return os.environ.get("MALLOC_MMAP_THRESHOLD_")
+
+
 # -- a distributed cluster on this machine -------------------------------------------------------
 
 
@@ -136,20 +150,21 @@ def test_importing_squkf_does_not_import_dask():
 def cluster(monkeypatch):
     # worker processes import the model functions by name: put this folder on their path
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(TESTS), os.environ.get("PYTHONPATH", "")]))
-    c = distributed.LocalCluster(
-        n_workers=2,
-        threads_per_worker=1,
-        processes=True,
-        host="127.0.0.1",
-        dashboard_address=None,
-        silence_logs=40,
-    )
+    # the nanny writes its pre-spawn variables into this process's environment; workers must get
+    # them from the nanny (not inherit them from here), and they are undone when the test ends
+    saved = dict(os.environ)
+    os.environ.pop("MALLOC_MMAP_THRESHOLD_", None)
+    c = sd.local_cluster(2, host="127.0.0.1", dashboard_address=None, silence_logs=40)
     client = distributed.Client(c)
+    info = client.scheduler_info()["workers"].values()
+    assert len(info) == 2 and all(w["nthreads"] == 1 for w in info)  # local_cluster's defaults
     try:
         yield client
     finally:
         client.close()
         c.close()
+        os.environ.clear()
+        os.environ.update(saved)
 
 
 @pytest.mark.slow
@@ -175,12 +190,15 @@ def test_a_worker_killed_mid_computation_changes_nothing(cluster):
         time.sleep(0.05)
     time.sleep(0.3)
     victim = next(iter(pids.values()))
+    os.environ.pop("MALLOC_MMAP_THRESHOLD_", None)  # the replacement gets it from its nanny, not from here
     os.kill(victim, signal.SIGKILL)
     means, loglik = cluster.gather(futures)
     ref = fleet.subset(slice(None)).batch_filter(zs, keep="means")
     assert np.array_equal(means, ref.means)
     assert np.array_equal(loglik, ref.log_likelihood)
     assert victim not in cluster.run(os.getpid).values()  # the worker really was replaced
+    # the nanny started the new worker with worker_environ's environment too
+    assert set(cluster.run(_mmap_threshold).values()) == {str(sd.MMAP_THRESHOLD)}
 
 
 # -- long-format frames ----------------------------------------------------------------------------

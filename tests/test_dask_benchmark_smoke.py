@@ -27,13 +27,13 @@ def test_quick_dask_benchmark_writes_results(tmp_path):
         cells = [c.strip() for c in line.strip("|").split("|")]
         if line.startswith("| ") and len(cells) == 4:
             rows[cells[0]] = cells
-    for name in ("in-process Fleet", "1 worker", "2 workers"):
+    for name in ("in-process Fleet", "1 worker", "2 workers", "1 worker, dask's default environment"):
         assert float(rows[name][1]) > 0, name
         assert float(rows[name][2].replace(",", "")) > 0, name
     # the cluster's means are bit-identical to Fleet.batch_filter's in this process
     assert "bit-identical to the in-process fleet's in every repetition: True" in text
     speedups = re.findall(r"\*\*([0-9.]+)x\*\*", text)
-    assert len(speedups) == 2
+    assert len(speedups) == 3  # two workers / one, one worker / in process, untuned worker / in process
     # the reduced run: every filter converged (no failures, a few metres of error), memory polled per worker
     mem = text.split('keep="means", 2 workers')[1]
     assert "0 filters failed" in mem
