@@ -34,6 +34,7 @@ from .weights import as_family
 __all__ = ["SquareRootUKF"]
 
 _LOG_TINY = math.log(sys.float_info.min)
+_new_tuple = tuple.__new__
 _LOG_2PI = math.log(2.0 * math.pi)
 
 
@@ -41,11 +42,11 @@ def _one_blas_thread(method):
     """Run ``method`` on one BLAS thread for states of ``blas.MIN_DIM`` or more (see :mod:`squkf.blas`)."""
 
     @functools.wraps(method)
-    def run(self, *args, **kwargs):
+    def run(self, *args):  # positional only: packing keywords too costs a microsecond a step
         if blas.MIN_DIM is not None and self._dim_x >= blas.MIN_DIM:
             with blas.one_blas_thread():
-                return method(self, *args, **kwargs)
-        return method(self, *args, **kwargs)
+                return method(self, *args)
+        return method(self, *args)
 
     return run
 
@@ -357,12 +358,17 @@ class SquareRootUKF:
         return self._plan.first.rows.Wc.copy()
 
     def _hooks(self) -> Hooks:
-        return Hooks(
-            self.x_mean,
-            self.z_mean,
-            None if self.residual_x is np.subtract else self.residual_x,
-            None if self.residual_z is np.subtract else self.residual_z,
-            None if self.state_add is np.add else self.state_add,
+        rx, rz, add = self.residual_x, self.residual_z, self.state_add
+        # tuple.__new__ builds the named tuple without its Python-level __new__ (twice a step)
+        return _new_tuple(
+            Hooks,
+            (
+                self.x_mean,
+                self.z_mean,
+                None if rx is np.subtract else rx,
+                None if rz is np.subtract else rz,
+                None if add is np.add else add,
+            ),
         )
 
     # -- state and covariances ---------------------------------------------
