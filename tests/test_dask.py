@@ -156,9 +156,9 @@ def cluster(monkeypatch):
     os.environ.pop("MALLOC_MMAP_THRESHOLD_", None)
     c = sd.local_cluster(2, host="127.0.0.1", dashboard_address=None, silence_logs=40)
     client = distributed.Client(c)
-    info = client.scheduler_info()["workers"].values()
-    assert len(info) == 2 and all(w["nthreads"] == 1 for w in info)  # local_cluster's defaults
     try:
+        info = client.scheduler_info()["workers"].values()
+        assert len(info) == 2 and all(w["nthreads"] == 1 for w in info)  # local_cluster's defaults
         yield client
     finally:
         client.close()
