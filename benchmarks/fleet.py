@@ -81,6 +81,8 @@ ROOT = HERE.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from machine import cpu_name  # noqa: E402
+
 from squkf import Fleet, MerweScaledWeights, SquareRootUKF  # noqa: E402
 
 ALPHA, BETA, KAPPA = 1.0, 2.0, 0.0
@@ -445,14 +447,7 @@ def versions(impls) -> str:
         import jax
 
         parts.append(f"jax {jax.__version__}, dynamax {__import__('dynamax').__version__}")
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    cpu = cpu_name()
     return f"Machine: {cpu}, {os.cpu_count()} cores; " + ", ".join(parts) + "; BLAS threads: 1."
 
 

@@ -71,6 +71,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(HERE))
 
 from floor import inline_impls, qr_ms, step_profile  # noqa: E402
+from machine import cpu_name  # noqa: E402
 from models import SCENARIOS, Lorenz96, near_singular  # noqa: E402
 from peers import implementations  # noqa: E402
 
@@ -195,14 +196,7 @@ def header(threads: str) -> str:
     import filterpy
     import scipy
 
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    cpu = cpu_name()
     return (
         f"Machine: {cpu}, {os.cpu_count()} cores; Python {platform.python_version()}, "
         f"numpy {np.__version__}, scipy {scipy.__version__}, filterpy {filterpy.__version__}; "
