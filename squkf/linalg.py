@@ -28,7 +28,7 @@ __all__ = [
     "factor_covariance",
 ]
 
-_dgeqrf = lapack.get_lapack_funcs("geqrf", dtype=np.float64)
+_dgeqrfp = lapack.get_lapack_funcs("geqrfp", dtype=np.float64)
 _dtrtrs = lapack.get_lapack_funcs("trtrs", dtype=np.float64)
 _dpotrf = lapack.get_lapack_funcs("potrf", dtype=np.float64)
 _TINY = np.finfo(float).tiny
@@ -65,7 +65,7 @@ def tria(rows: np.ndarray) -> np.ndarray:
     rows : ndarray, shape (..., k, n)
         Each row is one weighted column of a square root: the result ``S``
         satisfies ``S @ S.T == rows.T @ rows`` (for every leading index). A
-        single matrix is factored by LAPACK's ``dgeqrf`` in place (give it in
+        single matrix is factored by LAPACK's ``dgeqrfp`` in place (give it in
         Fortran order to avoid a copy); a stack by numpy's stacked QR.
 
     Returns
@@ -76,22 +76,21 @@ def tria(rows: np.ndarray) -> np.ndarray:
     """
     k, n = rows.shape[-2:]
     if rows.ndim == 2:
-        # LAPACK's blocked QR needs a workspace of n * block size; below ~16 columns
-        # the unblocked code (scipy's default workspace) is faster
+        # dgeqrfp: R with a non-negative diagonal, so no sign pass (which cost more than the QR
+        # itself on a small matrix). LAPACK's blocked QR needs a workspace of n * block size;
+        # below ~16 columns the unblocked code (scipy's default workspace) is faster
         if n >= 16:
-            qr, _, _, info = _dgeqrf(rows, lwork=32 * n, overwrite_a=1)
+            qr, _, info = _dgeqrfp(rows, lwork=32 * n, overwrite_a=1)
         else:
-            qr, _, _, info = _dgeqrf(rows, overwrite_a=1)
+            qr, _, info = _dgeqrfp(rows, overwrite_a=1)
         if info != 0:  # pragma: no cover - LAPACK argument error, cannot happen here
-            raise RuntimeError(f"LAPACK dgeqrf failed with info={info}")
-        # below R's diagonal dgeqrf leaves its Householder vectors: keep the triangle only; and
-        # since a column's sign does not change S @ S.T, make the diagonal non-negative (one mask)
+            raise RuntimeError(f"LAPACK dgeqrfp failed with info={info}")
+        # below R's diagonal LAPACK leaves its Householder vectors: keep the triangle only
         if k >= n:
-            return qr[:n].T * np.copysign(_lower_mask(n), qr.diagonal())
+            return qr[:n].T * _lower_mask(n)
         S = np.zeros((n, n))
         S[:, :k] = qr.T
         S *= _lower_mask(n)
-        S *= np.copysign(1.0, S.diagonal())
         return S
     R = np.linalg.qr(rows, mode="r")  # (..., min(k, n), n), upper triangular
     if k >= n:

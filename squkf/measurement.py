@@ -46,7 +46,6 @@ from .rows import WeightRows, weight_rows
 from .transform import (
     _row_buffer,
     batch_shape,
-    block,
     central_rows,
     deviations,
     factor_rows,
@@ -60,7 +59,6 @@ from .validate import call_hook, check_hook_result
 __all__ = ["Posterior", "measurement_update", "gain_from_factors", "check_gain", "observed_noise_factor"]
 
 _TINY = np.finfo(float).tiny
-_ALL = slice(None)
 _INF = float("inf")
 
 
@@ -269,15 +267,15 @@ def _joint_factor(sset, rows, sigmas_h, x, S, R1_2, z_mean_fn, residual_x, resid
             # every row enters the QR: write them straight into the buffer
             npos = N
             M = _row_buffer(batch, N + m, m + n)
-            z_pred = central_rows(sigmas_h, rows, block(M, _ALL, slice(m)))
+            z_pred = central_rows(sigmas_h, rows, M[..., :m])
             if drawn is not None:  # the rows of x + xi S^T are G S^T (one product)
-                G, ST, rows_x = drawn[0].G, swap_last(drawn[1]), block(M, slice(N), slice(m, None))
+                G, ST, rows_x = drawn[0].G, swap_last(drawn[1]), M[..., :N, m:]
                 if ST.ndim == 2:
                     rows_x[...] = G.dot(ST)  # one matrix: BLAS, then a copy, beats matmul into a view
                 else:
                     np.matmul(G, ST, out=rows_x)  # a stack: no temporary of the stack's size
             else:
-                central_rows(points, rows, block(M, _ALL, slice(m, None)))
+                central_rows(points, rows, M[..., m:])
         else:
             if not hooks and rows.best.central:
                 z_pred, Dz, form = signed_rows(sigmas_h, rows)
@@ -293,15 +291,15 @@ def _joint_factor(sset, rows, sigmas_h, x, S, R1_2, z_mean_fn, residual_x, resid
             M = _row_buffer(batch, npos + m, m + n)
             np.multiply(Dz if pos is None else Dz[..., pos, :], scale, out=M[..., :npos, :m])
             np.multiply(Dx if pos is None else Dx[..., pos, :], scale, out=M[..., :npos, m:])
-        block(M, slice(npos, None), slice(m))[...] = swap_last(R1_2)
-        block(M, slice(npos, None), slice(m, None))[...] = 0.0
+        M[..., npos:, :m] = swap_last(R1_2)
+        M[..., npos:, m:] = 0.0
         L = tria(M)
         for k in neg:
             v = form.scale[k] * np.concatenate([Dz[..., k, :], Dx[..., k, :]], axis=-1)
             L = _downdate_joint(L, v, m, form.weights[k])
-    Sy = block(L, slice(m), slice(m))
+    Sy = L[..., :m, :m]
     check_gain(Sy)
-    return z_pred, Sy, block(L, slice(m, None), slice(m)), block(L, slice(m, None), slice(m, None))
+    return z_pred, Sy, L[..., m:, :m], L[..., m:, m:]
 
 
 def _paired_joint(H, axis, rows: WeightRows, R1_2, batch):

@@ -10,7 +10,7 @@ serves any number of filters, and a configuration is data, not code.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
 from .errors import ParameterError
@@ -51,6 +51,9 @@ class Plan:
         The first set's unit points, weights, rows and structure.
     second : object with ``draw(x, S, propagated, Q1_2, state_add) -> SigmaSet``
         The generator's prepared second set.
+    keeps_propagated : bool
+        Whether the second set reads the first set's images (augmented,
+        propagated), which the step then keeps (derived from ``second``).
     """
 
     n: int
@@ -58,16 +61,16 @@ class Plan:
     generator: Any
     first: UnitSet
     second: Any
+    keeps_propagated: bool = field(init=False)
+
+    def __post_init__(self):
+        # read twice a step: an attribute, not a property
+        object.__setattr__(self, "keeps_propagated", bool(getattr(self.second, "uses_propagated", True)))
 
     @property
     def num_sigmas(self) -> int:
         """Points in the first set."""
         return self.first.xi.shape[0]
-
-    @property
-    def keeps_propagated(self) -> bool:
-        """Whether the second set reads the first set's images (augmented, propagated), kept by the step."""
-        return bool(getattr(self.second, "uses_propagated", True))
 
 
 def build_plan(family, generator, n: int) -> Plan:

@@ -40,11 +40,6 @@ def batch_shape(*arrays: np.ndarray | None, core: int = 2) -> tuple[int, ...]:
     return shape
 
 
-def block(a: np.ndarray, rows: slice, cols: slice) -> np.ndarray:
-    """The view ``a[..., rows, cols]`` (plain indexing for one matrix: a third of the cost)."""
-    return a[rows, cols] if a.ndim == 2 else a[..., rows, cols]
-
-
 def swap_last(a: np.ndarray) -> np.ndarray:
     """The transpose of the last two axes (``a.T`` for one matrix)."""
     return a.T if a.ndim == 2 else np.swapaxes(a, -1, -2)
