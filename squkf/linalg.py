@@ -53,7 +53,7 @@ def all_finite(a: np.ndarray) -> bool:
     -------
     bool
     """
-    s = np.vdot(a, a) if a.size <= _DOT_MAX else a.sum()
+    s = np.vdot(a, a) if a.size <= _DOT_MAX else a.sum()  # vdot: no overflow warning, unlike ndarray.dot
     return math.isfinite(s) or bool(np.isfinite(a).all())
 
 

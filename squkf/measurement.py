@@ -299,7 +299,8 @@ def _joint_factor(sset, rows, sigmas_h, x, S, R1_2, z_mean_fn, residual_x, resid
             L = _downdate_joint(L, v, m, form.weights[k])
     Sy = L[..., :m, :m]
     check_gain(Sy)
-    return z_pred, Sy, L[..., m:, :m], L[..., m:, m:]
+    # the posterior factor as its own array: checked and read as a whole, never as a strided view
+    return z_pred, Sy, L[..., m:, :m], L[..., m:, m:].copy()
 
 
 def _paired_joint(H, axis, rows: WeightRows, R1_2, batch):

@@ -18,6 +18,8 @@ from .linalg import all_finite
 
 __all__ = ["as_float_array", "check_time_step", "check_values", "check_hook_result", "call_hook"]
 
+_FLOAT64 = np.dtype(np.float64)  # numpy's native float64 dtype is one object: compared by identity
+
 
 def as_float_array(value, name: str) -> np.ndarray:
     """``value`` as a new float64 array; complex or non-numeric input is an error.
@@ -43,6 +45,8 @@ def as_float_array(value, name: str) -> np.ndarray:
         probe = np.asarray(value)
     except (TypeError, ValueError) as exc:
         raise ShapeError(f"{name} could not be read as a real float array: {exc}") from None
+    if probe.dtype is _FLOAT64 and type(value) is list:
+        return probe  # built from a list: already a new array (per-point images), no second copy
     if probe.dtype.kind == "c":
         raise ShapeError(f"{name} is complex ({probe.dtype}); squkf works in real float64")
     if probe.dtype.kind not in "fiub":
@@ -53,7 +57,7 @@ def as_float_array(value, name: str) -> np.ndarray:
                 pass
         raise ShapeError(f"{name} could not be read as a real float array (dtype {probe.dtype}): {value!r}")
     if isinstance(value, (list, tuple)) and probe.dtype == np.float64:
-        return probe  # built from a list: already a new array (per-point images), no second copy
+        return probe  # a new array already
     return np.array(probe, dtype=float)
 
 
@@ -83,7 +87,7 @@ def check_values(values, shape: tuple[int, ...], name: str, private: bool = True
     ------
     ShapeError, NonFiniteError
     """
-    if not private and type(values) is np.ndarray and values.dtype == np.float64:
+    if not private and type(values) is np.ndarray and values.dtype is _FLOAT64:
         arr = values
     else:
         arr = as_float_array(values, name)
