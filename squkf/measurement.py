@@ -44,7 +44,6 @@ from .generators import SigmaSet
 from .linalg import all_finite, chol_downdate_columns, chol_update, solve_lower, tria
 from .rows import WeightRows, weight_rows
 from .transform import (
-    _row_buffer,
     batch_shape,
     central_rows,
     deviations,
@@ -266,7 +265,7 @@ def _joint_factor(sset, rows, sigmas_h, x, S, R1_2, z_mean_fn, residual_x, resid
         if not hooks and rows.fast:
             # every row enters the QR: write them straight into the buffer
             npos = N
-            M = _row_buffer(batch, N + m, m + n)
+            M = np.empty(batch + (N + m, m + n))
             z_pred = central_rows(sigmas_h, rows, M[..., :m])
             if drawn is not None:  # the rows of x + xi S^T are G S^T (one product)
                 G, ST, rows_x = drawn[0].G, swap_last(drawn[1]), M[..., :N, m:]
@@ -288,7 +287,7 @@ def _joint_factor(sset, rows, sigmas_h, x, S, R1_2, z_mean_fn, residual_x, resid
             pos, neg = form.pos, form.neg
             scale = (form.scale if pos is None else form.scale[pos])[:, None]
             npos = scale.shape[0]
-            M = _row_buffer(batch, npos + m, m + n)
+            M = np.empty(batch + (npos + m, m + n))
             np.multiply(Dz if pos is None else Dz[..., pos, :], scale, out=M[..., :npos, :m])
             np.multiply(Dx if pos is None else Dx[..., pos, :], scale, out=M[..., :npos, m:])
         M[..., npos:, :m] = swap_last(R1_2)
@@ -315,11 +314,11 @@ def _paired_joint(H, axis, rows: WeightRows, R1_2, batch):
     n = S.shape[-1]
     m = H.shape[-1]
     c = cast(float, rows.pair_scale)  # not None: the caller checked
-    Z = _row_buffer(batch, n + 1 + m, m)
-    M = _row_buffer(batch, n + m, m + n)
+    Z = np.empty(batch + (n + 1 + m, m))
+    M = np.empty(batch + (n + m, m + n))
     h0 = H[..., 0, :]
     E = H[..., 1:, :] - h0[..., None, :]
-    mu = np.matmul(rows.wm_tail, E)
+    mu = rows.wm_tail.dot(E) if E.ndim == 2 else np.matmul(rows.wm_tail, E)
     np.add(E[..., :n, :], E[..., n:, :], out=Z[..., :n, :])
     Z[..., :n, :] *= c
     np.multiply(mu, rows.mu_scale, out=Z[..., n, :])

@@ -79,8 +79,10 @@ class WeightRows:
     fast : bool
         ``best`` is the central form with no negative weight: its rows can be
         written straight into the QR buffer (:func:`squkf.transform.central_rows`).
-    tail_scale : ndarray, shape (N - 1, 1)
-        ``best.scale[:-1]`` as a column (the scales of the rows ``e_i``).
+    tail_scale : float or ndarray, shape (N - 1, 1)
+        ``best.scale[:-1]`` as a column (the scales of the rows ``e_i``), or
+        that one number when they are all equal (symmetric families: a
+        scalar product costs half the broadcast one).
     mu_scale : float
         ``best.scale[-1]`` (the scale of the row ``mu``).
     pair_scale : float or None
@@ -96,7 +98,7 @@ class WeightRows:
     central_form: RowForm | None
     best: RowForm
     fast: bool
-    tail_scale: np.ndarray
+    tail_scale: float | np.ndarray
     mu_scale: float
     pair_scale: float | None
 
@@ -146,7 +148,8 @@ def weight_rows(Wm: np.ndarray, Wc: np.ndarray) -> WeightRows:
     tail = best.scale[:-1]
     N = Wm_.shape[0]
     pair_scale = None
-    if fast and N >= 3 and N % 2 == 1 and np.all(tail == tail[0]):
+    uniform = tail.size > 0 and bool(np.all(tail == tail[0]))
+    if fast and N >= 3 and N % 2 == 1 and uniform:
         pair_scale = float(tail[0]) / float(np.sqrt(2.0))
     return WeightRows(
         Wm=_frozen(Wm_),
@@ -156,7 +159,7 @@ def weight_rows(Wm: np.ndarray, Wc: np.ndarray) -> WeightRows:
         central_form=central_form,
         best=best,
         fast=fast,
-        tail_scale=_frozen(tail[:, None].copy()),
+        tail_scale=float(tail[0]) if uniform else _frozen(tail[:, None].copy()),
         mu_scale=float(best.scale[-1]) if best.scale.size else 0.0,
         pair_scale=pair_scale,
     )

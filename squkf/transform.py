@@ -139,7 +139,7 @@ def central_rows(sigmas: np.ndarray, rows: WeightRows, out: np.ndarray) -> np.nd
         ref, tail, E, last = sigmas[..., 0, :], sigmas[..., 1:, :], out[..., : N - 1, :], out[..., N - 1, :]
         ref_b = ref[..., None, :]
     np.subtract(tail, ref_b, out=E)
-    mu = np.matmul(rows.wm_tail, E)
+    mu = rows.wm_tail.dot(E) if E.ndim == 2 else np.matmul(rows.wm_tail, E)  # one matrix: BLAS, no gufunc
     E *= rows.tail_scale
     np.multiply(mu, rows.mu_scale, out=last)
     return ref + mu
@@ -183,11 +183,6 @@ def signed_rows(
     return mean, deviations(sigmas, mean, residual_fn, hooks[1]), rows.mean_form
 
 
-def _row_buffer(batch: tuple[int, ...], k: int, d: int) -> np.ndarray:
-    # one matrix: LAPACK's layout, so that tria factors it in place; a stack: numpy's
-    return np.empty((k, d), order="F") if not batch else np.empty(batch + (k, d))
-
-
 def factor_rows(
     D: np.ndarray,
     form: RowForm,
@@ -227,7 +222,7 @@ def factor_rows(
     npos, d = src.shape[-2:]
     extra = 0 if noise_sqrt is None else noise_sqrt.shape[-1]
     batch = batch_shape(D, noise_sqrt)
-    rows = _row_buffer(batch, npos + extra, d)
+    rows = np.empty(batch + (npos + extra, d))
     np.multiply(src, scale[:, None], out=rows[..., :npos, :])
     if extra and noise_sqrt is not None:
         rows[..., npos:, :] = swap_last(noise_sqrt)
@@ -302,7 +297,7 @@ def transform_factor(
         N, d = sigmas.shape[-2:]
         extra = 0 if noise_sqrt is None else noise_sqrt.shape[-1]
         batch = batch_shape(sigmas, noise_sqrt)
-        buf = _row_buffer(batch, N + extra, d)
+        buf = np.empty(batch + (N + extra, d))
         mean = central_rows(sigmas, rows, buf)
         if extra and noise_sqrt is not None:
             buf[..., N:, :] = swap_last(noise_sqrt)
