@@ -265,7 +265,7 @@ def _joint_factor(sset, rows, sigmas_h, x, S, R1_2, z_mean_fn, residual_x, resid
         if not hooks and rows.fast:
             # every row enters the QR: write them straight into the buffer
             npos = N
-            M = np.empty(batch + (N + m, m + n))
+            M = np.zeros(batch + (N + m, m + n))  # zeros: the block below the state rows stays 0
             z_pred = central_rows(sigmas_h, rows, M[..., :m])
             if drawn is not None:  # the rows of x + xi S^T are G S^T (one product)
                 G, ST, rows_x = drawn[0].G, swap_last(drawn[1]), M[..., :N, m:]
@@ -287,11 +287,10 @@ def _joint_factor(sset, rows, sigmas_h, x, S, R1_2, z_mean_fn, residual_x, resid
             pos, neg = form.pos, form.neg
             scale = (form.scale if pos is None else form.scale[pos])[:, None]
             npos = scale.shape[0]
-            M = np.empty(batch + (npos + m, m + n))
+            M = np.zeros(batch + (npos + m, m + n))
             np.multiply(Dz if pos is None else Dz[..., pos, :], scale, out=M[..., :npos, :m])
             np.multiply(Dx if pos is None else Dx[..., pos, :], scale, out=M[..., :npos, m:])
         M[..., npos:, :m] = swap_last(R1_2)
-        M[..., npos:, m:] = 0.0
         L = tria(M)
         for k in neg:
             v = form.scale[k] * np.concatenate([Dz[..., k, :], Dx[..., k, :]], axis=-1)
@@ -315,21 +314,20 @@ def _paired_joint(H, axis, rows: WeightRows, R1_2, batch):
     m = H.shape[-1]
     c = cast(float, rows.pair_scale)  # not None: the caller checked
     Z = np.empty(batch + (n + 1 + m, m))
-    M = np.empty(batch + (n + m, m + n))
+    M = np.zeros(batch + (n + m, m + n))  # the block below the state rows stays 0
     h0 = H[..., 0, :]
     E = H[..., 1:, :] - h0[..., None, :]
     mu = rows.wm_tail.dot(E) if E.ndim == 2 else np.matmul(rows.wm_tail, E)
     np.add(E[..., :n, :], E[..., n:, :], out=Z[..., :n, :])
     Z[..., :n, :] *= c
     np.multiply(mu, rows.mu_scale, out=Z[..., n, :])
-    Z[..., n + 1 :, :] = np.swapaxes(R1_2, -1, -2)
+    Z[..., n + 1 :, :] = swap_last(R1_2)
     T = tria(Z)
     B = M[..., :n, :m]
     np.subtract(H[..., 1 : n + 1, :], H[..., n + 1 :, :], out=B)
     B *= c
-    np.multiply(np.swapaxes(S, -1, -2), 2.0 * c * gamma, out=M[..., :n, m:])
-    M[..., n:, :m] = np.swapaxes(T, -1, -2)
-    M[..., n:, m:] = 0.0
+    np.multiply(swap_last(S), 2.0 * c * gamma, out=M[..., :n, m:])
+    M[..., n:, :m] = swap_last(T)
     return h0 + mu, tria(M)
 
 
