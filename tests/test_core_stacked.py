@@ -4,9 +4,10 @@ Every configuration goes through the step's pure transitions (:mod:`squkf.step`)
 from :func:`squkf.plan.build_plan`, once with a leading batch axis of 3 and once per slice
 without one, and the slices are compared.
 
-Tolerance. The single-filter path factors with LAPACK's ``dgeqrf`` called directly (Fortran
-order, its own workspace) and solves with ``dtrtrs``; the stacked path uses numpy's stacked QR
-(C-order rows, another blocking) and a vectorised row-by-row substitution. Both are backward
+Tolerance. The single-filter path factors with LAPACK's ``dgeqrfp`` called directly (a
+non-negative diagonal by its own reflections, its own workspace) and solves with ``dtrtrs``; the
+stacked path uses numpy's stacked QR (``dgeqrf`` and a sign pass, another blocking) and a vectorised
+row-by-row substitution. Both are backward
 stable, so they agree to rounding, not bit for bit: a few steps of QR and triangular solves on
 matrices of condition number ``kappa`` differ by about ``c * n * eps * kappa`` relative to the
 size of the quantity, amplified by the size of the weights (filterpy's points with alpha 0.3
