@@ -9,8 +9,9 @@ imports are all relative). Both run the same scenarios (``models.py``), per
 point and vectorised, interleaved with filterpy's UKF over repetitions; each
 repetition's time per step is divided by filterpy's in that repetition and
 the median of those ratios is reported, so a machine that slows down for a
-while slows all three alike. BLAS is held to one thread (set before numpy is
-imported).
+while slows all three alike. The last two columns divide this revision's
+time by the earlier one's in each repetition (median over repetitions).
+BLAS is held to one thread (set before numpy is imported).
 """
 
 from __future__ import annotations
@@ -87,8 +88,9 @@ def main(argv=None) -> int:
             (f"{args.ref} vectorised", ref, True),
         ]
         scenarios = [Robot(), CoordinatedTurn(), Lorenz96(40), Lorenz96(100)]
-        print(f"| scenario | {' | '.join(name for name, _, _ in impls)} | filterpy µs/step |")
-        print("|---|" + "---|" * (len(impls) + 1))
+        heads = [name for name, _, _ in impls] + ["now / earlier, per point", "now / earlier, vectorised"]
+        print(f"| scenario | {' | '.join(heads)} | filterpy µs/step |")
+        print("|---|" + "---|" * (len(heads) + 1))
         for sc in scenarios:
             steps = args.steps if sc.dim_x < 100 else max(10, args.steps // 5)
             _, zs = sc.simulate(steps, seed=1)
@@ -100,6 +102,9 @@ def main(argv=None) -> int:
                 for name, lib, vec in impls:
                     ratios[name].append(time_run(make(lib, sc, vec), zs) / t_fp)
             cells = [f"{np.median(ratios[name]):.3f}" for name, _, _ in impls]
+            for now, earlier in ((impls[0][0], impls[2][0]), (impls[1][0], impls[3][0])):
+                # the two revisions' times in the same repetition, divided: filterpy's noise drops out
+                cells.append(f"{np.median(np.divide(ratios[now], ratios[earlier])):.3f}")
             print(f"| {sc.name} | {' | '.join(cells)} | {1e6 * np.median(base):.0f} |", flush=True)
     return 0
 
