@@ -34,7 +34,6 @@ from .weights import as_family
 __all__ = ["SquareRootUKF"]
 
 _LOG_TINY = math.log(sys.float_info.min)
-_new_tuple = tuple.__new__
 _LOG_2PI = math.log(2.0 * math.pi)
 
 
@@ -114,6 +113,28 @@ class _State:
         obj.__dict__["_xs"] = x
         obj.__dict__[self.name] = x.copy()
         obj._covariance_assigned("x")
+
+
+class _Hook:
+    """A hook (``residual_x``, ``state_add``, ...) kept in the instance's ``__dict__``, as filterpy's.
+
+    Setting one drops the :class:`~squkf.plan.Hooks` tuple the filter built
+    from them, so that a step reads that tuple (twice a step) without
+    gathering the five attributes again.
+    """
+
+    def __set_name__(self, owner, name: str):
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        return obj.__dict__[self.name]
+
+    def __set__(self, obj, value):
+        d = obj.__dict__
+        d[self.name] = value
+        d["_hooks_cache"] = None
 
 
 class SquareRootUKF:
@@ -227,6 +248,11 @@ class SquareRootUKF:
     P = _Covariance()
     Q = _Covariance()
     R = _Covariance()
+    x_mean = _Hook()
+    z_mean = _Hook()
+    residual_x = _Hook()
+    residual_z = _Hook()
+    state_add = _Hook()
     # the slots behind P, Q, R (set through __dict__ in __init__)
     _P: FactorSlot
     _Q: FactorSlot
@@ -358,18 +384,18 @@ class SquareRootUKF:
         return self._plan.first.rows.Wc.copy()
 
     def _hooks(self) -> Hooks:
-        rx, rz, add = self.residual_x, self.residual_z, self.state_add
-        # tuple.__new__ builds the named tuple without its Python-level __new__ (twice a step)
-        return _new_tuple(
-            Hooks,
-            (
-                self.x_mean,
-                self.z_mean,
+        d = self.__dict__
+        hooks = d["_hooks_cache"]
+        if hooks is None:  # a hook was set since the last step
+            rx, rz, add = d["residual_x"], d["residual_z"], d["state_add"]
+            hooks = d["_hooks_cache"] = Hooks(
+                d["x_mean"],
+                d["z_mean"],
                 None if rx is np.subtract else rx,
                 None if rz is np.subtract else rz,
                 None if add is np.add else add,
-            ),
-        )
+            )
+        return hooks
 
     # -- state and covariances ---------------------------------------------
 

@@ -465,6 +465,57 @@ def test_replacing_points_between_ask_and_tell_uses_the_handed_out_set():
     assert f.Wm.shape[0] == 9 and not np.array_equal(f.Wm, twin.Wm)
 
 
+def _scaled_residual(a, b):
+    return 1.1 * np.subtract(a, b)
+
+
+def _half_step_add(x, dx):
+    return x + 0.5 * dx
+
+
+def _shifted_mean(sigmas, Wm):
+    return Wm @ sigmas + 0.01
+
+
+@pytest.mark.parametrize(
+    "hook, value, default",
+    [
+        ("residual_z", _scaled_residual, np.subtract),
+        ("residual_x", _scaled_residual, np.subtract),
+        ("state_add", _half_step_add, np.add),
+        ("x_mean", _shifted_mean, None),
+        ("z_mean", _shifted_mean, None),
+    ],
+)
+def test_a_hook_assigned_between_steps_is_used_from_the_next_step(hook, value, default):
+    """filterpy's hooks are plain attributes: assigning one after some steps changes the next steps.
+
+    Each hook here deliberately changes the numbers, so that a hook left unused shows.
+    """
+    f, plain = make(), make()
+    step(f, Z[0])
+    step(plain, Z[0])
+    setattr(f, hook, value)
+    ref = make(**{{"x_mean": "x_mean_fn", "z_mean": "z_mean_fn"}.get(hook, hook): value})
+    ref.x, ref.P = f.x, f.P
+    assert getattr(f, hook) is value
+    for z in Z[1:3]:
+        step(f, z)
+        step(ref, z)
+        step(plain, z)
+    np.testing.assert_allclose(f.x, ref.x, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(f.P, ref.P, rtol=1e-12, atol=1e-12)
+    assert not np.allclose(f.x, plain.x, rtol=1e-6, atol=0)
+    # and set back, the plain operation is used again
+    setattr(f, hook, default)
+    back = make()
+    back.x, back.P = f.x, f.P
+    step(f, Z[3])
+    step(back, Z[3])
+    np.testing.assert_allclose(f.x, back.x, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(f.P, back.P, rtol=1e-12, atol=1e-12)
+
+
 # -- conventions --------------------------------------------------------------------------------
 
 
