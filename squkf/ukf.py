@@ -97,8 +97,8 @@ class _Unformed:
         return self.slot.matrix().copy()
 
 
-class _State:
-    """``x``: the state vector kept in the instance's ``__dict__`` (see :class:`_Covariance`)."""
+class _InDict:
+    """A data descriptor over the instance's ``__dict__`` entry of its own name; subclasses set it."""
 
     def __set_name__(self, owner, name: str):
         self.name = name
@@ -107,6 +107,10 @@ class _State:
         if obj is None:
             return self
         return obj.__dict__[self.name]
+
+
+class _State(_InDict):
+    """``x``: the state vector kept in the instance's ``__dict__`` (see :class:`_Covariance`)."""
 
     def __set__(self, obj, value):
         x = obj._as_state(value, "x")
@@ -115,21 +119,13 @@ class _State:
         obj._covariance_assigned("x")
 
 
-class _Hook:
+class _Hook(_InDict):
     """A hook (``residual_x``, ``state_add``, ...) kept in the instance's ``__dict__``, as filterpy's.
 
     Setting one drops the :class:`~squkf.plan.Hooks` tuple the filter built
     from them, so that a step reads that tuple (twice a step) without
     gathering the five attributes again.
     """
-
-    def __set_name__(self, owner, name: str):
-        self.name = name
-
-    def __get__(self, obj, owner=None):
-        if obj is None:
-            return self
-        return obj.__dict__[self.name]
 
     def __set__(self, obj, value):
         d = obj.__dict__
