@@ -276,6 +276,38 @@ def test_tria_stacked_equals_per_slice(seed, n, extra):
             np.testing.assert_allclose(S[i], Si, rtol=0, atol=1e-13 * cond * np.abs(Si).max())
 
 
+@settings(max_examples=100, deadline=None)
+@given(
+    seed=seeds,
+    n=st.integers(1, 20),
+    extra=st.integers(-3, 6),
+    scale=st.sampled_from([1e-150, 1e-8, 1.0, 1e8, 1e150]),
+    zero_col=st.booleans(),
+    fortran=st.booleans(),
+)
+def test_tria_of_one_matrix_is_a_lower_factor_with_a_non_negative_diagonal(
+    seed, n, extra, scale, zero_col, fortran
+):
+    """LAPACK's dgeqrfp alone gives the diagonal's sign: check it on any rows, any layout.
+
+    Zero columns (a singular noise factor), fewer rows than columns and extreme scales included;
+    the Gram matrix is reproduced to the rounding of a QR (``c k eps`` relative to its size).
+    """
+    rng = np.random.default_rng(seed)
+    k = max(1, n + extra)
+    rows = rng.normal(size=(k, n)) * scale
+    if zero_col:
+        rows[:, rng.integers(n)] = 0.0
+    rows = np.asfortranarray(rows) if fortran else np.ascontiguousarray(rows)
+    G = rows.T @ rows
+    S = tria(rows.copy(order="F" if fortran else "C"))
+    assert S.shape == (n, n)
+    np.testing.assert_array_equal(np.triu(S, 1), 0.0)
+    assert np.all(np.diagonal(S) >= 0.0)
+    assert np.all(np.isfinite(S))
+    np.testing.assert_allclose(S @ S.T, G, rtol=0, atol=1e-13 * max(k, n) * np.abs(G).max())
+
+
 @settings(max_examples=60, deadline=None)
 @given(seed=seeds, n=dims, nrhs=st.sampled_from([None, 1, 3]), trans=st.booleans())
 def test_solve_lower_stacked_equals_per_slice(seed, n, nrhs, trans):
