@@ -45,7 +45,7 @@ def as_float_array(value, name: str) -> np.ndarray:
         probe = np.asarray(value)
     except (TypeError, ValueError) as exc:
         raise ShapeError(f"{name} could not be read as a real float array: {exc}") from None
-    if probe.dtype is _FLOAT64 and type(value) is list:
+    if probe.dtype is _FLOAT64 and isinstance(value, (list, tuple)):
         return probe  # built from a list: already a new array (per-point images), no second copy
     if probe.dtype.kind == "c":
         raise ShapeError(f"{name} is complex ({probe.dtype}); squkf works in real float64")
@@ -56,8 +56,6 @@ def as_float_array(value, name: str) -> np.ndarray:
             except (TypeError, ValueError):
                 pass
         raise ShapeError(f"{name} could not be read as a real float array (dtype {probe.dtype}): {value!r}")
-    if isinstance(value, (list, tuple)) and probe.dtype == np.float64:
-        return probe  # a new array already
     return np.array(probe, dtype=float)
 
 
