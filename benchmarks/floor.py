@@ -135,7 +135,7 @@ def step_profile(sc, reps: int = 1000) -> dict[str, float]:
     from squkf import MerweScaledWeights, SquareRootUKF
     from squkf.generators import sigma_points_and_offsets
     from squkf.measurement import measurement_update
-    from squkf.transform import central_rows, transform_factor
+    from squkf.transform import transform_factor
     from squkf.validate import check_values
 
     n, m = sc.dim_x, sc.dim_z
@@ -165,29 +165,14 @@ def step_profile(sc, reps: int = 1000) -> dict[str, float]:
     sset = plan.second.draw(xp, Sp, None, None, None)
     X2 = sset.sigmas
     H = hx(X2)
-    qr = 1e3 * qr_ms(n, m, X1.shape[0], reps)
-    buf1 = np.empty((F.shape[0] + n, n))  # the library's layout
-    buf2 = np.empty((H.shape[0] + m, m + n))
-    rows_us = _median_us(
-        lambda: (central_rows(F, first.rows, buf1), central_rows(H, sset.rows, buf2[:, :m])), reps
-    )
     parts = {
         "model functions (cheap, linear)": _median_us(lambda: (fx(X1, sc.dt), hx(X2)), reps),
-        "two QR factorisations (LAPACK)": qr,
-        "sigma points of both sets": _median_us(
-            lambda: (
-                sigma_points_and_offsets(x, S, first.xi, None, first.gamma),
-                plan.second.draw(xp, Sp, None, None, None),
-            ),
-            reps,
+        "first set (points kernel)": _median_us(
+            lambda: sigma_points_and_offsets(x, S, first.xi, None, first.gamma), reps
         ),
-        "central-form rows of both transforms": rows_us,
-        "the rest of prior and posterior: triangle, solve, mean, result checks": _median_us(
-            lambda: (transform_factor(F, first.rows, Q1_2), measurement_update(xp, Sp, sset, H, z, R1_2)),
-            reps,
-        )
-        - qr
-        - rows_us,
+        "prior (transform kernel)": _median_us(lambda: transform_factor(F, first.rows, Q1_2), reps),
+        "second set (points kernel)": _median_us(lambda: plan.second.draw(xp, Sp, None, None, None), reps),
+        "update (joint-QR kernel)": _median_us(lambda: measurement_update(xp, Sp, sset, H, z, R1_2), reps),
         "checks of what fx, hx and z bring": _median_us(
             lambda: (
                 check_values(F, F.shape, "fx"),

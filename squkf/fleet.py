@@ -102,9 +102,8 @@ def _take(sset: SigmaSet, idx: np.ndarray | slice) -> SigmaSet:
     """The set of the filters ``idx`` (rows of every stacked field)."""
     if isinstance(idx, slice) and idx == slice(None):
         return sset
-    drawn = None if sset.drawn is None else (sset.drawn[0], sset.drawn[1][idx])
     offsets = None if sset.offsets is None else sset.offsets[idx]
-    return sset._replace(sigmas=sset.sigmas[idx], offsets=offsets, drawn=drawn)
+    return sset._replace(sigmas=sset.sigmas[idx], offsets=offsets)
 
 
 def _rows_of(a: np.ndarray | None, idx: np.ndarray | slice, core: int) -> np.ndarray | None:

@@ -34,9 +34,9 @@ from typing import NamedTuple
 
 import numpy as np
 
+from . import kernels
 from .errors import ParameterError
 from .rows import WeightRows, weight_rows
-from .transform import central_rows
 from .validate import call_hook
 from .weights import as_family
 
@@ -72,12 +72,6 @@ class SigmaSet(NamedTuple):
     rows : WeightRows or None
         The covariance rows of ``(Wm, Wc)``, when the generator prepared them
         (a plan's generators do); None makes the update compute them.
-    drawn : tuple (UnitSet, S) or None
-        Set when the points are exactly ``x + xi @ S.T`` for the unit set's
-        ``xi`` and the lower factor ``S`` (``(..., n, n)``), with no hook: the
-        update then writes their covariance rows as ``unit.G @ S.T`` (one
-        product), and for axis points rotates each ``+/-`` pair of its joint
-        rows (see :mod:`squkf.measurement`).
     """
 
     sigmas: np.ndarray
@@ -86,17 +80,10 @@ class SigmaSet(NamedTuple):
     moments_exact: bool
     offsets: np.ndarray | None = None
     rows: WeightRows | None = None
-    drawn: tuple[UnitSet, np.ndarray] | None = None
-
-
-#: From this dimension on, axis points are built as ``x +/- gamma S^T`` (O(n^2)) rather than by the
-#: product ``xi @ S^T`` (O(n^3)), and the update rotates their pairs; below it the one product is
-#: fewer array operations (measured: benchmarks/run.py).
-AXIS_MIN_N = 32
 
 
 def axis_gamma(xi: np.ndarray) -> float | None:
-    """``gamma`` if the unit points ``xi`` are ``[0; gamma I; -gamma I]`` and ``n >= AXIS_MIN_N``.
+    """``gamma`` if the unit points ``xi`` are ``[0; gamma I; -gamma I]``, else None.
 
     Parameters
     ----------
@@ -107,11 +94,11 @@ def axis_gamma(xi: np.ndarray) -> float | None:
     float or None
     """
     N, n = xi.shape
-    if N != 2 * n + 1 or n < AXIS_MIN_N:
+    if N != 2 * n + 1 or n == 0:
         return None
     gamma = float(xi[1, 0])
     axes = np.vstack([np.zeros((1, n)), gamma * np.eye(n), -gamma * np.eye(n)])
-    return gamma if np.array_equal(xi, axes) else None
+    return gamma if gamma != 0.0 and np.array_equal(xi, axes) else None
 
 
 def sigma_points_and_offsets(
@@ -131,24 +118,18 @@ def sigma_points_and_offsets(
         what it returns is checked.
     gamma : float, optional
         ``xi`` is ``[0; gamma I; -gamma I]`` (see :func:`axis_gamma`): the
-        offsets are ``+/- gamma S^T``, formed without the product.
+        offsets are ``+/- gamma S^T``, formed in O(n^2) (the same numbers as
+        the product).
 
     Returns
     -------
     sigmas : ndarray, shape (..., N, n)
     offsets : ndarray, shape (..., N, n)
     """
-    ST = S.T if S.ndim == 2 else np.swapaxes(S, -1, -2)
-    if gamma is None:
-        dx = xi.dot(ST) if ST.ndim == 2 else np.matmul(xi, ST)
-    else:
-        n = xi.shape[1]
-        dx = np.zeros(ST.shape[:-2] + (2 * n + 1, n))
-        np.multiply(ST, gamma, out=dx[..., 1 : n + 1, :])
-        np.negative(dx[..., 1 : n + 1, :], out=dx[..., n + 1 :, :])
+    sigmas, dx = kernels.sigma_points(x, S, xi, 0.0 if gamma is None else gamma)
     if state_add is None or state_add is np.add:
-        return (dx + x if x.ndim == 1 else dx + x[..., None, :]), dx
-    out = np.empty(np.broadcast_shapes(dx.shape, x.shape[:-1] + (1, x.shape[-1])))
+        return sigmas, dx
+    out = np.empty(sigmas.shape)
     n = x.shape[-1]
     for idx in np.ndindex(out.shape[:-2]):
         xk = x[idx] if x.ndim > 1 else x
@@ -192,32 +173,20 @@ class UnitSet:
     exact : bool
         The points reproduce the mean and covariance they are drawn for.
     gamma : float or None
-        Set for axis points of ``n >= AXIS_MIN_N`` (see :func:`axis_gamma`).
-    G : ndarray, shape (N, n), or None
-        The central form's scaled rows of the unit points themselves (for
-        ``rows.fast``): the rows of the drawn set ``x + xi @ S.T`` are then
-        ``G @ S.T``, exactly what :func:`squkf.transform.central_rows` would
-        write, since the offsets from the central point are ``(xi_i - xi_0) S^T``.
+        Set for axis points (see :func:`axis_gamma`).
     """
 
     def __init__(self, family, n: int):
-        self.xi = family.unit_sigma_points(n)
+        self.xi = np.ascontiguousarray(family.unit_sigma_points(n), dtype=np.float64)
         self.rows = weight_rows(*family.weights(n))
         self.exact = _identity_moments(family, n)
         self.gamma = axis_gamma(self.xi)
-        self.G = None
-        if self.rows.fast:
-            G = np.empty(self.xi.shape)
-            central_rows(self.xi, self.rows, G)
-            G.setflags(write=False)
-            self.G = G
 
     def draw(self, x: np.ndarray, S: np.ndarray, state_add=None) -> SigmaSet:
         """The set for mean ``x`` ``(..., n)`` and lower factor ``S`` ``(..., n, n)``."""
         sigmas, offsets = sigma_points_and_offsets(x, S, self.xi, state_add, self.gamma)
-        drawn = None if state_add is not None else (self, S)
         rows = self.rows
-        return SigmaSet(sigmas, rows.Wm, rows.Wc, self.exact, offsets, rows, drawn)
+        return SigmaSet(sigmas, rows.Wm, rows.Wc, self.exact, offsets, rows)
 
 
 class Redrawn:

@@ -4,9 +4,11 @@ Convention: a covariance ``P`` is carried as a lower-triangular factor ``S``
 with ``P = S @ S.T`` and a non-negative diagonal (NAG's ST).  Nothing here
 forms ``S @ S.T`` in order to factor it again.
 
-The LAPACK routines are called directly (no ``check_finite`` pass, no argument
-re-validation): every input reaching these functions has been validated once
-at the boundary of the library.
+The factorisations, solves and rank-1 modifications are the compiled kernels
+of :mod:`squkf.kernels` (no ``check_finite`` pass, no argument re-validation:
+every input reaching these functions has been validated once at the boundary
+of the library); these functions turn the kernels' status into squkf's
+exceptions.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import math
 import numpy as np
 from scipy.linalg import lapack
 
+from . import kernels
 from .errors import DowndateError, GainError, NotPositiveDefiniteError
 
 __all__ = [
@@ -28,8 +31,6 @@ __all__ = [
     "factor_covariance",
 ]
 
-_dgeqrfp = lapack.get_lapack_funcs("geqrfp", dtype=np.float64)
-_dtrtrs = lapack.get_lapack_funcs("trtrs", dtype=np.float64)
 _dpotrf = lapack.get_lapack_funcs("potrf", dtype=np.float64)
 _TINY = np.finfo(float).tiny
 _DOT_MAX = 4096  # OpenBLAS threads a dot product from 10000 entries on
@@ -64,9 +65,8 @@ def tria(rows: np.ndarray) -> np.ndarray:
     ----------
     rows : ndarray, shape (..., k, n)
         Each row is one weighted column of a square root: the result ``S``
-        satisfies ``S @ S.T == rows.T @ rows`` (for every leading index). A
-        single matrix is factored by LAPACK's ``dgeqrfp`` in place (give it in
-        Fortran order to avoid a copy); a stack by numpy's stacked QR.
+        satisfies ``S @ S.T == rows.T @ rows`` (for every leading index).
+        Factored by the compiled Householder QR of :mod:`squkf.kernels`.
 
     Returns
     -------
@@ -74,41 +74,7 @@ def tria(rows: np.ndarray) -> np.ndarray:
         Lower triangular with a non-negative diagonal. If ``k < n`` the last
         ``n - k`` columns are zero.
     """
-    k, n = rows.shape[-2:]
-    if rows.ndim == 2:
-        # dgeqrfp: R with a non-negative diagonal, so no sign pass (which cost more than the QR
-        # itself on a small matrix). LAPACK's blocked QR needs a workspace of n * block size;
-        # below ~16 columns the unblocked code (scipy's default workspace) is faster
-        if n >= 16:
-            qr, _, info = _dgeqrfp(rows, lwork=32 * n, overwrite_a=1)
-        else:
-            qr, _, info = _dgeqrfp(rows, overwrite_a=1)
-        if info != 0:  # pragma: no cover - LAPACK argument error, cannot happen here
-            raise RuntimeError(f"LAPACK dgeqrfp failed with info={info}")
-        # below R's diagonal LAPACK leaves its Householder vectors: keep the triangle only
-        if k >= n:
-            return qr[:n].T * _lower_mask(n)
-        S = np.zeros((n, n))
-        S[:, :k] = qr.T
-        S *= _lower_mask(n)
-        return S
-    R = np.linalg.qr(rows, mode="r")  # (..., min(k, n), n), upper triangular
-    if k >= n:
-        S = np.swapaxes(R, -1, -2)
-    else:
-        S = np.zeros(rows.shape[:-2] + (n, n))
-        S[..., :k] = np.swapaxes(R, -1, -2)
-    return S * np.copysign(1.0, np.diagonal(S, axis1=-2, axis2=-1))[..., None, :]
-
-
-_LOWER_MASKS: dict[int, np.ndarray] = {}
-
-
-def _lower_mask(n: int) -> np.ndarray:
-    mask = _LOWER_MASKS.get(n)
-    if mask is None:
-        mask = _LOWER_MASKS[n] = np.tril(np.ones((n, n)))
-    return mask
+    return kernels.tria(rows)
 
 
 def solve_lower(S: np.ndarray, b: np.ndarray, trans: bool = False) -> np.ndarray:
@@ -132,38 +98,17 @@ def solve_lower(S: np.ndarray, b: np.ndarray, trans: bool = False) -> np.ndarray
     numpy.linalg.LinAlgError
         If ``S`` has a zero on its diagonal.
     """
-    if S.ndim == 2:
-        x, info = _dtrtrs(S, b, lower=1, trans=1 if trans else 0)
-        if info > 0:
-            raise np.linalg.LinAlgError(f"triangular factor is singular: diagonal element {info - 1} is zero")
-        return x
-    vector = b.ndim == S.ndim - 1
-    B = b[..., None] if vector else b
-    d = np.diagonal(S, axis1=-2, axis2=-1)
-    if not np.all(d != 0):
+    x, ok = kernels.solve_lower(S, b, trans)
+    if not ok.all():
         raise np.linalg.LinAlgError("triangular factor is singular: a diagonal element is zero")
-    n = S.shape[-1]
-    X = np.empty(np.broadcast_shapes(S.shape[:-2], B.shape[:-2]) + B.shape[-2:])
-    # substitution row by row, each step vectorised over the stack and the right-hand sides
-    order = range(n - 1, -1, -1) if trans else range(n)
-    done: list[int] = []
-    for i in order:
-        coef = S[..., done, i] if trans else S[..., i, done]  # (..., len(done))
-        acc = B[..., i, :] - np.einsum("...j,...jk->...k", coef, X[..., done, :]) if done else B[..., i, :]
-        X[..., i, :] = acc / d[..., i, None]
-        done.append(i)
-    return X[..., 0] if vector else X
+    return x
 
 
 def chol_update(S: np.ndarray, v: np.ndarray, sign: float = 1.0) -> np.ndarray:
     """Rank-1 update or downdate of a lower Cholesky factor in O(n^2).
 
-    Returns ``S1`` with ``S1 @ S1.T == S @ S.T + sign * outer(v, v)``.
-
-    The factor of ``I + sign * p p^T`` with ``p = S^{-1} v`` is a structured
-    triangular matrix whose entries follow from the partial sums of ``p**2``
-    (Gill, Golub, Murray & Saunders 1974, method C1); multiplying ``S`` by it
-    needs one triangular solve and a reverse cumulative sum, all vectorised.
+    Returns ``S1`` with ``S1 @ S1.T == S @ S.T + sign * outer(v, v)``, by one
+    rotation per column (:func:`squkf.kernels.chol_update`).
 
     Parameters
     ----------
@@ -183,37 +128,23 @@ def chol_update(S: np.ndarray, v: np.ndarray, sign: float = 1.0) -> np.ndarray:
     ------
     DowndateError
         For a downdate whose result would not be positive definite
-        (``||S^{-1} v|| >= 1``), or if ``S`` is singular (g13ej IFAIL 301).
+        (``||S^{-1} v|| >= 1``), a singular ``S``, or a result that is not
+        finite (g13ej IFAIL 301).
     """
-    n = S.shape[-1]
-    try:
-        p = solve_lower(S, v)
-    except np.linalg.LinAlgError as exc:
-        raise DowndateError(f"cannot modify a singular factor: {exc}", errno=301) from None
-    sigma = 1.0 if sign > 0 else -1.0
-    # c[j] = 1/sigma_j, with sigma_1 = sign and 1/sigma_{j+1} = 1/sigma_j + p_j^2.
-    c = np.empty(p.shape[:-1] + (n + 1,))
-    c[..., 0] = sigma
-    np.cumsum(p * p, axis=-1, out=c[..., 1:])
-    c[..., 1:] += sigma
-    if sigma < 0 and not np.all(c[..., n] < 0.0):
-        worst = float(np.max(1.0 + c[..., n]))
-        raise DowndateError(
-            f"rank-1 downdate would lose positive-definiteness: ||S^-1 v||^2 = {worst:.17g} >= 1",
-            errno=301,
-        )
-    d = np.sqrt(c[..., 1:] / c[..., :-1])
-    beta = p / (c[..., :-1] * d)
-    # tail[..., :, j] = sum_{i > j} p_i S[..., :, i]
-    Sp = S * p[..., None, :]
-    tail = np.zeros_like(Sp)
-    if n > 1:
-        tail[..., :-1] = np.cumsum(Sp[..., :0:-1], axis=-1)[..., ::-1]
-    # column j of S and of tail vanish above row j, so S1 is lower triangular as computed
-    S1 = S * d[..., None, :]
-    S1 += tail * beta[..., None, :]
-    if not np.isfinite(S1).all():
-        raise DowndateError("rank-1 modification produced a non-finite factor", errno=301)
+    S1, fail = kernels.chol_update(S, v, -1.0 if sign < 0 else 1.0)
+    if (fail >= 0).any():
+        d = np.diagonal(S, axis1=-2, axis2=-1)
+        if not (d > 0).all():
+            raise DowndateError(
+                "cannot modify a singular factor: a diagonal element is not positive", errno=301
+            )
+        col = int(fail[fail >= 0].flat[0])
+        if sign < 0:
+            raise DowndateError(
+                f"rank-1 downdate would lose positive-definiteness (at column {col}): ||S^-1 v|| >= 1",
+                errno=301,
+            )
+        raise DowndateError(f"rank-1 modification produced a non-finite factor (at column {col})", errno=301)
     return S1
 
 

@@ -1,33 +1,33 @@
 """The square-root measurement update, as a pure function on stacked arrays.
 
-The update triangularises the joint rows of the measurement and the state
-(the "array form" of the square-root Kalman filter)::
+Three routes, each one compiled kernel (:mod:`squkf.kernels`):
 
-    tria([[Dz, Dx], [R1_2^T, 0]]) = [[Sy, 0], [L21, L22]]
+- **the joint QR** (a set whose mean and covariance are the prior's,
+  ``SigmaSet.moments_exact``): the joint rows of the measurement and the
+  state (the "array form" of the square-root Kalman filter) are
+  triangularised at once::
 
-where ``Dz``, ``Dx`` are the signed rows (see :mod:`squkf.rows`) of the
-second set's images and of the second set itself. Then ``Sy`` is the
-innovation factor, ``L21 = Pxy Sy^-T`` (so the gain is ``K = L21 Sy^-1`` and
-``K y = L21 (Sy^-1 y)``), and ``L22 L22^T = Pxx - K Pyy K^T`` is the
-posterior covariance whenever the set's covariance ``Pxx`` is the prior's
-(``SigmaSet.moments_exact``). That is one QR and two triangular solves, and
-no downdate. Every configuration whose set reproduces the prior takes it.
+      tria([[Dz, Dx], [R1_2^T, 0]]) = [[Sy, 0], [L21, L22]]
 
-For axis points ``[x, x + gamma S^T, x - gamma S^T]`` with equal pair weights
-(``SigmaSet.drawn``) each ``+/-`` pair of joint rows is first rotated by 45
-degrees, an orthogonal change of rows (the same Gram matrix, other
-roundings) that leaves ``n`` rows with no state part; those are
-triangularised first, so the joint QR has ``n + m`` rows instead of
-``2n + 1 + m``.
+  where ``Dz``, ``Dx`` are the signed rows (see :mod:`squkf.rows`) of the
+  second set's images and of the second set itself. ``Sy`` is the
+  innovation factor, ``L21 = Pxy Sy^-T`` (so the gain is ``K = L21 Sy^-1``
+  and ``K y = L21 (Sy^-1 y)``), and ``L22 L22^T = Pxx - K Pyy K^T`` is the
+  posterior covariance. A negative weight's row is removed from the joint
+  factor by a downdate. One QR and two triangular solves; which form the
+  rows take (central or mean) is data in the plan.
+- **g13ej's downdate** (a set whose covariance is not the prior's: the
+  propagated set with process noise, a user's generator): ``Sy`` from the
+  transform of the images, and the prior factor downdated by the columns of
+  ``L21 = K Sy``.
+- **no measurement** (:func:`squkf.step.skip_update`).
 
-Two fallbacks, each named:
-
-- :func:`_gain_form_posterior`: a user's ``UT`` with a set that reproduces the
-  prior. ``Sy`` comes from the ``UT``; the posterior factor is the QR of the
-  rows ``Dx - Dz K^T`` and ``K R1_2`` (Joseph form, no downdate).
-- :func:`_downdate_posterior`: a set whose covariance is not the prior's (the
-  propagated set with process noise, a user's generator). The posterior is
-  g13ej's: the prior factor downdated by the columns of ``L21 = K Sy``.
+A user's ``UT`` with a set that reproduces the prior takes the gain form:
+``Sy`` from the ``UT``, the posterior factor the QR of the rows
+``Dx - Dz K^T`` and ``K R1_2`` (Joseph form, no downdate), in the factor
+kernel. The hooks (``z_mean_fn``, ``residual_x``, ``residual_z``,
+``state_add``) are Python, called per filter and point as filterpy calls
+them; their deviations are handed to the kernels as given rows.
 
 Every array may carry leading batch axes ``(...)``: one filter has none.
 """
@@ -39,20 +39,12 @@ from typing import NamedTuple, cast
 
 import numpy as np
 
+from . import kernels
 from .errors import DowndateError, GainError, PosteriorFactorError
 from .generators import SigmaSet
-from .linalg import all_finite, chol_downdate_columns, chol_update, solve_lower, tria
-from .rows import WeightRows, weight_rows
-from .transform import (
-    batch_shape,
-    central_rows,
-    deviations,
-    factor_rows,
-    signed_rows,
-    swap_last,
-    transform_factor,
-    weighted_mean,
-)
+from .linalg import all_finite, solve_lower, tria
+from .rows import RowForm, WeightRows, weight_rows
+from .transform import deviations, factor_rows, transform_factor, weighted_mean
 from .validate import call_hook, check_hook_result
 
 __all__ = ["Posterior", "measurement_update", "gain_from_factors", "check_gain", "observed_noise_factor"]
@@ -183,14 +175,30 @@ def measurement_update(
         The posterior factor could not be formed (IFAIL 303).
     """
     rows = sset.rows if sset.rows is not None else weight_rows(sset.Wm, sset.Wc)
-    m = z.shape[-1]
-    L22 = None
+    hooks = z_mean_fn is not None or residual_x is not None or residual_z is not None
     if UT is None and sset.moments_exact:
-        z_pred, Sy, L21, L22 = _joint_factor(
-            sset, rows, sigmas_h, x, S, R1_2, z_mean_fn, residual_x, residual_z
-        )
-        Dx = Dz = None
+        if hooks:
+            form = rows.mean_form
+            z_pred = weighted_mean(sigmas_h, rows.Wm, z_mean_fn, "z_mean_fn")
+            Dz = deviations(sigmas_h, z_pred, residual_z, "residual_z")
+            y = _innovation(z, z_pred, residual_z)
+            u = kernels.joint_update(
+                Dz, _state_deviations(sset, x, residual_x), y, R1_2, x, kernels.GIVEN,
+                rows.Wm, form.scale, form.sign, zref=z_pred,
+            )  # fmt: skip
+        else:
+            form = rows.best
+            if form.central:  # deviations from the central point: the offsets' own differences
+                X, xref, mode = (sset.sigmas if sset.offsets is None else sset.offsets), None, kernels.CENTRAL
+            elif sset.offsets is not None:
+                X, xref, mode = sset.offsets, None, kernels.MEAN
+            else:
+                X, xref, mode = sset.sigmas, x, kernels.MEAN
+            u = kernels.joint_update(sigmas_h, X, z, R1_2, x, mode, rows.Wm, form.scale, form.sign, xref=xref)
+            z_pred = cast(np.ndarray, u.z_pred)
+        _raise_update_status(u.status, form)
     else:
+        m = z.shape[-1]
         if UT is None:
             z_pred, Sy = transform_factor(
                 sigmas_h, rows, R1_2, z_mean_fn, residual_z, errno=301, hooks=("z_mean_fn", "residual_z")
@@ -200,23 +208,60 @@ def measurement_update(
             z_pred = check_hook_result(z_pred, sigmas_h.shape[:-2] + (m,), "UT")
             Sy = check_hook_result(Sy, sigmas_h.shape[:-2] + (m, m), "UT")
         check_gain(Sy)
-        Dz = deviations(sigmas_h, z_pred, residual_z, "residual_z")
-        Dx = _state_deviations(sset, x, residual_x)
-        Pxy = np.matmul(np.swapaxes(Dx, -1, -2) * sset.Wc, Dz)
-        L21 = np.swapaxes(solve_lower(Sy, np.ascontiguousarray(np.swapaxes(Pxy, -1, -2))), -1, -2)
-    y = z - z_pred if residual_z is None else _per_filter(residual_z, z, z_pred, "residual_z")
-    w = solve_lower(Sy, y)
-    dx = L21.dot(w) if L21.ndim == 2 else np.matmul(L21, w[..., None])[..., 0]
-    x_post = x + dx if state_add is None else _per_filter(state_add, x, dx, "state_add")
-    if L22 is not None:
-        S_post = L22
-    elif sset.moments_exact:
-        S_post = _gain_form_posterior(Sy, L21, Dx, Dz, rows, R1_2)
-    else:
-        S_post = _downdate_posterior(S, L21)
-    if not (all_finite(S_post) and all_finite(x_post)):
-        raise PosteriorFactorError("the posterior mean or factor is not finite", errno=303)
-    return Posterior(x_post, S_post, y, z_pred, Sy, L21, w)
+        y = _innovation(z, z_pred, residual_z)
+        if residual_z is None:
+            H, zref = sigmas_h, z_pred
+        else:
+            H, zref = deviations(sigmas_h, z_pred, residual_z, "residual_z"), np.zeros(m)
+        if residual_x is None:
+            X, xref = (sset.sigmas, x) if sset.offsets is None else (sset.offsets, np.zeros(x.shape[-1]))
+        else:
+            X, xref = deviations(sset.sigmas, x, residual_x, "residual_x"), np.zeros(x.shape[-1])
+        u = kernels.downdate_update(H, zref, X, xref, y, Sy, S, x, rows.Wc)
+        if sset.moments_exact:  # a user's UT with an exact set: the gain form, no downdate
+            S_gain = _gain_form_posterior(
+                Sy, u.L21, X - xref[..., None, :], H - zref[..., None, :], rows, R1_2
+            )
+            if not (all_finite(S_gain) and all_finite(u.x)):
+                raise PosteriorFactorError("the posterior mean or factor is not finite", errno=303)
+            u = u._replace(S=S_gain, status=np.zeros_like(u.status))
+        _raise_update_status(u.status, rows.mean_form)
+    x_post = u.x
+    if state_add is not None:
+        x_post = _per_filter(state_add, x, u.dx, "state_add")
+        if not all_finite(x_post):
+            raise PosteriorFactorError("the posterior mean or factor is not finite", errno=303)
+    return Posterior(x_post, u.S, u.y, z_pred, u.Sy, u.L21, u.w)
+
+
+def _innovation(z: np.ndarray, z_pred: np.ndarray, residual_z: Callable | None) -> np.ndarray:
+    """``residual_z(z, z_pred)`` (plain difference by default), per filter."""
+    return z - z_pred if residual_z is None else _per_filter(residual_z, z, z_pred, "residual_z")
+
+
+def _raise_update_status(status: np.ndarray, form: RowForm) -> None:
+    """The exception for the first failed filter of an update kernel's ``status`` (nothing if none)."""
+    bad = status.ravel()
+    bad = bad[bad != 0]
+    if bad.size == 0:
+        return
+    code = int(bad[0])
+    negative = ", ".join(f"{w:.6g}" for w in form.weights[form.neg])
+    if code == 301:
+        raise DowndateError(
+            f"weight {negative} is negative and the innovation factor's downdate failed", errno=301
+        )
+    if code == 302:
+        raise GainError("innovation factor is singular: cannot form the Kalman gain", errno=302)
+    if form.neg.size and code == 303:
+        raise PosteriorFactorError(
+            f"the posterior factor could not be formed (downdate failed, or not finite; negative weight "
+            f"{negative})",
+            errno=303,
+        )
+    raise PosteriorFactorError(
+        "the posterior mean or factor is not finite, or its downdate failed", errno=303
+    )
 
 
 def _per_filter(fn: Callable, a: np.ndarray, b: np.ndarray, hook: str) -> np.ndarray:
@@ -240,119 +285,11 @@ def _gain_form_posterior(Sy, L21, Dx, Dz, rows: WeightRows, R1_2) -> np.ndarray:
     )
 
 
-def _downdate_posterior(S, L21) -> np.ndarray:
-    """g13ej's posterior factor: the prior's downdated by the columns of ``L21 = K Sy``."""
-    return chol_downdate_columns(S, L21, errno=303, error=PosteriorFactorError)
-
-
-def _joint_factor(sset, rows, sigmas_h, x, S, R1_2, z_mean_fn, residual_x, residual_z) -> tuple:
-    """``z_pred`` and the blocks ``Sy``, ``L21``, ``L22`` of the joint factor (module docstring).
-
-    Only for a set whose mean and covariance are the prior's: then the
-    central form (deviations from the central points) and the mean form
-    (deviations from the prior mean and the predicted measurement) agree.
-    """
-    hooks = z_mean_fn is not None or residual_x is not None or residual_z is not None
-    points = sset.sigmas if sset.offsets is None else sset.offsets
-    N, m = sigmas_h.shape[-2:]
-    n = points.shape[-1]
-    batch = batch_shape(sigmas_h, points, R1_2)
-    neg: tuple | np.ndarray = ()
-    drawn = sset.drawn if not hooks and rows.fast else None
-    if drawn is not None and drawn[0].gamma is not None and rows.pair_scale is not None:
-        z_pred, L = _paired_joint(sigmas_h, (drawn[0].gamma, drawn[1]), rows, R1_2, batch)
-    else:
-        if not hooks and rows.fast:
-            # every row enters the QR: write them straight into the buffer
-            npos = N
-            M = np.zeros(batch + (N + m, m + n))  # zeros: the block below the state rows stays 0
-            z_pred = central_rows(sigmas_h, rows, M[..., :m])
-            if drawn is not None:  # the rows of x + xi S^T are G S^T (one product)
-                G, ST, rows_x = drawn[0].G, swap_last(drawn[1]), M[..., :N, m:]
-                if ST.ndim == 2:
-                    rows_x[...] = G.dot(ST)  # one matrix: BLAS, then a copy, beats matmul into a view
-                else:
-                    np.matmul(G, ST, out=rows_x)  # a stack: no temporary of the stack's size
-            else:
-                central_rows(points, rows, M[..., m:])
-        else:
-            if not hooks and rows.best.central:
-                z_pred, Dz, form = signed_rows(sigmas_h, rows)
-                _, Dx, _ = signed_rows(points, rows)
-            else:
-                form = rows.mean_form
-                z_pred = weighted_mean(sigmas_h, rows.Wm, z_mean_fn, "z_mean_fn")
-                Dz = deviations(sigmas_h, z_pred, residual_z, "residual_z")
-                Dx = _state_deviations(sset, x, residual_x)
-            pos, neg = form.pos, form.neg
-            scale = (form.scale if pos is None else form.scale[pos])[:, None]
-            npos = scale.shape[0]
-            M = np.zeros(batch + (npos + m, m + n))
-            np.multiply(Dz if pos is None else Dz[..., pos, :], scale, out=M[..., :npos, :m])
-            np.multiply(Dx if pos is None else Dx[..., pos, :], scale, out=M[..., :npos, m:])
-        M[..., npos:, :m] = swap_last(R1_2)
-        L = tria(M)
-        for k in neg:
-            v = form.scale[k] * np.concatenate([Dz[..., k, :], Dx[..., k, :]], axis=-1)
-            L = _downdate_joint(L, v, m, form.weights[k])
-    Sy = L[..., :m, :m]
-    check_gain(Sy)
-    # the posterior factor as its own array: checked and read as a whole, never as a strided view
-    return z_pred, Sy, L[..., m:, :m], L[..., m:, m:].copy()
-
-
-def _paired_joint(H, axis, rows: WeightRows, R1_2, batch):
-    """``z_pred`` and the joint factor for axis points, each ``+/-`` pair rotated by 45 degrees.
-
-    The pair's rows ``[s e+, s g S^T_i]`` and ``[s e-, -s g S^T_i]`` (``e = h - h_0``) have the
-    same Gram matrix as ``[s (e+ + e-) / sqrt2, 0]`` and ``[s (h+ - h-) / sqrt2, sqrt2 s g S^T_i]``.
-    The rows without a state part are triangularised first, with ``mu`` and ``R1_2^T``, into
-    ``T`` (``m x m``); then the joint QR has ``n + m`` rows instead of ``2n + 1 + m``.
-    """
-    gamma, S = axis
-    n = S.shape[-1]
-    m = H.shape[-1]
-    c = cast(float, rows.pair_scale)  # not None: the caller checked
-    Z = np.empty(batch + (n + 1 + m, m))
-    M = np.zeros(batch + (n + m, m + n))  # the block below the state rows stays 0
-    h0 = H[..., 0, :]
-    E = H[..., 1:, :] - h0[..., None, :]
-    mu = rows.wm_tail.dot(E) if E.ndim == 2 else np.matmul(rows.wm_tail, E)
-    np.add(E[..., :n, :], E[..., n:, :], out=Z[..., :n, :])
-    Z[..., :n, :] *= c
-    np.multiply(mu, rows.mu_scale, out=Z[..., n, :])
-    Z[..., n + 1 :, :] = swap_last(R1_2)
-    T = tria(Z)
-    B = M[..., :n, :m]
-    np.subtract(H[..., 1 : n + 1, :], H[..., n + 1 :, :], out=B)
-    B *= c
-    np.multiply(swap_last(S), 2.0 * c * gamma, out=M[..., :n, m:])
-    M[..., n:, :m] = swap_last(T)
-    return h0 + mu, tria(M)
-
-
 def _state_deviations(sset: SigmaSet, x: np.ndarray, residual_x: Callable | None) -> np.ndarray:
     """Deviations of the second set from the prior mean (its exact offsets where known)."""
     if sset.offsets is not None and residual_x is None:
         return sset.offsets
     return deviations(sset.sigmas, x, residual_x, "residual_x")
-
-
-def _downdate_joint(L: np.ndarray, v: np.ndarray, m: int, weight: float) -> np.ndarray:
-    """Downdate the joint factor by one negative-weight row, naming the block that failed."""
-    try:
-        return chol_update(L, v, -1.0)
-    except DowndateError as exc:
-        try:  # the leading block alone decides whether the innovation factor failed
-            chol_update(L[..., :m, :m], v[..., :m], -1.0)
-        except DowndateError:
-            raise DowndateError(
-                f"weight {weight:.6g} is negative and the innovation factor's downdate failed: {exc}",
-                errno=301,
-            ) from None
-        raise PosteriorFactorError(
-            f"weight {weight:.6g} is negative and the posterior factor's downdate failed: {exc}", errno=303
-        ) from None
 
 
 def check_gain(Sy: np.ndarray) -> None:

@@ -24,7 +24,8 @@ Two ways of writing the rows are used:
 
 :func:`weight_rows` picks, once per weight vector, the form with fewer
 negative rows (the central form on a tie). It is computed when a plan is
-built (:mod:`squkf.plan`), never per step.
+built (:mod:`squkf.plan`), never per step. A form is data for the kernels
+(:mod:`squkf.kernels`): each row's scale and sign.
 """
 
 from __future__ import annotations
@@ -47,6 +48,8 @@ class RowForm:
         ``(X_0 - mean, ..., X_{N-1} - mean)`` (mean form).
     scale : ndarray, shape (N,)
         ``sqrt(|w_k|)`` of each row's weight.
+    sign : ndarray, shape (N,)
+        ``+1``, ``-1`` or ``0``: the sign of each row's weight (float64, as the kernels read it).
     pos : ndarray of int or None
         Rows with a positive weight, in order; None when that is every row.
     neg : ndarray of int, shape (k,)
@@ -57,6 +60,7 @@ class RowForm:
 
     central: bool
     scale: np.ndarray
+    sign: np.ndarray
     pos: np.ndarray | None
     neg: np.ndarray
     weights: np.ndarray
@@ -69,38 +73,22 @@ class WeightRows:
     Attributes
     ----------
     Wm, Wc : ndarray, shape (N,)
-    wm_tail : ndarray, shape (N - 1,)
-        ``Wm[1:]``, contiguous (the central form's mean offset is ``wm_tail @ e``).
     mean_form : RowForm
     central_form : RowForm or None
         None unless ``Wc[1:] == Wm[1:]``.
     best : RowForm
         The form used when no hook forces the mean form.
     fast : bool
-        ``best`` is the central form with no negative weight: its rows can be
-        written straight into the QR buffer (:func:`squkf.transform.central_rows`).
-    tail_scale : float or ndarray, shape (N - 1, 1)
-        ``best.scale[:-1]`` as a column (the scales of the rows ``e_i``), or
-        that one number when they are all equal (symmetric families: a
-        scalar product costs half the broadcast one).
-    mu_scale : float
-        ``best.scale[-1]`` (the scale of the row ``mu``).
-    pair_scale : float or None
-        For a set ``[c, c + D, c - D]`` whose ``+/-`` rows all have one weight:
-        that row scale over ``sqrt(2)`` (what the rotation of each pair in the
-        joint QR needs); None otherwise.
+        ``best`` is the central form with no negative weight: one QR and no
+        downdate.
     """
 
     Wm: np.ndarray
     Wc: np.ndarray
-    wm_tail: np.ndarray
     mean_form: RowForm
     central_form: RowForm | None
     best: RowForm
     fast: bool
-    tail_scale: float | np.ndarray
-    mu_scale: float
-    pair_scale: float | None
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:
@@ -114,6 +102,7 @@ def _row_form(w: np.ndarray, central: bool) -> RowForm:
     return RowForm(
         central=central,
         scale=_frozen(np.sqrt(np.abs(w))),
+        sign=_frozen(np.sign(w).astype(np.float64)),
         pos=None if pos.size == w.size else _frozen(pos),
         neg=_frozen(neg),
         weights=_frozen(w.copy()),
@@ -144,22 +133,12 @@ def weight_rows(Wm: np.ndarray, Wc: np.ndarray) -> WeightRows:
     best = mean_rows
     if central_form is not None and central_form.neg.size <= mean_rows.neg.size:
         best = central_form
-    fast = best.central and best.neg.size == 0  # zero-weight rows are zero rows in the QR
-    tail = best.scale[:-1]
-    N = Wm_.shape[0]
-    pair_scale = None
-    uniform = tail.size > 0 and bool(np.all(tail == tail[0]))
-    if fast and N >= 3 and N % 2 == 1 and uniform:
-        pair_scale = float(tail[0]) / float(np.sqrt(2.0))
+    fast = best.central and best.neg.size == 0  # zero-weight rows are left out of the QR
     return WeightRows(
         Wm=_frozen(Wm_),
         Wc=_frozen(Wc_),
-        wm_tail=_frozen(Wm_[1:].copy()),
         mean_form=mean_rows,
         central_form=central_form,
         best=best,
         fast=fast,
-        tail_scale=float(tail[0]) if uniform else _frozen(tail[:, None].copy()),
-        mu_scale=float(best.scale[-1]) if best.scale.size else 0.0,
-        pair_scale=pair_scale,
     )

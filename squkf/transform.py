@@ -1,6 +1,7 @@
 """The square-root unscented transform of a set of weighted points, on stacked arrays.
 
-Pure functions: points in, mean and lower factor out. Points are rows,
+Pure functions: points in, mean and lower factor out; the numerics are the
+transform kernel of :mod:`squkf.kernels`. Points are rows,
 ``(..., N, d)`` with any leading batch shape (one filter: none; a fleet of
 ``K`` filters: ``(K,)``), as filterpy stores ``sigmas_f``. How a weight
 vector becomes covariance rows is :mod:`squkf.rows`; the user's hooks
@@ -14,16 +15,15 @@ from collections.abc import Callable
 
 import numpy as np
 
+from . import kernels
 from .errors import DowndateError, NonFiniteError, NotPositiveDefiniteError
-from .linalg import all_finite, chol_update, tria
+from .linalg import all_finite
 from .rows import RowForm, WeightRows, weight_rows
 from .validate import as_float_array, call_hook
 
 __all__ = [
     "weighted_mean",
     "deviations",
-    "central_rows",
-    "signed_rows",
     "factor_rows",
     "transform_factor",
     "sqrt_unscented_transform",
@@ -114,73 +114,18 @@ def deviations(
     return dev
 
 
-def central_rows(sigmas: np.ndarray, rows: WeightRows, out: np.ndarray) -> np.ndarray:
-    """Write the central form's scaled rows into ``out[..., :N, :]``; return the weighted mean.
-
-    For ``rows.fast`` (no negative weight), ``out[..., :N, :]`` transposed
-    times itself is then the weighted covariance of the points.
-
-    Parameters
-    ----------
-    sigmas : ndarray, shape (..., N, d)
-    rows : WeightRows
-        With ``rows.fast``.
-    out : ndarray, shape (..., >= N, d)
-        Rows ``0..N-1`` are overwritten (any memory layout).
-
-    Returns
-    -------
-    mean : ndarray, shape (..., d)
-    """
-    N = sigmas.shape[-2]
-    if sigmas.ndim == 2 and out.ndim == 2:  # one filter: plain indexing costs a third of the ellipsis'
-        ref, tail, E, last, ref_b = sigmas[0], sigmas[1:], out[: N - 1], out[N - 1], sigmas[0]
-    else:
-        ref, tail, E, last = sigmas[..., 0, :], sigmas[..., 1:, :], out[..., : N - 1, :], out[..., N - 1, :]
-        ref_b = ref[..., None, :]
-    np.subtract(tail, ref_b, out=E)
-    mu = rows.wm_tail.dot(E) if E.ndim == 2 else np.matmul(rows.wm_tail, E)  # one matrix: BLAS, no gufunc
-    E *= rows.tail_scale
-    np.multiply(mu, rows.mu_scale, out=last)
-    return ref + mu
-
-
-def signed_rows(
-    sigmas: np.ndarray,
-    rows: WeightRows,
-    mean_fn: Callable | None = None,
-    residual_fn: Callable | None = None,
-    hooks: tuple[str, str] = ("mean_fn", "residual_fn"),
-) -> tuple[np.ndarray, np.ndarray, RowForm]:
-    """Mean of a weighted set and its unscaled rows.
-
-    Parameters
-    ----------
-    sigmas : ndarray, shape (..., N, d)
-    rows : WeightRows
-    mean_fn, residual_fn : callable, optional
-        filterpy's hooks; either forces the mean form.
-    hooks : tuple of str
-        The hooks' names for error messages.
-
-    Returns
-    -------
-    mean : ndarray, shape (..., d)
-    D : ndarray, shape (..., N, d)
-        Row ``k`` times ``form.scale[k]`` is signed row ``k``.
-    form : RowForm
-    """
-    form = rows.best
-    plain = mean_fn is None and (residual_fn is None or residual_fn is np.subtract)
-    if plain and form.central:
-        ref = sigmas[..., 0, :]
-        D = np.empty_like(sigmas)
-        np.subtract(sigmas[..., 1:, :], ref[..., None, :], out=D[..., :-1, :])
-        mu = np.matmul(rows.wm_tail, D[..., :-1, :])
-        D[..., -1, :] = mu
-        return ref + mu, D, form
-    mean = weighted_mean(sigmas, rows.Wm, mean_fn, hooks[0])
-    return mean, deviations(sigmas, mean, residual_fn, hooks[1]), rows.mean_form
+def _raise_status(
+    status: np.ndarray, form: RowForm, errno: int, error: type[NotPositiveDefiniteError]
+) -> None:
+    """The exception for the first failed filter of a transform kernel's ``status`` (nothing if none)."""
+    bad = status.ravel()
+    bad = bad[bad != 0]
+    if bad.size == 0:
+        return
+    code = int(bad.flat[0])
+    k = abs(code) - 1
+    what = "the factor to downdate is singular" if code < 0 else "its downdate failed"
+    raise error(f"weight {form.weights[k]:.6g} of row {k} is negative and {what}", errno=errno)
 
 
 def factor_rows(
@@ -193,12 +138,13 @@ def factor_rows(
     """Lower factor of ``sum_k w_k D_k D_k^T + noise_sqrt @ noise_sqrt.T``.
 
     The positive rows enter one QR factorisation together with the noise
-    factor's columns; each negative row is then removed by a rank-1 downdate.
+    factor's columns; each negative row is then removed by a rank-1 downdate
+    (the transform kernel, with the rows given).
 
     Parameters
     ----------
     D : ndarray, shape (..., N, d)
-        Unscaled rows (from :func:`signed_rows`).
+        Unscaled rows (deviations formed by the caller, e.g. by the hooks).
     form : RowForm
         Their weights.
     noise_sqrt : ndarray, shape (..., d, k), optional
@@ -217,48 +163,9 @@ def factor_rows(
     DowndateError
         If a negative weight's downdate would lose positive-definiteness.
     """
-    src = D if form.pos is None else D[..., form.pos, :]
-    scale = form.scale if form.pos is None else form.scale[form.pos]
-    npos, d = src.shape[-2:]
-    extra = 0 if noise_sqrt is None else noise_sqrt.shape[-1]
-    batch = batch_shape(D, noise_sqrt)
-    rows = np.empty(batch + (npos + extra, d))
-    np.multiply(src, scale[:, None], out=rows[..., :npos, :])
-    if extra and noise_sqrt is not None:
-        rows[..., npos:, :] = swap_last(noise_sqrt)
-    return downdate_rows(tria(rows), D, form, errno, error)
-
-
-def downdate_rows(
-    S: np.ndarray, D: np.ndarray, form: RowForm, errno: int, error: type[NotPositiveDefiniteError]
-) -> np.ndarray:
-    """Remove the negative rows of ``form`` from the factor ``S`` (one downdate each).
-
-    Parameters
-    ----------
-    S : ndarray, shape (..., d, d)
-    D : ndarray, shape (..., N, d)
-    form : RowForm
-    errno : int
-    error : exception class
-
-    Returns
-    -------
-    S : ndarray, shape (..., d, d)
-    """
-    for k in form.neg:
-        if not (np.diagonal(S, axis1=-2, axis2=-1) > 0).all():
-            raise error(
-                f"weight {form.weights[k]:.6g} of row {k} is negative and the factor to downdate is singular",
-                errno=errno,
-            )
-        try:
-            S = chol_update(S, form.scale[k] * D[..., k, :], -1.0)
-        except DowndateError as exc:
-            raise error(
-                f"weight {form.weights[k]:.6g} of row {k} is negative and its downdate failed: {exc}",
-                errno=errno,
-            ) from None
+    # given rows: the kernel reads no mean weights
+    _, S, status = kernels.transform(D, kernels.GIVEN, form.scale, form.scale, form.sign, noise_sqrt)
+    _raise_status(status, form, errno, error)
     return S
 
 
@@ -273,6 +180,11 @@ def transform_factor(
     hooks: tuple[str, str] = ("mean_fn", "residual_fn"),
 ) -> tuple[np.ndarray, np.ndarray]:
     """Weighted mean and lower factor of the points' covariance plus additive noise.
+
+    With no hook, one kernel forms the rows of the best form
+    (:mod:`squkf.rows`) from the points, factors them with the noise and
+    removes the negative rows. The hooks (which force the mean form) are
+    called in Python and their deviations handed to the same kernel.
 
     Parameters
     ----------
@@ -293,17 +205,17 @@ def transform_factor(
     S : ndarray, shape (..., d, d)
     """
     plain = mean_fn is None and (residual_fn is None or residual_fn is np.subtract)
-    if plain and rows.fast:
-        N, d = sigmas.shape[-2:]
-        extra = 0 if noise_sqrt is None else noise_sqrt.shape[-1]
-        batch = batch_shape(sigmas, noise_sqrt)
-        buf = np.empty(batch + (N + extra, d))
-        mean = central_rows(sigmas, rows, buf)
-        if extra and noise_sqrt is not None:
-            buf[..., N:, :] = swap_last(noise_sqrt)
-        return mean, tria(buf)
-    mean, D, form = signed_rows(sigmas, rows, mean_fn, residual_fn, hooks)
-    return mean, factor_rows(D, form, noise_sqrt, errno, error)
+    if plain:
+        form = rows.best
+        mode = kernels.CENTRAL if form.central else kernels.MEAN
+        mean, S, status = kernels.transform(sigmas, mode, rows.Wm, form.scale, form.sign, noise_sqrt)
+    else:
+        form = rows.mean_form
+        mean = weighted_mean(sigmas, rows.Wm, mean_fn, hooks[0])
+        D = deviations(sigmas, mean, residual_fn, hooks[1])
+        _, S, status = kernels.transform(D, kernels.GIVEN, rows.Wm, form.scale, form.sign, noise_sqrt, mean)
+    _raise_status(status, form, errno, error)
+    return mean, S
 
 
 def sqrt_unscented_transform(

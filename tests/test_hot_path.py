@@ -16,11 +16,12 @@ from hypothesis import strategies as st
 
 import squkf.covariance
 from squkf import MerweScaledWeights, SquareRootUKF, sqrt_unscented_transform
+from squkf.errors import DowndateError
 from squkf.generators import Redrawn
 from squkf.linalg import all_finite
 from squkf.measurement import measurement_update
 from squkf.rows import weight_rows as weight_plan
-from squkf.transform import central_rows, factor_rows, signed_rows
+from squkf.transform import transform_factor
 
 EPS = np.finfo(float).eps
 
@@ -58,6 +59,16 @@ def gram_tol(D, w, rho, Wc=None):
     return gamma * (float(np.abs(w) @ (size * (size + rho))) + extra)
 
 
+def form_rows(X, Wm, form):
+    """The mean and unscaled rows of a row form, written out plainly (the reference)."""
+    if form.central:
+        E = X[1:] - X[0]
+        mu = Wm[1:] @ E
+        return X[0] + mu, np.vstack([E, mu])
+    mean = X[0] + Wm @ (X - X[0])
+    return mean, X - mean
+
+
 @settings(max_examples=60, deadline=None)
 @given(
     n=st.integers(1, 6),
@@ -78,22 +89,27 @@ def test_row_forms_reproduce_the_weighted_covariance(n, alpha, beta, kappa, seed
         assert plan.best.central and plan.best.neg.size == 0 and plan.fast
     rho = float(np.abs(Wm) @ np.abs(X - X[0]).max(axis=1))
     mean_tol = 64 * EPS * (np.abs(X).max() + rho)
-    best_mean, D, form = signed_rows(X, plan)  # the form the filter uses
+    form = plan.best  # the form the filter uses
+    best_mean, D = form_rows(X, Wm, form)
     tol = gram_tol(D, form.weights, rho, Wc if form.central else None)
     np.testing.assert_allclose((D.T * form.weights) @ D, P, rtol=0, atol=tol)
     np.testing.assert_allclose(best_mean, mean, rtol=0, atol=mean_tol)
+    # the kernel: the same rows, one QR and a downdate per negative row. Negative weights can
+    # make the weighted sum indefinite; then no factor exists and the kernel must say so
+    lowest = float(np.linalg.eigvalsh(P)[0])
+    if lowest > n * tol:
+        kernel_mean, S = transform_factor(X, plan)
+        np.testing.assert_allclose(kernel_mean, mean, rtol=0, atol=mean_tol)
+        np.testing.assert_allclose(S @ S.T, P, rtol=0, atol=4 * tol)
+    elif lowest < -n * tol:
+        with pytest.raises(DowndateError):
+            transform_factor(X, plan)
     D, form = X - best_mean, plan.mean_form  # the mean form (what the hooks use)
     assert not form.central
     if alpha >= 0.1:
         # for tiny alpha the mean form cancels weights of +-1/alpha^2 and is off by ~1e-6
         # (which is why the filter prefers the central form); here the weights are <= ~1e2
         np.testing.assert_allclose((D.T * form.weights) @ D, P, rtol=0, atol=gram_tol(D, form.weights, rho))
-    if plan.fast:
-        rows = np.empty((2 * n + 1, n), order="F")
-        m = central_rows(X, plan, rows)
-        tol = gram_tol(rows, np.ones(2 * n + 1), rho, Wc)
-        np.testing.assert_allclose(rows.T @ rows, P, rtol=0, atol=tol)
-        np.testing.assert_allclose(m, mean, rtol=0, atol=mean_tol)
 
 
 def covariance_form_update(x, S, sset, H, z, R, residual=None):
@@ -250,6 +266,5 @@ def test_negative_rows_are_downdated_when_no_form_avoids_them():
     X = np.random.default_rng(0).standard_normal((7, 3))
     mean, P = weighted_cov(X, Wm, Wc)
     noise = np.eye(3) * 2.0  # keeps the result positive definite
-    _, D, form = signed_rows(X, plan)
-    S = factor_rows(D, form, noise)
+    _, S = transform_factor(X, plan, noise)
     np.testing.assert_allclose(S @ S.T, P + noise @ noise.T, rtol=1e-12, atol=1e-12)

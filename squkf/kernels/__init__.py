@@ -1,0 +1,371 @@
+"""The compiled numerical core: one kernel per phase of the step, over a stack of filters.
+
+The functions here are the library's only implementation of the step's
+numerics. Each takes arrays with any leading batch shape (numpy's
+``np.linalg`` convention: one filter has none, a fleet ``(K,)``), flattens it
+to a stack, calls its kernel (:mod:`squkf.kernels.phases`) and gives the
+results back in that shape. One filter is a stack of one, computed by the
+same kernel as a fleet, so a filter alone and the same filter in a fleet get
+the same numbers, bit for bit.
+
+Kernels are compiled on first use (about a minute on an empty cache, in
+total) and cached on disk beside the package (numba's ``cache=True``); a
+new process loads them in a fraction of a second. Importing squkf compiles
+nothing.
+
+Failures are not raised here: each function returns a status per filter
+(see :mod:`squkf.kernels.phases`), which the callers turn into squkf's
+exceptions (:mod:`squkf.linalg`, :mod:`squkf.transform`,
+:mod:`squkf.measurement`).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from . import phases
+
+__all__ = [
+    "tria",
+    "solve_lower",
+    "chol_update",
+    "sigma_points",
+    "transform",
+    "joint_update",
+    "downdate_update",
+    "JointUpdate",
+    "CENTRAL",
+    "MEAN",
+    "GIVEN",
+]
+
+#: Row forms (:mod:`squkf.kernels.phases`).
+CENTRAL, MEAN, GIVEN = 0, 1, 2
+
+_NONE_1 = np.zeros((1, 0))
+
+
+def _batch(*arrays: tuple[np.ndarray | None, int]) -> tuple[int, ...]:
+    shape: tuple[int, ...] = ()
+    for a, core in arrays:
+        if a is not None and a.ndim > core:
+            lead = a.shape[: a.ndim - core]
+            shape = lead if not shape or lead == shape else np.broadcast_shapes(shape, lead)
+    return shape
+
+
+def _stack(a: np.ndarray, batch: tuple[int, ...], core: int) -> np.ndarray:
+    """``a`` as a C-contiguous float64 stack ``(B, *core shape)`` over ``batch``."""
+    tail = a.shape[a.ndim - core :]
+    if a.shape[: a.ndim - core] != batch:
+        a = np.broadcast_to(a, batch + tail)
+    return np.ascontiguousarray(a.reshape((-1,) + tail), dtype=np.float64)
+
+
+def _shared(a: np.ndarray, batch: tuple[int, ...], core: int) -> np.ndarray:
+    """Like :func:`_stack`, but an ``a`` with no batch axis is passed once (leading axis 1)."""
+    if a.ndim == core:
+        return np.ascontiguousarray(a[None], dtype=np.float64)
+    return _stack(a, batch, core)
+
+
+def _size(batch: tuple[int, ...]) -> int:
+    B = 1
+    for s in batch:
+        B *= s
+    return B
+
+
+def tria(rows: np.ndarray) -> np.ndarray:
+    """Lower factor with a non-negative diagonal of ``rows.T @ rows``, by Householder QR.
+
+    Parameters
+    ----------
+    rows : ndarray, shape (..., k, n)
+
+    Returns
+    -------
+    S : ndarray, shape (..., n, n)
+        ``S @ S.T == rows.T @ rows``; if ``k < n`` the last ``n - k`` columns are zero.
+    """
+    batch = rows.shape[:-2]
+    k, n = rows.shape[-2:]
+    A = _stack(rows, batch, 2)
+    S = np.empty((A.shape[0], n, n))
+    phases.tria_kernel(A, S)
+    return S.reshape(batch + (n, n))
+
+
+def solve_lower(L: np.ndarray, b: np.ndarray, trans: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Solve ``L x = b`` (``L.T x = b`` for ``trans``) for lower-triangular ``L``.
+
+    Parameters
+    ----------
+    L : ndarray, shape (..., n, n)
+    b : ndarray, shape (..., n) or (..., n, q)
+        A stack of vectors when ``b.ndim == L.ndim - 1``.
+    trans : bool
+
+    Returns
+    -------
+    x : ndarray, same shape as ``b`` (broadcast with ``L``'s batch)
+    ok : ndarray of bool, shape (...)
+        False where ``L`` has a zero on its diagonal (``x`` is then not finite).
+    """
+    vector = b.ndim == L.ndim - 1
+    B_ = b[..., None] if vector else b
+    batch = _batch((L, 2), (B_, 2))
+    n, q = B_.shape[-2:]
+    Y = _stack(B_, batch, 2)
+    X = np.empty(Y.shape)
+    ok = np.empty(Y.shape[0], dtype=np.bool_)
+    phases.solve_kernel(_shared(L, batch, 2), Y, 1 if trans else 0, X, ok)
+    X = X.reshape(batch + (n, q))
+    return (X[..., 0] if vector else X), ok.reshape(batch)
+
+
+def chol_update(S: np.ndarray, v: np.ndarray, sign: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rank-1 update (``sign > 0``) or downdate of lower factors, O(n^2) each.
+
+    Parameters
+    ----------
+    S : ndarray, shape (..., n, n)
+    v : ndarray, shape (..., n)
+    sign : float
+
+    Returns
+    -------
+    S1 : ndarray, shape (..., n, n)
+        ``S1 @ S1.T == S @ S.T + sign * outer(v, v)`` where it succeeded.
+    fail : ndarray of int, shape (...)
+        The first column whose rotation failed, or -1.
+    """
+    batch = _batch((S, 2), (v, 1))
+    n = v.shape[-1]
+    L = _stack(S, batch, 2)
+    out = np.empty(L.shape)
+    fail = np.empty(L.shape[0], dtype=np.int64)
+    phases.chol_update_kernel(L, _stack(v, batch, 1), float(sign), out, fail)
+    return out.reshape(batch + (n, n)), fail.reshape(batch)
+
+
+def sigma_points(x: np.ndarray, S: np.ndarray, xi: np.ndarray, gamma: float = 0.0):
+    """Sigma points ``x + xi @ S.T`` and their offsets ``xi @ S.T``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (..., n)
+    S : ndarray, shape (..., n, n)
+        Lower factors.
+    xi : ndarray, shape (N, n)
+        Unit points.
+    gamma : float
+        Non-zero when ``xi`` is ``[0; gamma I; -gamma I]`` (offsets in O(n^2)).
+
+    Returns
+    -------
+    sigmas, offsets : ndarray, shape (..., N, n)
+    """
+    batch = _batch((x, 1), (S, 2))
+    N, n = xi.shape
+    Ss = _stack(S, batch, 2)
+    X = np.empty((Ss.shape[0], N, n))
+    dX = np.empty(X.shape)
+    phases.points_kernel(_shared(x, batch, 1), Ss, np.ascontiguousarray(xi, dtype=np.float64), gamma, X, dX)
+    return X.reshape(batch + (N, n)), dX.reshape(batch + (N, n))
+
+
+def transform(
+    P: np.ndarray,
+    mode: int,
+    wm: np.ndarray,
+    scale: np.ndarray,
+    sign: np.ndarray,
+    noise: np.ndarray | None = None,
+    ref: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean and lower factor of weighted rows plus additive noise (one QR, a downdate per negative row).
+
+    Parameters
+    ----------
+    P : ndarray, shape (..., N, d)
+        Points (``CENTRAL``, ``MEAN``) or rows (``GIVEN``).
+    mode : int
+        The row form.
+    wm, scale, sign : ndarray, shape (N,)
+        Mean weights; each row's ``sqrt(|weight|)`` and sign.
+    noise : ndarray, shape (..., d, q), optional
+        A square root of the additive noise.
+    ref : ndarray, shape (..., d), optional
+        The mean, for ``GIVEN``.
+
+    Returns
+    -------
+    mean : ndarray, shape (..., d)
+    S : ndarray, shape (..., d, d)
+    status : ndarray of int, shape (...)
+        0, or ``r + 1`` (``-(r + 1)``) where negative row ``r``'s downdate failed
+        (found the factor singular).
+    """
+    batch = _batch((P, 2), (noise, 2), (ref, 1))
+    N, d = P.shape[-2:]
+    Ps = _stack(P, batch, 2)
+    B = Ps.shape[0]
+    Nz = np.zeros((1, d, 0)) if noise is None else _shared(noise, batch, 2)
+    R = np.zeros((1, d)) if ref is None else _shared(ref, batch, 1)
+    mean = np.empty((B, d))
+    S = np.empty((B, d, d))
+    status = np.empty(B, dtype=np.int64)
+    phases.transform_kernel(Ps, R, mode, wm, scale, sign, Nz, mean, S, status)
+    return mean.reshape(batch + (d,)), S.reshape(batch + (d, d)), status.reshape(batch)
+
+
+class JointUpdate(NamedTuple):
+    """What an update kernel gives, in the caller's batch shape.
+
+    Attributes
+    ----------
+    z_pred, y, w : ndarray, shape (..., m)
+        Predicted measurement (None from :func:`downdate_update`), innovation, ``Sy^-1 y``.
+    Sy : ndarray, shape (..., m, m)
+    L21 : ndarray, shape (..., n, m)
+    dx, x : ndarray, shape (..., n)
+        ``L21 w`` and the posterior mean ``x + dx``.
+    S : ndarray, shape (..., n, n)
+        The posterior factor.
+    status : ndarray of int, shape (...)
+        0, or g13ej's 301, 302, 303.
+    """
+
+    z_pred: np.ndarray | None
+    y: np.ndarray
+    w: np.ndarray
+    Sy: np.ndarray
+    L21: np.ndarray
+    dx: np.ndarray
+    x: np.ndarray
+    S: np.ndarray
+    status: np.ndarray
+
+
+def joint_update(
+    H: np.ndarray,
+    X: np.ndarray,
+    z: np.ndarray,
+    R1_2: np.ndarray,
+    x: np.ndarray,
+    mode: int,
+    wm: np.ndarray,
+    scale: np.ndarray,
+    sign: np.ndarray,
+    xref: np.ndarray | None = None,
+    zref: np.ndarray | None = None,
+) -> JointUpdate:
+    """The measurement update by one QR of the joint rows (see :func:`phases.joint_update_kernel`).
+
+    Parameters
+    ----------
+    H : ndarray, shape (..., N, m)
+    X : ndarray, shape (..., N, n)
+    z : ndarray, shape (..., m)
+        The measurement, or for ``GIVEN`` the innovation.
+    R1_2 : ndarray, shape (..., m, m)
+    x : ndarray, shape (..., n)
+        The prior mean.
+    mode : int
+    wm, scale, sign : ndarray, shape (N,)
+    xref : ndarray, shape (..., n), optional
+        The reference of ``X`` for ``MEAN`` (default: zero, ``X`` are offsets).
+    zref : ndarray, shape (..., m), optional
+        The predicted measurement for ``GIVEN``.
+
+    Returns
+    -------
+    JointUpdate
+    """
+    batch = _batch((H, 2), (X, 2), (z, 1), (R1_2, 2), (x, 1), (xref, 1), (zref, 1))
+    N, m = H.shape[-2:]
+    n = X.shape[-1]
+    Hs = _stack(H, batch, 2)
+    B = Hs.shape[0]
+    out: list[np.ndarray] = [np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m))]
+    out += [np.empty((B, n, m)), np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n))]
+    out.append(np.empty(B, dtype=np.int64))
+    phases.joint_update_kernel(
+        Hs,
+        np.zeros((1, m)) if zref is None else _shared(zref, batch, 1),
+        _stack(X, batch, 2),
+        np.zeros((1, n)) if xref is None else _shared(xref, batch, 1),
+        _stack(z, batch, 1),
+        _shared(R1_2, batch, 2),
+        _shared(x, batch, 1),
+        mode,
+        wm,
+        scale,
+        sign,
+        *out,
+    )
+    return JointUpdate(*(a.reshape(batch + a.shape[1:]) for a in out))
+
+
+def downdate_update(
+    H: np.ndarray,
+    z_pred: np.ndarray,
+    X: np.ndarray,
+    xref: np.ndarray,
+    y: np.ndarray,
+    Sy: np.ndarray,
+    S: np.ndarray,
+    x: np.ndarray,
+    wc: np.ndarray,
+) -> JointUpdate:
+    """g13ej's update for a set whose covariance is not the prior's (:func:`phases.downdate_update_kernel`).
+
+    Parameters
+    ----------
+    H : ndarray, shape (..., N, m)
+    z_pred : ndarray, shape (..., m)
+        The reference of ``H`` (the predicted measurement; zero for given deviations).
+    X : ndarray, shape (..., N, n)
+    xref : ndarray, shape (..., n)
+    y : ndarray, shape (..., m)
+    Sy : ndarray, shape (..., m, m)
+    S : ndarray, shape (..., n, n)
+    x : ndarray, shape (..., n)
+    wc : ndarray, shape (N,)
+
+    Returns
+    -------
+    JointUpdate
+        With ``z_pred`` None.
+    """
+    batch = _batch((H, 2), (z_pred, 1), (X, 2), (xref, 1), (y, 1), (Sy, 2), (S, 2), (x, 1))
+    N, m = H.shape[-2:]
+    n = X.shape[-1]
+    Hs = _stack(H, batch, 2)
+    B = Hs.shape[0]
+    L21, w = np.empty((B, n, m)), np.empty((B, m))
+    dx, xp, Sp, status = np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B, dtype=np.int64)
+    ys = _stack(y, batch, 1)
+    Sys = _stack(Sy, batch, 2)
+    phases.downdate_update_kernel(
+        Hs,
+        _shared(z_pred, batch, 1),
+        _stack(X, batch, 2),
+        _shared(xref, batch, 1),
+        ys,
+        Sys,
+        _stack(S, batch, 2),
+        _shared(x, batch, 1),
+        wc,
+        L21,
+        w,
+        dx,
+        xp,
+        Sp,
+        status,
+    )
+    out = (ys, w, Sys, L21, dx, xp, Sp, status)
+    return JointUpdate(None, *(a.reshape(batch + a.shape[1:]) for a in out))

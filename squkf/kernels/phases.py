@@ -1,0 +1,666 @@
+"""The compiled kernels: each phase of the square-root step over a stack of filters.
+
+Every kernel takes C-contiguous float64 stacks with the filter axis first,
+``(B, ...)``, loops over the filters inside, and writes its results into
+output arrays it is given (one signature each: compiled once, cached on
+disk). Inside, filters are taken a block of lanes at a time
+(:mod:`squkf.kernels.dense`): loaded into lane-last scratch, stepped in
+lock-step, stored back. A filter's numbers never depend on the block, so a
+filter alone equals the same filter in a fleet, bit for bit.
+
+An array that may be shared by every filter (a noise factor, a prior mean)
+is given with a leading axis of 1 and read for each filter from row 0.
+
+Row forms (see :mod:`squkf.rows`), a number ``mode``:
+
+0. central: row ``r < N - 1`` is ``P[r + 1] - P[0]``, row ``N - 1`` is
+   ``mu = sum_{i>=1} wm[i] (P[i] - P[0])``; the mean is ``P[0] + mu``.
+1. mean: the mean is ``P[0] + sum_{i>=1} wm[i] (P[i] - P[0])``; row ``r`` is
+   ``P[r] - mean`` (state rows: ``X[r] - xref``).
+2. given: the rows are the array itself (the user's hooks formed them in
+   Python); the mean is the reference given.
+
+Row ``r`` enters with weight ``sign[r] * scale[r]**2``: positive rows go
+into one QR, each negative row is removed after it by a rank-1 downdate,
+zero rows are left out.
+
+Status codes per filter: 0 success; in :func:`transform_kernel`, ``r + 1``
+when the downdate of negative row ``r`` failed and ``-(r + 1)`` when the
+factor was already singular before it; in the updates, g13ej's 301 (the
+innovation factor's downdate failed), 302 (singular innovation factor),
+303 (the posterior could not be formed).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .dense import chol_update_lanes, kernel, solve_lower_lanes, tria_lanes
+
+__all__ = [
+    "tria_kernel",
+    "solve_kernel",
+    "chol_update_kernel",
+    "points_kernel",
+    "transform_kernel",
+    "joint_update_kernel",
+    "downdate_update_kernel",
+]
+
+_TINY = float(np.finfo(np.float64).tiny)
+_LANES = 64
+_SCRATCH = 32768  # entries of the largest lane scratch array (keeps a block's arrays in cache)
+
+
+@kernel
+def _lanes(size):
+    """Lanes per block for a scratch matrix of ``size`` entries per filter (64 at most)."""
+    return max(1, min(_LANES, _SCRATCH // max(size, 1)))
+
+
+@kernel
+def _source(mode, r, N):
+    """Where row ``r`` of a form lives in the deviation buffer (central: ``mu`` in slot 0)."""
+    if mode == 0:
+        return r + 1 if r < N - 1 else 0
+    return r
+
+
+@kernel
+def _load_points(P, k0, nb, Pl):
+    """``Pl[l, i, b] = P[k0 + b, i, l]``."""
+    N, d = P.shape[1], P.shape[2]
+    for b in range(nb):
+        Pk = P[k0 + b]
+        for i in range(N):
+            for l in range(d):
+                Pl[l, i, b] = Pk[i, l]
+
+
+@kernel
+def _load_vector(a, k0, nb, al):
+    """``al[l, b] = a[k0 + b, l]``, or ``a[0, l]`` for a shared ``a``."""
+    shared = a.shape[0] == 1
+    for b in range(nb):
+        ak = a[0] if shared else a[k0 + b]
+        for l in range(a.shape[1]):
+            al[l, b] = ak[l]
+
+
+@kernel
+def _load_matrix(a, k0, nb, al):
+    """``al[i, j, b] = a[k0 + b, i, j]``, or ``a[0, i, j]`` for a shared ``a``."""
+    shared = a.shape[0] == 1
+    for b in range(nb):
+        ak = a[0] if shared else a[k0 + b]
+        for i in range(a.shape[1]):
+            for j in range(a.shape[2]):
+                al[i, j, b] = ak[i, j]
+
+
+@kernel
+def _store_lower(L, i0, j0, n, k0, nb, out):
+    """``out[k0 + b] = tril(L[i0:i0 + n, j0:j0 + n, b])``."""
+    for b in range(nb):
+        ok = out[k0 + b]
+        for i in range(n):
+            for j in range(n):
+                ok[i, j] = L[i0 + i, j0 + j, b] if j <= i else 0.0
+
+
+@kernel
+def _deviations(Pl, N, d, nb, mode, wm, mean):
+    """The rows of a form in place in ``Pl`` (``d x N x nb``) and the mean in ``mean`` (``d x nb``).
+
+    Mode 2 changes nothing: the rows are given and ``mean`` already holds the reference.
+    """
+    if mode == 2:
+        return
+    for l in range(d):
+        for b in range(nb):
+            mean[l, b] = 0.0
+        for i in range(1, N):
+            w = wm[i]
+            for b in range(nb):
+                mean[l, b] += w * (Pl[l, i, b] - Pl[l, 0, b])
+        if mode == 0:
+            for i in range(1, N):
+                for b in range(nb):
+                    Pl[l, i, b] -= Pl[l, 0, b]
+            for b in range(nb):
+                mu = mean[l, b]
+                mean[l, b] = Pl[l, 0, b] + mu
+                Pl[l, 0, b] = mu
+        else:
+            for b in range(nb):
+                mean[l, b] += Pl[l, 0, b]
+            for i in range(N):
+                for b in range(nb):
+                    Pl[l, i, b] -= mean[l, b]
+
+
+@kernel
+def _state_rows(Xl, N, n, nb, mode, wm, xref):
+    """State rows in place in ``Xl``: central (mode 0), ``X - xref`` (1), as given (2)."""
+    if mode == 0:
+        for l in range(n):
+            for b in range(nb):
+                xref[l, b] = 0.0
+            for i in range(1, N):
+                w = wm[i]
+                for b in range(nb):
+                    e = Xl[l, i, b] - Xl[l, 0, b]
+                    Xl[l, i, b] = e
+                    xref[l, b] += w * e
+            for b in range(nb):
+                Xl[l, 0, b] = xref[l, b]
+    elif mode == 1:
+        for l in range(n):
+            for i in range(N):
+                for b in range(nb):
+                    Xl[l, i, b] -= xref[l, b]
+
+
+@kernel
+def tria_kernel(A, S):
+    """``S[k]``: the lower factor (non-negative diagonal) of ``A[k].T @ A[k]``.
+
+    Parameters
+    ----------
+    A : ndarray, shape (B, r, c)
+    S : ndarray, shape (B, c, c)
+        Output.
+    """
+    B, r, c = A.shape
+    nl = _lanes(r * c)
+    At = np.empty((c, max(r, 1), nl))
+    V = np.empty((6, nl))
+    for k0 in range(0, B, nl):
+        nb = min(nl, B - k0)
+        for b in range(nb):
+            Ak = A[k0 + b]
+            for i in range(r):
+                for l in range(c):
+                    At[l, i, b] = Ak[i, l]
+        tria_lanes(At, c, r, nb, V)
+        for b in range(nb):
+            Sk = S[k0 + b]
+            for i in range(c):
+                for j in range(c):
+                    Sk[i, j] = At[i, j, b] if (j <= i and j < r) else 0.0
+
+
+@kernel
+def solve_kernel(L, Y, trans, X, ok):
+    """``X[k] = L[k]^-1 Y[k]`` (``L[k].T`` for ``trans``) by substitution; ``ok[k]``: no zero pivot.
+
+    Parameters
+    ----------
+    L : ndarray, shape (B or 1, n, n)
+        Lower triangular.
+    Y : ndarray, shape (B, n, q)
+    trans : int
+    X : ndarray, shape (B, n, q)
+        Output.
+    ok : ndarray of bool, shape (B,)
+        Output.
+    """
+    B, n, q = Y.shape
+    nl = _lanes(n * n)
+    Ll = np.empty((n, n, nl))
+    y = np.empty((n, nl))
+    for k0 in range(0, B, nl):
+        nb = min(nl, B - k0)
+        _load_matrix(L, k0, nb, Ll)
+        for b in range(nb):
+            good = True
+            for i in range(n):
+                good = good and Ll[i, i, b] != 0.0
+            ok[k0 + b] = good
+        for j in range(q):
+            for b in range(nb):
+                Yk = Y[k0 + b]
+                for i in range(n):
+                    y[i, b] = Yk[i, j]
+            solve_lower_lanes(Ll, y, n, nb, trans != 0)
+            for b in range(nb):
+                Xk = X[k0 + b]
+                for i in range(n):
+                    Xk[i, j] = y[i, b]
+
+
+@kernel
+def chol_update_kernel(L, v, sign, out, fail):
+    """``out[k] @ out[k].T == L[k] @ L[k].T + sign * outer(v[k], v[k])``; ``fail[k]``: failing column or -1.
+
+    Parameters
+    ----------
+    L : ndarray, shape (B, n, n)
+    v : ndarray, shape (B, n)
+    sign : float
+    out : ndarray, shape (B, n, n)
+        Output.
+    fail : ndarray of int64, shape (B,)
+        Output.
+    """
+    B, n = v.shape
+    nl = _lanes(n * n)
+    Ll = np.empty((n, n, nl))
+    vl = np.empty((n, nl))
+    V = np.empty((3, nl))
+    fl = np.empty(nl, dtype=np.int64)
+    for k0 in range(0, B, nl):
+        nb = min(nl, B - k0)
+        _load_matrix(L, k0, nb, Ll)
+        _load_vector(v, k0, nb, vl)
+        for b in range(nb):
+            fl[b] = -1
+        chol_update_lanes(Ll, vl, n, nb, sign, fl, V)
+        for b in range(nb):
+            fail[k0 + b] = fl[b]
+        _store_lower(Ll, 0, 0, n, k0, nb, out)
+
+
+@kernel
+def points_kernel(x, S, xi, gamma, X, dX):
+    """Sigma points ``X[k, i] = x[k] + dX[k, i]`` with offsets ``dX[k, i] = xi[i] @ S[k].T``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (B or 1, n)
+    S : ndarray, shape (B, n, n)
+        Lower factors.
+    xi : ndarray, shape (N, n)
+        Unit points.
+    gamma : float
+        Non-zero when ``xi`` is ``[0; gamma I; -gamma I]``: the offsets are
+        then ``+/- gamma`` times the columns of ``S`` (the same numbers as the
+        product, in O(n^2)).
+    X, dX : ndarray, shape (B, N, n)
+        Outputs.
+    """
+    B, N, n = X.shape
+    shared = x.shape[0] == 1
+    for k in range(B):
+        Sk = S[k]
+        xk = x[0] if shared else x[k]
+        Xk = X[k]
+        Dk = dX[k]
+        if gamma != 0.0:
+            for l in range(n):
+                Dk[0, l] = 0.0
+            for j in range(n):
+                for l in range(n):
+                    s = gamma * Sk[l, j] if j <= l else 0.0
+                    Dk[1 + j, l] = s
+                    Dk[1 + n + j, l] = -s
+        else:
+            for i in range(N):
+                for l in range(n):
+                    s = 0.0
+                    for j in range(l + 1):
+                        s += xi[i, j] * Sk[l, j]
+                    Dk[i, l] = s
+        for i in range(N):
+            for l in range(n):
+                Xk[i, l] = xk[l] + Dk[i, l]
+
+
+@kernel
+def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status):
+    """Weighted mean and lower factor of points' covariance plus additive noise.
+
+    ``S[k] @ S[k].T = sum_r sign[r] scale[r]**2 D_r D_r^T + noise[k] @ noise[k].T``
+    with the rows ``D_r`` of form ``mode`` (module docstring).
+
+    Parameters
+    ----------
+    P : ndarray, shape (B, N, d)
+        Points (modes 0 and 1) or rows (mode 2).
+    ref : ndarray, shape (B or 1, d)
+        The mean for mode 2 (read only there).
+    mode : int
+    wm : ndarray, shape (N,)
+        Mean weights (``wm[0]`` is not read).
+    scale, sign : ndarray, shape (N,)
+    noise : ndarray, shape (B or 1, d, q)
+        A square root of the additive noise (``q = 0``: none).
+    mean : ndarray, shape (B, d)
+    S : ndarray, shape (B, d, d)
+    status : ndarray of int64, shape (B,)
+        Outputs.
+    """
+    B, N, d = P.shape
+    q = noise.shape[2]
+    shared = noise.shape[0] == 1
+    npos = 0
+    for r in range(N):
+        if sign[r] > 0.0:
+            npos += 1
+    rows = npos + q
+    nl = _lanes(d * max(rows, N))
+    Pl = np.empty((d, N, nl))
+    At = np.empty((d, max(rows, 1), nl))
+    L = np.empty((d, d, nl))
+    ml = np.empty((d, nl))
+    v = np.empty((d, nl))
+    V = np.empty((6, nl))
+    fl = np.empty(nl, dtype=np.int64)
+    st = np.empty(nl, dtype=np.int64)
+    for k0 in range(0, B, nl):
+        nb = min(nl, B - k0)
+        _load_points(P, k0, nb, Pl)
+        if mode == 2:
+            _load_vector(ref, k0, nb, ml)
+        _deviations(Pl, N, d, nb, mode, wm, ml)
+        t = 0
+        for r in range(N):
+            if sign[r] > 0.0:
+                src = _source(mode, r, N)
+                c = scale[r]
+                for l in range(d):
+                    for b in range(nb):
+                        At[l, t, b] = c * Pl[l, src, b]
+                t += 1
+        for b in range(nb):
+            Nk = noise[0] if shared else noise[k0 + b]
+            for l in range(d):
+                for j in range(q):
+                    At[l, npos + j, b] = Nk[l, j]
+        tria_lanes(At, d, rows, nb, V)
+        for i in range(d):
+            for j in range(d):
+                for b in range(nb):
+                    L[i, j, b] = At[i, j, b] if (j <= i and j < rows) else 0.0
+        for b in range(nb):
+            st[b] = 0
+        for r in range(N):
+            if sign[r] < 0.0:
+                src = _source(mode, r, N)
+                c = scale[r]
+                for b in range(nb):
+                    singular = False
+                    for i in range(d):
+                        singular = singular or not L[i, i, b] > 0.0
+                    st[b] = -(r + 1) if (singular and st[b] == 0) else st[b]
+                    fl[b] = -1
+                for l in range(d):
+                    for b in range(nb):
+                        v[l, b] = c * Pl[l, src, b]
+                chol_update_lanes(L, v, d, nb, -1.0, fl, V)
+                for b in range(nb):
+                    st[b] = r + 1 if (fl[b] >= 0 and st[b] == 0) else st[b]
+        for b in range(nb):
+            status[k0 + b] = st[b]
+            mk = mean[k0 + b]
+            for l in range(d):
+                mk[l] = ml[l, b]
+        _store_lower(L, 0, 0, d, k0, nb, S)
+
+
+@kernel
+def joint_update_kernel(
+    H, zref, X, xref, z, R1_2, x, mode, wm, scale, sign, zp, y, w, Sy, L21, dx, xpost, Spost, status
+):
+    """The measurement update by one QR of the joint rows (the square-root array form).
+
+    ``tria([[Dz, Dx], [R1_2^T, 0]]) = [[Sy, 0], [L21, L22]]``, then each
+    negative row's downdate of the joint factor; ``w = Sy^-1 y``,
+    ``dx = L21 w``, ``xpost = x + dx``, ``Spost = L22``. Valid when the set
+    reproduces the prior's moments.
+
+    Parameters
+    ----------
+    H : ndarray, shape (B, N, m)
+        Images of the second set (modes 0, 1) or their rows (mode 2).
+    zref : ndarray, shape (B or 1, m)
+        The predicted measurement for mode 2.
+    X : ndarray, shape (B, N, n)
+        The second set (mode 0), its points or offsets (mode 1, with
+        ``xref`` their reference), or its state rows (mode 2).
+    xref : ndarray, shape (B or 1, n)
+    z : ndarray, shape (B, m)
+        The measurement (modes 0, 1) or the innovation itself (mode 2).
+    R1_2 : ndarray, shape (B or 1, m, m)
+    x : ndarray, shape (B or 1, n)
+        The prior mean.
+    mode : int
+    wm, scale, sign : ndarray, shape (N,)
+    zp, y, w : ndarray, shape (B, m)
+        Outputs: predicted measurement, innovation, ``Sy^-1 y``.
+    Sy : ndarray, shape (B, m, m)
+    L21 : ndarray, shape (B, n, m)
+    dx, xpost : ndarray, shape (B, n)
+    Spost : ndarray, shape (B, n, n)
+    status : ndarray of int64, shape (B,)
+        Outputs.
+    """
+    B, N, m = H.shape
+    n = X.shape[2]
+    c = m + n
+    npos = 0
+    for r in range(N):
+        if sign[r] > 0.0:
+            npos += 1
+    rows = npos + m
+    nl = _lanes(c * max(rows, N))
+    Hl = np.empty((m, N, nl))
+    Xl = np.empty((n, N, nl))
+    At = np.empty((c, rows, nl))
+    L = np.empty((c, c, nl))
+    zl = np.empty((m, nl))
+    yl = np.empty((m, nl))
+    wl = np.empty((m, nl))
+    xl = np.empty((n, nl))
+    xr = np.empty((n, nl))
+    v = np.empty((c, nl))
+    V = np.empty((6, nl))
+    fl = np.empty(nl, dtype=np.int64)
+    st = np.empty(nl, dtype=np.int64)
+    sharedR = R1_2.shape[0] == 1
+    for k0 in range(0, B, nl):
+        nb = min(nl, B - k0)
+        _load_points(H, k0, nb, Hl)
+        _load_points(X, k0, nb, Xl)
+        if mode == 2:
+            _load_vector(zref, k0, nb, zl)
+        if mode == 1:
+            _load_vector(xref, k0, nb, xr)
+        _deviations(Hl, N, m, nb, mode, wm, zl)
+        _state_rows(Xl, N, n, nb, mode, wm, xr)
+        _load_vector(z, k0, nb, yl)
+        if mode != 2:
+            for l in range(m):
+                for b in range(nb):
+                    yl[l, b] -= zl[l, b]
+        t = 0
+        for r in range(N):
+            if sign[r] > 0.0:
+                src = _source(mode, r, N)
+                s = scale[r]
+                for l in range(m):
+                    for b in range(nb):
+                        At[l, t, b] = s * Hl[l, src, b]
+                for l in range(n):
+                    for b in range(nb):
+                        At[m + l, t, b] = s * Xl[l, src, b]
+                t += 1
+        for b in range(nb):
+            Rk = R1_2[0] if sharedR else R1_2[k0 + b]
+            for l in range(m):
+                for j in range(m):
+                    At[l, npos + j, b] = Rk[l, j]
+            for l in range(n):
+                for j in range(m):
+                    At[m + l, npos + j, b] = 0.0
+        tria_lanes(At, c, rows, nb, V)
+        for i in range(c):
+            for j in range(c):
+                for b in range(nb):
+                    L[i, j, b] = At[i, j, b] if (j <= i and j < rows) else 0.0
+        for b in range(nb):
+            st[b] = 0
+        for r in range(N):
+            if sign[r] < 0.0:
+                src = _source(mode, r, N)
+                s = scale[r]
+                for b in range(nb):
+                    fl[b] = -1
+                for l in range(m):
+                    for b in range(nb):
+                        v[l, b] = s * Hl[l, src, b]
+                for l in range(n):
+                    for b in range(nb):
+                        v[m + l, b] = s * Xl[l, src, b]
+                chol_update_lanes(L, v, c, nb, -1.0, fl, V)
+                for b in range(nb):
+                    code = 301 if fl[b] < m else 303
+                    st[b] = code if (fl[b] >= 0 and st[b] == 0) else st[b]
+        for b in range(nb):
+            good = True
+            for i in range(m):
+                good = good and (_TINY < abs(L[i, i, b]) < math.inf)
+            st[b] = 302 if (not good and st[b] == 0) else st[b]
+        for l in range(m):
+            for b in range(nb):
+                wl[l, b] = yl[l, b]
+        solve_lower_lanes(L, wl, m, nb, False)
+        _load_vector(x, k0, nb, xl)
+        for l in range(n):
+            for b in range(nb):
+                xr[l, b] = 0.0
+            for j in range(m):
+                for b in range(nb):
+                    xr[l, b] += L[m + l, j, b] * wl[j, b]
+        _finish(L, m, n, xl, xr, st, k0, nb, dx, xpost)
+        for b in range(nb):
+            status[k0 + b] = st[b]
+            zk, yk, wk, Lk = zp[k0 + b], y[k0 + b], w[k0 + b], L21[k0 + b]
+            for l in range(m):
+                zk[l] = zl[l, b]
+                yk[l] = yl[l, b]
+                wk[l] = wl[l, b]
+            for l in range(n):
+                for j in range(m):
+                    Lk[l, j] = L[m + l, j, b]
+        _store_lower(L, 0, 0, m, k0, nb, Sy)
+        _store_lower(L, m, m, n, k0, nb, Spost)
+
+
+@kernel
+def _finish(L, i0, n, xl, dxl, st, k0, nb, dx, xpost):
+    """``xpost = x + dx``; 303 unless it and the posterior factor ``L[i0:, i0:]`` are finite."""
+    for b in range(nb):
+        good = True
+        dk, xk = dx[k0 + b], xpost[k0 + b]
+        for l in range(n):
+            d = dxl[l, b]
+            xp = xl[l, b] + d
+            dk[l] = d
+            xk[l] = xp
+            good = good and math.isfinite(xp)
+            for j in range(l + 1):
+                good = good and math.isfinite(L[i0 + l, i0 + j, b])
+        st[b] = 303 if (not good and st[b] == 0) else st[b]
+
+
+@kernel
+def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpost, Spost, status):
+    """g13ej's measurement update for a set whose covariance is not the prior's.
+
+    ``Pxy = sum_i wc[i] (X_i - xref)(H_i - zref)^T``, ``L21 = Pxy Sy^-T``,
+    ``w = Sy^-1 y``, ``xpost = x + L21 w``, and the posterior factor is the
+    prior's ``S`` downdated by each column of ``L21``.
+
+    Parameters
+    ----------
+    H : ndarray, shape (B, N, m)
+    zref : ndarray, shape (B or 1, m)
+    X : ndarray, shape (B, N, n)
+    xref : ndarray, shape (B or 1, n)
+    yin : ndarray, shape (B, m)
+        The innovation.
+    Sy : ndarray, shape (B, m, m)
+        The innovation factor.
+    S : ndarray, shape (B, n, n)
+        The prior factor.
+    x : ndarray, shape (B or 1, n)
+    wc : ndarray, shape (N,)
+    L21 : ndarray, shape (B, n, m)
+    w : ndarray, shape (B, m)
+    dx, xpost : ndarray, shape (B, n)
+    Spost : ndarray, shape (B, n, n)
+    status : ndarray of int64, shape (B,)
+        Outputs.
+    """
+    B, N, m = H.shape
+    n = X.shape[2]
+    nl = _lanes(max(n, m) * max(N, n, m))
+    Hl = np.empty((m, N, nl))
+    Xl = np.empty((n, N, nl))
+    Syl = np.empty((m, m, nl))
+    Sl = np.empty((n, n, nl))
+    Ll = np.empty((n, m, nl))
+    zr = np.empty((m, nl))
+    xr = np.empty((n, nl))
+    xl = np.empty((n, nl))
+    t = np.empty((max(n, m), nl))
+    wl = np.empty((m, nl))
+    V = np.empty((3, nl))
+    fl = np.empty(nl, dtype=np.int64)
+    st = np.empty(nl, dtype=np.int64)
+    for k0 in range(0, B, nl):
+        nb = min(nl, B - k0)
+        _load_points(H, k0, nb, Hl)
+        _load_points(X, k0, nb, Xl)
+        _load_vector(zref, k0, nb, zr)
+        _load_vector(xref, k0, nb, xr)
+        _load_matrix(Sy, k0, nb, Syl)
+        _load_matrix(S, k0, nb, Sl)
+        for b in range(nb):
+            good = True
+            for i in range(m):
+                good = good and (_TINY < abs(Syl[i, i, b]) < math.inf)
+            st[b] = 0 if good else 302
+        for l in range(n):  # row l of L21 = Sy^-1 (row l of Pxy)
+            for j in range(m):
+                for b in range(nb):
+                    t[j, b] = 0.0
+                for i in range(N):
+                    c = wc[i]
+                    for b in range(nb):
+                        t[j, b] += c * (Xl[l, i, b] - xr[l, b]) * (Hl[j, i, b] - zr[j, b])
+            solve_lower_lanes(Syl, t, m, nb, False)
+            for j in range(m):
+                for b in range(nb):
+                    Ll[l, j, b] = t[j, b]
+        _load_vector(yin, k0, nb, wl)
+        solve_lower_lanes(Syl, wl, m, nb, False)
+        _load_vector(x, k0, nb, xl)
+        for l in range(n):
+            for b in range(nb):
+                xr[l, b] = 0.0
+            for j in range(m):
+                for b in range(nb):
+                    xr[l, b] += Ll[l, j, b] * wl[j, b]
+        for b in range(nb):
+            fl[b] = -1
+        for j in range(m):
+            for l in range(n):
+                for b in range(nb):
+                    t[l, b] = Ll[l, j, b]
+            chol_update_lanes(Sl, t, n, nb, -1.0, fl, V)
+        for b in range(nb):
+            st[b] = 303 if (fl[b] >= 0 and st[b] == 0) else st[b]
+        _finish(Sl, 0, n, xl, xr, st, k0, nb, dx, xpost)
+        for b in range(nb):
+            status[k0 + b] = st[b]
+            wk, Lk = w[k0 + b], L21[k0 + b]
+            for j in range(m):
+                wk[j] = wl[j, b]
+            for l in range(n):
+                for j in range(m):
+                    Lk[l, j] = Ll[l, j, b]
+        _store_lower(Sl, 0, 0, n, k0, nb, Spost)
