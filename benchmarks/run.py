@@ -8,8 +8,11 @@
 Implementations are interleaved over repetitions in one process; times are
 medians of time per predict+update step, and ratios to filterpy are taken per
 repetition (median of the ratios). Only the steps are timed (reading the
-state for RMSE and NEES is not). The time spent inside the user's fx and hx is
-measured by wrapping them, and the library's own time is the rest.
+state for RMSE and NEES is not). Each implementation first runs a few untimed
+steps of each scenario, so that compiling or loading squkf's numba kernels
+(``compile_time.py`` measures that) is not in the tables. The time spent
+inside the user's fx and hx is measured by wrapping them, and the library's
+own time is the rest.
 
 BLAS is pinned to one thread for the main tables (``--threads 1``, set before
 numpy is imported); a second speed table is measured in a subprocess with the
@@ -143,6 +146,8 @@ def compare(scenarios, impls, steps, reps) -> dict:
     table = {}
     for sc in scenarios:
         rows = {impl.name: [] for impl in impls}
+        for impl in impls:  # untimed: numba's kernels are compiled or loaded from the cache on first use
+            run_one(impl, sc, 3, seed=reps)
         for rep in range(reps):
             for impl in impls:
                 rows[impl.name].append(run_one(impl, sc, steps, seed=rep))
