@@ -21,7 +21,9 @@ exceptions (:mod:`squkf.linalg`, :mod:`squkf.transform`,
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import os
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -39,12 +41,84 @@ __all__ = [
     "CENTRAL",
     "MEAN",
     "GIVEN",
+    "set_num_threads",
+    "get_num_threads",
 ]
 
 #: Row forms (:mod:`squkf.kernels.phases`).
 CENTRAL, MEAN, GIVEN = 0, 1, 2
 
-_NONE_1 = np.zeros((1, 0))
+#: Below this many filters a stack is never split between threads (the hand-off costs more).
+MIN_FILTERS_PER_THREAD = 2048
+
+_threads = 1
+_pool: ThreadPoolExecutor | None = None
+
+
+def set_num_threads(n: int) -> None:
+    """Use ``n`` threads for the kernels of a large stack (a fleet); 1 (the default) runs serially.
+
+    The filters of a stack are cut into ``n`` contiguous parts, each stepped by
+    one kernel call on its own thread (the kernels release the GIL). Each
+    filter's numbers are the same, bit for bit, for any thread count. The
+    environment variable ``SQUKF_NUM_THREADS`` sets the count at import.
+
+    Parameters
+    ----------
+    n : int
+        At least 1.
+    """
+    global _threads, _pool
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"the thread count must be a whole number >= 1, got n={n!r}")
+    if _pool is not None and n != _threads:
+        _pool.shutdown(wait=True)
+        _pool = None
+    _threads = int(n)
+
+
+def get_num_threads() -> int:
+    """The thread count of :func:`set_num_threads`."""
+    return _threads
+
+
+def _run(kernel: Any, B: int, args: tuple, per_filter: tuple[bool, ...]) -> None:
+    """Call ``kernel(*args)``, cut over ``B`` filters between the threads when that pays.
+
+    ``per_filter[i]`` tells whether ``args[i]`` has one row per filter (cut) or is
+    shared (a plan's data, a shared noise factor: passed whole).
+    """
+    parts = min(_threads, B // MIN_FILTERS_PER_THREAD)
+    if parts <= 1:
+        kernel(*args)
+        return
+    global _pool
+    if _pool is None:
+        _pool = ThreadPoolExecutor(_threads, thread_name_prefix="squkf-kernel")
+    cuts = [B * i // parts for i in range(parts + 1)]
+    jobs = [
+        _pool.submit(kernel, *(a[lo:hi] if cut else a for a, cut in zip(args, per_filter)))
+        for lo, hi in zip(cuts[:-1], cuts[1:])
+    ]
+    for job in jobs:
+        job.result()
+
+
+def _call(kernel: Any, B: int, *args, plan: tuple[int, ...] = ()) -> None:
+    """``kernel(*args)`` over ``B`` filters; the arguments at ``plan`` are the plan's data, never cut.
+
+    Every other array with ``B`` rows is one row per filter; a shared array has one row.
+    """
+    cut = tuple(
+        i not in plan and isinstance(a, np.ndarray) and a.ndim >= 1 and a.shape[0] == B
+        for i, a in enumerate(args)
+    )
+    _run(kernel, B, args, cut)
+
+
+_env_threads = os.environ.get("SQUKF_NUM_THREADS")
+if _env_threads:
+    set_num_threads(int(_env_threads))
 
 
 def _batch(*arrays: tuple[np.ndarray | None, int]) -> tuple[int, ...]:
@@ -94,7 +168,7 @@ def tria(rows: np.ndarray) -> np.ndarray:
     k, n = rows.shape[-2:]
     A = _stack(rows, batch, 2)
     S = np.empty((A.shape[0], n, n))
-    phases.tria_kernel(A, S)
+    _call(phases.tria_kernel, A.shape[0], A, S)
     return S.reshape(batch + (n, n))
 
 
@@ -121,7 +195,7 @@ def solve_lower(L: np.ndarray, b: np.ndarray, trans: bool = False) -> tuple[np.n
     Y = _stack(B_, batch, 2)
     X = np.empty(Y.shape)
     ok = np.empty(Y.shape[0], dtype=np.bool_)
-    phases.solve_kernel(_shared(L, batch, 2), Y, 1 if trans else 0, X, ok)
+    _call(phases.solve_kernel, Y.shape[0], _shared(L, batch, 2), Y, 1 if trans else 0, X, ok)
     X = X.reshape(batch + (n, q))
     return (X[..., 0] if vector else X), ok.reshape(batch)
 
@@ -147,7 +221,7 @@ def chol_update(S: np.ndarray, v: np.ndarray, sign: float) -> tuple[np.ndarray, 
     L = _stack(S, batch, 2)
     out = np.empty(L.shape)
     fail = np.empty(L.shape[0], dtype=np.int64)
-    phases.chol_update_kernel(L, _stack(v, batch, 1), float(sign), out, fail)
+    _call(phases.chol_update_kernel, L.shape[0], L, _stack(v, batch, 1), float(sign), out, fail)
     return out.reshape(batch + (n, n)), fail.reshape(batch)
 
 
@@ -173,7 +247,17 @@ def sigma_points(x: np.ndarray, S: np.ndarray, xi: np.ndarray, gamma: float = 0.
     Ss = _stack(S, batch, 2)
     X = np.empty((Ss.shape[0], N, n))
     dX = np.empty(X.shape)
-    phases.points_kernel(_shared(x, batch, 1), Ss, np.ascontiguousarray(xi, dtype=np.float64), gamma, X, dX)
+    _call(
+        phases.points_kernel,
+        Ss.shape[0],
+        _shared(x, batch, 1),
+        Ss,
+        np.ascontiguousarray(xi, dtype=np.float64),
+        gamma,
+        X,
+        dX,
+        plan=(2,),
+    )
     return X.reshape(batch + (N, n)), dX.reshape(batch + (N, n))
 
 
@@ -218,7 +302,7 @@ def transform(
     mean = np.empty((B, d))
     S = np.empty((B, d, d))
     status = np.empty(B, dtype=np.int64)
-    phases.transform_kernel(Ps, R, mode, wm, scale, sign, Nz, mean, S, status)
+    _call(phases.transform_kernel, B, Ps, R, mode, wm, scale, sign, Nz, mean, S, status, plan=(3, 4, 5))
     return mean.reshape(batch + (d,)), S.reshape(batch + (d, d)), status.reshape(batch)
 
 
@@ -293,7 +377,9 @@ def joint_update(
     out: list[np.ndarray] = [np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m))]
     out += [np.empty((B, n, m)), np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n))]
     out.append(np.empty(B, dtype=np.int64))
-    phases.joint_update_kernel(
+    _call(
+        phases.joint_update_kernel,
+        B,
         Hs,
         np.zeros((1, m)) if zref is None else _shared(zref, batch, 1),
         _stack(X, batch, 2),
@@ -306,6 +392,7 @@ def joint_update(
         scale,
         sign,
         *out,
+        plan=(8, 9, 10),
     )
     return JointUpdate(*(a.reshape(batch + a.shape[1:]) for a in out))
 
@@ -350,7 +437,9 @@ def downdate_update(
     dx, xp, Sp, status = np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B, dtype=np.int64)
     ys = _stack(y, batch, 1)
     Sys = _stack(Sy, batch, 2)
-    phases.downdate_update_kernel(
+    _call(
+        phases.downdate_update_kernel,
+        B,
         Hs,
         _shared(z_pred, batch, 1),
         _stack(X, batch, 2),
@@ -366,6 +455,7 @@ def downdate_update(
         xp,
         Sp,
         status,
+        plan=(8,),
     )
     out = (ys, w, Sys, L21, dx, xp, Sp, status)
     return JointUpdate(None, *(a.reshape(batch + a.shape[1:]) for a in out))

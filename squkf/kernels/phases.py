@@ -3,10 +3,10 @@
 Every kernel takes C-contiguous float64 stacks with the filter axis first,
 ``(B, ...)``, loops over the filters inside, and writes its results into
 output arrays it is given (one signature each: compiled once, cached on
-disk). Inside, filters are taken a block of lanes at a time
-(:mod:`squkf.kernels.dense`): loaded into lane-last scratch, stepped in
-lock-step, stored back. A filter's numbers never depend on the block, so a
-filter alone equals the same filter in a fleet, bit for bit.
+disk). Inside, filters are taken a block of lanes at a time (below):
+loaded into lane-last scratch, stepped in lock-step, stored back. A
+filter's numbers never depend on the block, so a filter alone equals the
+same filter in a fleet, bit for bit.
 
 An array that may be shared by every filter (a noise factor, a prior mean)
 is given with a leading axis of 1 and read for each filter from row 0.
@@ -29,6 +29,29 @@ when the downdate of negative row ``r`` failed and ``-(r + 1)`` when the
 factor was already singular before it; in the updates, g13ej's 301 (the
 innovation factor's downdate failed), 302 (singular innovation factor),
 303 (the posterior could not be formed).
+
+Lanes
+-----
+The dense square-root linear algebra (Householder QR, triangular solves,
+rank-1 updates) works on lanes: a block of small matrices in lock-step.
+Every scratch array carries the *lane* axis last: ``At[c, r, b]`` is entry ``(r, c)``
+of the row matrix of lane ``b``. A lane is one filter. Every inner loop runs
+over the lanes (``for b in range(nb)``), so LLVM vectorises it across filters,
+and each lane does exactly the same operations in the same order whatever the
+other lanes hold and however many there are: a filter's numbers never depend
+on the block it is computed in (one filter is a block of one).
+
+Three things keep the vectoriser on (each measured in the prototype of
+``shared/prototypes/numba_step``): ``error_model="numpy"`` (the default puts a
+ZeroDivisionError branch on every division), a lane count known only at run
+time (a constant one is unrolled into scalar code), and no index arithmetic
+on global arrays inside a lane loop. No ``fastmath``: reassociation or FMA
+contraction would make a lane's rounding depend on the vector width.
+
+Every compiled function lives in this one module on purpose: numba's disk
+cache is keyed on the source file of the kernel called, not on the files of
+the functions it calls, so a helper in another module could be edited and
+its callers still load the old machine code. Nothing is compiled at import.
 """
 
 from __future__ import annotations
@@ -36,10 +59,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-
-from .dense import chol_update_lanes, kernel, solve_lower_lanes, tria_lanes
+from numba import njit, types
+from numba.np.linalg import _LAPACK
 
 __all__ = [
+    "LAPACK_MIN_COLUMNS",
     "tria_kernel",
     "solve_kernel",
     "chol_update_kernel",
@@ -50,8 +74,184 @@ __all__ = [
 ]
 
 _TINY = float(np.finfo(np.float64).tiny)
+#: The decorator of every kernel and helper: compiled on first call, cached on disk, releases the GIL.
+kernel = njit(cache=True, nogil=True, error_model="numpy")
 _LANES = 64
 _SCRATCH = 32768  # entries of the largest lane scratch array (keeps a block's arrays in cache)
+
+
+#: From this many columns on, each lane's QR is LAPACK's blocked ``dgeqrf`` (the routine numba's own
+#: ``np.linalg.qr`` calls, through scipy's LAPACK), then a sign pass; below it, the Householder loops
+#: across lanes. Chosen by the matrix's size alone, so a filter takes the same path alone or in a fleet.
+LAPACK_MIN_COLUMNS = 16
+_geqrf = _LAPACK().numba_ez_geqrf(types.float64)
+_KIND = ord("d")
+
+
+@kernel
+def _tria_lapack(At, c, r, nb):
+    """``tria_lanes`` for wide matrices: one ``dgeqrf`` per lane, then each row of R made non-negative."""
+    F = np.empty(r * c)  # the lane's matrix in Fortran order
+    tau = np.empty(max(1, min(r, c)))
+    for b in range(nb):
+        for j in range(c):
+            for i in range(r):
+                F[i + j * r] = At[j, i, b]
+        _geqrf(_KIND, r, c, F.ctypes, r, tau.ctypes)
+        for j in range(min(r, c)):
+            s = -1.0 if F[j + j * r] < 0.0 else 1.0
+            for l in range(j, c):
+                At[l, j, b] = s * F[j + l * r]
+
+
+@kernel
+def tria_lanes(At, c, r, nb, V):
+    """Householder QR of ``nb`` row matrices ``A`` (``r x c``) held transposed.
+
+    On return the lower triangle of ``At[:c, :min(c, r), b]`` is ``L`` with
+    ``L @ L.T == A.T @ A`` and a non-negative diagonal (``L = R.T``): entry
+    ``(l, j)`` of ``L``, ``l >= j``, is ``At[l, j, b]``. Above it ``At`` holds
+    the reflectors.
+
+    Each column is scaled by its largest entry before its norm is taken
+    (no overflow or underflow for entries between 1e-300 and 1e300), and the
+    reflector is Parlett's choice ``v0 = -sigma / (x0 + |x|)`` for ``x0 > 0``,
+    so the diagonal comes out non-negative with no sign pass (as LAPACK's
+    ``dgeqrfp``).
+
+    Parameters
+    ----------
+    At : ndarray, shape (>= c, >= r, >= nb)
+        Overwritten.
+    c, r : int
+        Columns and rows of each ``A``.
+    nb : int
+        Lanes in use.
+    V : ndarray, shape (>= 6, >= nb)
+        Scratch.
+    """
+    if c >= LAPACK_MIN_COLUMNS:
+        _tria_lapack(At, c, r, nb)
+        return
+    for j in range(min(c, r)):
+        for b in range(nb):
+            V[0, b] = 0.0
+        for i in range(j, r):
+            for b in range(nb):
+                V[0, b] = max(V[0, b], abs(At[j, i, b]))
+        for b in range(nb):
+            big = V[0, b] > _TINY
+            V[1, b] = 0.0
+            V[2, b] = 1.0 / V[0, b] if big else 1.0  # scale s
+            V[0, b] = V[0, b] if big else 1.0  # its inverse
+        for i in range(j + 1, r):
+            for b in range(nb):
+                t = At[j, i, b] * V[2, b]
+                V[1, b] += t * t
+        for b in range(nb):
+            sigma = V[1, b]
+            x0 = At[j, j, b] * V[2, b]
+            a = math.sqrt(x0 * x0 + sigma)
+            v0 = x0 - a if x0 <= 0.0 else -sigma / (x0 + a)
+            d = sigma + v0 * v0
+            V[3, b] = 2.0 * (v0 * v0) / d if d > 0.0 else 0.0  # tau
+            V[4, b] = V[2, b] / v0 if v0 != 0.0 else 0.0  # the reflector is [1, A[j+1:, j] s / v0]
+            V[5, b] = a * V[0, b]  # R[j, j] >= 0
+        for i in range(j + 1, r):
+            for b in range(nb):
+                At[j, i, b] *= V[4, b]
+        for l in range(j + 1, c):
+            for b in range(nb):
+                V[1, b] = At[l, j, b]
+            for i in range(j + 1, r):
+                for b in range(nb):
+                    V[1, b] += At[j, i, b] * At[l, i, b]
+            for b in range(nb):
+                V[1, b] *= V[3, b]
+                At[l, j, b] -= V[1, b]
+            for i in range(j + 1, r):
+                for b in range(nb):
+                    At[l, i, b] -= V[1, b] * At[j, i, b]
+        for b in range(nb):
+            At[j, j, b] = V[5, b]
+
+
+@kernel
+def solve_lower_lanes(L, y, n, nb, trans):
+    """Solve ``L w = y`` (or ``L.T w = y``) in place for lower-triangular ``L``, on lanes.
+
+    Parameters
+    ----------
+    L : ndarray, shape (>= n, >= n, >= nb)
+        ``L[i, j, b]``, entry ``(i, j)`` of lane ``b``'s factor (read below the diagonal only).
+    y : ndarray, shape (>= n, >= nb)
+        The right-hand side; overwritten by the solution.
+    n, nb : int
+    trans : bool
+        Solve with ``L.T``.
+    """
+    if not trans:
+        for i in range(n):
+            for j in range(i):
+                for b in range(nb):
+                    y[i, b] -= L[i, j, b] * y[j, b]
+            for b in range(nb):
+                y[i, b] /= L[i, i, b]
+    else:
+        for i in range(n - 1, -1, -1):
+            for j in range(i + 1, n):
+                for b in range(nb):
+                    y[i, b] -= L[j, i, b] * y[j, b]
+            for b in range(nb):
+                y[i, b] /= L[i, i, b]
+
+
+@kernel
+def chol_update_lanes(L, v, n, nb, sign, fail, V):
+    """Rank-1 update (``sign > 0``) or downdate of lower factors in place, in O(n^2), on lanes.
+
+    ``L1 @ L1.T == L @ L.T + sign * outer(v, v)`` by one rotation per
+    column (LINPACK's ``dchud``/``dchdd`` written for a lower factor). A
+    column whose rotation does not exist (a downdate that would lose
+    positive-definiteness, a singular ``L``, an overflow) is recorded in
+    ``fail[b]`` (the first such column; ``fail[b] < 0`` is left alone only
+    while none fails). A failed lane's ``L`` is meaningless.
+
+    The leading ``k x k`` block of the result depends only on the leading
+    ``k`` entries of ``v`` and block of ``L``: a failure at a column ``< k``
+    is a failure of the leading block's own downdate.
+
+    Parameters
+    ----------
+    L : ndarray, shape (>= n, >= n, >= nb)
+        Lower triangular with a positive diagonal.
+    v : ndarray, shape (>= n, >= nb)
+        Overwritten.
+    n, nb : int
+    sign : float
+    fail : ndarray of int64, shape (>= nb,)
+    V : ndarray, shape (>= 3, >= nb)
+        Scratch.
+    """
+    down = sign < 0.0
+    for k in range(n):
+        for b in range(nb):
+            d = L[k, k, b]
+            vk = v[k, b]
+            q = d * d - vk * vk if down else d * d + vk * vk
+            good = q > 0.0 and d > 0.0 and q < math.inf
+            fail[b] = k if (not good and fail[b] < 0) else fail[b]
+            rr = math.sqrt(q) if good else 1.0
+            dd = d if good else 1.0
+            V[0, b] = rr / dd  # c
+            V[1, b] = vk / dd  # s
+            V[2, b] = -V[1, b] if down else V[1, b]
+            L[k, k, b] = rr
+        for i in range(k + 1, n):
+            for b in range(nb):
+                Lik = (L[i, k, b] + V[2, b] * v[i, b]) / V[0, b]
+                L[i, k, b] = Lik
+                v[i, b] = V[0, b] * v[i, b] - V[1, b] * Lik
 
 
 @kernel
@@ -282,30 +482,40 @@ def points_kernel(x, S, xi, gamma, X, dX):
         Outputs.
     """
     B, N, n = X.shape
-    shared = x.shape[0] == 1
-    for k in range(B):
-        Sk = S[k]
-        xk = x[0] if shared else x[k]
-        Xk = X[k]
-        Dk = dX[k]
+    nl = _lanes(N * n)
+    Sl = np.empty((n, n, nl))
+    xl = np.empty((n, nl))
+    Dl = np.empty((n, N, nl))
+    for k0 in range(0, B, nl):
+        nb = min(nl, B - k0)
+        _load_matrix(S, k0, nb, Sl)
+        _load_vector(x, k0, nb, xl)
         if gamma != 0.0:
             for l in range(n):
-                Dk[0, l] = 0.0
-            for j in range(n):
-                for l in range(n):
-                    s = gamma * Sk[l, j] if j <= l else 0.0
-                    Dk[1 + j, l] = s
-                    Dk[1 + n + j, l] = -s
+                for b in range(nb):
+                    Dl[l, 0, b] = 0.0
+                for j in range(n):
+                    for b in range(nb):
+                        s = gamma * Sl[l, j, b] if j <= l else 0.0
+                        Dl[l, 1 + j, b] = s
+                        Dl[l, 1 + n + j, b] = -s
         else:
             for i in range(N):
                 for l in range(n):
-                    s = 0.0
+                    for b in range(nb):
+                        Dl[l, i, b] = 0.0
                     for j in range(l + 1):
-                        s += xi[i, j] * Sk[l, j]
-                    Dk[i, l] = s
-        for i in range(N):
-            for l in range(n):
-                Xk[i, l] = xk[l] + Dk[i, l]
+                        c = xi[i, j]
+                        for b in range(nb):
+                            Dl[l, i, b] += c * Sl[l, j, b]
+        for b in range(nb):
+            Xk = X[k0 + b]
+            Dk = dX[k0 + b]
+            for i in range(N):
+                for l in range(n):
+                    d = Dl[l, i, b]
+                    Dk[i, l] = d
+                    Xk[i, l] = xl[l, b] + d
 
 
 @kernel
