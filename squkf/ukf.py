@@ -483,7 +483,11 @@ class SquareRootUKF:
 
     @property
     def K(self) -> np.ndarray:
-        """Kalman gain of the last update, shape ``(dim_x, dim_z)`` (zero columns where missing)."""
+        """Kalman gain of the last update, shape ``(dim_x, dim_z)`` (zero columns where missing).
+
+        Formed once per update and handed out as a fresh copy on each read, so
+        an array read earlier (a ``Saver``'s history) is never rewritten.
+        """
         if self._K is None:
             K = gain_from_factors(self._Sy, self._L21) if self._measured else np.zeros_like(self._L21)
             obs = self._observed
@@ -492,11 +496,11 @@ class SquareRootUKF:
                 full[:, obs] = K
                 K = full
             self._K = K
-        return self._K
+        return self._K.copy()
 
     @K.setter
     def K(self, value):
-        self._K = value
+        self._K = as_float_array(value, "K")  # a private copy: K reads as a fresh one
 
     @property
     def log_likelihood(self) -> float:
