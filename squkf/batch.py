@@ -18,7 +18,6 @@ is found before any step is run, otherwise as soon as one runs out.
 
 from __future__ import annotations
 
-import math
 import numbers
 from collections.abc import Callable, Iterable, Mapping, Set, Sized
 from typing import Any, cast
@@ -26,6 +25,7 @@ from typing import Any, cast
 import numpy as np
 
 from .errors import ParameterError, ShapeError, SqukfError
+from .validate import check_time_step
 
 __all__ = ["batch_filter", "per_step"]
 
@@ -36,33 +36,6 @@ _END = object()
 
 def _is_scalar(value) -> bool:
     return isinstance(value, numbers.Number) or (isinstance(value, np.ndarray) and value.ndim == 0)
-
-
-def check_dt(value, name: str) -> float:
-    """A time step as a float: finite and ``>= 0`` (``dt = 0`` is a step of zero length).
-
-    Parameters
-    ----------
-    value : float
-    name : str
-        For the error message, e.g. ``"dts[3]"``.
-
-    Returns
-    -------
-    float
-
-    Raises
-    ------
-    ParameterError
-        ``value`` is not a number, is NaN or inf, or is negative.
-    """
-    try:
-        dt = float(value)
-    except (TypeError, ValueError):
-        raise ParameterError(f"{name} must be a finite number >= 0, got {name}={value!r}") from None
-    if not (math.isfinite(dt) and dt >= 0):
-        raise ParameterError(f"{name} must be a finite number >= 0, got {name}={value!r}")
-    return dt
 
 
 def _check_kwargs(value, name: str, reserved: tuple[str, ...]) -> dict:
@@ -148,7 +121,7 @@ class _Steps:
 
     def _check(self, value, name: str):
         if self.kind == "dt":
-            return check_dt(value, name)
+            return check_time_step(value, name)
         if self.kind == "kwargs":
             return _check_kwargs(value, name, _RESERVED.get(self.name, ()))
         return value
@@ -316,7 +289,8 @@ def batch_filter(
         or an iterable gives one per step (each a matrix or a scalar).
     dts : None, float, or T floats, optional
         Time step of the prediction into each step (default: the constructor's
-        ``dt``). Every entry must be finite and not negative; these are checked
+        ``dt``). Every entry must be a finite real number, of any sign, as for
+        ``predict`` (:func:`squkf.validate.check_time_step`); these are checked
         before the first step when ``dts`` is a sequence.
     UT : callable, optional
         Square-root transform (see :func:`squkf.sqrt_unscented_transform`).
@@ -354,8 +328,9 @@ def batch_filter(
         ``zs`` is not an iterable of measurements, or a per-step argument does
         not have one entry per measurement (the message names it).
     ParameterError
-        An option of the wrong kind, e.g. ``hx_args`` not a dict, a negative
-        ``dts`` entry, ``progress=True`` without tqdm.
+        An option of the wrong kind, e.g. ``hx_args`` not a dict, a ``dts``
+        entry that is not a finite number (a string among them), ``progress=True``
+        without tqdm.
     SqukfError
         Any squkf error raised at step ``k`` (a bad measurement, a covariance
         that lost positive-definiteness, ...), with the same type and

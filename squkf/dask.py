@@ -37,6 +37,7 @@ import dask.dataframe as dd
 import numpy as np
 import pandas as pd
 
+from .batch import per_step
 from .errors import ParameterError, ShapeError
 from .fleet import Fleet, FleetResult
 
@@ -165,7 +166,8 @@ def batch_filter(
     ------
     ShapeError, ParameterError
         Before anything is scheduled: ``zs`` not 3-D, its K or dim_z not the
-        template's, an unknown ``keep``.
+        template's, an unknown ``keep``, a ``dts`` entry that is not a finite
+        number (the rule of :meth:`squkf.Fleet.predict`: any finite real number).
     """
     if not isinstance(fleet, Fleet):
         raise ParameterError(f"fleet must be a squkf.Fleet, got {type(fleet).__name__}")
@@ -186,6 +188,7 @@ def batch_filter(
     for name, a in (("fx_args", fx_args), ("hx_args", hx_args)):
         if a is not None and not isinstance(a, dict):
             raise ParameterError(f"{name} must be a dict, got {type(a).__name__}")
+    dts = per_step(dts, T, "dts", "dt", default=fleet._dt, ref="zs")  # checked here, not in a task
     if len(Z.chunks[1]) > 1 or len(Z.chunks[2]) > 1:
         Z = Z.rechunk({1: -1, 2: -1})
     Z = Z.astype(float)

@@ -38,6 +38,7 @@ import numpy as np
 
 from . import step as steps
 from .angles import _AngleHook
+from .batch import per_step
 from .covariance import as_lower_factor, as_matrix
 from .errors import NonFiniteError, ParameterError, ShapeError, SqukfError
 from .generators import SigmaSet, as_generator
@@ -491,7 +492,9 @@ class Fleet:
         Parameters
         ----------
         dt : float, optional
-            Time step (default: the constructor's); any finite value.
+            Time step (default: the constructor's); any finite real number,
+            ``0`` and negative steps included (:func:`squkf.validate.check_time_step`);
+            a string is an error.
         **fx_args
             Passed to ``fx``; arrays with a leading axis of length K are per
             filter and get a sigma-point axis (``u[k]`` becomes ``u[:, None]``).
@@ -672,7 +675,9 @@ class Fleet:
             measurements at a time; it is read to its end before the run starts.
             Lists and tuples are read as the ``(K, T, dim_z)`` array.
         dts : float or array_like of shape (T,), optional
-            Time step of each prediction (default: the constructor's).
+            Time step of each prediction (default: the constructor's): any
+            finite real number, negative included, as for :meth:`predict`
+            (the rule of :func:`squkf.validate.check_time_step`).
         keep : {"all", "diagonals", "means", "final"}
             What to store: everything; means and the covariances' diagonals;
             means only; or only the final state (for long runs).
@@ -705,9 +710,7 @@ class Fleet:
             k, t = (int(i[0]) for i in np.nonzero(np.isinf(Z).any(axis=2)))
             raise NonFiniteError(f"zs contains inf (filter {k}, step {t}; NaN means a missing component)")
         T = Z.shape[1]
-        if dts is not None and np.ndim(dts) != 0 and np.shape(dts) != (T,):
-            raise ShapeError(f"dts has shape {np.shape(dts)}, expected a number or ({T},)")
-        dt_list = [self._dt] * T if dts is None else [self._check_dt(d) for d in np.broadcast_to(dts, (T,))]
+        dt_list = per_step(dts, T, "dts", "dt", default=self._dt, ref="zs")
         for name, a in (("fx_args", fx_args), ("hx_args", hx_args)):
             if a is not None and not isinstance(a, dict):
                 raise ParameterError(f"{name} must be a dict, got {type(a).__name__}")
@@ -933,7 +936,8 @@ class Fleet:
             From :meth:`batch_filter` with ``keep="all"`` (its means and factors).
         dts : float or array_like of shape (T,), optional
             ``dts[k]``: time step of the prediction into step ``k``, as given to
-            :meth:`batch_filter` (default: the constructor's).
+            :meth:`batch_filter` (default: the constructor's); any finite
+            real number, as for :meth:`predict`.
         fx_args : dict, optional
             Passed to ``fx`` at every step (per-filter arrays as for :meth:`predict`).
 

@@ -761,8 +761,11 @@ class SquareRootUKF:
         Parameters
         ----------
         dt : float, optional
-            Time step for this prediction (default: the constructor's ``dt``);
-            any finite value, ``0`` included (``fx(x, 0)``), as filterpy.
+            Time step for this prediction (default: the constructor's ``dt``):
+            any finite real number, ``0`` (``fx(x, 0)``) and negative steps
+            included, as filterpy; every route (``batch_filter``, the smoothers,
+            the fleet) takes the same rule, :func:`squkf.validate.check_time_step`.
+            A string (``"0.1"`` too) is a :class:`~squkf.errors.ParameterError`.
         UT : callable, optional
             Square-root transform, signature of :func:`squkf.sqrt_unscented_transform`.
         fx : callable, optional

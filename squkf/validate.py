@@ -140,20 +140,42 @@ def call_hook(fn: Callable, args: tuple, shape: tuple[int, ...], hook: str) -> n
     return check_hook_result(fn(*args), shape, hook)
 
 
-def check_time_step(dt) -> float:
-    """A time step as a float: any finite real number (``0`` is a step of zero length, as in filterpy).
+def check_time_step(dt, name: str = "dt") -> float:
+    """A time step as a float: any finite real number, the one rule of every route.
+
+    ``SquareRootUKF.predict``, ``Fleet.predict``, the ``dts`` of every
+    ``batch_filter`` and ``rts_smoother`` (single filter, fleet, and
+    :func:`squkf.dask.batch_filter`) and the constructors' ``dt`` all take a
+    time step through here. As in filterpy, a step may have any sign: ``0`` is
+    a step of zero length (``fx(x, 0)``) and a negative ``dt`` is passed to
+    ``fx`` as it is (a step backwards in time, if the model allows it).
+
+    Parameters
+    ----------
+    dt : float
+        A real number (a Python or numpy number, or a 0-d real array).
+    name : str
+        The argument, for the message (``"dt"``, ``"dts[3]"``).
+
+    Returns
+    -------
+    float
 
     Raises
     ------
     ParameterError
-        ``dt`` is complex, not a number, NaN or infinite.
+        ``dt`` is a string (numeric or not), complex, not a number, NaN or
+        infinite.
     """
+    if isinstance(dt, (str, bytes)) or (isinstance(dt, np.ndarray) and dt.dtype.kind not in "fiub"):
+        # before float(), which would read "0.1" as a number
+        raise ParameterError(f"{name} must be a finite number, got {name}={dt!r} ({type(dt).__name__})")
     if np.iscomplexobj(dt):  # before float(), which would drop the imaginary part with a warning
-        raise ParameterError(f"dt must be a finite real number, got dt={dt!r}")
+        raise ParameterError(f"{name} must be a finite real number, got {name}={dt!r}")
     try:
         value = float(dt)
     except (TypeError, ValueError):
-        raise ParameterError(f"dt must be a finite number, got dt={dt!r}") from None
+        raise ParameterError(f"{name} must be a finite number, got {name}={dt!r}") from None
     if not math.isfinite(value):
-        raise ParameterError(f"dt must be a finite number, got dt={dt!r}")
+        raise ParameterError(f"{name} must be a finite number, got {name}={dt!r}")
     return value

@@ -7,10 +7,11 @@ argument; a call that fails leaves the filter or fleet as it was.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from filterpy.common import Saver
-from models import ct_fx, ct_hx
+from models import assert_filter_state, ct_fx, ct_hx, filter_state
 
-from squkf import Fleet, MerweScaledWeights, SquareRootUKF
+from squkf import Fleet, MerweScaledWeights, ParameterError, ShapeError, SquareRootUKF, SqukfError
 
 DT = 1.0
 X0 = np.array([-8.0, 0.5, 1.5, 2.0, 0.05])
@@ -120,3 +121,115 @@ def test_a_savers_K_history_is_never_rewritten():
     f.update(measurements(5)[4])
     for j in range(2, len(Ks)):
         np.testing.assert_array_equal(Ks[j], kept[j])
+
+
+# -- 2. one rule for dt on every route: any finite real number; strings are refused ----------
+#
+# The rule is filterpy's (and ``SquareRootUKF.predict``'s since tests/test_filterpy_habits.py's
+# test_dt_conventions): a negative dt is a step backwards in time, passed to fx as it is.
+
+
+def single_loop(f: SquareRootUKF, zs, dts) -> tuple[np.ndarray, np.ndarray]:
+    means, covs = [], []
+    for z, dt in zip(zs, dts):
+        f.predict(dt=dt)
+        f.update(z)
+        means.append(f.x)
+        covs.append(f.P)
+    return np.array(means), np.array(covs)
+
+
+def fleet_loop(fl: Fleet, zs, dts) -> np.ndarray:
+    means = []
+    for t, dt in enumerate(dts):
+        fl.predict(dt)
+        fl.update(zs[:, t])
+        means.append(fl.x)
+    return np.stack(means, axis=1)
+
+
+NEGATIVE_DTS = [1.0, -0.5, 0.0, -1.0, 0.5]
+
+
+def test_negative_dts_run_the_same_on_every_single_filter_route():
+    zs = measurements(5)
+    expected = single_loop(make_ukf(), zs, NEGATIVE_DTS)
+    for dts in (NEGATIVE_DTS, np.array(NEGATIVE_DTS), iter(NEGATIVE_DTS)):
+        means, covs = make_ukf().batch_filter(zs, dts=dts)
+        np.testing.assert_array_equal(means, expected[0])
+        np.testing.assert_array_equal(covs, expected[1])
+    means, covs = make_ukf().batch_filter(zs, dts=-0.5)
+    loop = single_loop(make_ukf(), zs, [-0.5] * 5)
+    np.testing.assert_array_equal(means, loop[0])
+    f = make_ukf()
+    xs, Ps, Ks = f.rts_smoother(*expected, dts=NEGATIVE_DTS)
+    assert xs.shape == (5, 5) and np.all(np.isfinite(Ps))
+
+
+def test_negative_dts_run_the_same_on_every_fleet_route():
+    zs = fleet_zs(5)
+    expected = fleet_loop(make_fleet(), zs, NEGATIVE_DTS)
+    fl = make_fleet()
+    res = fl.batch_filter(zs, dts=NEGATIVE_DTS)
+    np.testing.assert_array_equal(res.means, expected)
+    np.testing.assert_array_equal(
+        make_fleet().batch_filter(zs, dts=-0.5).means, fleet_loop(make_fleet(), zs, [-0.5] * 5)
+    )
+    sm = make_fleet().rts_smoother(res, dts=NEGATIVE_DTS)
+    assert not sm.failed.any() and np.all(np.isfinite(sm[0]))
+    # the smoother of one filter of the fleet, on the same data and dts
+    f = make_fleet()[1]
+    xs, _, _ = f.rts_smoother_factors(res.means[1], res.P1_2s[1], dts=NEGATIVE_DTS)
+    np.testing.assert_allclose(sm[0][1], xs, rtol=1e-10, atol=1e-12)
+
+
+def test_negative_dts_on_dask_as_in_one_process():
+    sd = pytest.importorskip("squkf.dask")
+    zs = fleet_zs(5)
+    res = sd.compute(sd.batch_filter(make_fleet(), zs, dts=NEGATIVE_DTS), scheduler="synchronous")
+    np.testing.assert_array_equal(res.means, make_fleet().batch_filter(zs, dts=NEGATIVE_DTS).means)
+
+
+@pytest.mark.parametrize("bad", ["0.1", b"0.1", np.str_("0.1"), np.array("0.1"), "nan", "one"])
+def test_a_string_dt_is_an_error_naming_it(bad):
+    f = make_ukf()
+    f.predict()
+    snap = filter_state(f)
+    with pytest.raises(ParameterError, match="dt"):
+        f.predict(dt=bad)
+    assert_filter_state(f, snap)
+    fl = make_fleet()
+    snap = fleet_state(fl)
+    with pytest.raises(ParameterError, match="dt"):
+        fl.predict(dt=bad)
+    assert_fleet_state(fl, snap)
+    with pytest.raises(ParameterError):
+        SquareRootUKF(5, 2, bad, ct_hx, ct_fx, MerweScaledWeights())
+    with pytest.raises(ParameterError):
+        Fleet(K, NX, NZ, bad, v_hx, v_fx, MerweScaledWeights())
+
+
+def test_string_dts_are_errors_on_every_route():
+    zs, fzs = measurements(5), fleet_zs(5)
+    dts = [1.0, 1.0, "0.1", 1.0, 1.0]
+    f = make_ukf()
+    snap = filter_state(f)
+    with pytest.raises(ParameterError, match=r"dts\[2\]"):
+        f.batch_filter(zs, dts=dts)
+    assert_filter_state(f, snap)
+    means, covs = f.batch_filter(zs)
+    with pytest.raises(ParameterError, match=r"dts\[2\]"):
+        f.rts_smoother(means, covs, dts=dts)
+    fl = make_fleet()
+    snap = fleet_state(fl)
+    with pytest.raises(ParameterError, match=r"dts\[2\]"):
+        fl.batch_filter(fzs, dts=dts)
+    with pytest.raises(ParameterError, match="dts"):
+        fl.batch_filter(fzs, dts=np.array(dts))
+    assert_fleet_state(fl, snap)
+    res = fl.batch_filter(fzs)
+    with pytest.raises(ParameterError, match=r"dts\[2\]"):
+        fl.rts_smoother(res, dts=dts)
+    sd = pytest.importorskip("squkf.dask")
+    with pytest.raises(ParameterError, match=r"dts\[2\]"):  # before anything is scheduled
+        sd.batch_filter(make_fleet(), fzs, dts=dts)
