@@ -6,12 +6,15 @@ argument; a call that fails leaves the filter or fleet as it was.
 
 from __future__ import annotations
 
+import copy
+import warnings
+
 import numpy as np
 import pytest
 from filterpy.common import Saver
 from models import assert_filter_state, ct_fx, ct_hx, filter_state
 
-from squkf import Fleet, MerweScaledWeights, ParameterError, ShapeError, SquareRootUKF, SqukfError
+from squkf import Fleet, MerweScaledWeights, ParameterError, SquareRootUKF
 
 DT = 1.0
 X0 = np.array([-8.0, 0.5, 1.5, 2.0, 0.05])
@@ -233,3 +236,63 @@ def test_string_dts_are_errors_on_every_route():
     sd = pytest.importorskip("squkf.dask")
     with pytest.raises(ParameterError, match=r"dts\[2\]"):  # before anything is scheduled
         sd.batch_filter(make_fleet(), fzs, dts=dts)
+
+
+# -- 3. a 1-element covariance reads back as assigned (filterpy stores what it is given) ----------
+
+
+def fx1(x, dt):
+    return 0.9 * x
+
+
+def hx1(x):
+    return 0.5 * x
+
+
+def one_d(cls):
+    return cls(1, 1, 1.0, hx1, fx1, MerweScaledWeights(alpha=0.5))
+
+
+def one_d_filterpy():
+    from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+    return UnscentedKalmanFilter(1, 1, 1.0, hx1, fx1, MerweScaledSigmaPoints(1, 0.5, 2.0, 0.0))
+
+
+@pytest.mark.parametrize("name", ["R", "Q", "P"])
+def test_a_one_element_covariance_reads_back_as_assigned(name):
+    ours, theirs = one_d(SquareRootUKF), one_d_filterpy()
+    for f in (ours, theirs):
+        setattr(f, name, np.array([0.25]))
+    assert getattr(ours, name).shape == getattr(theirs, name).shape == (1,)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "conversion of an array with ndim > 0 to a scalar"
+        value = getattr(ours, name)[0]
+        assert np.ndim(value) == 0 and value == 0.25
+        if name == "R":
+            ours.P[0, 0] = ours.R[0]  # a client program's line
+            theirs.P[0, 0] = theirs.R[0]
+    # an edit in place takes effect, as for a matrix
+    getattr(ours, name)[0] = 0.5
+    getattr(theirs, name)[0] = 0.5
+    for f in (ours, theirs):
+        f.predict()
+        f.update(np.array([1.0]))
+    np.testing.assert_allclose(ours.x, theirs.x, rtol=1e-12)
+    np.testing.assert_allclose(np.atleast_2d(ours.P), np.atleast_2d(theirs.P), rtol=1e-12)
+    # as filterpy, a step assigns P a matrix; Q and R keep what was assigned
+    assert ours.P.shape == theirs.P.shape == (1, 1)
+    if name != "P":
+        assert getattr(ours, name).shape == (1,)
+
+
+def test_a_one_element_covariance_survives_copies_and_pickles():
+    import pickle
+
+    f = one_d(SquareRootUKF)
+    f.R = np.array([0.25])
+    for g in (copy.copy(f), copy.deepcopy(f), pickle.loads(pickle.dumps(f))):
+        assert g.R.shape == (1,) and g.R[0] == 0.25
+        g.R[0] = 4.0
+        assert f.R[0] == 0.25
+        np.testing.assert_array_equal(g.R1_2, [[2.0]])
