@@ -27,7 +27,7 @@ import numpy as np
 from .errors import ParameterError, ShapeError, SqukfError
 from .validate import check_time_step
 
-__all__ = ["batch_filter", "per_step"]
+__all__ = ["batch_filter", "model_kwargs", "per_step"]
 
 # predict()/update() take these themselves, so they cannot be passed through to fx/hx
 _RESERVED = {"fx_args": ("dt", "UT", "fx", "Q"), "hx_args": ("z", "R", "UT", "hx")}
@@ -55,6 +55,35 @@ def _check_kwargs(value, name: str, reserved: tuple[str, ...]) -> dict:
                 f" not of the model function; give it as its own argument"
             )
     return dict(value)
+
+
+def model_kwargs(value, name: str) -> dict:
+    """``fx_args`` or ``hx_args`` given once for every step: a dict for the model function only.
+
+    The one check of every front end (``SquareRootUKF``'s and ``Fleet``'s
+    ``batch_filter`` and smoothers, :func:`squkf.dask.batch_filter`): the keys
+    are passed to ``fx`` or ``hx`` and to nothing else, so a key that names an
+    argument of the step itself (``dt``, ``UT``, ``fx``, ``Q`` for ``fx_args``;
+    ``z``, ``R``, ``UT``, ``hx`` for ``hx_args``) is refused rather than taken
+    as, say, the measurement noise.
+
+    Parameters
+    ----------
+    value : None or mapping
+    name : {"fx_args", "hx_args"}
+
+    Returns
+    -------
+    dict
+        A new dict (empty for None).
+
+    Raises
+    ------
+    ParameterError
+        ``value`` is not a mapping, a key is not a string, or a key is one of
+        the step's own arguments.
+    """
+    return _check_kwargs(value, name, _RESERVED[name])
 
 
 class _Steps:

@@ -37,7 +37,7 @@ import dask.dataframe as dd
 import numpy as np
 import pandas as pd
 
-from .batch import per_step
+from .batch import model_kwargs, per_step
 from .errors import ParameterError, ShapeError
 from .fleet import Fleet, FleetResult
 
@@ -185,9 +185,7 @@ def batch_filter(
         raise ShapeError(f"zs has measurements of length {m} but the fleet's dim_z is {fleet.dim_z}")
     if not np.issubdtype(Z.dtype, np.number) or np.issubdtype(Z.dtype, np.complexfloating):
         raise ShapeError(f"zs must hold real numbers, got dtype {Z.dtype}")
-    for name, a in (("fx_args", fx_args), ("hx_args", hx_args)):
-        if a is not None and not isinstance(a, dict):
-            raise ParameterError(f"{name} must be a dict, got {type(a).__name__}")
+    fx_args, hx_args = model_kwargs(fx_args, "fx_args"), model_kwargs(hx_args, "hx_args")
     dts = per_step(dts, T, "dts", "dt", default=fleet._dt, ref="zs")  # checked here, not in a task
     if len(Z.chunks[1]) > 1 or len(Z.chunks[2]) > 1:
         Z = Z.rechunk({1: -1, 2: -1})

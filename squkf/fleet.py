@@ -38,7 +38,7 @@ import numpy as np
 
 from . import step as steps
 from .angles import _AngleHook
-from .batch import per_step
+from .batch import model_kwargs, per_step
 from .covariance import as_lower_factor, as_matrix
 from .errors import NonFiniteError, ParameterError, ShapeError, SqukfError
 from .generators import SigmaSet, as_generator
@@ -682,7 +682,9 @@ class Fleet:
             What to store: everything; means and the covariances' diagonals;
             means only; or only the final state (for long runs).
         fx_args, hx_args : dict, optional
-            Passed to ``fx`` and ``hx`` at every step.
+            Passed to ``fx`` and ``hx`` at every step, and to nothing else: a
+            key that names an argument of the step (``dt``, ``z``, ``R``, ...,
+            see :func:`squkf.batch.model_kwargs`) is a ParameterError.
         progress : bool or callable
             ``True`` shows a tqdm bar (the ``progress`` extra); a callable is
             called with the step index after each step.
@@ -711,9 +713,7 @@ class Fleet:
             raise NonFiniteError(f"zs contains inf (filter {k}, step {t}; NaN means a missing component)")
         T = Z.shape[1]
         dt_list = per_step(dts, T, "dts", "dt", default=self._dt, ref="zs")
-        for name, a in (("fx_args", fx_args), ("hx_args", hx_args)):
-            if a is not None and not isinstance(a, dict):
-                raise ParameterError(f"{name} must be a dict, got {type(a).__name__}")
+        fx_args, hx_args = model_kwargs(fx_args, "fx_args"), model_kwargs(hx_args, "hx_args")
         K, n = self._K, self._n
         means = None if keep == "final" else np.empty((K, T, n))
         factors = np.empty((K, T, n, n)) if keep == "all" else None
@@ -721,7 +721,7 @@ class Fleet:
         loglik = np.zeros((K, T)) if keep != "final" else np.zeros(K)
         before = copy.copy(self)
         try:
-            self._run(Z, dt_list, fx_args or {}, hx_args or {}, means, factors, variances, loglik, progress)
+            self._run(Z, dt_list, fx_args, hx_args, means, factors, variances, loglik, progress)
         except BaseException:
             # an error at any step (a model function's, or a failure with on_error="raise")
             # leaves the fleet as it was before the call

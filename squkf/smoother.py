@@ -55,7 +55,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from .batch import per_step
+from .batch import model_kwargs, per_step
 from .covariance import FactorSlot, as_lower_factor
 from .errors import (
     NonFiniteError,
@@ -631,9 +631,7 @@ def fleet_rts_smoother(fleet, result, dts=None, fx_args: Mapping[str, Any] | Non
         raise NotPositiveDefiniteError(f"result.P1_2s[{j}, {k}] has a zero on its diagonal")
     Ss = Ss * np.copysign(1.0, diag)[..., None, :]  # a column's sign leaves S S^T unchanged
     dt_list = per_step(dts, T, "dts", "dt", default=fleet._dt, ref="result")
-    if fx_args is not None and not isinstance(fx_args, Mapping):
-        raise ParameterError(f"fx_args must be a dict, got {type(fx_args).__name__}")
-    kwargs = fleet._with_filter_axis(dict(fx_args or {}))
+    kwargs = fleet._with_filter_axis(model_kwargs(fx_args, "fx_args"))
     Q1_2 = fleet._Q1_2
 
     def fx_eval(k: int, X: np.ndarray):

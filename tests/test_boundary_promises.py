@@ -296,3 +296,52 @@ def test_a_one_element_covariance_survives_copies_and_pickles():
         g.R[0] = 4.0
         assert f.R[0] == 0.25
         np.testing.assert_array_equal(g.R1_2, [[2.0]])
+
+
+# -- 4. fx_args / hx_args reach the model functions and nothing else -------------------------
+
+CLASHES = [
+    ("hx_args", {"R": 100.0 * np.eye(NZ)}, "R"),
+    ("hx_args", {"z": 1.0}, "z"),
+    ("fx_args", {"dt": 2.0}, "dt"),
+]
+
+
+@pytest.mark.parametrize("arg, value, key", CLASHES)
+def test_a_model_argument_named_like_a_step_argument_is_an_error_for_one_filter(arg, value, key):
+    f = make_ukf()
+    snap = filter_state(f)
+    with pytest.raises(ParameterError, match=f"{arg} has the key '{key}'"):
+        f.batch_filter(measurements(3), **{arg: value})
+    assert_filter_state(f, snap)
+    if arg == "fx_args":
+        means, covs = f.batch_filter(measurements(3))
+        with pytest.raises(ParameterError, match=f"{arg} has the key '{key}'"):
+            f.rts_smoother(means, covs, fx_args=value)
+
+
+@pytest.mark.parametrize("arg, value, key", CLASHES)
+def test_a_model_argument_named_like_a_step_argument_is_an_error_for_a_fleet(arg, value, key):
+    fl = make_fleet()
+    snap = fleet_state(fl)
+    with pytest.raises(ParameterError, match=f"{arg} has the key '{key}'"):
+        fl.batch_filter(fleet_zs(3), **{arg: value})
+    assert_fleet_state(fl, snap)
+    if arg == "fx_args":
+        res = fl.batch_filter(fleet_zs(3))
+        with pytest.raises(ParameterError, match=f"{arg} has the key '{key}'"):
+            fl.rts_smoother(res, fx_args=value)
+    sd = pytest.importorskip("squkf.dask")
+    with pytest.raises(ParameterError, match=f"{arg} has the key '{key}'"):  # before scheduling
+        sd.batch_filter(make_fleet(), fleet_zs(3), **{arg: value})
+
+
+def test_hx_args_are_given_to_hx_only():
+    """A fleet's ``hx_args`` reach ``hx`` as a loop of ``update(z, **hx_args)`` gives them."""
+    zs = fleet_zs(4)
+    res = make_fleet().batch_filter(zs, hx_args={"scale": 2.0}, fx_args={"u": 0.1})
+    loop = make_fleet()
+    for t in range(4):
+        loop.predict(u=0.1)
+        loop.update(zs[:, t], scale=2.0)
+    np.testing.assert_array_equal(res.x, loop.x)
