@@ -19,7 +19,7 @@ is found before any step is run, otherwise as soon as one runs out.
 from __future__ import annotations
 
 import numbers
-from collections.abc import Callable, Iterable, Mapping, Set, Sized
+from collections.abc import Callable, Iterable, Iterator, Mapping, Set, Sized
 from typing import Any, cast
 
 import numpy as np
@@ -27,7 +27,7 @@ import numpy as np
 from .errors import ParameterError, ShapeError, SqukfError
 from .validate import check_time_step
 
-__all__ = ["batch_filter", "model_kwargs", "per_step"]
+__all__ = ["batch_filter", "iter_measurements", "model_kwargs", "per_step"]
 
 # predict()/update() take these themselves, so they cannot be passed through to fx/hx
 _RESERVED = {"fx_args": ("dt", "UT", "fx", "Q"), "hx_args": ("z", "R", "UT", "hx")}
@@ -235,6 +235,42 @@ class _Rows:
         return self.buf[: self.n].copy()
 
 
+def iter_measurements(zs) -> Iterator:
+    """An iterator over the steps of ``zs``, after checking that ``zs`` is an ordered iterable.
+
+    The one check of what ``zs`` itself may be, for ``SquareRootUKF.batch_filter``
+    and ``Fleet.batch_filter`` alike; what each step yields is checked by the
+    filter, naming the step.
+
+    Parameters
+    ----------
+    zs : iterable
+        A list, a tuple, an array (one row per step), a generator, ``tqdm(...)``.
+
+    Returns
+    -------
+    iterator
+
+    Raises
+    ------
+    ShapeError
+        ``zs`` is a string, bytes, a dict or a set (no steps in an order), or
+        not iterable at all.
+    """
+    if isinstance(zs, (str, bytes, Mapping, Set)):
+        raise ShapeError(
+            "zs must be an ordered iterable of measurements (a list, an array, a generator), "
+            f"got {type(zs).__name__}: {zs!r:.100}"
+        )
+    try:
+        return iter(zs)
+    except TypeError:
+        raise ShapeError(
+            f"zs must be an iterable of measurements (a list, an array, a generator), "
+            f"got {type(zs).__name__}: {zs!r:.200}"
+        ) from None
+
+
 def _known_length(zs) -> int | None:
     if not hasattr(zs, "__len__"):
         return None
@@ -354,8 +390,9 @@ def batch_filter(
     Raises
     ------
     ShapeError
-        ``zs`` is not an iterable of measurements, or a per-step argument does
-        not have one entry per measurement (the message names it).
+        ``zs`` is not an ordered iterable of measurements (a string, a dict or
+        a set is not), or a per-step argument does not have one entry per
+        measurement (the message names it).
     ParameterError
         An option of the wrong kind, e.g. ``hx_args`` not a dict, a ``dts``
         entry that is not a finite number (a string among them), ``progress=True``
@@ -413,15 +450,7 @@ def batch_filter(
     >>> print(np.round(np.sqrt(covs[:, 0, 0]), 4))
     [0.4715 0.4481 1.2974 0.4835 0.4488]
     """
-    if isinstance(zs, (str, bytes, Mapping)):
-        raise ShapeError(f"zs must be an iterable of measurements, got {type(zs).__name__}")
-    try:
-        it = iter(zs)
-    except TypeError:
-        raise ShapeError(
-            f"zs must be an iterable of measurements (a list, an array, a generator), "
-            f"got {type(zs).__name__}: {zs!r:.200}"
-        ) from None
+    it = iter_measurements(zs)
     T = _known_length(zs)
     if UT is not None and not callable(UT):
         raise ParameterError(f"UT must be a callable (or None), got {UT!r}")

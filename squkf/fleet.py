@@ -30,7 +30,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -38,7 +38,7 @@ import numpy as np
 
 from . import step as steps
 from .angles import _AngleHook
-from .batch import model_kwargs, per_step
+from .batch import iter_measurements, model_kwargs, per_step
 from .covariance import as_lower_factor, as_matrix
 from .errors import NonFiniteError, ParameterError, ShapeError, SqukfError
 from .generators import SigmaSet, as_generator
@@ -591,17 +591,23 @@ class Fleet:
         R1_2 = self._R1_2 if R is None else self._noise(R, "R", self._m)
         self._tell_update(self._state, sigmas_h, zz, R1_2)
 
-    def _as_measurements(self, z) -> np.ndarray:
+    def _as_measurements(self, z, name: str = "z") -> np.ndarray:
+        """One step's measurements ``(K, dim_z)`` checked (``name`` for messages, e.g. ``zs[3]``)."""
+        if z is None:
+            raise ShapeError(
+                f"{name} is None: a fleet's step needs a ({self._K}, {self._m}) array"
+                " (NaN rows for filters without a measurement)"
+            )
         if isinstance(z, np.ma.MaskedArray):
             z = np.ma.filled(np.ma.asarray(z, dtype=float), np.nan)
-        zz = as_float_array(z, "z")
+        zz = as_float_array(z, name)
         if zz.shape == (self._K,) and self._m == 1:
             zz = zz[:, None]
         if zz.shape != (self._K, self._m):
-            raise ShapeError(f"z has shape {zz.shape}, expected ({self._K}, {self._m})")
+            raise ShapeError(f"{name} has shape {zz.shape}, expected ({self._K}, {self._m})")
         if np.isinf(zz).any():
             k = int(np.flatnonzero(np.isinf(zz).any(axis=1))[0])
-            raise NonFiniteError(f"z contains inf (row {k}; NaN means a missing component)")
+            raise NonFiniteError(f"{name} contains inf (row {k}; NaN means a missing component)")
         return zz
 
     def _tell_update(self, state: steps.StepState, values, z: np.ndarray, R1_2) -> None:
@@ -672,8 +678,11 @@ class Fleet:
         zs : array_like, shape (K, T, dim_z), or an iterable of (K, dim_z) arrays
             NaN rows and entries are missing measurements (as for :meth:`update`).
             Any other iterable (a generator, ``tqdm(...)``) yields one step's
-            measurements at a time; it is read to its end before the run starts.
-            Lists and tuples are read as the ``(K, T, dim_z)`` array.
+            measurements at a time, each checked as for :meth:`update` (a wrong
+            shape, ``None`` or text is a ShapeError naming the step, ``zs[t]``);
+            it is read to its end before the run starts. Lists and tuples are
+            read as the ``(K, T, dim_z)`` array; a string, a dict or a set is a
+            ShapeError.
         dts : float or array_like of shape (T,), optional
             Time step of each prediction (default: the constructor's): any
             finite real number, negative included, as for :meth:`predict`
@@ -699,9 +708,10 @@ class Fleet:
             raise ParameterError(f"keep must be 'all', 'diagonals', 'means' or 'final', got keep={keep!r}")
         if not (isinstance(progress, bool) or callable(progress)):
             raise ParameterError(f"progress must be True, False or a callable, got {progress!r}")
-        if isinstance(zs, Iterable) and not isinstance(zs, (np.ndarray, list, tuple, str, bytes)):
-            # a generator, an iterator, tqdm(...): one (K, dim_z) array per step
-            steps_read = [as_float_array(z, f"zs[{t}]") for t, z in enumerate(zs)]
+        if not isinstance(zs, (np.ndarray, list, tuple)):
+            # a generator, an iterator, tqdm(...): one (K, dim_z) array per step, each checked
+            it = iter_measurements(zs)
+            steps_read = [self._as_measurements(z, f"zs[{t}]") for t, z in enumerate(it)]
             zs = np.stack(steps_read, axis=1) if steps_read else np.zeros((self._K, 0, self._m))
         Z = as_float_array(zs, "zs")
         if Z.ndim == 2 and self._m == 1:

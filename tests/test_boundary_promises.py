@@ -14,7 +14,7 @@ import pytest
 from filterpy.common import Saver
 from models import assert_filter_state, ct_fx, ct_hx, filter_state
 
-from squkf import Fleet, MerweScaledWeights, ParameterError, SquareRootUKF
+from squkf import Fleet, MerweScaledWeights, ParameterError, ShapeError, SquareRootUKF, SqukfError
 
 DT = 1.0
 X0 = np.array([-8.0, 0.5, 1.5, 2.0, 0.05])
@@ -345,3 +345,54 @@ def test_hx_args_are_given_to_hx_only():
         loop.predict(u=0.1)
         loop.update(zs[:, t], scale=2.0)
     np.testing.assert_array_equal(res.x, loop.x)
+
+
+# -- 5. what a zs iterable yields is checked, naming the step; zs itself must be array-like ------
+
+
+def test_a_generator_yielding_a_bad_step_is_named_for_a_fleet():
+    good = fleet_zs(4)
+    cases = [
+        ([good[:, 0], good[:, 1, :1], good[:, 2]], ShapeError, r"zs\[1\] has shape \(3, 1\)"),
+        ([good[:, 0], good[:, 1], None], ShapeError, r"zs\[2\] is None"),
+        ([good[:2, 0], good[:2, 1]], ShapeError, r"zs\[0\] has shape \(2, 2\)"),
+        ([good[:, 0], "1.0"], ShapeError, r"zs\[1\]"),
+        ([good[:, 0], np.full((K, NZ), np.inf)], SqukfError, r"zs\[1\]"),
+    ]
+    for steps, error, match in cases:
+        fl = make_fleet()
+        snap = fleet_state(fl)
+        with pytest.raises(error, match=match):
+            fl.batch_filter(z for z in steps)
+        assert_fleet_state(fl, snap)
+
+
+def test_a_generator_yielding_a_bad_step_is_named_for_one_filter():
+    good = measurements(3)
+    cases = [
+        ([good[0], good[1][:1].reshape(1, 1, 1), good[2]], ShapeError, r"at step 1: z has shape"),
+        ([good[0], "1.0"], ShapeError, r"at step 1: z"),
+        ([good[0], object()], ShapeError, r"at step 1: z"),
+    ]
+    for steps, error, match in cases:
+        f = make_ukf()
+        snap = filter_state(f)
+        with pytest.raises(error, match=match):
+            f.batch_filter(z for z in steps)
+        assert_filter_state(f, snap)
+
+
+@pytest.mark.parametrize(
+    "zs", [5.0, object(), {0: [1.0, 2.0]}, {1.0, 2.0}, frozenset({(1.0, 2.0)}), "zs", b"zs"], ids=repr
+)
+def test_zs_that_is_not_array_like_is_an_error_naming_zs(zs):
+    f = make_ukf()
+    snap = filter_state(f)
+    with pytest.raises(ShapeError, match="zs"):
+        f.batch_filter(zs)
+    assert_filter_state(f, snap)
+    fl = make_fleet()
+    snap = fleet_state(fl)
+    with pytest.raises(ShapeError, match="zs"):
+        fl.batch_filter(zs)
+    assert_fleet_state(fl, snap)
