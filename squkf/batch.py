@@ -259,7 +259,7 @@ def iter_measurements(zs) -> Iterator:
     """
     if isinstance(zs, (str, bytes, Mapping, Set)):
         raise ShapeError(
-            "zs must be an ordered iterable of measurements (a list, an array, a generator), "
+            "zs must be an iterable of measurements in step order (a list, an array, a generator), "
             f"got {type(zs).__name__}: {zs!r:.100}"
         )
     try:
