@@ -45,7 +45,7 @@ from .generators import SigmaSet, as_generator
 from .isolate import BLOCK, run_isolated
 from .linalg import factor_covariance
 from .plan import Hooks, Plan, build_plan
-from .validate import as_float_array, check_time_step
+from .validate import as_float_array, as_measurements, check_time_step
 from .weights import as_family
 
 __all__ = ["Fleet", "FleetResult", "FleetStepError"]
@@ -598,9 +598,7 @@ class Fleet:
                 f"{name} is None: a fleet's step needs a ({self._K}, {self._m}) array"
                 " (NaN rows for filters without a measurement)"
             )
-        if isinstance(z, np.ma.MaskedArray):
-            z = np.ma.filled(np.ma.asarray(z, dtype=float), np.nan)
-        zz = as_float_array(z, name)
+        zz = as_measurements(z, name)
         if zz.shape == (self._K,) and self._m == 1:
             zz = zz[:, None]
         if zz.shape != (self._K, self._m):
@@ -676,7 +674,8 @@ class Fleet:
         Parameters
         ----------
         zs : array_like, shape (K, T, dim_z), or an iterable of (K, dim_z) arrays
-            NaN rows and entries are missing measurements (as for :meth:`update`).
+            NaN rows and entries are missing measurements, as are masked ones
+            (a ``numpy.ma.MaskedArray``), as for :meth:`update`.
             Any other iterable (a generator, ``tqdm(...)``) yields one step's
             measurements at a time, each checked as for :meth:`update` (a wrong
             shape, ``None`` or text is a ShapeError naming the step, ``zs[t]``);
@@ -708,12 +707,12 @@ class Fleet:
             raise ParameterError(f"keep must be 'all', 'diagonals', 'means' or 'final', got keep={keep!r}")
         if not (isinstance(progress, bool) or callable(progress)):
             raise ParameterError(f"progress must be True, False or a callable, got {progress!r}")
-        if not isinstance(zs, (np.ndarray, list, tuple)):
+        if not isinstance(zs, (np.ndarray, list, tuple)):  # a MaskedArray is an ndarray
             # a generator, an iterator, tqdm(...): one (K, dim_z) array per step, each checked
             it = iter_measurements(zs)
             steps_read = [self._as_measurements(z, f"zs[{t}]") for t, z in enumerate(it)]
             zs = np.stack(steps_read, axis=1) if steps_read else np.zeros((self._K, 0, self._m))
-        Z = as_float_array(zs, "zs")
+        Z = as_measurements(zs, "zs")
         if Z.ndim == 2 and self._m == 1:
             Z = Z[..., None]
         if Z.ndim != 3 or Z.shape[0] != self._K or Z.shape[2] != self._m:

@@ -28,7 +28,7 @@ from .linalg import all_finite, solve_lower
 from .measurement import gain_from_factors
 from .plan import Hooks, Plan, build_plan
 from .transform import deviations
-from .validate import as_float_array, check_time_step, check_values
+from .validate import as_float_array, as_measurements, check_time_step, check_values
 from .weights import as_family
 
 __all__ = ["SquareRootUKF"]
@@ -725,9 +725,7 @@ class SquareRootUKF:
         """
         if z is None:
             return None
-        if isinstance(z, np.ma.MaskedArray):
-            z = np.ma.filled(np.ma.asarray(z, dtype=float), np.nan)
-        arr = as_float_array(z, "z")
+        arr = as_measurements(z, "z")
         if arr.ndim != 1:
             if arr.ndim == 0:
                 arr = arr.reshape(1)

@@ -16,7 +16,14 @@ import numpy as np
 from .errors import NonFiniteError, ParameterError, ShapeError
 from .linalg import all_finite
 
-__all__ = ["as_float_array", "check_time_step", "check_values", "check_hook_result", "call_hook"]
+__all__ = [
+    "as_float_array",
+    "as_measurements",
+    "check_time_step",
+    "check_values",
+    "check_hook_result",
+    "call_hook",
+]
 
 _FLOAT64 = np.dtype(np.float64)  # numpy's native float64 dtype is one object: compared by identity
 
@@ -57,6 +64,38 @@ def as_float_array(value, name: str) -> np.ndarray:
                 pass
         raise ShapeError(f"{name} could not be read as a real float array (dtype {probe.dtype}): {value!r}")
     return np.array(probe, dtype=float)
+
+
+def as_measurements(value, name: str) -> np.ndarray:
+    """Measurements as a new float64 array, masked entries (``numpy.ma``) as NaN: missing.
+
+    The one reading of measurements for every route (``update``, the batch
+    filters, :func:`squkf.dask.batch_filter`): a masked entry means missing,
+    as NaN does, whatever value it hides.
+
+    Parameters
+    ----------
+    value : array_like or numpy.ma.MaskedArray
+    name : str
+        Used in the error message.
+
+    Returns
+    -------
+    ndarray, float64, a private copy
+
+    Raises
+    ------
+    ShapeError
+        As :func:`as_float_array` (the data of a masked array is read the same way).
+    """
+    if isinstance(value, np.ma.MaskedArray):
+        data = as_float_array(np.ma.getdata(value), name)
+        mask = np.ma.getmaskarray(value)
+        if mask.shape != data.shape:
+            mask = np.broadcast_to(mask, data.shape)
+        data[mask] = np.nan
+        return data
+    return as_float_array(value, name)
 
 
 def check_values(values, shape: tuple[int, ...], name: str, private: bool = True) -> np.ndarray:

@@ -396,3 +396,36 @@ def test_zs_that_is_not_array_like_is_an_error_naming_zs(zs):
     with pytest.raises(ShapeError, match="zs"):
         fl.batch_filter(zs)
     assert_fleet_state(fl, snap)
+
+
+# -- 6. masked measurements are missing where masked, on every route ----------------------------
+
+
+def masked_fleet_zs(T: int = 5) -> tuple[np.ma.MaskedArray, np.ndarray]:
+    zs = fleet_zs(T)
+    mask = np.zeros(zs.shape, dtype=bool)
+    mask[0, 1] = True  # a whole row
+    mask[2, 3, 1] = True  # one component
+    data = zs.copy()
+    data[mask] = 1e6  # what a masked entry holds must never be read
+    return np.ma.masked_array(data, mask=mask), np.where(mask, np.nan, zs)
+
+
+def test_a_masked_zs_is_missing_where_masked_for_a_fleet():
+    masked, nan = masked_fleet_zs()
+    expected = make_fleet().batch_filter(nan)
+    got = make_fleet().batch_filter(masked)
+    np.testing.assert_array_equal(got.means, expected.means)
+    np.testing.assert_array_equal(got.log_likelihood, expected.log_likelihood)
+    steps = make_fleet().batch_filter(masked[:, t] for t in range(masked.shape[1]))
+    np.testing.assert_array_equal(steps.means, expected.means)
+
+
+def test_a_masked_zs_is_missing_where_masked_on_dask():
+    sd = pytest.importorskip("squkf.dask")
+    da = pytest.importorskip("dask.array")
+    masked, nan = masked_fleet_zs()
+    expected = make_fleet().batch_filter(nan)
+    for zs in (masked, da.ma.masked_array(da.from_array(masked.data, chunks=(2, -1, -1)), mask=masked.mask)):
+        got = sd.compute(sd.batch_filter(make_fleet(), zs), scheduler="synchronous")
+        np.testing.assert_array_equal(got.means, expected.means)
