@@ -816,9 +816,24 @@ class Fleet:
 
         The configuration is shared; every array is the new fleet's own. A
         pending ask/tell step is not carried over.
+
+        Raises
+        ------
+        ParameterError
+            ``rows`` selects no filter (a fleet has at least one, as
+            ``Fleet(n_filters=...)`` requires), or is not a valid index of
+            the fleet's filters.
         """
-        idx = np.arange(self._K)[rows]
-        idx = np.atleast_1d(idx)
+        try:
+            idx = np.atleast_1d(np.arange(self._K)[rows])
+        except (IndexError, TypeError, ValueError) as exc:
+            raise ParameterError(
+                f"rows is not an index of the {self._K} filters: rows={rows!r:.100} ({exc})"
+            ) from None
+        if idx.size == 0:
+            raise ParameterError(
+                f"rows selects no filter (rows={rows!r:.100}): a fleet has at least one filter"
+            )
         new = copy.copy(self)
         new._K = int(idx.size)
         new._x, new._S = self._x[idx], self._S[idx]

@@ -618,7 +618,7 @@ def fleet_rts_smoother(fleet, result, dts=None, fx_args: Mapping[str, Any] | Non
     if failed.shape != (K,) or failed.dtype != bool:
         raise ShapeError(f"result.failed must be bools of shape ({K},), got {failed.dtype} {failed.shape}")
     for name, a in (("result.means", xs), ("result.P1_2s", Ss)):
-        finite = np.isfinite(a.reshape(K, T, -1)).all(axis=2)
+        finite = np.isfinite(a).all(axis=tuple(range(2, a.ndim)))  # (K, T), also for T = 0
         if not finite.all():
             j, k = (int(i) for i in np.argwhere(~finite)[0])
             raise NonFiniteError(f"{name}[{j}, {k}] (filter {j}, step {k}) contains NaN or inf")

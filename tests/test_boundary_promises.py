@@ -429,3 +429,34 @@ def test_a_masked_zs_is_missing_where_masked_on_dask():
     for zs in (masked, da.ma.masked_array(da.from_array(masked.data, chunks=(2, -1, -1)), mask=masked.mask)):
         got = sd.compute(sd.batch_filter(make_fleet(), zs), scheduler="synchronous")
         np.testing.assert_array_equal(got.means, expected.means)
+
+
+# -- 7. a subset of no filters is an error ---------------------------------------------------------
+
+
+NO_ROWS = [[], np.array([], dtype=int), np.zeros(K, dtype=bool), slice(0, 0)]
+
+
+@pytest.mark.parametrize("rows", NO_ROWS, ids=repr)
+def test_a_subset_of_no_filters_is_an_error_naming_rows(rows):
+    fl = make_fleet()
+    snap = fleet_state(fl)
+    with pytest.raises(ParameterError, match="rows"):
+        fl.subset(rows)
+    assert_fleet_state(fl, snap)
+    assert len(fl.subset([2])) == 1
+
+
+# -- 8. the fleet's smoother of a zero-step result: empty arrays ----------------------------------
+
+
+def test_the_fleet_smoother_of_no_steps_returns_empty_arrays():
+    fl = make_fleet()
+    res = fl.batch_filter(np.zeros((K, 0, NZ)))
+    means, P1_2s, Gs = out = fl.rts_smoother(res)
+    assert means.shape == (K, 0, NX) and P1_2s.shape == Gs.shape == (K, 0, NX, NX)
+    assert out.failed.shape == (K,) and not out.failed.any()
+    # as the single filter's smoother does
+    f = make_ukf()
+    xs, Ps, Ks = f.rts_smoother(*f.batch_filter(np.zeros((0, 2))))
+    assert xs.shape == (0, 5) and Ps.shape == Ks.shape == (0, 5, 5)
