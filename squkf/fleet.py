@@ -45,7 +45,7 @@ from .generators import SigmaSet, as_generator
 from .isolate import BLOCK, run_isolated
 from .linalg import factor_covariance
 from .plan import Hooks, Plan, build_plan
-from .validate import as_float_array, as_measurements, check_time_step
+from .validate import as_float_array, as_measurements, check_time_step, describe_nonfinite
 from .weights import as_family
 
 __all__ = ["Fleet", "FleetResult", "FleetStepError"]
@@ -460,6 +460,11 @@ class Fleet:
         for k in idx.tolist():
             fails.setdefault(int(k), reason)
 
+    def _fail_nonfinite(self, fails: dict[int, str], idx: np.ndarray, values: np.ndarray, name: str) -> None:
+        """Flag ``idx`` for non-finite images, each described by its own rows (as one filter's error)."""
+        for k in idx.tolist():
+            fails.setdefault(int(k), f"NonFiniteError: {describe_nonfinite(values[k], name)}")
+
     def _commit_failures(self, fails: dict[int, str]) -> None:
         if not fails:
             return
@@ -527,7 +532,7 @@ class Fleet:
         fails: dict[int, str] = {}
         active = ~self._failed
         finite = self._finite_rows(F)
-        self._fail(fails, np.flatnonzero(active & ~finite), "fx values are not finite")
+        self._fail_nonfinite(fails, np.flatnonzero(active & ~finite), F, "fx values")
         if not finite.all():
             F = np.where(finite[:, None, None], F, X)  # a failing filter's rows: harmless stand-ins
         idx = np.flatnonzero(active & finite)
@@ -624,7 +629,7 @@ class Fleet:
         active = ~self._failed
         fails: dict[int, str] = {}
         finite = self._finite_rows(H)
-        self._fail(fails, np.flatnonzero(active & measured & ~finite), "hx values are not finite")
+        self._fail_nonfinite(fails, np.flatnonzero(active & measured & ~finite), H, "hx values")
         todo = active & measured & finite
         x_new, S_new = x0.copy(), S0.copy()
         y = np.full((K, m), np.nan)

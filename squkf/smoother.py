@@ -69,7 +69,7 @@ from .isolate import run_isolated
 from .linalg import chol_downdate_columns, kalman_gain, tria
 from .plan import Hooks
 from .transform import deviations, factor_rows, swap_last, transform_factor
-from .validate import as_float_array, call_hook, check_values
+from .validate import as_float_array, call_hook, check_values, describe_nonfinite
 
 __all__ = ["rts_smoother", "rts_smoother_factors", "fleet_rts_smoother", "FleetSmoothed"]
 
@@ -476,7 +476,7 @@ def _backward(
             fails: dict[int, str] = {}
             finite = np.isfinite(F.reshape(K, -1)).all(axis=1)
             for j in np.flatnonzero(~failed & ~finite).tolist():
-                fails[j] = "fx values are not finite"
+                fails[j] = f"NonFiniteError: {describe_nonfinite(F[j], 'fx values')}"
             idx = np.flatnonzero(~failed & finite)
             x_next, S_next = xs_s[:, k + 1], Ss_s[:, k + 1]
 

@@ -21,6 +21,7 @@ __all__ = [
     "as_measurements",
     "check_time_step",
     "check_values",
+    "describe_nonfinite",
     "check_hook_result",
     "call_hook",
 ]
@@ -135,12 +136,33 @@ def check_values(values, shape: tuple[int, ...], name: str, private: bool = True
         else:
             raise ShapeError(f"{name} has shape {arr.shape}, expected {shape} (one row per sigma point)")
     if not all_finite(arr):
-        idx = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
-        raise NonFiniteError(
-            f"{name} is not finite: row {idx[-2]} (sigma point {idx[-2]}), column {idx[-1]} holds {arr[idx]}"
-            + (f" (filter {idx[:-2]})" if len(idx) > 2 else "")
-        )
+        raise NonFiniteError(describe_nonfinite(arr, name))
     return arr
+
+
+def describe_nonfinite(values: np.ndarray, name: str) -> str:
+    """What is said of images that are not finite: the first such entry, by sigma point and column.
+
+    The one wording for a single filter (``values`` of shape ``(N, d)``) and
+    for one filter of a fleet (its own rows, ``values[k]``), so that a fleet's
+    ``failure`` reads as the single filter's error; for a stack ``(..., N, d)``
+    the filter's index is added.
+
+    Parameters
+    ----------
+    values : ndarray, shape (..., N, d), holding at least one NaN or inf
+    name : str
+        What the values are (``"fx values"``), for the message.
+
+    Returns
+    -------
+    str
+    """
+    idx = tuple(int(i) for i in np.argwhere(~np.isfinite(values))[0])
+    return (
+        f"{name} is not finite: row {idx[-2]} (sigma point {idx[-2]}), column {idx[-1]} holds {values[idx]}"
+        + (f" (filter {idx[:-2]})" if len(idx) > 2 else "")
+    )
 
 
 def check_hook_result(value, shape: tuple[int, ...], hook: str) -> np.ndarray:

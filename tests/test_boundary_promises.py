@@ -42,17 +42,19 @@ def measurements(T: int, seed: int = 0) -> np.ndarray:
 # -- a fleet of the same radar: the models written with X[..., i] ----------------------------
 
 
-def v_fx(X, dt, u=None):
-    """Constant velocity in two axes, state [px, vx, py, vy] (``u``: an offset of vx)."""
+def v_fx(X, dt, u=None, bad=None):
+    """Constant velocity in two axes, state [px, vx, py, vy] (``u``: an offset of vx; ``bad``: NaN)."""
     out = np.stack([X[..., 0] + dt * X[..., 1], X[..., 1], X[..., 2] + dt * X[..., 3], X[..., 3]], axis=-1)
     if u is not None:
         out[..., 1] += u
+    if bad is not None:
+        out = np.where(np.asarray(bad)[..., None], np.nan, out)
     return out
 
 
 def v_hx(X, scale=1.0):
     """Both positions, times ``scale``."""
-    return scale * X[..., ::2]
+    return np.asarray(scale)[..., None] * X[..., ::2]
 
 
 K, NX, NZ = 3, 4, 2
@@ -460,3 +462,35 @@ def test_the_fleet_smoother_of_no_steps_returns_empty_arrays():
     f = make_ukf()
     xs, Ps, Ks = f.rts_smoother(*f.batch_filter(np.zeros((0, 2))))
     assert xs.shape == (0, 5) and Ps.shape == Ks.shape == (0, 5, 5)
+
+
+# -- 9. a flagged filter's failure describes its own values, as the single filter's error does ----
+
+
+def single_error(f: SquareRootUKF, call) -> str:
+    with pytest.raises(SqukfError) as info:
+        call(f)
+    return f"{type(info.value).__name__}: {info.value}"
+
+
+def test_a_singular_innovation_is_described_by_the_failing_filters_own_values():
+    fl = make_fleet()
+    R = np.stack([0.1 * np.eye(NZ)] * K)
+    R[1] = 0.0
+    fl.R = R
+    fl.predict()
+    one = fl[1]  # filter 1 alone, as it is now
+    scale = np.array([1.0, 0.0, 1.0])  # filter 1's hx is constant: with R = 0, Sy is singular
+    z = fleet_zs(1)[:, 0]
+    fl.update(z, scale=scale)
+    assert fl.failed.tolist() == [False, True, False]
+    expected = single_error(one, lambda f: f.update(z[1], scale=0.0))
+    assert fl.failure[1] == expected
+
+
+def test_non_finite_images_are_described_by_the_failing_filters_own_values():
+    fl = make_fleet()
+    one = fl[2]
+    fl.predict(bad=np.array([False, False, True]))
+    assert fl.failed.tolist() == [False, False, True]
+    assert fl.failure[2] == single_error(one, lambda f: f.predict(bad=True))
