@@ -99,6 +99,10 @@ class FleetResult:
     P1_2: np.ndarray
 
 
+# the internal array behind each attribute handed out for editing in place
+_HANDED = {"_x": "x", "_S": "P", "_Q1_2": "Q", "_R1_2": "R"}
+
+
 def _take(sset: SigmaSet, idx: np.ndarray | slice) -> SigmaSet:
     """The set of the filters ``idx`` (rows of every stacked field)."""
     if isinstance(idx, slice) and idx == slice(None):
@@ -143,8 +147,13 @@ class Fleet:
     ----------
     x : ndarray, shape (K, dim_x)
     P, P1_2 : ndarray, shape (K, dim_x, dim_x)
-        Read as fresh arrays; assign to change (a single ``(dim_x,)`` or
-        ``(dim_x, dim_x)`` value is given to every filter).
+        Assign to change (a single ``(dim_x,)`` or ``(dim_x, dim_x)`` value is
+        given to every filter). ``x``, ``P``, ``Q`` and ``R`` may also be
+        edited in place (``fleet.P[3] *= 10``, several statements too), as
+        for :class:`squkf.SquareRootUKF`: the next call validates the edit
+        and takes it (an invalid one raises there and changes nothing). Every
+        step hands out fresh arrays, so arrays read earlier are never
+        rewritten. The factors are fresh copies on each read.
     Q, R, Q1_2, R1_2 : ndarray
         Shared ``(d, d)`` or per filter ``(K, d, d)``.
     x_prior, x_post, P1_2_prior, P1_2_post : ndarray
@@ -195,6 +204,7 @@ class Fleet:
         if on_error not in ("flag", "raise"):
             raise ParameterError(f"on_error must be 'flag' or 'raise', got on_error={on_error!r}")
         K, n, m = int(n_filters), int(dim_x), int(dim_z)
+        self._handed: dict[str, tuple[np.ndarray, bytes]] = {}  # name -> (array handed out, its bytes then)
         self._K, self._n, self._m = K, n, m
         self._dt = self._check_dt(dt)
         self.hx, self.fx = hx, fx
@@ -262,10 +272,50 @@ class Fleet:
             raise NonFiniteError(f"{name} contains NaN or inf (filters {bad[:10].tolist()})")
         return a
 
+    # -- what is handed out, and edits in place -------------------------------------
+
+    def __setattr__(self, name: str, value) -> None:
+        object.__setattr__(self, name, value)
+        handed = _HANDED.get(name)
+        if handed is not None:  # the value behind an attribute changed: the array handed out is history
+            self.__dict__.get("_handed", {}).pop(handed, None)
+
+    def _hand_out(self, name: str, form: Callable[[], np.ndarray]) -> np.ndarray:
+        """The array of ``x``, ``P``, ``Q`` or ``R``: formed once, then the same until the value changes.
+
+        Edits in place of the array handed out are taken by the next call
+        (:meth:`_take_edits`), as ``SquareRootUKF`` takes those of its ``x``,
+        ``P``, ``Q`` and ``R``.
+        """
+        held = self._handed.get(name)
+        if held is not None:
+            return held[0]
+        a = form()
+        self._handed[name] = (a, a.tobytes())
+        return a
+
+    def _take_edits(self) -> None:
+        """Validate and take the edits in place of the arrays handed out, as assignments.
+
+        An invalid edit raises as the assignment would, changes nothing and
+        stays pending (assigning the attribute replaces it). The array stays
+        handed out, so that further edits in place are taken too.
+        """
+        handed = self._handed
+        if not handed:
+            return
+        for name in ("x", "P", "Q", "R"):
+            held = handed.get(name)
+            if held is None or held[0].tobytes() == held[1]:
+                continue
+            a = held[0]
+            setattr(self, name, a)  # validated (and copied) by the setter
+            handed[name] = (a, a.tobytes())
+
     @property
     def x(self) -> np.ndarray:
-        """States, shape ``(K, dim_x)`` (a fresh array; assign to change)."""
-        return self._x.copy()
+        """States, shape ``(K, dim_x)``; edits in place are taken at the next call (or assign)."""
+        return self._hand_out("x", self._x.copy)
 
     @x.setter
     def x(self, value):
@@ -274,7 +324,8 @@ class Fleet:
 
     @property
     def P1_2(self) -> np.ndarray:
-        """Lower factors of the covariances, shape ``(K, dim_x, dim_x)`` (fresh)."""
+        """Lower factors of the covariances, shape ``(K, dim_x, dim_x)`` (fresh; assign to change)."""
+        self._take_edits()
         return self._S.copy()
 
     @P1_2.setter
@@ -287,8 +338,8 @@ class Fleet:
 
     @property
     def P(self) -> np.ndarray:
-        """Covariances, shape ``(K, dim_x, dim_x)`` (formed fresh; assign to change)."""
-        return self._S @ np.swapaxes(self._S, -1, -2)
+        """Covariances, shape ``(K, dim_x, dim_x)``; edits in place are taken at the next call."""
+        return self._hand_out("P", lambda: self._S @ np.swapaxes(self._S, -1, -2))
 
     @P.setter
     def P(self, value):
@@ -325,11 +376,13 @@ class Fleet:
 
     @property
     def Q(self) -> np.ndarray:
-        """Process noise, shared ``(n, n)`` or per filter ``(K, n, n)`` (fresh)."""
-        S = self._Q1_2
-        if S is None:
-            return np.zeros((self._n, self._n))
-        return S @ np.swapaxes(S, -1, -2)
+        """Process noise, shared ``(n, n)`` or per filter ``(K, n, n)``; edits in place count (next call)."""
+
+        def form() -> np.ndarray:
+            S = self._Q1_2
+            return np.zeros((self._n, self._n)) if S is None else S @ np.swapaxes(S, -1, -2)
+
+        return self._hand_out("Q", form)
 
     @Q.setter
     def Q(self, value):
@@ -338,7 +391,8 @@ class Fleet:
 
     @property
     def Q1_2(self) -> np.ndarray:
-        """Lower factor(s) of ``Q`` (fresh)."""
+        """Lower factor(s) of ``Q`` (fresh; assign to change)."""
+        self._take_edits()
         return np.zeros((self._n, self._n)) if self._Q1_2 is None else self._Q1_2.copy()
 
     @Q1_2.setter
@@ -347,8 +401,8 @@ class Fleet:
 
     @property
     def R(self) -> np.ndarray:
-        """Measurement noise, shared ``(m, m)`` or per filter ``(K, m, m)`` (fresh)."""
-        return self._R1_2 @ np.swapaxes(self._R1_2, -1, -2)
+        """Measurement noise, shared ``(m, m)`` or per filter ``(K, m, m)``; edits in place count."""
+        return self._hand_out("R", lambda: self._R1_2 @ np.swapaxes(self._R1_2, -1, -2))
 
     @R.setter
     def R(self, value):
@@ -357,7 +411,8 @@ class Fleet:
 
     @property
     def R1_2(self) -> np.ndarray:
-        """Lower factor(s) of ``R`` (fresh)."""
+        """Lower factor(s) of ``R`` (fresh; assign to change)."""
+        self._take_edits()
         return self._R1_2.copy()
 
     @R1_2.setter
@@ -422,6 +477,7 @@ class Fleet:
         x : array_like, shape (dim_x,) or (len(filters), dim_x), optional
         P : array_like, shape (dim_x, dim_x) or (len(filters), dim_x, dim_x), optional
         """
+        self._take_edits()
         idx = np.flatnonzero(self._failed) if filters is None else np.arange(self._K)[filters]
         idx = np.atleast_1d(idx)
         new_x, new_S = self._x.copy(), self._S.copy()
@@ -487,6 +543,7 @@ class Fleet:
 
     def ask_predict(self) -> np.ndarray:
         """First half of a prediction: the first sigma-point sets, shape ``(K, N, dim_x)`` (fresh)."""
+        self._take_edits()
         state = steps.ask_predict(self._state, self._plan, self._x, self._S, self.state_add)
         self._state = state
         return state.sigmas.copy()  # type: ignore[union-attr]
@@ -505,6 +562,7 @@ class Fleet:
             filter and get a sigma-point axis (``u[k]`` becomes ``u[:, None]``).
         """
         dt = self._dt if dt is None else self._check_dt(dt)
+        self._take_edits()
         state = steps.ask_predict(self._state, self._plan, self._x, self._S, self.state_add)
         X = state.sigmas
         assert X is not None
@@ -514,6 +572,7 @@ class Fleet:
 
     def tell_predict(self, sigmas_f) -> None:
         """Second half of a prediction: ``fx`` at the points from :meth:`ask_predict`, ``(K, N, dim_x)``."""
+        self._take_edits()
         self._tell_predict(self._state, sigmas_f)
 
     def _tell_predict(self, state: steps.StepState, values) -> None:
@@ -566,6 +625,7 @@ class Fleet:
 
     def ask_update(self) -> np.ndarray:
         """First half of an update: the second sigma-point sets, shape ``(K, N2, dim_x)`` (fresh)."""
+        self._take_edits()
         state = steps.ask_update(self._state, self._plan, self._x, self._S, self.state_add)
         self._state = state
         return state.sigmas.copy()  # type: ignore[union-attr]
@@ -584,6 +644,7 @@ class Fleet:
             Passed to ``hx`` (per-filter arrays as for :meth:`predict`).
         """
         zz = self._as_measurements(z)
+        self._take_edits()
         R1_2 = self._R1_2 if R is None else self._noise(R, "R", self._m)
         state = steps.ask_update(self._state, self._plan, self._x, self._S, self.state_add)
         assert state.sigmas is not None
@@ -593,6 +654,7 @@ class Fleet:
     def tell_update(self, sigmas_h, z, R=None) -> None:
         """Second half of an update: ``hx`` at the points from :meth:`ask_update`, and ``z`` (K, dim_z)."""
         zz = self._as_measurements(z)
+        self._take_edits()
         R1_2 = self._R1_2 if R is None else self._noise(R, "R", self._m)
         self._tell_update(self._state, sigmas_h, zz, R1_2)
 
@@ -733,13 +795,15 @@ class Fleet:
         factors = np.empty((K, T, n, n)) if keep == "all" else None
         variances = np.empty((K, T, n)) if keep in ("all", "diagonals") else None
         loglik = np.zeros((K, T)) if keep != "final" else np.zeros(K)
-        before = copy.copy(self)
+        self._take_edits()
+        before, handed = copy.copy(self), dict(self._handed)
         try:
             self._run(Z, dt_list, fx_args, hx_args, means, factors, variances, loglik, progress)
         except BaseException:
             # an error at any step (a model function's, or a failure with on_error="raise")
             # leaves the fleet as it was before the call
             self.__dict__.update(before.__dict__)
+            self.__dict__["_handed"] = handed  # the arrays handed out stay the caller's, still current
             raise
         return FleetResult(
             means, factors, variances, loglik, self._failed.copy(), self._x.copy(), self._S.copy()
@@ -791,6 +855,7 @@ class Fleet:
         from .ukf import SquareRootUKF
 
         k = int(np.arange(self._K)[k])
+        self._take_edits()
         f = SquareRootUKF(
             self._n,
             self._m,
@@ -829,6 +894,7 @@ class Fleet:
             ``Fleet(n_filters=...)`` requires), or is not a valid index of
             the fleet's filters.
         """
+        self._take_edits()
         try:
             idx = np.atleast_1d(np.arange(self._K)[rows])
         except (IndexError, TypeError, ValueError) as exc:
@@ -934,6 +1000,8 @@ class Fleet:
             if isinstance(v, np.ndarray):
                 v = copies.setdefault(id(v), v.copy())
             d[key] = v
+        # the copy's own arrays handed out, pending edits included
+        d["_handed"] = {name: (a.copy(), snap) for name, (a, snap) in self._handed.items()}
         state = self._state
         if state.prior is not None:
             # ask_update knows the pending second set by the identity of the estimate it was
@@ -994,4 +1062,5 @@ class Fleet:
         """
         from .smoother import fleet_rts_smoother
 
+        self._take_edits()
         return fleet_rts_smoother(self, result, dts=dts, fx_args=fx_args)

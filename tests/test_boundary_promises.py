@@ -494,3 +494,82 @@ def test_non_finite_images_are_described_by_the_failing_filters_own_values():
     fl.predict(bad=np.array([False, False, True]))
     assert fl.failed.tolist() == [False, False, True]
     assert fl.failure[2] == single_error(one, lambda f: f.predict(bad=True))
+
+
+# -- 10. an in-place edit of fleet.x, P, Q or R is never lost: taken at the next call --------------
+
+
+def edited_pair(edit):
+    """A fleet edited in place by ``edit``, and one given the same values by assignment."""
+    fl, ref = make_fleet(), make_fleet()
+    edit(fl)
+    for name in ("x", "P", "Q", "R"):
+        setattr(ref, name, np.array(getattr(fl, name)))
+    return fl, ref
+
+
+EDITS = {
+    "x": lambda fl: fl.x.__setitem__((1, 0), 5.0),
+    "P": lambda fl: fl.P.__setitem__((2, 0, 0), 4.0),
+    "P *=": lambda fl: fl.P.__imul__(2.0),
+    "Q": lambda fl: fl.Q.__setitem__((1, 1), 0.5),
+    "R": lambda fl: fl.R.__setitem__((0, 0), 2.0),
+}
+
+
+@pytest.mark.parametrize("name", list(EDITS))
+def test_an_edit_in_place_of_a_fleet_attribute_takes_effect(name):
+    plain = make_fleet()
+    fl, ref = edited_pair(EDITS[name])
+    zs = fleet_zs(3)
+    for f in (fl, ref, plain):
+        f.predict()
+        f.update(zs[:, 0])
+    np.testing.assert_array_equal(fl.x, ref.x)
+    np.testing.assert_array_equal(fl.P1_2, ref.P1_2)
+    assert not np.array_equal(fl.P1_2, plain.P1_2) or not np.array_equal(fl.x, plain.x)
+
+
+def test_several_edits_in_place_and_every_route_sees_them():
+    zs = fleet_zs(3)
+    fl = make_fleet()
+    fl.R[0, 0] = 2.0  # two statements on the same attribute: both kept
+    fl.R[1, 1] = 3.0
+    fl.x[0] += 1.0
+    assert fl.R[0, 0] == 2.0 and fl.R[1, 1] == 3.0
+    ref = make_fleet()
+    ref.R = np.diag([2.0, 3.0])
+    x = np.array(ref.x)
+    x[0] += 1.0
+    ref.x = x
+    np.testing.assert_array_equal(fl.batch_filter(zs).means, ref.batch_filter(zs).means)
+    for route in (lambda f: f.subset(slice(None)).x, lambda f: f[0].x, lambda f: copy.copy(f).x):
+        fl, ref = edited_pair(EDITS["x"])
+        np.testing.assert_array_equal(route(fl), route(ref))
+    sd = pytest.importorskip("squkf.dask")
+    fl, ref = edited_pair(EDITS["P"])
+    got = sd.compute(sd.batch_filter(fl, zs), scheduler="synchronous")
+    np.testing.assert_array_equal(got.means, ref.batch_filter(zs).means)
+
+
+def test_an_invalid_edit_in_place_raises_at_the_next_call_and_changes_nothing():
+    fl = make_fleet()
+    fl.predict()
+    snap = fleet_state(fl)
+    P = fl.P
+    P[1, 0, 0] = -1.0  # not positive definite
+    with pytest.raises(SqukfError, match=r"P\[1\]"):
+        fl.update(fleet_zs(1)[:, 0])
+    P[1, 0, 0] = snap["P1_2"][1, 0, 0] ** 2  # put back: nothing had changed
+    assert_fleet_state(fl, snap)
+
+
+def test_arrays_read_before_a_step_are_never_rewritten():
+    fl = make_fleet()
+    x, P = fl.x, fl.P
+    kept = x.copy(), P.copy()
+    fl.predict()
+    fl.update(fleet_zs(1)[:, 0])
+    np.testing.assert_array_equal(x, kept[0])
+    np.testing.assert_array_equal(P, kept[1])
+    assert fl.x is not x and not np.array_equal(fl.x, x)
