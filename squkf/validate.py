@@ -46,6 +46,8 @@ def as_float_array(value, name: str) -> np.ndarray:
     ------
     ShapeError
         ``value`` is not a real numeric array (complex, strings, ragged, objects).
+        Text is refused in every form, numeric text (``"1.0"``) and an object
+        array holding some included.
     """
     if isinstance(value, np.ndarray) and value.dtype.kind in "fiub":
         return np.array(value, dtype=float)
@@ -58,7 +60,9 @@ def as_float_array(value, name: str) -> np.ndarray:
     if probe.dtype.kind == "c":
         raise ShapeError(f"{name} is complex ({probe.dtype}); squkf works in real float64")
     if probe.dtype.kind not in "fiub":
-        if probe.dtype.kind == "O":
+        if probe.dtype.kind == "O" and not any(isinstance(v, (str, bytes)) for v in probe.flat):
+            # objects that are numbers (None, Fractions, 0-d arrays): read as floats; text never,
+            # not even "1.0", which numpy's astype(float) would parse
             try:
                 return as_float_array(probe.astype(float), name)
             except (TypeError, ValueError):

@@ -573,3 +573,51 @@ def test_arrays_read_before_a_step_are_never_rewritten():
     np.testing.assert_array_equal(x, kept[0])
     np.testing.assert_array_equal(P, kept[1])
     assert fl.x is not x and not np.array_equal(fl.x, x)
+
+
+# -- 11. text measurements are errors on every batch route, before anything runs -----------------
+
+
+def text_versions(zs: np.ndarray) -> dict:
+    text = zs.astype(str)
+    mixed = zs.astype(object)
+    mixed.flat[1] = "1.0"
+    return {
+        "list of str": text.tolist(),
+        "str array": text,
+        "object array of str": text.astype(object),
+        "one str among numbers": mixed,
+        "masked str": np.ma.masked_array(text, mask=np.zeros(zs.shape, dtype=bool)),
+    }
+
+
+@pytest.mark.parametrize("what", list(text_versions(np.zeros((2, 2)))))
+def test_text_measurements_are_errors_for_one_filter(what):
+    zs = text_versions(measurements(3))[what]
+    f = make_ukf()
+    snap = filter_state(f)
+    with pytest.raises(ShapeError, match="z"):
+        f.batch_filter(zs)
+    assert_filter_state(f, snap)
+    with pytest.raises(ShapeError, match="z"):
+        f.update(zs[0])
+    assert_filter_state(f, snap)
+
+
+@pytest.mark.parametrize("what", list(text_versions(np.zeros((2, 2)))))
+def test_text_measurements_are_errors_for_a_fleet_and_on_dask(what):
+    zs = text_versions(fleet_zs(3))[what]
+    fl = make_fleet()
+    snap = fleet_state(fl)
+    with pytest.raises(ShapeError, match="zs"):
+        fl.batch_filter(zs)
+    with pytest.raises(ShapeError, match="z"):
+        fl.update(np.asarray(zs)[:, 0])
+    assert_fleet_state(fl, snap)
+    sd = pytest.importorskip("squkf.dask")
+    with pytest.raises(ShapeError, match="zs"):  # raised by batch_filter itself: nothing scheduled
+        sd.batch_filter(make_fleet(), zs)
+    da = pytest.importorskip("dask.array")
+    if np.asarray(zs).dtype.kind in "UO":
+        with pytest.raises(ShapeError, match="zs"):
+            sd.batch_filter(make_fleet(), da.from_array(np.asarray(zs), chunks=(1, -1, -1)))
