@@ -18,16 +18,16 @@ is found before any step is run, otherwise as soon as one runs out.
 
 from __future__ import annotations
 
-import math
 import numbers
-from collections.abc import Callable, Iterable, Mapping, Set, Sized
+from collections.abc import Callable, Iterable, Iterator, Mapping, Set, Sized
 from typing import Any, cast
 
 import numpy as np
 
 from .errors import ParameterError, ShapeError, SqukfError
+from .validate import check_time_step
 
-__all__ = ["batch_filter", "per_step"]
+__all__ = ["batch_filter", "iter_measurements", "model_kwargs", "per_step"]
 
 # predict()/update() take these themselves, so they cannot be passed through to fx/hx
 _RESERVED = {"fx_args": ("dt", "UT", "fx", "Q"), "hx_args": ("z", "R", "UT", "hx")}
@@ -36,33 +36,6 @@ _END = object()
 
 def _is_scalar(value) -> bool:
     return isinstance(value, numbers.Number) or (isinstance(value, np.ndarray) and value.ndim == 0)
-
-
-def check_dt(value, name: str) -> float:
-    """A time step as a float: finite and ``>= 0`` (``dt = 0`` is a step of zero length).
-
-    Parameters
-    ----------
-    value : float
-    name : str
-        For the error message, e.g. ``"dts[3]"``.
-
-    Returns
-    -------
-    float
-
-    Raises
-    ------
-    ParameterError
-        ``value`` is not a number, is NaN or inf, or is negative.
-    """
-    try:
-        dt = float(value)
-    except (TypeError, ValueError):
-        raise ParameterError(f"{name} must be a finite number >= 0, got {name}={value!r}") from None
-    if not (math.isfinite(dt) and dt >= 0):
-        raise ParameterError(f"{name} must be a finite number >= 0, got {name}={value!r}")
-    return dt
 
 
 def _check_kwargs(value, name: str, reserved: tuple[str, ...]) -> dict:
@@ -82,6 +55,35 @@ def _check_kwargs(value, name: str, reserved: tuple[str, ...]) -> dict:
                 f" not of the model function; give it as its own argument"
             )
     return dict(value)
+
+
+def model_kwargs(value, name: str) -> dict:
+    """``fx_args`` or ``hx_args`` given once for every step: a dict for the model function only.
+
+    The one check of every front end (``SquareRootUKF``'s and ``Fleet``'s
+    ``batch_filter`` and smoothers, :func:`squkf.dask.batch_filter`): the keys
+    are passed to ``fx`` or ``hx`` and to nothing else, so a key that names an
+    argument of the step itself (``dt``, ``UT``, ``fx``, ``Q`` for ``fx_args``;
+    ``z``, ``R``, ``UT``, ``hx`` for ``hx_args``) is refused rather than taken
+    as, say, the measurement noise.
+
+    Parameters
+    ----------
+    value : None or mapping
+    name : {"fx_args", "hx_args"}
+
+    Returns
+    -------
+    dict
+        A new dict (empty for None).
+
+    Raises
+    ------
+    ParameterError
+        ``value`` is not a mapping, a key is not a string, or a key is one of
+        the step's own arguments.
+    """
+    return _check_kwargs(value, name, _RESERVED[name])
 
 
 class _Steps:
@@ -148,7 +150,7 @@ class _Steps:
 
     def _check(self, value, name: str):
         if self.kind == "dt":
-            return check_dt(value, name)
+            return check_time_step(value, name)
         if self.kind == "kwargs":
             return _check_kwargs(value, name, _RESERVED.get(self.name, ()))
         return value
@@ -231,6 +233,42 @@ class _Rows:
         if self.n == self.buf.shape[0]:
             return self.buf
         return self.buf[: self.n].copy()
+
+
+def iter_measurements(zs) -> Iterator:
+    """An iterator over the steps of ``zs``, after checking that ``zs`` is an ordered iterable.
+
+    The one check of what ``zs`` itself may be, for ``SquareRootUKF.batch_filter``
+    and ``Fleet.batch_filter`` alike; what each step yields is checked by the
+    filter, naming the step.
+
+    Parameters
+    ----------
+    zs : iterable
+        A list, a tuple, an array (one row per step), a generator, ``tqdm(...)``.
+
+    Returns
+    -------
+    iterator
+
+    Raises
+    ------
+    ShapeError
+        ``zs`` is a string, bytes, a dict or a set (no steps in an order), or
+        not iterable at all.
+    """
+    if isinstance(zs, (str, bytes, Mapping, Set)):
+        raise ShapeError(
+            "zs must be an iterable of measurements in step order (a list, an array, a generator), "
+            f"got {type(zs).__name__}: {zs!r:.100}"
+        )
+    try:
+        return iter(zs)
+    except TypeError:
+        raise ShapeError(
+            f"zs must be an iterable of measurements (a list, an array, a generator), "
+            f"got {type(zs).__name__}: {zs!r:.200}"
+        ) from None
 
 
 def _known_length(zs) -> int | None:
@@ -316,7 +354,8 @@ def batch_filter(
         or an iterable gives one per step (each a matrix or a scalar).
     dts : None, float, or T floats, optional
         Time step of the prediction into each step (default: the constructor's
-        ``dt``). Every entry must be finite and not negative; these are checked
+        ``dt``). Every entry must be a finite real number, of any sign, as for
+        ``predict`` (:func:`squkf.validate.check_time_step`); these are checked
         before the first step when ``dts`` is a sequence.
     UT : callable, optional
         Square-root transform (see :func:`squkf.sqrt_unscented_transform`).
@@ -351,11 +390,13 @@ def batch_filter(
     Raises
     ------
     ShapeError
-        ``zs`` is not an iterable of measurements, or a per-step argument does
-        not have one entry per measurement (the message names it).
+        ``zs`` is not an ordered iterable of measurements (a string, a dict or
+        a set is not), or a per-step argument does not have one entry per
+        measurement (the message names it).
     ParameterError
-        An option of the wrong kind, e.g. ``hx_args`` not a dict, a negative
-        ``dts`` entry, ``progress=True`` without tqdm.
+        An option of the wrong kind, e.g. ``hx_args`` not a dict, a ``dts``
+        entry that is not a finite number (a string among them), ``progress=True``
+        without tqdm.
     SqukfError
         Any squkf error raised at step ``k`` (a bad measurement, a covariance
         that lost positive-definiteness, ...), with the same type and
@@ -409,15 +450,7 @@ def batch_filter(
     >>> print(np.round(np.sqrt(covs[:, 0, 0]), 4))
     [0.4715 0.4481 1.2974 0.4835 0.4488]
     """
-    if isinstance(zs, (str, bytes, Mapping)):
-        raise ShapeError(f"zs must be an iterable of measurements, got {type(zs).__name__}")
-    try:
-        it = iter(zs)
-    except TypeError:
-        raise ShapeError(
-            f"zs must be an iterable of measurements (a list, an array, a generator), "
-            f"got {type(zs).__name__}: {zs!r:.200}"
-        ) from None
+    it = iter_measurements(zs)
     T = _known_length(zs)
     if UT is not None and not callable(UT):
         raise ParameterError(f"UT must be a callable (or None), got {UT!r}")

@@ -186,7 +186,10 @@ class FactorSlot:
         return factor_covariance(A, self.name, semidefinite=self.semidefinite)
 
     def matrix(self) -> np.ndarray:
-        """The covariance ``S @ S.T``; edits to the returned array take effect at the next step."""
+        """The covariance ``S @ S.T``; edits to the returned array take effect at the next step.
+
+        ``(dim, dim)``, or ``(1,)`` when a 1-element vector was assigned (:meth:`set_matrix`).
+        """
         if self._view is None:
             S = self._factor
             n = self._size()
@@ -195,7 +198,14 @@ class FactorSlot:
         return self._view
 
     def set_matrix(self, value) -> None:
-        """Assign from a covariance matrix (validated, factored once; a copy is kept)."""
+        """Assign from a covariance matrix (validated, factored once; a copy is kept).
+
+        The copy handed out by :meth:`matrix` has the shape assigned: a
+        ``(dim, dim)`` matrix, or for dimension 1 also a 1-element vector
+        ``(1,)`` (filterpy keeps what it is given, so ``R[0]`` is a number). A
+        scalar ``s`` is the matrix ``s * I``. When the filter installs a new
+        factor (:meth:`set_trusted_factor`) the matrix is formed ``(dim, dim)``.
+        """
         if value is None:
             if not self.semidefinite:
                 raise SqukfValueError(f"{self.name} cannot be None")
@@ -203,6 +213,8 @@ class FactorSlot:
             return
         A = as_matrix(value, self.name, self.dim)
         S = self._factor_of(A)
+        if np.ndim(value) == 1:  # a 1-element vector (dimension 1): handed out as assigned, as filterpy
+            A = A.reshape(1)  # does, so that ``R[0]`` is a number; edits in place still reach it
         self._factor, self._view, self._snap = S, A, A.tobytes()
 
     def set_factor(self, value) -> None:

@@ -37,8 +37,10 @@ import dask.dataframe as dd
 import numpy as np
 import pandas as pd
 
+from .batch import model_kwargs, per_step
 from .errors import ParameterError, ShapeError
 from .fleet import Fleet, FleetResult
+from .validate import as_measurements
 
 if TYPE_CHECKING:
     import distributed
@@ -144,7 +146,8 @@ def batch_filter(
         The template: its configuration, and each filter's initial state and
         noise (row ``k`` for series ``k``). It is not changed.
     zs : dask.array.Array or array_like, shape (K, T, dim_z)
-        Measurements, NaN where missing. Chunked along the filters axis; any
+        Measurements, NaN (or masked: a ``numpy.ma.MaskedArray``, or a dask
+        array of masked chunks) where missing. Chunked along the filters axis; any
         chunking of the other two axes is merged into one chunk (the time
         recursion runs through all steps of a filter in one task).
     keep : {"all", "diagonals", "means", "final"}
@@ -165,13 +168,15 @@ def batch_filter(
     ------
     ShapeError, ParameterError
         Before anything is scheduled: ``zs`` not 3-D, its K or dim_z not the
-        template's, an unknown ``keep``.
+        template's, an unknown ``keep``, a ``dts`` entry that is not a finite
+        number (the rule of :meth:`squkf.Fleet.predict`: any finite real number).
     """
     if not isinstance(fleet, Fleet):
         raise ParameterError(f"fleet must be a squkf.Fleet, got {type(fleet).__name__}")
     if keep not in _KEEP:
         raise ParameterError(f"keep must be one of {_KEEP}, got keep={keep!r}")
-    Z = zs if isinstance(zs, da.Array) else da.from_array(np.asarray(zs, dtype=float))
+    # an array in memory is read here, before anything is scheduled: text refused, masked entries NaN
+    Z = zs if isinstance(zs, da.Array) else da.from_array(as_measurements(zs, "zs"))
     if Z.ndim != 3:
         raise ShapeError(f"zs must have 3 axes (filters, time, measurement), got shape {Z.shape}")
     K, T, m = Z.shape
@@ -183,12 +188,11 @@ def batch_filter(
         raise ShapeError(f"zs has measurements of length {m} but the fleet's dim_z is {fleet.dim_z}")
     if not np.issubdtype(Z.dtype, np.number) or np.issubdtype(Z.dtype, np.complexfloating):
         raise ShapeError(f"zs must hold real numbers, got dtype {Z.dtype}")
-    for name, a in (("fx_args", fx_args), ("hx_args", hx_args)):
-        if a is not None and not isinstance(a, dict):
-            raise ParameterError(f"{name} must be a dict, got {type(a).__name__}")
+    fx_args, hx_args = model_kwargs(fx_args, "fx_args"), model_kwargs(hx_args, "hx_args")
+    dts = per_step(dts, T, "dts", "dt", default=fleet._dt, ref="zs")  # checked here, not in a task
     if len(Z.chunks[1]) > 1 or len(Z.chunks[2]) > 1:
         Z = Z.rechunk({1: -1, 2: -1})
-    Z = Z.astype(float)
+    Z = da.ma.filled(Z.astype(float), np.nan)  # masked chunks: missing where masked, as Fleet.batch_filter
     options = {"keep": keep, "dts": dts, "fx_args": fx_args, "hx_args": hx_args}
     n = fleet.dim_x
     blocks = Z.to_delayed().reshape(-1)

@@ -30,7 +30,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import math
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -38,13 +38,14 @@ import numpy as np
 
 from . import step as steps
 from .angles import _AngleHook
+from .batch import iter_measurements, model_kwargs, per_step
 from .covariance import as_lower_factor, as_matrix
 from .errors import NonFiniteError, ParameterError, ShapeError, SqukfError
 from .generators import SigmaSet, as_generator
 from .isolate import BLOCK, run_isolated
 from .linalg import factor_covariance
 from .plan import Hooks, Plan, build_plan
-from .validate import as_float_array, check_time_step
+from .validate import as_float_array, as_measurements, check_time_step, describe_nonfinite
 from .weights import as_family
 
 __all__ = ["Fleet", "FleetResult", "FleetStepError"]
@@ -98,6 +99,10 @@ class FleetResult:
     P1_2: np.ndarray
 
 
+# the internal array behind each attribute handed out for editing in place
+_HANDED = {"_x": "x", "_S": "P", "_Q1_2": "Q", "_R1_2": "R"}
+
+
 def _take(sset: SigmaSet, idx: np.ndarray | slice) -> SigmaSet:
     """The set of the filters ``idx`` (rows of every stacked field)."""
     if isinstance(idx, slice) and idx == slice(None):
@@ -141,8 +146,13 @@ class Fleet:
     ----------
     x : ndarray, shape (K, dim_x)
     P, P1_2 : ndarray, shape (K, dim_x, dim_x)
-        Read as fresh arrays; assign to change (a single ``(dim_x,)`` or
-        ``(dim_x, dim_x)`` value is given to every filter).
+        Assign to change (a single ``(dim_x,)`` or ``(dim_x, dim_x)`` value is
+        given to every filter). ``x``, ``P``, ``Q`` and ``R`` may also be
+        edited in place (``fleet.P[3] *= 10``, several statements too), as
+        for :class:`squkf.SquareRootUKF`: the next call validates the edit
+        and takes it (an invalid one raises there and changes nothing). Every
+        step hands out fresh arrays, so arrays read earlier are never
+        rewritten. The factors are fresh copies on each read.
     Q, R, Q1_2, R1_2 : ndarray
         Shared ``(d, d)`` or per filter ``(K, d, d)``.
     x_prior, x_post, P1_2_prior, P1_2_post : ndarray
@@ -193,6 +203,7 @@ class Fleet:
         if on_error not in ("flag", "raise"):
             raise ParameterError(f"on_error must be 'flag' or 'raise', got on_error={on_error!r}")
         K, n, m = int(n_filters), int(dim_x), int(dim_z)
+        self._handed: dict[str, tuple[np.ndarray, bytes]] = {}  # name -> (array handed out, its bytes then)
         self._K, self._n, self._m = K, n, m
         self._dt = self._check_dt(dt)
         self.hx, self.fx = hx, fx
@@ -260,10 +271,50 @@ class Fleet:
             raise NonFiniteError(f"{name} contains NaN or inf (filters {bad[:10].tolist()})")
         return a
 
+    # -- what is handed out, and edits in place -------------------------------------
+
+    def __setattr__(self, name: str, value) -> None:
+        object.__setattr__(self, name, value)
+        handed = _HANDED.get(name)
+        if handed is not None:  # the value behind an attribute changed: the array handed out is history
+            self.__dict__.get("_handed", {}).pop(handed, None)
+
+    def _hand_out(self, name: str, form: Callable[[], np.ndarray]) -> np.ndarray:
+        """The array of ``x``, ``P``, ``Q`` or ``R``: formed once, then the same until the value changes.
+
+        Edits in place of the array handed out are taken by the next call
+        (:meth:`_take_edits`), as ``SquareRootUKF`` takes those of its ``x``,
+        ``P``, ``Q`` and ``R``.
+        """
+        held = self._handed.get(name)
+        if held is not None:
+            return held[0]
+        a = form()
+        self._handed[name] = (a, a.tobytes())
+        return a
+
+    def _take_edits(self) -> None:
+        """Validate and take the edits in place of the arrays handed out, as assignments.
+
+        An invalid edit raises as the assignment would, changes nothing and
+        stays pending (assigning the attribute replaces it). The array stays
+        handed out, so that further edits in place are taken too.
+        """
+        handed = self._handed
+        if not handed:
+            return
+        for name in ("x", "P", "Q", "R"):
+            held = handed.get(name)
+            if held is None or held[0].tobytes() == held[1]:
+                continue
+            a = held[0]
+            setattr(self, name, a)  # validated (and copied) by the setter
+            handed[name] = (a, a.tobytes())
+
     @property
     def x(self) -> np.ndarray:
-        """States, shape ``(K, dim_x)`` (a fresh array; assign to change)."""
-        return self._x.copy()
+        """States, shape ``(K, dim_x)``; edits in place are taken at the next call (or assign)."""
+        return self._hand_out("x", self._x.copy)
 
     @x.setter
     def x(self, value):
@@ -272,7 +323,8 @@ class Fleet:
 
     @property
     def P1_2(self) -> np.ndarray:
-        """Lower factors of the covariances, shape ``(K, dim_x, dim_x)`` (fresh)."""
+        """Lower factors of the covariances, shape ``(K, dim_x, dim_x)`` (fresh; assign to change)."""
+        self._take_edits()
         return self._S.copy()
 
     @P1_2.setter
@@ -285,8 +337,8 @@ class Fleet:
 
     @property
     def P(self) -> np.ndarray:
-        """Covariances, shape ``(K, dim_x, dim_x)`` (formed fresh; assign to change)."""
-        return self._S @ np.swapaxes(self._S, -1, -2)
+        """Covariances, shape ``(K, dim_x, dim_x)``; edits in place are taken at the next call."""
+        return self._hand_out("P", lambda: self._S @ np.swapaxes(self._S, -1, -2))
 
     @P.setter
     def P(self, value):
@@ -323,11 +375,13 @@ class Fleet:
 
     @property
     def Q(self) -> np.ndarray:
-        """Process noise, shared ``(n, n)`` or per filter ``(K, n, n)`` (fresh)."""
-        S = self._Q1_2
-        if S is None:
-            return np.zeros((self._n, self._n))
-        return S @ np.swapaxes(S, -1, -2)
+        """Process noise, shared ``(n, n)`` or per filter ``(K, n, n)``; edits in place count (next call)."""
+
+        def form() -> np.ndarray:
+            S = self._Q1_2
+            return np.zeros((self._n, self._n)) if S is None else S @ np.swapaxes(S, -1, -2)
+
+        return self._hand_out("Q", form)
 
     @Q.setter
     def Q(self, value):
@@ -336,7 +390,8 @@ class Fleet:
 
     @property
     def Q1_2(self) -> np.ndarray:
-        """Lower factor(s) of ``Q`` (fresh)."""
+        """Lower factor(s) of ``Q`` (fresh; assign to change)."""
+        self._take_edits()
         return np.zeros((self._n, self._n)) if self._Q1_2 is None else self._Q1_2.copy()
 
     @Q1_2.setter
@@ -345,8 +400,8 @@ class Fleet:
 
     @property
     def R(self) -> np.ndarray:
-        """Measurement noise, shared ``(m, m)`` or per filter ``(K, m, m)`` (fresh)."""
-        return self._R1_2 @ np.swapaxes(self._R1_2, -1, -2)
+        """Measurement noise, shared ``(m, m)`` or per filter ``(K, m, m)``; edits in place count."""
+        return self._hand_out("R", lambda: self._R1_2 @ np.swapaxes(self._R1_2, -1, -2))
 
     @R.setter
     def R(self, value):
@@ -355,7 +410,8 @@ class Fleet:
 
     @property
     def R1_2(self) -> np.ndarray:
-        """Lower factor(s) of ``R`` (fresh)."""
+        """Lower factor(s) of ``R`` (fresh; assign to change)."""
+        self._take_edits()
         return self._R1_2.copy()
 
     @R1_2.setter
@@ -420,6 +476,7 @@ class Fleet:
         x : array_like, shape (dim_x,) or (len(filters), dim_x), optional
         P : array_like, shape (dim_x, dim_x) or (len(filters), dim_x, dim_x), optional
         """
+        self._take_edits()
         idx = np.flatnonzero(self._failed) if filters is None else np.arange(self._K)[filters]
         idx = np.atleast_1d(idx)
         new_x, new_S = self._x.copy(), self._S.copy()
@@ -458,6 +515,11 @@ class Fleet:
         for k in idx.tolist():
             fails.setdefault(int(k), reason)
 
+    def _fail_nonfinite(self, fails: dict[int, str], idx: np.ndarray, values: np.ndarray, name: str) -> None:
+        """Flag ``idx`` for non-finite images, each described by its own rows (as one filter's error)."""
+        for k in idx.tolist():
+            fails.setdefault(int(k), f"NonFiniteError: {describe_nonfinite(values[k], name)}")
+
     def _commit_failures(self, fails: dict[int, str]) -> None:
         if not fails:
             return
@@ -480,6 +542,7 @@ class Fleet:
 
     def ask_predict(self) -> np.ndarray:
         """First half of a prediction: the first sigma-point sets, shape ``(K, N, dim_x)`` (fresh)."""
+        self._take_edits()
         state = steps.ask_predict(self._state, self._plan, self._x, self._S, self.state_add)
         self._state = state
         return state.sigmas.copy()  # type: ignore[union-attr]
@@ -490,12 +553,15 @@ class Fleet:
         Parameters
         ----------
         dt : float, optional
-            Time step (default: the constructor's); any finite value.
+            Time step (default: the constructor's); any finite real number,
+            ``0`` and negative steps included (:func:`squkf.validate.check_time_step`);
+            a string is an error.
         **fx_args
             Passed to ``fx``; arrays with a leading axis of length K are per
             filter and get a sigma-point axis (``u[k]`` becomes ``u[:, None]``).
         """
         dt = self._dt if dt is None else self._check_dt(dt)
+        self._take_edits()
         state = steps.ask_predict(self._state, self._plan, self._x, self._S, self.state_add)
         X = state.sigmas
         assert X is not None
@@ -505,6 +571,7 @@ class Fleet:
 
     def tell_predict(self, sigmas_f) -> None:
         """Second half of a prediction: ``fx`` at the points from :meth:`ask_predict`, ``(K, N, dim_x)``."""
+        self._take_edits()
         self._tell_predict(self._state, sigmas_f)
 
     def _tell_predict(self, state: steps.StepState, values) -> None:
@@ -523,7 +590,7 @@ class Fleet:
         fails: dict[int, str] = {}
         active = ~self._failed
         finite = self._finite_rows(F)
-        self._fail(fails, np.flatnonzero(active & ~finite), "fx values are not finite")
+        self._fail_nonfinite(fails, np.flatnonzero(active & ~finite), F, "fx values")
         if not finite.all():
             F = np.where(finite[:, None, None], F, X)  # a failing filter's rows: harmless stand-ins
         idx = np.flatnonzero(active & finite)
@@ -557,6 +624,7 @@ class Fleet:
 
     def ask_update(self) -> np.ndarray:
         """First half of an update: the second sigma-point sets, shape ``(K, N2, dim_x)`` (fresh)."""
+        self._take_edits()
         state = steps.ask_update(self._state, self._plan, self._x, self._S, self.state_add)
         self._state = state
         return state.sigmas.copy()  # type: ignore[union-attr]
@@ -575,6 +643,7 @@ class Fleet:
             Passed to ``hx`` (per-filter arrays as for :meth:`predict`).
         """
         zz = self._as_measurements(z)
+        self._take_edits()
         R1_2 = self._R1_2 if R is None else self._noise(R, "R", self._m)
         state = steps.ask_update(self._state, self._plan, self._x, self._S, self.state_add)
         assert state.sigmas is not None
@@ -584,20 +653,25 @@ class Fleet:
     def tell_update(self, sigmas_h, z, R=None) -> None:
         """Second half of an update: ``hx`` at the points from :meth:`ask_update`, and ``z`` (K, dim_z)."""
         zz = self._as_measurements(z)
+        self._take_edits()
         R1_2 = self._R1_2 if R is None else self._noise(R, "R", self._m)
         self._tell_update(self._state, sigmas_h, zz, R1_2)
 
-    def _as_measurements(self, z) -> np.ndarray:
-        if isinstance(z, np.ma.MaskedArray):
-            z = np.ma.filled(np.ma.asarray(z, dtype=float), np.nan)
-        zz = as_float_array(z, "z")
+    def _as_measurements(self, z, name: str = "z") -> np.ndarray:
+        """One step's measurements ``(K, dim_z)`` checked (``name`` for messages, e.g. ``zs[3]``)."""
+        if z is None:
+            raise ShapeError(
+                f"{name} is None: a fleet's step needs a ({self._K}, {self._m}) array"
+                " (NaN rows for filters without a measurement)"
+            )
+        zz = as_measurements(z, name)
         if zz.shape == (self._K,) and self._m == 1:
             zz = zz[:, None]
         if zz.shape != (self._K, self._m):
-            raise ShapeError(f"z has shape {zz.shape}, expected ({self._K}, {self._m})")
+            raise ShapeError(f"{name} has shape {zz.shape}, expected ({self._K}, {self._m})")
         if np.isinf(zz).any():
             k = int(np.flatnonzero(np.isinf(zz).any(axis=1))[0])
-            raise NonFiniteError(f"z contains inf (row {k}; NaN means a missing component)")
+            raise NonFiniteError(f"{name} contains inf (row {k}; NaN means a missing component)")
         return zz
 
     def _tell_update(self, state: steps.StepState, values, z: np.ndarray, R1_2) -> None:
@@ -616,7 +690,7 @@ class Fleet:
         active = ~self._failed
         fails: dict[int, str] = {}
         finite = self._finite_rows(H)
-        self._fail(fails, np.flatnonzero(active & measured & ~finite), "hx values are not finite")
+        self._fail_nonfinite(fails, np.flatnonzero(active & measured & ~finite), H, "hx values")
         todo = active & measured & finite
         x_new, S_new = x0.copy(), S0.copy()
         y = np.full((K, m), np.nan)
@@ -666,17 +740,25 @@ class Fleet:
         Parameters
         ----------
         zs : array_like, shape (K, T, dim_z), or an iterable of (K, dim_z) arrays
-            NaN rows and entries are missing measurements (as for :meth:`update`).
+            NaN rows and entries are missing measurements, as are masked ones
+            (a ``numpy.ma.MaskedArray``), as for :meth:`update`.
             Any other iterable (a generator, ``tqdm(...)``) yields one step's
-            measurements at a time; it is read to its end before the run starts.
-            Lists and tuples are read as the ``(K, T, dim_z)`` array.
+            measurements at a time, each checked as for :meth:`update` (a wrong
+            shape, ``None`` or text is a ShapeError naming the step, ``zs[t]``);
+            it is read to its end before the run starts. Lists and tuples are
+            read as the ``(K, T, dim_z)`` array; a string, a dict or a set is a
+            ShapeError.
         dts : float or array_like of shape (T,), optional
-            Time step of each prediction (default: the constructor's).
+            Time step of each prediction (default: the constructor's): any
+            finite real number, negative included, as for :meth:`predict`
+            (the rule of :func:`squkf.validate.check_time_step`).
         keep : {"all", "diagonals", "means", "final"}
             What to store: everything; means and the covariances' diagonals;
             means only; or only the final state (for long runs).
         fx_args, hx_args : dict, optional
-            Passed to ``fx`` and ``hx`` at every step.
+            Passed to ``fx`` and ``hx`` at every step, and to nothing else: a
+            key that names an argument of the step (``dt``, ``z``, ``R``, ...,
+            see :func:`squkf.batch.model_kwargs`) is a ParameterError.
         progress : bool or callable
             ``True`` shows a tqdm bar (the ``progress`` extra); a callable is
             called with the step index after each step.
@@ -691,11 +773,12 @@ class Fleet:
             raise ParameterError(f"keep must be 'all', 'diagonals', 'means' or 'final', got keep={keep!r}")
         if not (isinstance(progress, bool) or callable(progress)):
             raise ParameterError(f"progress must be True, False or a callable, got {progress!r}")
-        if isinstance(zs, Iterable) and not isinstance(zs, (np.ndarray, list, tuple, str, bytes)):
-            # a generator, an iterator, tqdm(...): one (K, dim_z) array per step
-            steps_read = [as_float_array(z, f"zs[{t}]") for t, z in enumerate(zs)]
+        if not isinstance(zs, (np.ndarray, list, tuple)):  # a MaskedArray is an ndarray
+            # a generator, an iterator, tqdm(...): one (K, dim_z) array per step, each checked
+            it = iter_measurements(zs)
+            steps_read = [self._as_measurements(z, f"zs[{t}]") for t, z in enumerate(it)]
             zs = np.stack(steps_read, axis=1) if steps_read else np.zeros((self._K, 0, self._m))
-        Z = as_float_array(zs, "zs")
+        Z = as_measurements(zs, "zs")
         if Z.ndim == 2 and self._m == 1:
             Z = Z[..., None]
         if Z.ndim != 3 or Z.shape[0] != self._K or Z.shape[2] != self._m:
@@ -704,24 +787,22 @@ class Fleet:
             k, t = (int(i[0]) for i in np.nonzero(np.isinf(Z).any(axis=2)))
             raise NonFiniteError(f"zs contains inf (filter {k}, step {t}; NaN means a missing component)")
         T = Z.shape[1]
-        if dts is not None and np.ndim(dts) != 0 and np.shape(dts) != (T,):
-            raise ShapeError(f"dts has shape {np.shape(dts)}, expected a number or ({T},)")
-        dt_list = [self._dt] * T if dts is None else [self._check_dt(d) for d in np.broadcast_to(dts, (T,))]
-        for name, a in (("fx_args", fx_args), ("hx_args", hx_args)):
-            if a is not None and not isinstance(a, dict):
-                raise ParameterError(f"{name} must be a dict, got {type(a).__name__}")
+        dt_list = per_step(dts, T, "dts", "dt", default=self._dt, ref="zs")
+        fx_args, hx_args = model_kwargs(fx_args, "fx_args"), model_kwargs(hx_args, "hx_args")
         K, n = self._K, self._n
         means = None if keep == "final" else np.empty((K, T, n))
         factors = np.empty((K, T, n, n)) if keep == "all" else None
         variances = np.empty((K, T, n)) if keep in ("all", "diagonals") else None
         loglik = np.zeros((K, T)) if keep != "final" else np.zeros(K)
-        before = copy.copy(self)
+        self._take_edits()
+        before, handed = copy.copy(self), dict(self._handed)
         try:
-            self._run(Z, dt_list, fx_args or {}, hx_args or {}, means, factors, variances, loglik, progress)
+            self._run(Z, dt_list, fx_args, hx_args, means, factors, variances, loglik, progress)
         except BaseException:
             # an error at any step (a model function's, or a failure with on_error="raise")
             # leaves the fleet as it was before the call
             self.__dict__.update(before.__dict__)
+            self.__dict__["_handed"] = handed  # the arrays handed out stay the caller's, still current
             raise
         return FleetResult(
             means, factors, variances, loglik, self._failed.copy(), self._x.copy(), self._S.copy()
@@ -773,6 +854,7 @@ class Fleet:
         from .ukf import SquareRootUKF
 
         k = int(np.arange(self._K)[k])
+        self._take_edits()
         f = SquareRootUKF(
             self._n,
             self._m,
@@ -803,9 +885,25 @@ class Fleet:
 
         The configuration is shared; every array is the new fleet's own. A
         pending ask/tell step is not carried over.
+
+        Raises
+        ------
+        ParameterError
+            ``rows`` selects no filter (a fleet has at least one, as
+            ``Fleet(n_filters=...)`` requires), or is not a valid index of
+            the fleet's filters.
         """
-        idx = np.arange(self._K)[rows]
-        idx = np.atleast_1d(idx)
+        self._take_edits()
+        try:
+            idx = np.atleast_1d(np.arange(self._K)[rows])
+        except (IndexError, TypeError, ValueError) as exc:
+            raise ParameterError(
+                f"rows is not an index of the {self._K} filters: rows={rows!r:.100} ({exc})"
+            ) from None
+        if idx.size == 0:
+            raise ParameterError(
+                f"rows selects no filter (rows={rows!r:.100}): a fleet has at least one filter"
+            )
         new = copy.copy(self)
         new._K = int(idx.size)
         new._x, new._S = self._x[idx], self._S[idx]
@@ -901,6 +999,8 @@ class Fleet:
             if isinstance(v, np.ndarray):
                 v = copies.setdefault(id(v), v.copy())
             d[key] = v
+        # the copy's own arrays handed out, pending edits included
+        d["_handed"] = {name: (a.copy(), snap) for name, (a, snap) in self._handed.items()}
         state = self._state
         if state.prior is not None:
             # ask_update knows the pending second set by the identity of the estimate it was
@@ -932,7 +1032,8 @@ class Fleet:
             From :meth:`batch_filter` with ``keep="all"`` (its means and factors).
         dts : float or array_like of shape (T,), optional
             ``dts[k]``: time step of the prediction into step ``k``, as given to
-            :meth:`batch_filter` (default: the constructor's).
+            :meth:`batch_filter` (default: the constructor's); any finite
+            real number, as for :meth:`predict`.
         fx_args : dict, optional
             Passed to ``fx`` at every step (per-filter arrays as for :meth:`predict`).
 
@@ -960,4 +1061,5 @@ class Fleet:
         """
         from .smoother import fleet_rts_smoother
 
+        self._take_edits()
         return fleet_rts_smoother(self, result, dts=dts, fx_args=fx_args)

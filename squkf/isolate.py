@@ -36,7 +36,9 @@ def run_isolated(fn: Callable, idx: np.ndarray, K: int, fails: dict[int, str], b
     ----------
     fn : callable
         ``fn(rows)`` with ``rows`` an index array or a slice of filters;
-        returns a tuple of arrays with one leading entry per filter.
+        returns a tuple of arrays with one leading entry per filter. For a
+        failing filter ``k`` it is also called as ``fn(k)`` (no batch axis), to
+        describe the failure by that filter's values alone.
     idx : ndarray of int
         The filters to run.
     K : int
@@ -83,6 +85,25 @@ def _run(fn: Callable, ix: np.ndarray, view: slice | None = None):
     return fn(ix if view is None else view)
 
 
+def _describe(fn: Callable, k: int, exc: SqukfError) -> str:
+    """Why filter ``k`` failed, in the words of that filter alone.
+
+    ``exc`` came from ``k`` computed as a stack of two copies (:func:`_run`),
+    so a message quoting values (a diagonal, a matrix) would show the stack.
+    ``fn`` at the bare index ``k`` computes the filter without a batch axis,
+    as ``SquareRootUKF`` does; its error, when it fails the same way, is what
+    the single filter would say. Otherwise ``exc`` is described as it is.
+    """
+    try:
+        fn(k)
+    except SqukfError as alone:
+        if type(alone) is type(exc):
+            return f"{type(alone).__name__}: {alone}"
+    except Exception:  # noqa: BLE001  # fn may need a batch axis: keep the stack's own words
+        pass
+    return f"{type(exc).__name__}: {exc}"
+
+
 def _block(fn: Callable, idx: np.ndarray, rows: slice | None, fails: dict[int, str]):
     try:
         return idx, _run(fn, idx, rows)
@@ -97,7 +118,7 @@ def _block(fn: Callable, idx: np.ndarray, rows: slice | None, fails: dict[int, s
         except SqukfError as exc:
             if not numerical(exc):
                 raise
-            fails.setdefault(k, f"{type(exc).__name__}: {exc}")
+            fails.setdefault(k, _describe(fn, k, exc))
     if not good:
         return np.array([], dtype=int), None
     return np.array(good), tuple(np.concatenate([p[i] for p in parts]) for i in range(len(parts[0])))

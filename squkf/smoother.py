@@ -22,8 +22,9 @@ reads ``Qs`` the way this smoother does.
 Inputs are checked before the backward pass: the filtered means and factors
 must be finite, the factors lower triangular with a non-zero diagonal, and
 the per-step arguments (see :mod:`squkf.batch`) must have one entry per step;
-``dts`` entries must be finite and not negative (``dt = 0``, a prediction of
-zero length, is accepted, as by the filter).
+``dts`` entries follow the filter's one rule for a time step
+(:func:`squkf.validate.check_time_step`): any finite real number, ``0`` (a
+prediction of zero length) and negative steps included, as ``predict`` takes them.
 
 One algorithm, written once
 ---------------------------
@@ -54,7 +55,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from .batch import per_step
+from .batch import model_kwargs, per_step
 from .covariance import FactorSlot, as_lower_factor
 from .errors import (
     NonFiniteError,
@@ -68,7 +69,7 @@ from .isolate import run_isolated
 from .linalg import chol_downdate_columns, kalman_gain, tria
 from .plan import Hooks
 from .transform import deviations, factor_rows, swap_last, transform_factor
-from .validate import as_float_array, call_hook, check_values
+from .validate import as_float_array, call_hook, check_values, describe_nonfinite
 
 __all__ = ["rts_smoother", "rts_smoother_factors", "fleet_rts_smoother", "FleetSmoothed"]
 
@@ -130,7 +131,7 @@ def rts_smoother(
         ``q`` means ``q * I`` at every step; default ``ukf.Q``).
     dts : None, float, or T floats, optional
         ``dts[k]``: time step of the prediction into step ``k`` (default: the
-        filter's ``dt``). Finite and not negative; ``0`` is accepted.
+        filter's ``dt``). Any finite real number, as for ``predict``.
     UT : callable, optional
         Square-root transform (see :func:`squkf.sqrt_unscented_transform`).
     fx_args : None, dict, or T dicts, optional
@@ -154,7 +155,7 @@ def rts_smoother(
     SqukfValueError, NotPositiveDefiniteError
         ``Ps[k]`` not symmetric or not positive definite.
     ParameterError
-        A negative or non-finite ``dts`` entry, ``fx_args`` not dicts.
+        A ``dts`` entry that is not a finite number, ``fx_args`` not dicts.
 
     Examples
     --------
@@ -475,7 +476,7 @@ def _backward(
             fails: dict[int, str] = {}
             finite = np.isfinite(F.reshape(K, -1)).all(axis=1)
             for j in np.flatnonzero(~failed & ~finite).tolist():
-                fails[j] = "fx values are not finite"
+                fails[j] = f"NonFiniteError: {describe_nonfinite(F[j], 'fx values')}"
             idx = np.flatnonzero(~failed & finite)
             x_next, S_next = xs_s[:, k + 1], Ss_s[:, k + 1]
 
@@ -568,19 +569,6 @@ class FleetSmoothed(tuple):
         return self[1] @ np.swapaxes(self[1], -1, -2)
 
 
-def _fleet_dts(fleet, dts, T: int) -> list[float]:
-    if dts is None:
-        return [fleet._dt] * T
-    if isinstance(dts, (str, bytes, Mapping)):
-        raise ParameterError(f"dts must be a number or one per step, got {type(dts).__name__}: {dts!r:.100}")
-    a = np.asarray(dts, dtype=object)
-    if a.ndim == 0:
-        return [fleet._check_dt(dts)] * T
-    if a.shape != (T,):
-        raise ShapeError(f"dts has shape {a.shape}, expected a number or ({T},): one per step of the result")
-    return [fleet._check_dt(d) for d in a]
-
-
 def fleet_rts_smoother(fleet, result, dts=None, fx_args: Mapping[str, Any] | None = None) -> FleetSmoothed:
     """The square-root unscented RTS smoother for every filter of a fleet.
 
@@ -630,7 +618,7 @@ def fleet_rts_smoother(fleet, result, dts=None, fx_args: Mapping[str, Any] | Non
     if failed.shape != (K,) or failed.dtype != bool:
         raise ShapeError(f"result.failed must be bools of shape ({K},), got {failed.dtype} {failed.shape}")
     for name, a in (("result.means", xs), ("result.P1_2s", Ss)):
-        finite = np.isfinite(a.reshape(K, T, -1)).all(axis=2)
+        finite = np.isfinite(a).all(axis=tuple(range(2, a.ndim)))  # (K, T), also for T = 0
         if not finite.all():
             j, k = (int(i) for i in np.argwhere(~finite)[0])
             raise NonFiniteError(f"{name}[{j}, {k}] (filter {j}, step {k}) contains NaN or inf")
@@ -642,10 +630,8 @@ def fleet_rts_smoother(fleet, result, dts=None, fx_args: Mapping[str, Any] | Non
         j, k = (int(i) for i in np.argwhere((diag == 0).any(axis=2) & ~failed[:, None])[0])
         raise NotPositiveDefiniteError(f"result.P1_2s[{j}, {k}] has a zero on its diagonal")
     Ss = Ss * np.copysign(1.0, diag)[..., None, :]  # a column's sign leaves S S^T unchanged
-    dt_list = _fleet_dts(fleet, dts, T)
-    if fx_args is not None and not isinstance(fx_args, Mapping):
-        raise ParameterError(f"fx_args must be a dict, got {type(fx_args).__name__}")
-    kwargs = fleet._with_filter_axis(dict(fx_args or {}))
+    dt_list = per_step(dts, T, "dts", "dt", default=fleet._dt, ref="result")
+    kwargs = fleet._with_filter_axis(model_kwargs(fx_args, "fx_args"))
     Q1_2 = fleet._Q1_2
 
     def fx_eval(k: int, X: np.ndarray):

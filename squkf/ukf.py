@@ -28,7 +28,7 @@ from .linalg import all_finite, solve_lower
 from .measurement import gain_from_factors
 from .plan import Hooks, Plan, build_plan
 from .transform import deviations
-from .validate import as_float_array, check_time_step, check_values
+from .validate import as_float_array, as_measurements, check_time_step, check_values
 from .weights import as_family
 
 __all__ = ["SquareRootUKF"]
@@ -483,7 +483,11 @@ class SquareRootUKF:
 
     @property
     def K(self) -> np.ndarray:
-        """Kalman gain of the last update, shape ``(dim_x, dim_z)`` (zero columns where missing)."""
+        """Kalman gain of the last update, shape ``(dim_x, dim_z)`` (zero columns where missing).
+
+        Formed once per update and handed out as a fresh copy on each read, so
+        an array read earlier (a ``Saver``'s history) is never rewritten.
+        """
         if self._K is None:
             K = gain_from_factors(self._Sy, self._L21) if self._measured else np.zeros_like(self._L21)
             obs = self._observed
@@ -492,11 +496,11 @@ class SquareRootUKF:
                 full[:, obs] = K
                 K = full
             self._K = K
-        return self._K
+        return self._K.copy()
 
     @K.setter
     def K(self, value):
-        self._K = value
+        self._K = as_float_array(value, "K")  # a private copy: K reads as a fresh one
 
     @property
     def log_likelihood(self) -> float:
@@ -721,9 +725,7 @@ class SquareRootUKF:
         """
         if z is None:
             return None
-        if isinstance(z, np.ma.MaskedArray):
-            z = np.ma.filled(np.ma.asarray(z, dtype=float), np.nan)
-        arr = as_float_array(z, "z")
+        arr = as_measurements(z, "z")
         if arr.ndim != 1:
             if arr.ndim == 0:
                 arr = arr.reshape(1)
@@ -757,8 +759,11 @@ class SquareRootUKF:
         Parameters
         ----------
         dt : float, optional
-            Time step for this prediction (default: the constructor's ``dt``);
-            any finite value, ``0`` included (``fx(x, 0)``), as filterpy.
+            Time step for this prediction (default: the constructor's ``dt``):
+            any finite real number, ``0`` (``fx(x, 0)``) and negative steps
+            included, as filterpy; every route (``batch_filter``, the smoothers,
+            the fleet) takes the same rule, :func:`squkf.validate.check_time_step`.
+            A string (``"0.1"`` too) is a :class:`~squkf.errors.ParameterError`.
         UT : callable, optional
             Square-root transform, signature of :func:`squkf.sqrt_unscented_transform`.
         fx : callable, optional

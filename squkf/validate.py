@@ -16,7 +16,15 @@ import numpy as np
 from .errors import NonFiniteError, ParameterError, ShapeError
 from .linalg import all_finite
 
-__all__ = ["as_float_array", "check_time_step", "check_values", "check_hook_result", "call_hook"]
+__all__ = [
+    "as_float_array",
+    "as_measurements",
+    "check_time_step",
+    "check_values",
+    "describe_nonfinite",
+    "check_hook_result",
+    "call_hook",
+]
 
 _FLOAT64 = np.dtype(np.float64)  # numpy's native float64 dtype is one object: compared by identity
 
@@ -38,6 +46,8 @@ def as_float_array(value, name: str) -> np.ndarray:
     ------
     ShapeError
         ``value`` is not a real numeric array (complex, strings, ragged, objects).
+        Text is refused in every form, numeric text (``"1.0"``) and an object
+        array holding some included.
     """
     if isinstance(value, np.ndarray) and value.dtype.kind in "fiub":
         return np.array(value, dtype=float)
@@ -50,13 +60,47 @@ def as_float_array(value, name: str) -> np.ndarray:
     if probe.dtype.kind == "c":
         raise ShapeError(f"{name} is complex ({probe.dtype}); squkf works in real float64")
     if probe.dtype.kind not in "fiub":
-        if probe.dtype.kind == "O":
+        if probe.dtype.kind == "O" and not any(isinstance(v, (str, bytes)) for v in probe.flat):
+            # objects that are numbers (None, Fractions, 0-d arrays): read as floats; text never,
+            # not even "1.0", which numpy's astype(float) would parse
             try:
                 return as_float_array(probe.astype(float), name)
             except (TypeError, ValueError):
                 pass
         raise ShapeError(f"{name} could not be read as a real float array (dtype {probe.dtype}): {value!r}")
     return np.array(probe, dtype=float)
+
+
+def as_measurements(value, name: str) -> np.ndarray:
+    """Measurements as a new float64 array, masked entries (``numpy.ma``) as NaN: missing.
+
+    The one reading of measurements for every route (``update``, the batch
+    filters, :func:`squkf.dask.batch_filter`): a masked entry means missing,
+    as NaN does, whatever value it hides.
+
+    Parameters
+    ----------
+    value : array_like or numpy.ma.MaskedArray
+    name : str
+        Used in the error message.
+
+    Returns
+    -------
+    ndarray, float64, a private copy
+
+    Raises
+    ------
+    ShapeError
+        As :func:`as_float_array` (the data of a masked array is read the same way).
+    """
+    if isinstance(value, np.ma.MaskedArray):
+        data = as_float_array(np.ma.getdata(value), name)
+        mask = np.ma.getmaskarray(value)
+        if mask.shape != data.shape:
+            mask = np.broadcast_to(mask, data.shape)
+        data[mask] = np.nan
+        return data
+    return as_float_array(value, name)
 
 
 def check_values(values, shape: tuple[int, ...], name: str, private: bool = True) -> np.ndarray:
@@ -96,12 +140,33 @@ def check_values(values, shape: tuple[int, ...], name: str, private: bool = True
         else:
             raise ShapeError(f"{name} has shape {arr.shape}, expected {shape} (one row per sigma point)")
     if not all_finite(arr):
-        idx = tuple(int(i) for i in np.argwhere(~np.isfinite(arr))[0])
-        raise NonFiniteError(
-            f"{name} is not finite: row {idx[-2]} (sigma point {idx[-2]}), column {idx[-1]} holds {arr[idx]}"
-            + (f" (filter {idx[:-2]})" if len(idx) > 2 else "")
-        )
+        raise NonFiniteError(describe_nonfinite(arr, name))
     return arr
+
+
+def describe_nonfinite(values: np.ndarray, name: str) -> str:
+    """What is said of images that are not finite: the first such entry, by sigma point and column.
+
+    The one wording for a single filter (``values`` of shape ``(N, d)``) and
+    for one filter of a fleet (its own rows, ``values[k]``), so that a fleet's
+    ``failure`` reads as the single filter's error; for a stack ``(..., N, d)``
+    the filter's index is added.
+
+    Parameters
+    ----------
+    values : ndarray, shape (..., N, d), holding at least one NaN or inf
+    name : str
+        What the values are (``"fx values"``), for the message.
+
+    Returns
+    -------
+    str
+    """
+    idx = tuple(int(i) for i in np.argwhere(~np.isfinite(values))[0])
+    return (
+        f"{name} is not finite: row {idx[-2]} (sigma point {idx[-2]}), column {idx[-1]} holds {values[idx]}"
+        + (f" (filter {idx[:-2]})" if len(idx) > 2 else "")
+    )
 
 
 def check_hook_result(value, shape: tuple[int, ...], hook: str) -> np.ndarray:
@@ -140,20 +205,42 @@ def call_hook(fn: Callable, args: tuple, shape: tuple[int, ...], hook: str) -> n
     return check_hook_result(fn(*args), shape, hook)
 
 
-def check_time_step(dt) -> float:
-    """A time step as a float: any finite real number (``0`` is a step of zero length, as in filterpy).
+def check_time_step(dt, name: str = "dt") -> float:
+    """A time step as a float: any finite real number, the one rule of every route.
+
+    ``SquareRootUKF.predict``, ``Fleet.predict``, the ``dts`` of every
+    ``batch_filter`` and ``rts_smoother`` (single filter, fleet, and
+    :func:`squkf.dask.batch_filter`) and the constructors' ``dt`` all take a
+    time step through here. As in filterpy, a step may have any sign: ``0`` is
+    a step of zero length (``fx(x, 0)``) and a negative ``dt`` is passed to
+    ``fx`` as it is (a step backwards in time, if the model allows it).
+
+    Parameters
+    ----------
+    dt : float
+        A real number (a Python or numpy number, or a 0-d real array).
+    name : str
+        The argument, for the message (``"dt"``, ``"dts[3]"``).
+
+    Returns
+    -------
+    float
 
     Raises
     ------
     ParameterError
-        ``dt`` is complex, not a number, NaN or infinite.
+        ``dt`` is a string (numeric or not), complex, not a number, NaN or
+        infinite.
     """
+    if isinstance(dt, (str, bytes)) or (isinstance(dt, np.ndarray) and dt.dtype.kind not in "fiub"):
+        # before float(), which would read "0.1" as a number
+        raise ParameterError(f"{name} must be a finite number, got {name}={dt!r} ({type(dt).__name__})")
     if np.iscomplexobj(dt):  # before float(), which would drop the imaginary part with a warning
-        raise ParameterError(f"dt must be a finite real number, got dt={dt!r}")
+        raise ParameterError(f"{name} must be a finite real number, got {name}={dt!r}")
     try:
         value = float(dt)
     except (TypeError, ValueError):
-        raise ParameterError(f"dt must be a finite number, got dt={dt!r}") from None
+        raise ParameterError(f"{name} must be a finite number, got {name}={dt!r}") from None
     if not math.isfinite(value):
-        raise ParameterError(f"dt must be a finite number, got dt={dt!r}")
+        raise ParameterError(f"{name} must be a finite number, got {name}={dt!r}")
     return value

@@ -330,11 +330,14 @@ def test_state_assignment_broadcasts_and_checks():
     np.testing.assert_array_equal(fleet.P1_2, Ss)
     fleet.P1_2 = S
     np.testing.assert_array_equal(fleet.P1_2, np.broadcast_to(S, (K, 4, 4)))
-    # fresh arrays: editing what was read changes nothing
-    fleet.x[0, 0] = 99.0
+    # the factors are fresh copies: editing one changes nothing; x and P edited in place are taken
+    # (issue 20: an edit is never lost; tests/test_boundary_promises.py)
     fleet.P1_2[0, 0, 0] = 99.0
+    assert fleet.P1_2[0, 0, 0] == S[0, 0]
+    fleet.x[0, 0] = 99.0
     fleet.P[0, 0, 0] = 99.0
-    assert fleet.x[0, 0] == 0.0 and fleet.P1_2[0, 0, 0] == S[0, 0]
+    assert fleet.x[0, 0] == 99.0 and fleet.P1_2[0, 0, 0] == np.sqrt(99.0)
+    fleet.x, fleet.P1_2 = np.arange(4.0), S  # back as before the edits
 
     x_before, S_before = fleet.x, fleet.P1_2
     for attr, bad, exc in [

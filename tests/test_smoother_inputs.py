@@ -134,8 +134,8 @@ def _corrupt(filtered, what):
         factors[3][1, 0] = np.nan
     elif what == "mean inf":
         means[3][1] = np.inf
-    elif what == "negative dt":
-        kwargs["dts"] = [1.0] * 3 + [-0.5] + [1.0] * (T - 4)
+    elif what == "numeric text dt":  # a negative dt is a step, as for predict
+        kwargs["dts"] = [1.0] * 3 + ["0.5"] + [1.0] * (T - 4)
     elif what == "nan dt":
         kwargs["dts"] = [1.0] * 3 + [np.nan] + [1.0] * (T - 4)
     elif what == "inf dt":
@@ -154,7 +154,7 @@ def _corrupt(filtered, what):
         ("factor zero diagonal", NotPositiveDefiniteError, r"P1_2s\[3\] has a zero on its diagonal"),
         ("factor nan", NonFiniteError, r"P1_2s\[3\] \(step 3\) contains NaN or inf"),
         ("mean inf", NonFiniteError, r"Xs\[3\] \(step 3\) contains NaN or inf"),
-        ("negative dt", ParameterError, r"dts\[3\] must be a finite number >= 0"),
+        ("numeric text dt", ParameterError, r"dts\[3\] must be a finite number"),
         ("nan dt", ParameterError, r"dts\[3\]"),
         ("inf dt", ParameterError, r"dts\[3\]"),
         ("text dt", ParameterError, r"dts\[3\]"),
