@@ -48,8 +48,10 @@ Memory, two measures of one fleet ``predict`` + ``update`` (a warm step):
 * the peak resident set size (``VmHWM`` of ``/proc/self/status``, reset before
   each step through ``/proc/self/clear_refs``) above the RSS before the step,
   in a fresh subprocess at the largest K (kernels compiled or loaded on a
-  small fleet first): the first step, and the second (warm) one. This sees
-  everything, numba's arrays included.
+  small fleet first): the first step, and the second (warm) one. Before each
+  step glibc's ``malloc_trim`` gives freed heap memory back, so that the
+  temporaries of the step before do not hide this one's. This sees
+  everything, numba's arrays included; the memory target is judged on it.
 
 Accuracy: on a separate, untimed run, the fleet's estimates are compared with
 the loop of ``SquareRootUKF`` (the same filter: RMSE equal to 1e-9 or the run
@@ -437,7 +439,18 @@ def _status_mb() -> dict:
     return out
 
 
+def _trim() -> None:
+    """Give freed heap memory back to the system (glibc), so that RSS growth shows a step's own peak."""
+    try:
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):
+        pass
+
+
 def _reset_peak() -> bool:
+    _trim()
     try:
         with open("/proc/self/clear_refs", "w") as fh:
             fh.write("5")  # VmHWM := VmRSS
@@ -463,8 +476,8 @@ def rss_child(model, K: int, seed: int) -> dict:
     state = sum(v.nbytes for v in vars(f).values() if isinstance(v, np.ndarray)) / 1e6
     out = {"K": K, "state_MB": state, "built_rss_MB": r1 - r0, "reset": True}
     for t in (0, 1):
-        before = _status_mb()["VmRSS"]
         out["reset"] &= _reset_peak()
+        before = _status_mb()["VmRSS"]
         f.predict()
         f.update(zs[:, t])
         s = _status_mb()
@@ -661,8 +674,8 @@ def memory_section(results: dict) -> list[str]:
         "",
         "Resident set size in a fresh process at the largest K (kernels compiled or loaded on a small "
         "fleet first): the built fleet's RSS growth, and for the first and the second step the peak RSS "
-        "(VmHWM, reset before the step) above the RSS before it. tracemalloc's peak (warm step, numpy's "
-        "allocations only) beside it.",
+        "(VmHWM, reset before the step, after malloc_trim) above the RSS before it. tracemalloc's peak "
+        "(warm step, numpy's allocations only) beside it.",
         "",
         "| model | K | fleet state MB | built fleet RSS MB | first step peak RSS MB "
         "| second step peak RSS MB | second step peak, tracemalloc MB |",
