@@ -20,6 +20,7 @@ from .errors import (
 )
 from .fleet import Fleet, FleetResult, FleetStepError
 from .generators import Augmented, Propagated, Redrawn, SigmaSet
+from .kernels import get_num_threads, set_num_threads
 from .transform import sqrt_unscented_transform
 from .ukf import SquareRootUKF
 from .ut import unscented_transform
@@ -49,6 +50,8 @@ __all__ = [
     "Augmented",
     "Propagated",
     "SigmaSet",
+    "set_num_threads",
+    "get_num_threads",
     "SqukfError",
     "SqukfValueError",
     "ShapeError",

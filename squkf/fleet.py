@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -49,8 +48,6 @@ from .validate import as_float_array, as_measurements, check_time_step, describe
 from .weights import as_family
 
 __all__ = ["Fleet", "FleetResult", "FleetStepError"]
-
-_LOG_2PI = math.log(2.0 * math.pi)
 
 
 class FleetStepError(SqukfError, ArithmeticError):
@@ -709,10 +706,7 @@ class Fleet:
             def posterior(ix, mask=mask):
                 sub = steps.StepState(steps.UPDATING, None, None, None, _take(sset, ix), (x0[ix], S0[ix]))
                 _, post, _ = steps.tell_update(sub, H[ix], z[ix], _rows_of(R1_2, ix, 2), mask, hooks)
-                w = post.w
-                logdet = 2.0 * np.log(np.abs(np.diagonal(post.Sy, axis1=-2, axis2=-1))).sum(axis=-1)
-                ll = -0.5 * (w.shape[-1] * _LOG_2PI + logdet + (w * w).sum(axis=-1))
-                return post.x, post.S, post.y, ll, np.sqrt((w * w).sum(axis=-1))
+                return post.x, post.S, post.y, post.log_likelihood, np.sqrt(post.nis)
 
             good, res = self._isolated(posterior, group, fails)
             if res is not None:

@@ -71,7 +71,11 @@ class Posterior(NamedTuple):
     L21 : ndarray, shape (..., n, m)
         ``Pxy Sy^-T`` (equivalently ``K Sy``); :meth:`gain` forms ``K`` from it.
     w : ndarray, shape (..., m)
-        Whitened innovation ``Sy^-1 y`` (for the likelihood).
+        Whitened innovation ``Sy^-1 y``.
+    log_likelihood : ndarray, shape (...)
+        The measurement's Gaussian log-likelihood, ``-(m log 2 pi + 2 sum log|Sy_ii| + w.w) / 2``.
+    nis : ndarray, shape (...)
+        ``w.w``, the squared Mahalanobis distance of the innovation (its NIS).
     """
 
     x: np.ndarray
@@ -81,6 +85,8 @@ class Posterior(NamedTuple):
     Sy: np.ndarray
     L21: np.ndarray
     w: np.ndarray
+    log_likelihood: np.ndarray
+    nis: np.ndarray
 
     def gain(self) -> np.ndarray:
         """The Kalman gain ``K = L21 Sy^-1``, shape ``(..., n, m)`` (one triangular solve)."""
@@ -231,7 +237,7 @@ def measurement_update(
         x_post = _per_filter(state_add, x, u.dx, "state_add")
         if not all_finite(x_post):
             raise PosteriorFactorError("the posterior mean or factor is not finite", errno=303)
-    return Posterior(x_post, u.S, u.y, z_pred, u.Sy, u.L21, u.w)
+    return Posterior(x_post, u.S, u.y, z_pred, u.Sy, u.L21, u.w, u.log_likelihood, u.nis)
 
 
 def _innovation(z: np.ndarray, z_pred: np.ndarray, residual_z: Callable | None) -> np.ndarray:

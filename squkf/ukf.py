@@ -34,7 +34,6 @@ from .weights import as_family
 __all__ = ["SquareRootUKF"]
 
 _LOG_TINY = math.log(sys.float_info.min)
-_LOG_2PI = math.log(2.0 * math.pi)
 
 
 def _one_blas_thread(method):
@@ -318,7 +317,8 @@ class SquareRootUKF:
         self._K: np.ndarray | None = None
         self._L21 = np.zeros((n, m))  # K @ S1_2 of the last update, observed columns
         self._Sy = np.zeros((m, m))  # innovation factor of the last update, observed block
-        self._w = np.zeros(m)  # whitened innovation Sy^-1 y of the last update
+        self._ll = 0.0  # the last update's log-likelihood and NIS w.w (w = Sy^-1 y), from the kernel
+        self._nis = 0.0
         self._observed = None  # mask of the measured components, None: all
         self._measured = False  # whether an update has happened
 
@@ -507,9 +507,7 @@ class SquareRootUKF:
         """Log-likelihood of the last measurement (its measured components), from the innovation factor."""
         if not self._measured:
             return _LOG_TINY
-        w = self._w
-        logdet = 2.0 * float(np.sum(np.log(np.abs(self._Sy.diagonal()))))
-        return -0.5 * (w.size * _LOG_2PI + logdet + float(w @ w))
+        return self._ll
 
     @property
     def likelihood(self) -> float:
@@ -519,7 +517,7 @@ class SquareRootUKF:
     @property
     def mahalanobis(self) -> float:
         """Mahalanobis distance of the last innovation, ``||S1_2^-1 y||`` (measured components)."""
-        return float(math.sqrt(self._w @ self._w)) if self._measured else 0.0
+        return math.sqrt(self._nis) if self._measured else 0.0
 
     # -- helpers ------------------------------------------------------------
 
@@ -714,7 +712,8 @@ class SquareRootUKF:
         self.y = y
         self.z = z
         self.sigmas_h = H
-        self._Sy, self._L21, self._w, self._observed = post.Sy, post.L21, post.w, observed
+        self._Sy, self._L21, self._observed = post.Sy, post.L21, observed
+        self._ll, self._nis = float(post.log_likelihood), float(post.nis)
         self._K = None
         self._measured = True
 

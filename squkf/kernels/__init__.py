@@ -109,6 +109,9 @@ def _call(kernel: Any, B: int, *args, plan: tuple[int, ...] = ()) -> None:
 
     Every other array with ``B`` rows is one row per filter; a shared array has one row.
     """
+    if _threads == 1 or B < 2 * MIN_FILTERS_PER_THREAD:
+        kernel(*args)
+        return
     cut = tuple(
         i not in plan and isinstance(a, np.ndarray) and a.ndim >= 1 and a.shape[0] == B
         for i, a in enumerate(args)
@@ -130,26 +133,41 @@ def _batch(*arrays: tuple[np.ndarray | None, int]) -> tuple[int, ...]:
     return shape
 
 
+def _kernel_array(a: np.ndarray) -> np.ndarray:
+    """``a`` itself if it is float64, C-contiguous and writeable (one kernel signature), else a copy."""
+    f = a.flags
+    if f.c_contiguous and f.writeable and a.dtype == np.float64:
+        return a
+    return np.array(a, dtype=np.float64, order="C")
+
+
 def _stack(a: np.ndarray, batch: tuple[int, ...], core: int) -> np.ndarray:
-    """``a`` as a C-contiguous float64 stack ``(B, *core shape)`` over ``batch``."""
+    """``a`` as a stack ``(B, *core shape)`` over ``batch``, as the kernels take it."""
+    if not batch and a.ndim == core:  # one filter: a view with a leading axis of one
+        return _kernel_array(a[None])
     tail = a.shape[a.ndim - core :]
     if a.shape[: a.ndim - core] != batch:
         a = np.broadcast_to(a, batch + tail)
-    return np.ascontiguousarray(a.reshape((-1,) + tail), dtype=np.float64)
+    return _kernel_array(a.reshape((-1,) + tail))
 
 
 def _shared(a: np.ndarray, batch: tuple[int, ...], core: int) -> np.ndarray:
     """Like :func:`_stack`, but an ``a`` with no batch axis is passed once (leading axis 1)."""
     if a.ndim == core:
-        return np.ascontiguousarray(a[None], dtype=np.float64)
+        return _kernel_array(a[None])
     return _stack(a, batch, core)
 
 
-def _size(batch: tuple[int, ...]) -> int:
-    B = 1
-    for s in batch:
-        B *= s
-    return B
+def _plan(a: np.ndarray) -> np.ndarray:
+    """A plan's array as the kernels take it: float64, C-contiguous and read-only.
+
+    numba types a read-only array apart from a writeable one; the plan's arrays are
+    frozen, so handing every one over read-only keeps each kernel at one signature.
+    """
+    if a.flags.writeable or not a.flags.c_contiguous or a.dtype != np.float64:
+        a = np.ascontiguousarray(a, dtype=np.float64).view()
+        a.flags.writeable = False
+    return a
 
 
 def tria(rows: np.ndarray) -> np.ndarray:
@@ -252,8 +270,8 @@ def sigma_points(x: np.ndarray, S: np.ndarray, xi: np.ndarray, gamma: float = 0.
         Ss.shape[0],
         _shared(x, batch, 1),
         Ss,
-        np.ascontiguousarray(xi, dtype=np.float64),
-        gamma,
+        _plan(xi),
+        float(gamma),
         X,
         dX,
         plan=(2,),
@@ -302,7 +320,21 @@ def transform(
     mean = np.empty((B, d))
     S = np.empty((B, d, d))
     status = np.empty(B, dtype=np.int64)
-    _call(phases.transform_kernel, B, Ps, R, mode, wm, scale, sign, Nz, mean, S, status, plan=(3, 4, 5))
+    _call(
+        phases.transform_kernel,
+        B,
+        Ps,
+        R,
+        mode,
+        _plan(wm),
+        _plan(scale),
+        _plan(sign),
+        Nz,
+        mean,
+        S,
+        status,
+        plan=(3, 4, 5),
+    )
     return mean.reshape(batch + (d,)), S.reshape(batch + (d, d)), status.reshape(batch)
 
 
@@ -319,6 +351,8 @@ class JointUpdate(NamedTuple):
         ``L21 w`` and the posterior mean ``x + dx``.
     S : ndarray, shape (..., n, n)
         The posterior factor.
+    log_likelihood, nis : ndarray, shape (...)
+        The measurement's Gaussian log-likelihood and its squared Mahalanobis distance ``w.w``.
     status : ndarray of int, shape (...)
         0, or g13ej's 301, 302, 303.
     """
@@ -331,6 +365,8 @@ class JointUpdate(NamedTuple):
     dx: np.ndarray
     x: np.ndarray
     S: np.ndarray
+    log_likelihood: np.ndarray
+    nis: np.ndarray
     status: np.ndarray
 
 
@@ -376,7 +412,7 @@ def joint_update(
     B = Hs.shape[0]
     out: list[np.ndarray] = [np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m))]
     out += [np.empty((B, n, m)), np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n))]
-    out.append(np.empty(B, dtype=np.int64))
+    out += [np.empty(B), np.empty(B), np.empty(B, dtype=np.int64)]
     _call(
         phases.joint_update_kernel,
         B,
@@ -388,9 +424,9 @@ def joint_update(
         _shared(R1_2, batch, 2),
         _shared(x, batch, 1),
         mode,
-        wm,
-        scale,
-        sign,
+        _plan(wm),
+        _plan(scale),
+        _plan(sign),
         *out,
         plan=(8, 9, 10),
     )
@@ -435,6 +471,7 @@ def downdate_update(
     B = Hs.shape[0]
     L21, w = np.empty((B, n, m)), np.empty((B, m))
     dx, xp, Sp, status = np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B, dtype=np.int64)
+    ll, ww = np.empty(B), np.empty(B)
     ys = _stack(y, batch, 1)
     Sys = _stack(Sy, batch, 2)
     _call(
@@ -448,14 +485,16 @@ def downdate_update(
         Sys,
         _stack(S, batch, 2),
         _shared(x, batch, 1),
-        wc,
+        _plan(wc),
         L21,
         w,
         dx,
         xp,
         Sp,
+        ll,
+        ww,
         status,
         plan=(8,),
     )
-    out = (ys, w, Sys, L21, dx, xp, Sp, status)
+    out = (ys, w, Sys, L21, dx, xp, Sp, ll, ww, status)
     return JointUpdate(None, *(a.reshape(batch + a.shape[1:]) for a in out))

@@ -74,6 +74,7 @@ __all__ = [
 ]
 
 _TINY = float(np.finfo(np.float64).tiny)
+_LOG_2PI = math.log(2.0 * math.pi)
 #: The decorator of every kernel and helper: compiled on first call, cached on disk, releases the GIL.
 kernel = njit(cache=True, nogil=True, error_model="numpy")
 _LANES = 64
@@ -552,8 +553,8 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status):
     rows = npos + q
     nl = _lanes(d * max(rows, N))
     Pl = np.empty((d, N, nl))
-    At = np.empty((d, max(rows, 1), nl))
-    L = np.empty((d, d, nl))
+    At = np.empty((d, max(rows, d, 1), nl))  # the rows, then their factor in place (below)
+    L = At
     ml = np.empty((d, nl))
     v = np.empty((d, nl))
     V = np.empty((6, nl))
@@ -579,11 +580,11 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status):
             for l in range(d):
                 for j in range(q):
                     At[l, npos + j, b] = Nk[l, j]
-        tria_lanes(At, d, rows, nb, V)
-        for i in range(d):
-            for j in range(d):
+        for i in range(d):  # fewer rows than columns: the factor's last columns are zero
+            for j in range(rows, d):
                 for b in range(nb):
-                    L[i, j, b] = At[i, j, b] if (j <= i and j < rows) else 0.0
+                    At[i, j, b] = 0.0
+        tria_lanes(At, d, rows, nb, V)  # L = At below the diagonal (read nowhere above it)
         for b in range(nb):
             st[b] = 0
         for r in range(N):
@@ -612,7 +613,7 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status):
 
 @kernel
 def joint_update_kernel(
-    H, zref, X, xref, z, R1_2, x, mode, wm, scale, sign, zp, y, w, Sy, L21, dx, xpost, Spost, status
+    H, zref, X, xref, z, R1_2, x, mode, wm, scale, sign, zp, y, w, Sy, L21, dx, xpost, Spost, ll, ww, status
 ):
     """The measurement update by one QR of the joint rows (the square-root array form).
 
@@ -644,6 +645,8 @@ def joint_update_kernel(
     L21 : ndarray, shape (B, n, m)
     dx, xpost : ndarray, shape (B, n)
     Spost : ndarray, shape (B, n, n)
+    ll, ww : ndarray, shape (B,)
+        The log-likelihood of the measurement and the squared Mahalanobis distance ``w.w``.
     status : ndarray of int64, shape (B,)
         Outputs.
     """
@@ -658,8 +661,8 @@ def joint_update_kernel(
     nl = _lanes(c * max(rows, N))
     Hl = np.empty((m, N, nl))
     Xl = np.empty((n, N, nl))
-    At = np.empty((c, rows, nl))
-    L = np.empty((c, c, nl))
+    At = np.empty((c, max(rows, c), nl))  # the joint rows, then their factor in place (below)
+    L = At
     zl = np.empty((m, nl))
     yl = np.empty((m, nl))
     wl = np.empty((m, nl))
@@ -705,11 +708,11 @@ def joint_update_kernel(
             for l in range(n):
                 for j in range(m):
                     At[m + l, npos + j, b] = 0.0
-        tria_lanes(At, c, rows, nb, V)
-        for i in range(c):
-            for j in range(c):
+        for i in range(c):  # fewer rows than columns: the factor's last columns are zero
+            for j in range(rows, c):
                 for b in range(nb):
-                    L[i, j, b] = At[i, j, b] if (j <= i and j < rows) else 0.0
+                    At[i, j, b] = 0.0
+        tria_lanes(At, c, rows, nb, V)  # L = At below the diagonal (read nowhere above it)
         for b in range(nb):
             st[b] = 0
         for r in range(N):
@@ -737,6 +740,7 @@ def joint_update_kernel(
             for b in range(nb):
                 wl[l, b] = yl[l, b]
         solve_lower_lanes(L, wl, m, nb, False)
+        _likelihood(L, wl, m, k0, nb, ll, ww)
         _load_vector(x, k0, nb, xl)
         for l in range(n):
             for b in range(nb):
@@ -760,6 +764,19 @@ def joint_update_kernel(
 
 
 @kernel
+def _likelihood(Sy, w, m, k0, nb, ll, ww):
+    """``ww = w.w`` and the Gaussian log-likelihood ``-(m log 2 pi + 2 sum log|Sy_ii| + w.w) / 2``."""
+    for b in range(nb):
+        s = 0.0
+        logdet = 0.0
+        for i in range(m):
+            s += w[i, b] * w[i, b]
+            logdet += math.log(abs(Sy[i, i, b]))
+        ww[k0 + b] = s
+        ll[k0 + b] = -0.5 * (m * _LOG_2PI + 2.0 * logdet + s)
+
+
+@kernel
 def _finish(L, i0, n, xl, dxl, st, k0, nb, dx, xpost):
     """``xpost = x + dx``; 303 unless it and the posterior factor ``L[i0:, i0:]`` are finite."""
     for b in range(nb):
@@ -777,7 +794,7 @@ def _finish(L, i0, n, xl, dxl, st, k0, nb, dx, xpost):
 
 
 @kernel
-def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpost, Spost, status):
+def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpost, Spost, ll, ww, status):
     """g13ej's measurement update for a set whose covariance is not the prior's.
 
     ``Pxy = sum_i wc[i] (X_i - xref)(H_i - zref)^T``, ``L21 = Pxy Sy^-T``,
@@ -802,6 +819,7 @@ def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpos
     w : ndarray, shape (B, m)
     dx, xpost : ndarray, shape (B, n)
     Spost : ndarray, shape (B, n, n)
+    ll, ww : ndarray, shape (B,)
     status : ndarray of int64, shape (B,)
         Outputs.
     """
@@ -848,6 +866,7 @@ def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpos
                     Ll[l, j, b] = t[j, b]
         _load_vector(yin, k0, nb, wl)
         solve_lower_lanes(Syl, wl, m, nb, False)
+        _likelihood(Syl, wl, m, k0, nb, ll, ww)
         _load_vector(x, k0, nb, xl)
         for l in range(n):
             for b in range(nb):

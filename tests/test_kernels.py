@@ -1,0 +1,171 @@
+"""The compiled core's promises: one filter is a block of one, so a fleet filter equals its single filter.
+
+Every phase of the step is one numba kernel (:mod:`squkf.kernels`) that computes each filter in its
+own lane with the same operations in the same order, whatever the other lanes hold, however many
+filters there are, however they are cut into blocks or between threads. So the comparisons here are
+for equality, bit for bit. The model functions used are plain arithmetic (no transcendental
+functions, whose SIMD and scalar versions in numpy may round differently), so that whatever differs
+would be the library's.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import squkf.fleet
+from squkf import Fleet, JulierWeights, MerweScaledWeights, SquareRootUKF, kernels
+from squkf.kernels import phases
+from squkf.linalg import chol_update
+
+ENTRY_KERNELS = [
+    "tria_kernel",
+    "solve_kernel",
+    "chol_update_kernel",
+    "points_kernel",
+    "transform_kernel",
+    "joint_update_kernel",
+    "downdate_update_kernel",
+]
+
+
+def fx(X, dt):
+    """A nonlinear constant-velocity model in plain arithmetic (vectorised over leading axes)."""
+    Y = np.array(X, dtype=float, copy=True)
+    Y[..., 0] += dt * X[..., 1]
+    Y[..., 2] += dt * X[..., 3]
+    Y[..., 1] -= dt * 0.01 * X[..., 1] * np.abs(X[..., 1])
+    return Y
+
+
+def hx(X):
+    """Squared range and a cross term: nonlinear, no transcendental function."""
+    return np.stack([X[..., 0] * X[..., 0] + X[..., 2] * X[..., 2], X[..., 0] * X[..., 2] * 1e-2], axis=-1)
+
+
+def scenario(K, T=6, seed=0):
+    rng = np.random.default_rng(seed)
+    x0 = np.array([30.0, 1.0, 20.0, -1.0]) + rng.normal(size=(K, 4))
+    A = rng.normal(size=(K, 4, 4)) * 0.3
+    P0 = A @ np.swapaxes(A, -1, -2) + np.eye(4)
+    Q = np.eye(4) * 0.01 + np.diag(rng.uniform(0, 0.01, 4))
+    R = np.stack([np.diag(rng.uniform(0.5, 2.0, 2)) for _ in range(K)])
+    zs = hx(x0[:, None, :])[:, 0] + rng.normal(size=(T, K, 2))
+    zs[2 % T, ::3, 1] = np.nan  # missing components for a third of the filters at one step
+    zs[(T - 1), 1::5] = np.nan  # and whole measurements missing for others
+    return x0, P0, Q, R, zs
+
+
+CONFIGS = {
+    "merwe": dict(points=MerweScaledWeights(1.0, 2.0, 0.0)),
+    "merwe-negative-central-weight": dict(points=MerweScaledWeights(0.3, 0.0, 0.0)),
+    "julier-augmented": dict(points=JulierWeights(1.0), scheme="augmented"),
+    "merwe-propagated": dict(points=MerweScaledWeights(1.0, 2.0, 0.0), scheme="propagated"),
+}
+
+
+def run_fleet(K, config, x0, P0, Q, R, zs):
+    fleet = Fleet(K, 4, 2, 0.1, hx, fx, **config)
+    fleet.x, fleet.P, fleet.Q, fleet.R = x0, P0, Q, R
+    out = []
+    for z in zs:
+        fleet.predict()
+        fleet.update(z)
+        out.append((fleet.x.copy(), fleet.P.copy(), fleet.log_likelihood.copy()))
+    assert not fleet.failed.any()
+    return out
+
+
+@pytest.mark.parametrize("name", list(CONFIGS))
+def test_a_fleet_filter_equals_its_single_filter_bit_for_bit(name):
+    """70 filters (a block of 64 lanes and a partial one), per-filter R, missing data."""
+    config = CONFIGS[name]
+    K = 70
+    x0, P0, Q, R, zs = scenario(K)
+    fleet = run_fleet(K, config, x0, P0, Q, R, zs)
+    for k in (0, 1, 3, 63, 64, 69):
+        f = SquareRootUKF(4, 2, 0.1, hx, fx, vectorized=True, **config)
+        f.x, f.P, f.Q, f.R = x0[k].copy(), P0[k].copy(), Q.copy(), R[k].copy()
+        for t, z in enumerate(zs):
+            f.predict()
+            f.update(None if np.isnan(z[k]).all() else z[k])
+            x, P, ll = fleet[t]
+            np.testing.assert_array_equal(f.x, x[k], err_msg=f"filter {k}, step {t}")
+            np.testing.assert_array_equal(f.P, P[k], err_msg=f"filter {k}, step {t}")
+            if not np.isnan(z[k]).all():  # with nothing measured the faces differ on purpose
+                assert f.log_likelihood == ll[k], f"filter {k}, step {t}"
+
+
+def test_results_do_not_depend_on_block_size_or_thread_count(monkeypatch):
+    K = 300
+    x0, P0, Q, R, zs = scenario(K, T=4, seed=1)
+    config = CONFIGS["merwe"]
+    reference = run_fleet(K, config, x0, P0, Q, R, zs)
+    monkeypatch.setattr(kernels, "MIN_FILTERS_PER_THREAD", 7)  # cut small stacks too
+    for block, threads in ((64, 1), (37, 2), (300, 2), (5, 3)):
+        monkeypatch.setattr(squkf.fleet, "BLOCK", block)
+        kernels.set_num_threads(threads)
+        try:
+            again = run_fleet(K, config, x0, P0, Q, R, zs)
+        finally:
+            kernels.set_num_threads(1)
+        for (x, P, ll), (x1, P1, ll1) in zip(reference, again):
+            np.testing.assert_array_equal(x, x1, err_msg=f"block {block}, {threads} threads")
+            np.testing.assert_array_equal(P, P1, err_msg=f"block {block}, {threads} threads")
+            np.testing.assert_array_equal(ll, ll1)
+
+
+@pytest.mark.parametrize("bad", [0, -1, 1.5, "2", True, None])
+def test_the_thread_count_must_be_a_whole_number_of_at_least_one(bad):
+    with pytest.raises(ValueError, match="thread count"):
+        kernels.set_num_threads(bad)
+    assert kernels.get_num_threads() == 1
+
+
+def test_every_kernel_has_one_signature():
+    """float64, C-contiguous, fixed ranks: each kernel compiles once, whatever the configuration."""
+    x0, P0, Q, R, zs = scenario(5, T=3)
+    for config in CONFIGS.values():
+        run_fleet(5, config, x0, P0, Q, R, zs)
+        f = SquareRootUKF(4, 2, 0.1, hx, fx, vectorized=True, **config)
+        f.x, f.P, f.Q, f.R = x0[0], P0[0], Q, R[0]
+        means, covariances = f.batch_filter(list(zs[:, 0]))[:2]
+        f.rts_smoother(means, covariances)
+    L = np.linalg.cholesky(P0)
+    for sign in (1.0, -1.0):  # the rank-1 modification (the smoother's downdates, hooks' negative rows)
+        chol_update(L, 0.1 * L[..., 0], sign)
+        chol_update(L[0], 0.1 * L[0, :, 0], sign)
+    used = {name: getattr(phases, name).signatures for name in ENTRY_KERNELS}
+    assert all(len(s) >= 1 for s in used.values()), {k: len(v) for k, v in used.items()}
+    assert all(len(s) == 1 for s in used.values()), used
+
+
+def test_importing_squkf_compiles_nothing():
+    code = (
+        "import squkf, squkf.kernels.phases as p\n"
+        f"names = {ENTRY_KERNELS!r}\n"
+        "print(sum(len(getattr(p, n).signatures) for n in names), len(names))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    compiled, count = map(int, out.split())
+    assert count == len(ENTRY_KERNELS) and compiled == 0
+
+
+@pytest.mark.parametrize("columns", [phases.LAPACK_MIN_COLUMNS - 1, phases.LAPACK_MIN_COLUMNS, 40])
+def test_both_qr_routes_give_the_factor_with_a_non_negative_diagonal(columns):
+    """Householder loops below LAPACK_MIN_COLUMNS, LAPACK's dgeqrf and a sign pass from it on."""
+    rng = np.random.default_rng(columns)
+    rows = rng.normal(size=(5, 2 * columns + 3, columns))
+    rows[2, :, 3] = 0.0  # a zero column: a singular factor
+    S = kernels.tria(rows)
+    for k in range(5):
+        G = rows[k].T @ rows[k]
+        np.testing.assert_array_equal(np.triu(S[k], 1), 0.0)
+        assert np.all(np.diagonal(S[k]) >= 0.0)
+        np.testing.assert_allclose(S[k] @ S[k].T, G, rtol=0, atol=1e-13 * columns * np.abs(G).max())
+        if k != 2:  # the factor of a positive definite matrix is unique: numpy's Cholesky agrees
+            np.testing.assert_allclose(S[k], np.linalg.cholesky(G), rtol=1e-10, atol=1e-12)
+        np.testing.assert_array_equal(S[k], kernels.tria(rows[k]))
