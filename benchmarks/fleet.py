@@ -96,6 +96,10 @@ def _parse(argv):
 def _pin(cores: int) -> None:
     """Pin this process (and the threads it will start) to its first ``cores`` CPUs."""
     if hasattr(os, "sched_setaffinity"):
+        try:  # first widen to every CPU (a subprocess inherits its parent's pinning)
+            os.sched_setaffinity(0, set(range(os.cpu_count() or 1)))
+        except OSError:
+            pass
         cpus = sorted(os.sched_getaffinity(0))
         os.sched_setaffinity(0, set(cpus[: max(1, cores)]))
 
