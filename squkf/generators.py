@@ -72,6 +72,10 @@ class SigmaSet(NamedTuple):
     rows : WeightRows or None
         The covariance rows of ``(Wm, Wc)``, when the generator prepared them
         (a plan's generators do); None makes the update compute them.
+    axis : bool
+        The points are ``x + [0; gamma S^T; -gamma S^T]`` with those ``offsets``
+        (each ``+/-`` pair exactly opposite): the update may rotate the pairs
+        of its joint rows (:mod:`squkf.measurement`).
     """
 
     sigmas: np.ndarray
@@ -80,6 +84,7 @@ class SigmaSet(NamedTuple):
     moments_exact: bool
     offsets: np.ndarray | None = None
     rows: WeightRows | None = None
+    axis: bool = False
 
 
 def axis_gamma(xi: np.ndarray) -> float | None:
@@ -186,7 +191,8 @@ class UnitSet:
         """The set for mean ``x`` ``(..., n)`` and lower factor ``S`` ``(..., n, n)``."""
         sigmas, offsets = sigma_points_and_offsets(x, S, self.xi, state_add, self.gamma)
         rows = self.rows
-        return SigmaSet(sigmas, rows.Wm, rows.Wc, self.exact, offsets, rows)
+        axis = self.gamma is not None and (state_add is None or state_add is np.add)
+        return SigmaSet(sigmas, rows.Wm, rows.Wc, self.exact, offsets, rows, axis)
 
 
 class Redrawn:

@@ -60,8 +60,6 @@ def run_isolated(fn: Callable, idx: np.ndarray, K: int, fails: dict[int, str], b
     size = BLOCK if block is None else block
     every = idx.size == K and bool(np.all(idx == np.arange(K)))
     cuts = list(range(0, idx.size, size)) + [idx.size]
-    if len(cuts) > 2 and cuts[-1] - cuts[-2] < 2:
-        del cuts[-2]  # no block of one filter (see _run)
     goods, parts = [], []
     for lo, hi in zip(cuts[:-1], cuts[1:]):
         good, res = _block(fn, idx[lo:hi], slice(lo, hi) if every else None, fails)
@@ -77,19 +75,16 @@ def run_isolated(fn: Callable, idx: np.ndarray, K: int, fails: dict[int, str], b
 
 
 def _run(fn: Callable, ix: np.ndarray, view: slice | None = None):
-    if ix.size == 1:
-        # numpy's stacked kernels (einsum, matmul) may take another path, with other roundings,
-        # for a stack of one: compute one filter as a stack of two copies, so that its numbers
-        # never depend on how many filters are computed with it
-        return tuple(r[:1] for r in fn(np.repeat(ix, 2)))
+    # the compiled kernels compute each filter alone in its lane: a stack of one gives the numbers
+    # the filter gets in any stack
     return fn(ix if view is None else view)
 
 
 def _describe(fn: Callable, k: int, exc: SqukfError) -> str:
     """Why filter ``k`` failed, in the words of that filter alone.
 
-    ``exc`` came from ``k`` computed as a stack of two copies (:func:`_run`),
-    so a message quoting values (a diagonal, a matrix) would show the stack.
+    ``exc`` came from ``k`` computed as a stack of one (:func:`_run`), so a
+    message quoting values (a diagonal, a matrix) would show the batch axis.
     ``fn`` at the bare index ``k`` computes the filter without a batch axis,
     as ``SquareRootUKF`` does; its error, when it fails the same way, is what
     the single filter would say. Otherwise ``exc`` is described as it is.

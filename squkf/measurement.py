@@ -194,13 +194,18 @@ def measurement_update(
             )  # fmt: skip
         else:
             form = rows.best
+            pair = 0.0
             if form.central:  # deviations from the central point: the offsets' own differences
                 X, xref, mode = (sset.sigmas if sset.offsets is None else sset.offsets), None, kernels.CENTRAL
+                if sset.axis and sset.offsets is not None:
+                    pair = rows.pair_scale  # 0 unless every +/- row has one weight, none negative
             elif sset.offsets is not None:
                 X, xref, mode = sset.offsets, None, kernels.MEAN
             else:
                 X, xref, mode = sset.sigmas, x, kernels.MEAN
-            u = kernels.joint_update(sigmas_h, X, z, R1_2, x, mode, rows.Wm, form.scale, form.sign, xref=xref)
+            u = kernels.joint_update(
+                sigmas_h, X, z, R1_2, x, mode, rows.Wm, form.scale, form.sign, xref=xref, pair=pair
+            )
             z_pred = cast(np.ndarray, u.z_pred)
         _raise_update_status(u.status, form)
     else:

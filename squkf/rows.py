@@ -81,6 +81,11 @@ class WeightRows:
     fast : bool
         ``best`` is the central form with no negative weight: one QR and no
         downdate.
+    pair_scale : float
+        For a set ``[c, c + D, c - D]`` whose ``+/-`` rows all have one weight
+        (with ``fast``): that row scale over ``sqrt(2)``, what the 45-degree
+        rotation of each pair of joint rows needs (:mod:`squkf.measurement`);
+        0 otherwise.
     """
 
     Wm: np.ndarray
@@ -89,6 +94,7 @@ class WeightRows:
     central_form: RowForm | None
     best: RowForm
     fast: bool
+    pair_scale: float
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:
@@ -134,6 +140,9 @@ def weight_rows(Wm: np.ndarray, Wc: np.ndarray) -> WeightRows:
     if central_form is not None and central_form.neg.size <= mean_rows.neg.size:
         best = central_form
     fast = best.central and best.neg.size == 0  # zero-weight rows are left out of the QR
+    tail = best.scale[:-1]
+    N = Wm_.shape[0]
+    uniform = fast and N >= 3 and N % 2 == 1 and bool(np.all(tail == tail[0])) and tail[0] > 0
     return WeightRows(
         Wm=_frozen(Wm_),
         Wc=_frozen(Wc_),
@@ -141,4 +150,5 @@ def weight_rows(Wm: np.ndarray, Wc: np.ndarray) -> WeightRows:
         central_form=central_form,
         best=best,
         fast=fast,
+        pair_scale=float(tail[0]) / float(np.sqrt(2.0)) if uniform else 0.0,
     )

@@ -382,6 +382,7 @@ def joint_update(
     sign: np.ndarray,
     xref: np.ndarray | None = None,
     zref: np.ndarray | None = None,
+    pair: float = 0.0,
 ) -> JointUpdate:
     """The measurement update by one QR of the joint rows (see :func:`phases.joint_update_kernel`).
 
@@ -400,6 +401,8 @@ def joint_update(
         The reference of ``X`` for ``MEAN`` (default: zero, ``X`` are offsets).
     zref : ndarray, shape (..., m), optional
         The predicted measurement for ``GIVEN``.
+    pair : float
+        The rotation of axis points' ``+/-`` pairs (``CENTRAL``, offsets as ``X``; see the kernel).
 
     Returns
     -------
@@ -427,6 +430,7 @@ def joint_update(
         _plan(wm),
         _plan(scale),
         _plan(sign),
+        float(pair),
         *out,
         plan=(8, 9, 10),
     )

@@ -612,8 +612,67 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status):
 
 
 @kernel
+def _paired_rows(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V):
+    """The rotated joint rows of axis points (``joint_update_kernel``'s ``pair``) into ``At``.
+
+    ``Hl``, ``Xl`` hold the central form's deviations (``mu`` in slot 0); pair ``j`` is points
+    ``1 + j`` and ``1 + h + j`` (``h = (N - 1) / 2``).
+    """
+    h = (N - 1) // 2
+    shared = R1_2.shape[0] == 1
+    for l in range(m):
+        for j in range(h):
+            for b in range(nb):
+                Zt[l, j, b] = c * (Hl[l, 1 + j, b] + Hl[l, 1 + h + j, b])
+        for b in range(nb):
+            Zt[l, h, b] = mus * Hl[l, 0, b]
+    for b in range(nb):
+        Rk = R1_2[0] if shared else R1_2[k0 + b]
+        for l in range(m):
+            for q in range(m):
+                Zt[l, h + 1 + q, b] = Rk[l, q]
+    tria_lanes(Zt, m, h + 1 + m, nb, V)  # T, lower: Zt[l, i] for i <= l
+    for l in range(m):
+        for j in range(h):
+            for b in range(nb):
+                At[l, j, b] = c * (Hl[l, 1 + j, b] - Hl[l, 1 + h + j, b])
+        for i in range(m):
+            for b in range(nb):
+                At[l, h + i, b] = Zt[l, i, b] if i <= l else 0.0
+    for l in range(n):
+        for j in range(h):
+            for b in range(nb):
+                At[m + l, j, b] = c * (Xl[l, 1 + j, b] - Xl[l, 1 + h + j, b])
+        for i in range(m):
+            for b in range(nb):
+                At[m + l, h + i, b] = 0.0
+
+
+@kernel
 def joint_update_kernel(
-    H, zref, X, xref, z, R1_2, x, mode, wm, scale, sign, zp, y, w, Sy, L21, dx, xpost, Spost, ll, ww, status
+    H,
+    zref,
+    X,
+    xref,
+    z,
+    R1_2,
+    x,
+    mode,
+    wm,
+    scale,
+    sign,
+    pair,
+    zp,
+    y,
+    w,
+    Sy,
+    L21,
+    dx,
+    xpost,
+    Spost,
+    ll,
+    ww,
+    status,
 ):
     """The measurement update by one QR of the joint rows (the square-root array form).
 
@@ -639,6 +698,14 @@ def joint_update_kernel(
         The prior mean.
     mode : int
     wm, scale, sign : ndarray, shape (N,)
+    pair : float
+        Non-zero for axis points in the central form with one weight for every
+        ``+/-`` row and none negative: that row scale over ``sqrt(2)``. Each
+        pair's joint rows are rotated by 45 degrees (the same Gram matrix): the
+        sums ``pair (e+ + e-)`` have no state part (the offsets are exactly
+        opposite) and are triangularised first, with ``mu`` and ``R1_2^T``, into
+        ``T`` (``m x m``); the joint QR is then of the differences and ``T^T``,
+        ``n + m`` rows instead of ``2n + 1 + m``.
     zp, y, w : ndarray, shape (B, m)
         Outputs: predicted measurement, innovation, ``Sy^-1 y``.
     Sy : ndarray, shape (B, m, m)
@@ -673,6 +740,8 @@ def joint_update_kernel(
     fl = np.empty(nl, dtype=np.int64)
     st = np.empty(nl, dtype=np.int64)
     sharedR = R1_2.shape[0] == 1
+    half = (N - 1) // 2
+    Zt = np.empty((m, half + 1 + m if pair != 0.0 else 1, nl))
     for k0 in range(0, B, nl):
         nb = min(nl, B - k0)
         _load_points(H, k0, nb, Hl)
@@ -688,31 +757,36 @@ def joint_update_kernel(
             for l in range(m):
                 for b in range(nb):
                     yl[l, b] -= zl[l, b]
-        t = 0
-        for r in range(N):
-            if sign[r] > 0.0:
-                src = _source(mode, r, N)
-                s = scale[r]
+        if pair != 0.0:
+            _paired_rows(Hl, Xl, R1_2, k0, nb, N, m, n, pair, scale[N - 1], Zt, At, V)
+            used = half + m
+        else:
+            t = 0
+            for r in range(N):
+                if sign[r] > 0.0:
+                    src = _source(mode, r, N)
+                    s = scale[r]
+                    for l in range(m):
+                        for b in range(nb):
+                            At[l, t, b] = s * Hl[l, src, b]
+                    for l in range(n):
+                        for b in range(nb):
+                            At[m + l, t, b] = s * Xl[l, src, b]
+                    t += 1
+            for b in range(nb):
+                Rk = R1_2[0] if sharedR else R1_2[k0 + b]
                 for l in range(m):
-                    for b in range(nb):
-                        At[l, t, b] = s * Hl[l, src, b]
+                    for j in range(m):
+                        At[l, npos + j, b] = Rk[l, j]
                 for l in range(n):
-                    for b in range(nb):
-                        At[m + l, t, b] = s * Xl[l, src, b]
-                t += 1
-        for b in range(nb):
-            Rk = R1_2[0] if sharedR else R1_2[k0 + b]
-            for l in range(m):
-                for j in range(m):
-                    At[l, npos + j, b] = Rk[l, j]
-            for l in range(n):
-                for j in range(m):
-                    At[m + l, npos + j, b] = 0.0
+                    for j in range(m):
+                        At[m + l, npos + j, b] = 0.0
+            used = rows
         for i in range(c):  # fewer rows than columns: the factor's last columns are zero
-            for j in range(rows, c):
+            for j in range(used, c):
                 for b in range(nb):
                     At[i, j, b] = 0.0
-        tria_lanes(At, c, rows, nb, V)  # L = At below the diagonal (read nowhere above it)
+        tria_lanes(At, c, used, nb, V)  # L = At below the diagonal (read nowhere above it)
         for b in range(nb):
             st[b] = 0
         for r in range(N):
