@@ -600,9 +600,12 @@ class Fleet:
 
         good, res = self._isolated(prior, idx, fails)
         self._commit_failures(fails)
-        x_new, S_new = self._x.copy(), self._S.copy()
-        if res is not None:
-            x_new[good], S_new[good] = res
+        if res is not None and good.size == self._K:  # every filter, in order: the kernels' fresh arrays
+            x_new, S_new = res
+        else:
+            x_new, S_new = self._x.copy(), self._S.copy()
+            if res is not None:
+                x_new[good], S_new[good] = res
         Qall = None if Q is None else (Q if Q.ndim == 2 else Q)
         if F is values and plan.keeps_propagated:
             F = F.copy()  # kept for the second set: the step's own copy
@@ -689,10 +692,17 @@ class Fleet:
         finite = self._finite_rows(H)
         self._fail_nonfinite(fails, np.flatnonzero(active & measured & ~finite), H, "hx values")
         todo = active & measured & finite
-        x_new, S_new = x0.copy(), S0.copy()
-        y = np.full((K, m), np.nan)
-        loglik, maha = np.zeros(K), np.zeros(K)
         hooks = self._hooks()
+
+        def unchanged():
+            """The records of filters that no update reaches: the prior, no innovation, no likelihood."""
+            return x0.copy(), S0.copy(), np.full((K, m), np.nan), np.zeros(K), np.zeros(K)
+
+        x_new: Any = None  # with S_new, y, loglik, maha: made at the first update that needs them
+        S_new: Any = None
+        y: Any = None
+        loglik: Any = None
+        maha: Any = None
         # filters with the same missing components are updated together (one stacked update each)
         todo_idx = np.flatnonzero(todo)
         if observed[todo].all():  # the usual case: one group
@@ -709,7 +719,12 @@ class Fleet:
                 return post.x, post.S, post.y, post.log_likelihood, np.sqrt(post.nis)
 
             good, res = self._isolated(posterior, group, fails)
-            if res is not None:
+            if res is not None and good.size == K and mask is None:
+                # every filter, in order, all measured: the kernels' fresh arrays as they are
+                x_new, S_new, y, loglik, maha = res
+            elif res is not None:
+                if x_new is None:
+                    x_new, S_new, y, loglik, maha = unchanged()
                 x_new[good], S_new[good] = res[0], res[1]
                 if obs.all():
                     y[good] = res[2]
@@ -717,6 +732,8 @@ class Fleet:
                     y[np.ix_(good, np.flatnonzero(obs))] = res[2]
                 loglik[good], maha[good] = res[3], res[4]
         self._commit_failures(fails)
+        if x_new is None:
+            x_new, S_new, y, loglik, maha = unchanged()
         # commit
         self._state = steps.StepState()
         self._x, self._S = x_new, S_new
