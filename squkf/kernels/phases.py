@@ -365,6 +365,75 @@ def _state_rows(Xl, N, n, nb, mode, wm, xref):
 
 
 @kernel
+def _factor_lanes(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, fl, st):
+    """Factor weighted rows and a noise factor in place in ``At`` (``L = At`` below its diagonal).
+
+    Each row is ``[D1[:, r], D2[:, r]]`` (``d1 + d2`` entries, row ``r`` of form ``mode`` in the
+    deviation buffers ``D1``, ``D2``, ``(d, N, nb)`` each), entering with weight
+    ``sign[r] * scale[r]**2``: the positive rows and the noise's columns (padded with zeros to
+    ``d1 + d2`` entries) go into one QR, then each negative row is downdated. ``st[b]`` is set to 0, or
+    for a failed downdate to the row ``r + 1`` (``split == 0``) or to g13ej's 301 when it failed in
+    the first ``split`` columns and 303 after (the joint factor: its leading block is ``Sy``).
+
+    Parameters
+    ----------
+    D1, D2 : ndarray, shape (d1, N, >= nb), (d2, N, >= nb)
+    N, nb, mode : int
+    scale, sign : ndarray, shape (N,)
+    noise : ndarray, shape (B or 1, dn, q)
+        ``dn <= d1``.
+    k0, split : int
+    At : ndarray, shape (d1 + d2, >= max(rows, d1 + d2), >= nb)
+    V, v, fl, st : scratch, shape (>= 6, nb), (>= d1 + d2, nb), (nb,), (nb,)
+    """
+    d1, d2 = D1.shape[0], D2.shape[0]
+    d = d1 + d2
+    dn, q = noise.shape[1], noise.shape[2]
+    shared = noise.shape[0] == 1
+    npos = 0
+    for r in range(N):
+        if sign[r] > 0.0:
+            src = _source(mode, r, N)
+            c = scale[r]
+            for l in range(d1):
+                for b in range(nb):
+                    At[l, npos, b] = c * D1[l, src, b]
+            for l in range(d2):
+                for b in range(nb):
+                    At[d1 + l, npos, b] = c * D2[l, src, b]
+            npos += 1
+    rows = npos + q
+    for b in range(nb):
+        Nk = noise[0] if shared else noise[k0 + b]
+        for l in range(d):
+            for j in range(q):
+                At[l, npos + j, b] = Nk[l, j] if l < dn else 0.0
+    for i in range(d):  # fewer rows than columns: the factor's last columns are zero
+        for j in range(rows, d):
+            for b in range(nb):
+                At[i, j, b] = 0.0
+    tria_lanes(At, d, rows, nb, V)  # L = At below the diagonal (read nowhere above it)
+    for b in range(nb):
+        st[b] = 0
+    for r in range(N):
+        if sign[r] < 0.0:
+            src = _source(mode, r, N)
+            c = scale[r]
+            for b in range(nb):
+                fl[b] = -1
+            for l in range(d1):
+                for b in range(nb):
+                    v[l, b] = c * D1[l, src, b]
+            for l in range(d2):
+                for b in range(nb):
+                    v[d1 + l, b] = c * D2[l, src, b]
+            chol_update_lanes(At, v, d, nb, -1.0, fl, V)
+            for b in range(nb):
+                code = r + 1 if split == 0 else (301 if fl[b] < split else 303)
+                st[b] = code if (fl[b] >= 0 and st[b] == 0) else st[b]
+
+
+@kernel
 def tria_kernel(A, S):
     """``S[k]``: the lower factor (non-negative diagonal) of ``A[k].T @ A[k]``.
 
@@ -544,17 +613,15 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status):
         Outputs.
     """
     B, N, d = P.shape
-    q = noise.shape[2]
-    shared = noise.shape[0] == 1
     npos = 0
     for r in range(N):
         if sign[r] > 0.0:
             npos += 1
-    rows = npos + q
+    rows = npos + noise.shape[2]
     nl = _lanes(d * max(rows, N))
     Pl = np.empty((d, N, nl))
-    At = np.empty((d, max(rows, d, 1), nl))  # the rows, then their factor in place (below)
-    L = At
+    none = np.empty((0, N, nl))
+    At = np.empty((d, max(rows, d, 1), nl))  # the rows, then their factor in place
     ml = np.empty((d, nl))
     v = np.empty((d, nl))
     V = np.empty((6, nl))
@@ -566,49 +633,13 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status):
         if mode == 2:
             _load_vector(ref, k0, nb, ml)
         _deviations(Pl, N, d, nb, mode, wm, ml)
-        t = 0
-        for r in range(N):
-            if sign[r] > 0.0:
-                src = _source(mode, r, N)
-                c = scale[r]
-                for l in range(d):
-                    for b in range(nb):
-                        At[l, t, b] = c * Pl[l, src, b]
-                t += 1
-        for b in range(nb):
-            Nk = noise[0] if shared else noise[k0 + b]
-            for l in range(d):
-                for j in range(q):
-                    At[l, npos + j, b] = Nk[l, j]
-        for i in range(d):  # fewer rows than columns: the factor's last columns are zero
-            for j in range(rows, d):
-                for b in range(nb):
-                    At[i, j, b] = 0.0
-        tria_lanes(At, d, rows, nb, V)  # L = At below the diagonal (read nowhere above it)
-        for b in range(nb):
-            st[b] = 0
-        for r in range(N):
-            if sign[r] < 0.0:
-                src = _source(mode, r, N)
-                c = scale[r]
-                for b in range(nb):
-                    singular = False
-                    for i in range(d):
-                        singular = singular or not L[i, i, b] > 0.0
-                    st[b] = -(r + 1) if (singular and st[b] == 0) else st[b]
-                    fl[b] = -1
-                for l in range(d):
-                    for b in range(nb):
-                        v[l, b] = c * Pl[l, src, b]
-                chol_update_lanes(L, v, d, nb, -1.0, fl, V)
-                for b in range(nb):
-                    st[b] = r + 1 if (fl[b] >= 0 and st[b] == 0) else st[b]
+        _factor_lanes(Pl, none, N, nb, mode, scale, sign, noise, k0, 0, At, V, v, fl, st)
         for b in range(nb):
             status[k0 + b] = st[b]
             mk = mean[k0 + b]
             for l in range(d):
                 mk[l] = ml[l, b]
-        _store_lower(L, 0, 0, d, k0, nb, S)
+        _store_lower(At, 0, 0, d, k0, nb, S)
 
 
 @kernel
@@ -739,7 +770,6 @@ def joint_update_kernel(
     V = np.empty((6, nl))
     fl = np.empty(nl, dtype=np.int64)
     st = np.empty(nl, dtype=np.int64)
-    sharedR = R1_2.shape[0] == 1
     half = (N - 1) // 2
     Zt = np.empty((m, half + 1 + m if pair != 0.0 else 1, nl))
     for k0 in range(0, B, nl):
@@ -759,69 +789,17 @@ def joint_update_kernel(
                     yl[l, b] -= zl[l, b]
         if pair != 0.0:
             _paired_rows(Hl, Xl, R1_2, k0, nb, N, m, n, pair, scale[N - 1], Zt, At, V)
-            used = half + m
+            for i in range(c):  # fewer rows than columns: the factor's last columns are zero
+                for j in range(half + m, c):
+                    for b in range(nb):
+                        At[i, j, b] = 0.0
+            tria_lanes(At, c, half + m, nb, V)
+            for b in range(nb):
+                st[b] = 0
         else:
-            t = 0
-            for r in range(N):
-                if sign[r] > 0.0:
-                    src = _source(mode, r, N)
-                    s = scale[r]
-                    for l in range(m):
-                        for b in range(nb):
-                            At[l, t, b] = s * Hl[l, src, b]
-                    for l in range(n):
-                        for b in range(nb):
-                            At[m + l, t, b] = s * Xl[l, src, b]
-                    t += 1
-            for b in range(nb):
-                Rk = R1_2[0] if sharedR else R1_2[k0 + b]
-                for l in range(m):
-                    for j in range(m):
-                        At[l, npos + j, b] = Rk[l, j]
-                for l in range(n):
-                    for j in range(m):
-                        At[m + l, npos + j, b] = 0.0
-            used = rows
-        for i in range(c):  # fewer rows than columns: the factor's last columns are zero
-            for j in range(used, c):
-                for b in range(nb):
-                    At[i, j, b] = 0.0
-        tria_lanes(At, c, used, nb, V)  # L = At below the diagonal (read nowhere above it)
-        for b in range(nb):
-            st[b] = 0
-        for r in range(N):
-            if sign[r] < 0.0:
-                src = _source(mode, r, N)
-                s = scale[r]
-                for b in range(nb):
-                    fl[b] = -1
-                for l in range(m):
-                    for b in range(nb):
-                        v[l, b] = s * Hl[l, src, b]
-                for l in range(n):
-                    for b in range(nb):
-                        v[m + l, b] = s * Xl[l, src, b]
-                chol_update_lanes(L, v, c, nb, -1.0, fl, V)
-                for b in range(nb):
-                    code = 301 if fl[b] < m else 303
-                    st[b] = code if (fl[b] >= 0 and st[b] == 0) else st[b]
-        for b in range(nb):
-            good = True
-            for i in range(m):
-                good = good and (_TINY < abs(L[i, i, b]) < math.inf)
-            st[b] = 302 if (not good and st[b] == 0) else st[b]
-        for l in range(m):
-            for b in range(nb):
-                wl[l, b] = yl[l, b]
-        solve_lower_lanes(L, wl, m, nb, False)
-        _likelihood(L, wl, m, k0, nb, ll, ww)
+            _factor_lanes(Hl, Xl, N, nb, mode, scale, sign, R1_2, k0, m, At, V, v, fl, st)
+        _innovation(L, L, m, yl, wl, xr, m, n, k0, nb, st, ll, ww)
         _load_vector(x, k0, nb, xl)
-        for l in range(n):
-            for b in range(nb):
-                xr[l, b] = 0.0
-            for j in range(m):
-                for b in range(nb):
-                    xr[l, b] += L[m + l, j, b] * wl[j, b]
         _finish(L, m, n, xl, xr, st, k0, nb, dx, xpost)
         for b in range(nb):
             status[k0 + b] = st[b]
@@ -848,6 +826,28 @@ def _likelihood(Sy, w, m, k0, nb, ll, ww):
             logdet += math.log(abs(Sy[i, i, b]))
         ww[k0 + b] = s
         ll[k0 + b] = -0.5 * (m * _LOG_2PI + 2.0 * logdet + s)
+
+
+@kernel
+def _innovation(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
+    """From the innovation factor: g13ej's 302 unless ``Sy`` is regular, ``w = Sy^-1 y``, the
+    likelihood, and ``dx = L21 w`` with ``L21`` the rows ``r0 .. r0 + n`` of its buffer."""
+    for b in range(nb):
+        good = True
+        for i in range(m):
+            good = good and (_TINY < abs(Sy[i, i, b]) < math.inf)
+        st[b] = 302 if (not good and st[b] == 0) else st[b]
+    for l in range(m):
+        for b in range(nb):
+            wl[l, b] = yl[l, b]
+    solve_lower_lanes(Sy, wl, m, nb, False)
+    _likelihood(Sy, wl, m, k0, nb, ll, ww)
+    for l in range(n):
+        for b in range(nb):
+            dxl[l, b] = 0.0
+        for j in range(m):
+            for b in range(nb):
+                dxl[l, b] += L21[r0 + l, j, b] * wl[j, b]
 
 
 @kernel
@@ -910,6 +910,7 @@ def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpos
     xl = np.empty((n, nl))
     t = np.empty((max(n, m), nl))
     wl = np.empty((m, nl))
+    yl = np.empty((m, nl))
     V = np.empty((3, nl))
     fl = np.empty(nl, dtype=np.int64)
     st = np.empty(nl, dtype=np.int64)
@@ -922,10 +923,7 @@ def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpos
         _load_matrix(Sy, k0, nb, Syl)
         _load_matrix(S, k0, nb, Sl)
         for b in range(nb):
-            good = True
-            for i in range(m):
-                good = good and (_TINY < abs(Syl[i, i, b]) < math.inf)
-            st[b] = 0 if good else 302
+            st[b] = 0
         for l in range(n):  # row l of L21 = Sy^-1 (row l of Pxy)
             for j in range(m):
                 for b in range(nb):
@@ -938,16 +936,9 @@ def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpos
             for j in range(m):
                 for b in range(nb):
                     Ll[l, j, b] = t[j, b]
-        _load_vector(yin, k0, nb, wl)
-        solve_lower_lanes(Syl, wl, m, nb, False)
-        _likelihood(Syl, wl, m, k0, nb, ll, ww)
+        _load_vector(yin, k0, nb, yl)
+        _innovation(Syl, Ll, 0, yl, wl, xr, m, n, k0, nb, st, ll, ww)
         _load_vector(x, k0, nb, xl)
-        for l in range(n):
-            for b in range(nb):
-                xr[l, b] = 0.0
-            for j in range(m):
-                for b in range(nb):
-                    xr[l, b] += Ll[l, j, b] * wl[j, b]
         for b in range(nb):
             fl[b] = -1
         for j in range(m):
