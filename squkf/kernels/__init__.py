@@ -133,6 +133,17 @@ def _batch(*arrays: tuple[np.ndarray | None, int]) -> tuple[int, ...]:
     return shape
 
 
+_ZEROS: dict[int, np.ndarray] = {}
+
+
+def _zeros(d: int) -> np.ndarray:
+    """A shared reference of zeros, shape ``(1, d)`` (the kernels never write their inputs)."""
+    z = _ZEROS.get(d)
+    if z is None:
+        z = _ZEROS[d] = np.zeros((1, d))
+    return z
+
+
 def _kernel_array(a: np.ndarray) -> np.ndarray:
     """``a`` itself if it is float64, C-contiguous and writeable (one kernel signature), else a copy."""
     f = a.flags
@@ -316,7 +327,7 @@ def transform(
     Ps = _stack(P, batch, 2)
     B = Ps.shape[0]
     Nz = np.zeros((1, d, 0)) if noise is None else _shared(noise, batch, 2)
-    R = np.zeros((1, d)) if ref is None else _shared(ref, batch, 1)
+    R = _zeros(d) if ref is None else _shared(ref, batch, 1)
     mean = np.empty((B, d))
     S = np.empty((B, d, d))
     status = np.empty(B, dtype=np.int64)
@@ -408,7 +419,10 @@ def joint_update(
     -------
     JointUpdate
     """
-    batch = _batch((H, 2), (X, 2), (z, 1), (R1_2, 2), (x, 1), (xref, 1), (zref, 1))
+    if H.ndim == 2 and X.ndim == 2 and z.ndim == 1 and R1_2.ndim == 2 and x.ndim == 1:
+        batch: tuple[int, ...] = _batch((xref, 1), (zref, 1))  # one filter, as a rule
+    else:
+        batch = _batch((H, 2), (X, 2), (z, 1), (R1_2, 2), (x, 1), (xref, 1), (zref, 1))
     N, m = H.shape[-2:]
     n = X.shape[-1]
     Hs = _stack(H, batch, 2)
@@ -420,9 +434,9 @@ def joint_update(
         phases.joint_update_kernel,
         B,
         Hs,
-        np.zeros((1, m)) if zref is None else _shared(zref, batch, 1),
+        _zeros(m) if zref is None else _shared(zref, batch, 1),
         _stack(X, batch, 2),
-        np.zeros((1, n)) if xref is None else _shared(xref, batch, 1),
+        _zeros(n) if xref is None else _shared(xref, batch, 1),
         _stack(z, batch, 1),
         _shared(R1_2, batch, 2),
         _shared(x, batch, 1),
