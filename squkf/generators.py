@@ -149,6 +149,12 @@ def sigma_points_from_factor(x: np.ndarray, S: np.ndarray, xi: np.ndarray, state
     return sigma_points_and_offsets(x, S, xi, state_add)[0]
 
 
+def _frozen(a: np.ndarray) -> np.ndarray:
+    """``a`` made read-only: a plan's data, never changed (and handed to the kernels as it is)."""
+    a.setflags(write=False)
+    return a
+
+
 def _identity_moments(family, n: int) -> bool:
     """True when the unit points have weighted mean 0 and weighted covariance I."""
     xi = family.unit_sigma_points(n)
@@ -182,7 +188,7 @@ class UnitSet:
     """
 
     def __init__(self, family, n: int):
-        self.xi = np.ascontiguousarray(family.unit_sigma_points(n), dtype=np.float64)
+        self.xi = _frozen(np.array(family.unit_sigma_points(n), dtype=np.float64))
         self.rows = weight_rows(*family.weights(n))
         self.exact = _identity_moments(family, n)
         self.gamma = axis_gamma(self.xi)
@@ -306,7 +312,7 @@ class Augmented:
             UnitSet(family, n),
             weight_rows(Wm2, Wc2),
             _augmented_exact(family, fam2, n, g),
-            np.vstack([g * np.eye(n), -g * np.eye(n)]),
+            _frozen(np.vstack([g * np.eye(n), -g * np.eye(n)])),
         )
 
     def second_set(self, x, S, *, family, propagated=None, Q1_2=None, state_add=None) -> SigmaSet:

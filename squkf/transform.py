@@ -30,16 +30,6 @@ __all__ = [
 ]
 
 
-def batch_shape(*arrays: np.ndarray | None, core: int = 2) -> tuple[int, ...]:
-    """The broadcast leading (batch) shape of ``arrays``, each with ``core`` trailing axes."""
-    shape: tuple[int, ...] = ()
-    for a in arrays:  # a plain loop: called every step, usually with no batch axis at all
-        if a is not None and a.ndim > core:
-            lead = a.shape[: a.ndim - core]
-            shape = lead if not shape or lead == shape else np.broadcast_shapes(shape, lead)
-    return shape
-
-
 def swap_last(a: np.ndarray) -> np.ndarray:
     """The transpose of the last two axes (``a.T`` for one matrix)."""
     return a.T if a.ndim == 2 else np.swapaxes(a, -1, -2)
