@@ -269,46 +269,66 @@ def _source(mode, r, N):
     return r
 
 
+# Loads go through the block's slice ``a[k0:k0 + nb]`` with the lane loop innermost: twice as fast
+# as a loop per filter (measured), with no index arithmetic in a lane loop. Stores of whole point
+# sets stay a loop per filter (contiguous rows: faster there, measured).
+
+
 @kernel
 def _load_points(P, k0, nb, Pl):
     """``Pl[l, i, b] = P[k0 + b, i, l]``."""
     N, d = P.shape[1], P.shape[2]
-    for b in range(nb):
-        Pk = P[k0 + b]
-        for i in range(N):
-            for l in range(d):
-                Pl[l, i, b] = Pk[i, l]
+    Q = P[k0 : k0 + nb]
+    for i in range(N):
+        for l in range(d):
+            for b in range(nb):
+                Pl[l, i, b] = Q[b, i, l]
 
 
 @kernel
 def _load_vector(a, k0, nb, al):
     """``al[l, b] = a[k0 + b, l]``, or ``a[0, l]`` for a shared ``a``."""
-    shared = a.shape[0] == 1
-    for b in range(nb):
-        ak = a[0] if shared else a[k0 + b]
+    if a.shape[0] == 1:
         for l in range(a.shape[1]):
-            al[l, b] = ak[l]
+            c = a[0, l]
+            for b in range(nb):
+                al[l, b] = c
+        return
+    Q = a[k0 : k0 + nb]
+    for l in range(a.shape[1]):
+        for b in range(nb):
+            al[l, b] = Q[b, l]
 
 
 @kernel
 def _load_matrix(a, k0, nb, al):
     """``al[i, j, b] = a[k0 + b, i, j]``, or ``a[0, i, j]`` for a shared ``a``."""
-    shared = a.shape[0] == 1
-    for b in range(nb):
-        ak = a[0] if shared else a[k0 + b]
+    if a.shape[0] == 1:
         for i in range(a.shape[1]):
             for j in range(a.shape[2]):
-                al[i, j, b] = ak[i, j]
+                c = a[0, i, j]
+                for b in range(nb):
+                    al[i, j, b] = c
+        return
+    Q = a[k0 : k0 + nb]
+    for i in range(a.shape[1]):
+        for j in range(a.shape[2]):
+            for b in range(nb):
+                al[i, j, b] = Q[b, i, j]
 
 
 @kernel
 def _store_lower(L, i0, j0, n, k0, nb, out):
     """``out[k0 + b] = tril(L[i0:i0 + n, j0:j0 + n, b])``."""
-    for b in range(nb):
-        ok = out[k0 + b]
-        for i in range(n):
-            for j in range(n):
-                ok[i, j] = L[i0 + i, j0 + j, b] if j <= i else 0.0
+    Q = out[k0 : k0 + nb]
+    for i in range(n):
+        for j in range(n):
+            if j <= i:
+                for b in range(nb):
+                    Q[b, i, j] = L[i0 + i, j0 + j, b]
+            else:
+                for b in range(nb):
+                    Q[b, i, j] = 0.0
 
 
 @kernel
