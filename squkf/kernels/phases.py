@@ -92,8 +92,8 @@ _KIND = ord("d")
 @kernel
 def _tria_lapack(At, c, r, nb):
     """``tria_lanes`` for wide matrices: one ``dgeqrf`` per lane, then each row of R made non-negative."""
-    F = np.empty(r * c)  # the lane's matrix in Fortran order
     tau = np.empty(max(1, min(r, c)))
+    F = np.empty(r * c)  # the lane's matrix in Fortran order
     for b in range(nb):
         for j in range(c):
             for i in range(r):
@@ -256,9 +256,10 @@ def chol_update_lanes(L, v, n, nb, sign, fail, V):
 
 
 @kernel
-def _lanes(size):
-    """Lanes per block for a scratch matrix of ``size`` entries per filter (64 at most)."""
-    return max(1, min(_LANES, _SCRATCH // max(size, 1)))
+def _lanes(size, B):
+    """Lanes per block for a scratch matrix of ``size`` entries per filter: 64 at most, and no
+    more than the ``B`` filters there are (one filter's scratch is then contiguous)."""
+    return max(1, min(_LANES, _SCRATCH // max(size, 1), B))
 
 
 @kernel
@@ -464,7 +465,7 @@ def tria_kernel(A, S):
         Output.
     """
     B, r, c = A.shape
-    nl = _lanes(r * c)
+    nl = _lanes(r * c, B)
     At = np.empty((c, max(r, 1), nl))
     V = np.empty((6, nl))
     for k0 in range(0, B, nl):
@@ -498,7 +499,7 @@ def solve_kernel(L, Y, trans, X, ok):
         Output.
     """
     B, n, q = Y.shape
-    nl = _lanes(n * n)
+    nl = _lanes(n * n, B)
     Ll = np.empty((n, n, nl))
     y = np.empty((n, nl))
     for k0 in range(0, B, nl):
@@ -536,7 +537,7 @@ def chol_update_kernel(L, v, sign, out, fail):
         Output.
     """
     B, n = v.shape
-    nl = _lanes(n * n)
+    nl = _lanes(n * n, B)
     Ll = np.empty((n, n, nl))
     vl = np.empty((n, nl))
     V = np.empty((3, nl))
@@ -572,7 +573,7 @@ def points_kernel(x, S, xi, gamma, X, dX):
         Outputs.
     """
     B, N, n = X.shape
-    nl = _lanes(N * n)
+    nl = _lanes(N * n, B)
     Sl = np.empty((n, n, nl))
     xl = np.empty((n, nl))
     Dl = np.empty((n, N, nl))
@@ -638,7 +639,7 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status):
         if sign[r] > 0.0:
             npos += 1
     rows = npos + noise.shape[2]
-    nl = _lanes(d * max(rows, N))
+    nl = _lanes(d * max(rows, N), B)
     Pl = np.empty((d, N, nl))
     none = np.empty((0, N, nl))
     At = np.empty((d, max(rows, d, 1), nl))  # the rows, then their factor in place
@@ -776,7 +777,7 @@ def joint_update_kernel(
         if sign[r] > 0.0:
             npos += 1
     rows = npos + m
-    nl = _lanes(c * max(rows, N))
+    nl = _lanes(c * max(rows, N), B)
     Hl = np.empty((m, N, nl))
     Xl = np.empty((n, N, nl))
     At = np.empty((c, max(rows, c), nl))  # the joint rows, then their factor in place (below)
@@ -919,7 +920,7 @@ def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpos
     """
     B, N, m = H.shape
     n = X.shape[2]
-    nl = _lanes(max(n, m) * max(N, n, m))
+    nl = _lanes(max(n, m) * max(N, n, m), B)
     Hl = np.empty((m, N, nl))
     Xl = np.empty((n, N, nl))
     Syl = np.empty((m, m, nl))
