@@ -19,6 +19,7 @@ from .errors import (
     SqukfValueError,
 )
 from .fleet import Fleet, FleetResult, FleetStepError
+from .gating import Gate
 from .generators import Augmented, Propagated, Redrawn, SigmaSet
 from .kernels import get_num_threads, set_num_threads
 from .transform import sqrt_unscented_transform
@@ -38,6 +39,7 @@ __all__ = [
     "Fleet",
     "FleetResult",
     "FleetStepError",
+    "Gate",
     "sqrt_unscented_transform",
     "unscented_transform",
     "MerweScaledWeights",

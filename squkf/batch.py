@@ -317,6 +317,46 @@ def _annotate(exc: BaseException, k: int, partial: tuple, at_step: bool) -> None
         pass
 
 
+class BatchResult(tuple):
+    """``(means, covariances)``, as filterpy's ``batch_filter`` returns them, with the gate's record.
+
+    Unpacks as the pair (``means, covs = ukf.batch_filter(zs)``) and is a
+    tuple; the gate's decisions and the test statistic are attributes.
+
+    Attributes
+    ----------
+    rejected : ndarray of bool, shape (T, dim_z)
+        The components the gate rejected at each step (all False without a
+        gate, or at a step without a measurement).
+    nis : ndarray, shape (T,)
+        Each step's normalised innovation squared (0 without a measurement).
+    log_likelihood : ndarray, shape (T,)
+        Each step's log-likelihood of the components used (0 without a
+        measurement, or when the gate rejected them all).
+    """
+
+    rejected: np.ndarray
+    nis: np.ndarray
+    log_likelihood: np.ndarray
+
+    def __new__(cls, means: np.ndarray, covariances: np.ndarray, rejected, nis, log_likelihood):
+        self = super().__new__(cls, (means, covariances))
+        self.rejected, self.nis, self.log_likelihood = rejected, nis, log_likelihood
+        return self
+
+    def __reduce__(self):
+        return (type(self), (self[0], self[1], self.rejected, self.nis, self.log_likelihood))
+
+
+def _stack_rows(rows: list, width: int, dtype) -> np.ndarray:
+    """Per-step records of one length each as ``(T, width)`` (a step of another size: object rows)."""
+    if all(r.shape == (width,) for r in rows):
+        return np.array(rows, dtype=dtype).reshape(len(rows), width)
+    out = np.empty(len(rows), dtype=object)
+    out[:] = rows
+    return out
+
+
 def batch_filter(
     ukf,
     zs: Iterable,
@@ -330,7 +370,7 @@ def batch_filter(
     hx_args: Mapping[str, Any] | Iterable[Mapping[str, Any] | None] | None = None,
     return_factors: bool = False,
     progress: bool | Callable[[int], object] = False,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> BatchResult:
     """Run ``predict`` and ``update`` over all measurements ``zs``.
 
     The same as a loop of ``ukf.predict(dt=dts[k], UT=UT, Q=Qs[k], **fx_args[k])``
@@ -381,11 +421,16 @@ def batch_filter(
 
     Returns
     -------
-    means : ndarray, shape (T, dim_x)
-        Posterior means. ``T = 0`` (no measurements) gives shape ``(0, dim_x)``
-        and leaves the filter as it was.
-    covariances : ndarray, shape (T, dim_x, dim_x)
-        Posterior covariances (or their lower factors with ``return_factors``).
+    BatchResult
+        The pair ``(means, covariances)``:
+
+        - means : ndarray, shape (T, dim_x). Posterior means. ``T = 0`` (no
+          measurements) gives shape ``(0, dim_x)`` and leaves the filter as it was.
+        - covariances : ndarray, shape (T, dim_x, dim_x). Posterior covariances
+          (or their lower factors with ``return_factors``).
+
+        and, as attributes, ``rejected`` ``(T, dim_z)`` (what the filter's gate
+        rejected at each step), ``nis`` ``(T,)`` and ``log_likelihood`` ``(T,)``.
 
     Raises
     ------
@@ -469,6 +514,9 @@ def batch_filter(
     n = ukf.dim_x
     means = _Rows((n,), T)
     covs = _Rows((n, n), T)
+    rejected: list[np.ndarray] = []
+    nis: list[float] = []
+    loglik: list[float] = []
     bar, callback = _progress_callback(progress, T)
     saved = ukf._snapshot()
     k = 0
@@ -480,6 +528,10 @@ def batch_filter(
                 break
             ukf.predict(dt=dt_k.at(k), UT=UT, Q=Q_k.at(k), **fx_k.at(k))
             ukf.update(z, R=R_k.at(k), UT=UT, **hx_k.at(k))
+            measured = ukf.z.dtype != object  # update(None) leaves filterpy's column of Nones
+            rejected.append(ukf.rejected)
+            nis.append(ukf.nis if measured else 0.0)
+            loglik.append(ukf.log_likelihood if measured else 0.0)
             means.append(ukf.x)
             S = ukf.P1_2
             covs.append(S if return_factors else S @ S.T)
@@ -500,4 +552,7 @@ def batch_filter(
             bar.close()
         if it is not zs and hasattr(it, "close"):  # an iterator we made, e.g. tqdm's: let it finish
             it.close()
-    return means.result(), covs.result()
+    m = ukf.dim_z
+    return BatchResult(
+        means.result(), covs.result(), _stack_rows(rejected, m, bool), np.array(nis), np.array(loglik)
+    )

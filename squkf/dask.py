@@ -51,7 +51,7 @@ MMAP_THRESHOLD = 16 * 2**20
 """Bytes from which glibc's malloc maps fresh pages, in :func:`worker_environ` (16 MiB)."""
 
 _KEEP = ("all", "diagonals", "means", "final")
-_FIELDS = ("means", "P1_2s", "variances", "log_likelihood", "failed", "x", "P1_2")
+_FIELDS = ("means", "P1_2s", "variances", "log_likelihood", "failed", "x", "P1_2", "rejected", "nis")
 
 
 def worker_environ() -> dict[str, Any]:
@@ -196,9 +196,7 @@ def batch_filter(
     options = {"keep": keep, "dts": dts, "fx_args": fx_args, "hx_args": hx_args}
     n = fleet.dim_x
     blocks = Z.to_delayed().reshape(-1)
-    fields: dict[str, list] = {
-        f: [] for f in ("means", "P1_2s", "variances", "log_likelihood", "failed", "x", "P1_2")
-    }
+    fields: dict[str, list] = {f: [] for f in _FIELDS}
     lo = 0
     for block, size in zip(blocks, Z.chunks[0]):
         # each task carries only its chunk's filters (not the whole template): a worker holds a few chunks
@@ -212,15 +210,19 @@ def batch_filter(
             "failed": (size,),
             "x": (size, n),
             "P1_2": (size, n, n),
+            "rejected": (size, m) if keep == "final" else (size, T, m),
+            "nis": (size, T),
         }
+        dtypes = {"failed": bool, "rejected": np.int64 if keep == "final" else bool}
         for name, shape in shapes.items():
-            dtype = bool if name == "failed" else float
+            dtype = dtypes.get(name, float)
             fields[name].append(da.from_delayed(getattr(part, name), shape, dtype=dtype))
         lo += size
     stored = {
         "means": keep != "final",
         "P1_2s": keep == "all",
         "variances": keep in ("all", "diagonals"),
+        "nis": keep != "final",
     }
     out: dict[str, Any] = {}
     for name, parts in fields.items():

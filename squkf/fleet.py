@@ -31,7 +31,7 @@ import copy
 import dataclasses
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -40,9 +40,11 @@ from .angles import _AngleHook
 from .batch import iter_measurements, model_kwargs, per_step
 from .covariance import as_lower_factor, as_matrix
 from .errors import NonFiniteError, ParameterError, ShapeError, SqukfError
+from .gating import Gate, as_gate
 from .generators import SigmaSet, as_generator
 from .isolate import BLOCK, run_isolated
 from .linalg import factor_covariance
+from .noise import call_model, check_accepts_noise, check_noise_dim, noise_points
 from .plan import Hooks, Plan, build_plan
 from .validate import as_float_array, as_measurements, check_time_step, describe_nonfinite
 from .weights import as_family
@@ -85,6 +87,13 @@ class FleetResult:
         Filters flagged by the end of the run (their later entries repeat their last good state).
     x, P1_2 : ndarray, shapes (K, n) and (K, n, n)
         The final state.
+    rejected : ndarray, shape (K, T, m) of bool, or (K, m) of int with ``keep="final"``
+        The measurement components each filter's gate rejected at each step
+        (with ``keep="final"``: how many steps each component was rejected).
+        All False (zero) without a gate.
+    nis : ndarray, shape (K, T), or None with ``keep="final"``
+        Each step's normalised innovation squared (0 where a filter had no
+        measurement or had failed).
     """
 
     means: np.ndarray | None
@@ -94,6 +103,19 @@ class FleetResult:
     failed: np.ndarray
     x: np.ndarray
     P1_2: np.ndarray
+    rejected: np.ndarray | None = None
+    nis: np.ndarray | None = None
+
+
+class _Records(NamedTuple):
+    """The arrays a fleet's batch run fills, step by step (None: not kept)."""
+
+    means: np.ndarray | None
+    factors: np.ndarray | None
+    variances: np.ndarray | None
+    loglik: np.ndarray
+    rejected: np.ndarray
+    nis: np.ndarray | None
 
 
 # the internal array behind each attribute handed out for editing in place
@@ -138,6 +160,14 @@ class Fleet:
         filterpy's hooks (e.g. :mod:`squkf.angles`), called per filter.
     on_error : {"flag", "raise"}
         What a numerical failure of some filters does (module docstring).
+    gate : None, float or Gate
+        Outlier gating, as for :class:`squkf.SquareRootUKF` (each filter
+        decided on its own).
+    fx_noise, hx_noise : int, optional
+        Noise entering the model, as for :class:`squkf.SquareRootUKF`:
+        ``fx(X, W, dt, **fx_args)`` with ``W`` ``(K, N, dim_w)`` and
+        ``hx(X, V, **hx_args)`` with ``V`` ``(K, N2, dim_v)``; ``Q`` and ``R``
+        are then w's and v's covariances (shared or per filter).
 
     Attributes
     ----------
@@ -157,7 +187,12 @@ class Fleet:
     y : ndarray, shape (K, dim_z)
         Innovations of the last update (NaN where a component was missing).
     log_likelihood, likelihood, mahalanobis : ndarray, shape (K,)
-        Of the last update (0, 1 and 0 for a filter without measurement).
+        Of the last update (0, 1 and 0 for a filter without measurement;
+        the likelihood of the components the gate passed).
+    nis : ndarray, shape (K,)
+        The last update's normalised innovation squared (what a gate tests).
+    rejected : ndarray of bool, shape (K, dim_z)
+        The components of the last update's measurements that the gate rejected.
     failed : ndarray of bool, shape (K,)
     failure : ndarray of str, shape (K,)
         Why each flagged filter failed ("" for the others).
@@ -193,6 +228,9 @@ class Fleet:
         residual_z: Callable | None = None,
         state_add: Callable | None = None,
         on_error: str = "flag",
+        gate: float | Gate | None = None,
+        fx_noise: int | None = None,
+        hx_noise: int | None = None,
     ):
         for name, v in (("n_filters", n_filters), ("dim_x", dim_x), ("dim_z", dim_z)):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
@@ -200,6 +238,11 @@ class Fleet:
         if on_error not in ("flag", "raise"):
             raise ParameterError(f"on_error must be 'flag' or 'raise', got on_error={on_error!r}")
         K, n, m = int(n_filters), int(dim_x), int(dim_z)
+        self._fx_noise = check_noise_dim(fx_noise, "fx_noise")
+        self._hx_noise = check_noise_dim(hx_noise, "hx_noise")
+        check_accepts_noise(fx, "fx", self._fx_noise, 3)
+        check_accepts_noise(hx, "hx", self._hx_noise, 2)
+        self._qd, self._rd = self._fx_noise or n, self._hx_noise or m  # the dimensions of Q and R
         self._handed: dict[str, tuple[np.ndarray, bytes]] = {}  # name -> (array handed out, its bytes then)
         self._K, self._n, self._m = K, n, m
         self._dt = self._check_dt(dt)
@@ -207,14 +250,15 @@ class Fleet:
         self.points_fn = points
         self._family = as_family(points)
         self._generator = as_generator(scheme)
-        self._plan: Plan = build_plan(self._family, self._generator, n)
+        self._plan: Plan = build_plan(self._family, self._generator, n, self._fx_noise, self._hx_noise)
         self.x_mean, self.z_mean = x_mean_fn, z_mean_fn
         self.residual_x, self.residual_z, self.state_add = residual_x, residual_z, state_add
         self.on_error = on_error
+        self._gate = as_gate(gate)
         self._x = np.zeros((K, n))
         self._S = np.broadcast_to(np.eye(n), (K, n, n)).copy()
-        self._Q1_2: np.ndarray | None = np.eye(n)
-        self._R1_2: np.ndarray = np.eye(m)
+        self._Q1_2: np.ndarray | None = np.eye(self._qd)
+        self._R1_2: np.ndarray = np.eye(self._rd)
         self._state = steps.StepState()
         self._failed = np.zeros(K, dtype=bool)
         self._failure = np.full(K, "", dtype=object)
@@ -223,6 +267,8 @@ class Fleet:
         self.y = np.zeros((K, m))
         self._loglik = np.zeros(K)
         self._maha = np.zeros(K)
+        self._nis = np.zeros(K)
+        self._rejected = np.zeros((K, m), dtype=bool)
 
     # -- configuration and sizes ----------------------------------------------
 
@@ -245,6 +291,16 @@ class Fleet:
     def scheme(self):
         """The second-set generator."""
         return self._generator
+
+    @property
+    def fx_noise(self) -> int | None:
+        """Dimension of the noise ``fx`` takes as its second argument (None: additive noise)."""
+        return self._fx_noise or None
+
+    @property
+    def hx_noise(self) -> int | None:
+        """Dimension of the noise ``hx`` takes as its second argument (None: additive noise)."""
+        return self._hx_noise or None
 
     def _hooks(self) -> Hooks:
         return Hooks(self.x_mean, self.z_mean, self.residual_x, self.residual_z, self.state_add)
@@ -372,28 +428,31 @@ class Fleet:
 
     @property
     def Q(self) -> np.ndarray:
-        """Process noise, shared ``(n, n)`` or per filter ``(K, n, n)``; edits in place count (next call)."""
+        """Process noise, shared ``(d, d)`` or per filter ``(K, d, d)``; edits in place count (next call).
+
+        ``d`` is ``dim_x``, or ``fx_noise`` when the noise enters ``fx`` (then ``Q`` is w's covariance).
+        """
 
         def form() -> np.ndarray:
             S = self._Q1_2
-            return np.zeros((self._n, self._n)) if S is None else S @ np.swapaxes(S, -1, -2)
+            return np.zeros((self._qd, self._qd)) if S is None else S @ np.swapaxes(S, -1, -2)
 
         return self._hand_out("Q", form)
 
     @Q.setter
     def Q(self, value):
-        S = self._noise(value, "Q", self._n)
+        S = self._noise(value, "Q", self._qd)
         self._Q1_2 = None if S is None or not np.any(S) else S
 
     @property
     def Q1_2(self) -> np.ndarray:
         """Lower factor(s) of ``Q`` (fresh; assign to change)."""
         self._take_edits()
-        return np.zeros((self._n, self._n)) if self._Q1_2 is None else self._Q1_2.copy()
+        return np.zeros((self._qd, self._qd)) if self._Q1_2 is None else self._Q1_2.copy()
 
     @Q1_2.setter
     def Q1_2(self, value):
-        self._Q1_2 = self._factor_noise(value, "Q1_2", self._n)
+        self._Q1_2 = self._factor_noise(value, "Q1_2", self._qd)
 
     @property
     def R(self) -> np.ndarray:
@@ -402,8 +461,8 @@ class Fleet:
 
     @R.setter
     def R(self, value):
-        S = self._noise(value, "R", self._m)
-        self._R1_2 = np.zeros((self._m, self._m)) if S is None else S
+        S = self._noise(value, "R", self._rd)
+        self._R1_2 = np.zeros((self._rd, self._rd)) if S is None else S
 
     @property
     def R1_2(self) -> np.ndarray:
@@ -413,8 +472,8 @@ class Fleet:
 
     @R1_2.setter
     def R1_2(self, value):
-        S = self._factor_noise(value, "R1_2", self._m)
-        self._R1_2 = np.zeros((self._m, self._m)) if S is None else S
+        S = self._factor_noise(value, "R1_2", self._rd)
+        self._R1_2 = np.zeros((self._rd, self._rd)) if S is None else S
 
     def _factor_noise(self, value, name: str, dim: int) -> np.ndarray | None:
         a = as_float_array(value, name)
@@ -463,6 +522,25 @@ class Fleet:
     def mahalanobis(self) -> np.ndarray:
         """Mahalanobis distance of each filter's last innovation, shape ``(K,)``."""
         return self._maha.copy()
+
+    @property
+    def nis(self) -> np.ndarray:
+        """Normalised innovation squared of each filter's last update, shape ``(K,)`` (a copy)."""
+        return self._nis.copy()
+
+    @property
+    def rejected(self) -> np.ndarray:
+        """The components the gate rejected in the last update, shape ``(K, dim_z)`` (a copy)."""
+        return self._rejected.copy()
+
+    @property
+    def gate(self) -> Gate | None:
+        """The outlier gate (None: every measurement is used); assign a probability or a Gate."""
+        return self._gate
+
+    @gate.setter
+    def gate(self, value):
+        self._gate = as_gate(value)
 
     def reset(self, filters=None, x=None, P=None) -> None:
         """Clear the flag of ``filters`` (default: every flagged one), optionally setting their state.
@@ -542,6 +620,9 @@ class Fleet:
         self._take_edits()
         state = steps.ask_predict(self._state, self._plan, self._x, self._S, self.state_add)
         self._state = state
+        if self._plan.w_xi is not None:  # the augmented points [x_i, w_i]
+            W = noise_points(self._plan.w_xi, self._Q1_2, (self._K,))
+            return np.concatenate([state.sigmas, W], axis=-1)  # type: ignore[list-item]
         return state.sigmas.copy()  # type: ignore[union-attr]
 
     def predict(self, dt=None, **fx_args) -> None:
@@ -562,8 +643,13 @@ class Fleet:
         state = steps.ask_predict(self._state, self._plan, self._x, self._S, self.state_add)
         X = state.sigmas
         assert X is not None
-        # the points themselves (no copy, for memory): the step reads only their shape afterwards
-        F = self.fx(X, dt, **self._with_filter_axis(fx_args))
+        kwargs = self._with_filter_axis(fx_args)
+        if self._plan.w_xi is not None:
+            W = noise_points(self._plan.w_xi, self._Q1_2, (self._K,))
+            F = call_model(self.fx, "fx", self._fx_noise, X, W, (dt,), kwargs, True)
+        else:
+            # the points themselves (no copy, for memory): the step reads only their shape afterwards
+            F = self.fx(X, dt, **kwargs)
         self._tell_predict(state, F)
 
     def tell_predict(self, sigmas_f) -> None:
@@ -591,7 +677,8 @@ class Fleet:
         if not finite.all():
             F = np.where(finite[:, None, None], F, X)  # a failing filter's rows: harmless stand-ins
         idx = np.flatnonzero(active & finite)
-        plan, hooks, Q = self._plan, self._hooks(), self._Q1_2
+        plan, hooks = self._plan, self._hooks()
+        Q = None if plan.w_xi is not None else self._Q1_2  # noise entering fx is in the points already
 
         def prior(ix):
             sub = steps.StepState(steps.PREDICTING, X[ix])
@@ -627,6 +714,9 @@ class Fleet:
         self._take_edits()
         state = steps.ask_update(self._state, self._plan, self._x, self._S, self.state_add)
         self._state = state
+        if self._plan.v_xi is not None:  # the augmented points [x_i, v_i]
+            V = noise_points(self._plan.v_xi, self._R1_2, (self._K,))
+            return np.concatenate([state.sigmas, V], axis=-1)  # type: ignore[list-item]
         return state.sigmas.copy()  # type: ignore[union-attr]
 
     def update(self, z, R=None, **hx_args) -> None:
@@ -644,17 +734,27 @@ class Fleet:
         """
         zz = self._as_measurements(z)
         self._take_edits()
-        R1_2 = self._R1_2 if R is None else self._noise(R, "R", self._m)
+        R1_2 = self._R1_2 if R is None else self._noise(R, "R", self._rd)
         state = steps.ask_update(self._state, self._plan, self._x, self._S, self.state_add)
         assert state.sigmas is not None
-        H = self.hx(state.sigmas.copy(), **self._with_filter_axis(hx_args))
+        kwargs = self._with_filter_axis(hx_args)
+        if self._plan.v_xi is not None:
+            V = noise_points(self._plan.v_xi, R1_2, (self._K,))
+            H = call_model(self.hx, "hx", self._hx_noise, state.sigmas.copy(), V, (), kwargs, True)
+        else:
+            H = self.hx(state.sigmas.copy(), **kwargs)
         self._tell_update(state, H, zz, R1_2)
 
     def tell_update(self, sigmas_h, z, R=None) -> None:
         """Second half of an update: ``hx`` at the points from :meth:`ask_update`, and ``z`` (K, dim_z)."""
         zz = self._as_measurements(z)
         self._take_edits()
-        R1_2 = self._R1_2 if R is None else self._noise(R, "R", self._m)
+        if self._plan.v_xi is not None and R is not None:
+            raise ParameterError(
+                f"with hx_noise the noise is in the sigma points handed out by ask_update: assign fleet.R"
+                f" before asking, not R={R!r:.60} here"
+            )
+        R1_2 = self._R1_2 if R is None else self._noise(R, "R", self._rd)
         self._tell_update(self._state, sigmas_h, zz, R1_2)
 
     def _as_measurements(self, z, name: str = "z") -> np.ndarray:
@@ -693,16 +793,26 @@ class Fleet:
         self._fail_nonfinite(fails, np.flatnonzero(active & measured & ~finite), H, "hx values")
         todo = active & measured & finite
         hooks = self._hooks()
+        if self._plan.v_xi is not None:  # noise entering hx is in the points: the update adds none
+            R1_2 = np.zeros((m, m))
+
+        gate = self._gate
 
         def unchanged():
             """The records of filters that no update reaches: the prior, no innovation, no likelihood."""
-            return x0.copy(), S0.copy(), np.full((K, m), np.nan), np.zeros(K), np.zeros(K)
+            return (
+                x0.copy(), S0.copy(), np.full((K, m), np.nan), np.zeros(K), np.zeros(K), np.zeros(K),
+                np.zeros((K, m), dtype=bool),
+            )  # fmt: skip
 
-        x_new: Any = None  # with S_new, y, loglik, maha: made at the first update that needs them
+        # made at the first update that needs them
+        x_new: Any = None
         S_new: Any = None
         y: Any = None
         loglik: Any = None
         maha: Any = None
+        nis: Any = None
+        rejected: Any = None
         # filters with the same missing components are updated together (one stacked update each)
         todo_idx = np.flatnonzero(todo)
         if observed[todo].all():  # the usual case: one group
@@ -715,31 +825,36 @@ class Fleet:
 
             def posterior(ix, mask=mask):
                 sub = steps.StepState(steps.UPDATING, None, None, None, _take(sset, ix), (x0[ix], S0[ix]))
-                _, post, _ = steps.tell_update(sub, H[ix], z[ix], _rows_of(R1_2, ix, 2), mask, hooks)
-                return post.x, post.S, post.y, post.log_likelihood, np.sqrt(post.nis)
+                _, g, _ = steps.gated_update(
+                    sub, H[ix], z[ix], _rows_of(R1_2, ix, 2), mask, hooks, None, gate
+                )
+                post = g.tested
+                return g.x, g.S, post.y, g.log_likelihood, np.sqrt(post.nis), post.nis, g.rejected
 
             good, res = self._isolated(posterior, group, fails)
             if res is not None and good.size == K and mask is None:
                 # every filter, in order, all measured: the kernels' fresh arrays as they are
-                x_new, S_new, y, loglik, maha = res
+                x_new, S_new, y, loglik, maha, nis, rejected = res
             elif res is not None:
                 if x_new is None:
-                    x_new, S_new, y, loglik, maha = unchanged()
+                    x_new, S_new, y, loglik, maha, nis, rejected = unchanged()
                 x_new[good], S_new[good] = res[0], res[1]
                 if obs.all():
-                    y[good] = res[2]
+                    y[good], rejected[good] = res[2], res[6]
                 else:
-                    y[np.ix_(good, np.flatnonzero(obs))] = res[2]
-                loglik[good], maha[good] = res[3], res[4]
+                    cols = np.ix_(good, np.flatnonzero(obs))
+                    y[cols], rejected[cols] = res[2], res[6]
+                loglik[good], maha[good], nis[good] = res[3], res[4], res[5]
         self._commit_failures(fails)
         if x_new is None:
-            x_new, S_new, y, loglik, maha = unchanged()
+            x_new, S_new, y, loglik, maha, nis, rejected = unchanged()
         # commit
         self._state = steps.StepState()
         self._x, self._S = x_new, S_new
         self._flag(fails)
         self.x_post, self.P1_2_post = x_new.copy(), S_new.copy()
         self.y, self._loglik, self._maha = y, loglik, maha
+        self._nis, self._rejected = nis, rejected
 
     # -- many steps ---------------------------------------------------------------
 
@@ -805,10 +920,14 @@ class Fleet:
         factors = np.empty((K, T, n, n)) if keep == "all" else None
         variances = np.empty((K, T, n)) if keep in ("all", "diagonals") else None
         loglik = np.zeros((K, T)) if keep != "final" else np.zeros(K)
+        m = self._m
+        rejected = np.zeros((K, T, m), dtype=bool) if keep != "final" else np.zeros((K, m), dtype=np.int64)
+        nis = np.zeros((K, T)) if keep != "final" else None
+        records = _Records(means, factors, variances, loglik, rejected, nis)
         self._take_edits()
         before, handed = copy.copy(self), dict(self._handed)
         try:
-            self._run(Z, dt_list, fx_args, hx_args, means, factors, variances, loglik, progress)
+            self._run(Z, dt_list, fx_args, hx_args, records, progress)
         except BaseException:
             # an error at any step (a model function's, or a failure with on_error="raise")
             # leaves the fleet as it was before the call
@@ -816,10 +935,18 @@ class Fleet:
             self.__dict__["_handed"] = handed  # the arrays handed out stay the caller's, still current
             raise
         return FleetResult(
-            means, factors, variances, loglik, self._failed.copy(), self._x.copy(), self._S.copy()
+            means,
+            factors,
+            variances,
+            loglik,
+            self._failed.copy(),
+            self._x.copy(),
+            self._S.copy(),
+            rejected,
+            nis,
         )
 
-    def _run(self, Z, dt_list, fx_args, hx_args, means, factors, variances, loglik, progress) -> None:
+    def _run(self, Z, dt_list, fx_args, hx_args, records: _Records, progress) -> None:
         bar = None
         if progress is True:
             try:
@@ -828,25 +955,30 @@ class Fleet:
                 raise ParameterError("progress=True needs tqdm: pip install 'squkf[progress]'") from None
             bar = tqdm(total=len(dt_list), unit="step")
         try:
-            self._steps(Z, dt_list, fx_args, hx_args, means, factors, variances, loglik, progress, bar)
+            self._steps(Z, dt_list, fx_args, hx_args, records, progress, bar)
         finally:
             if bar is not None:
                 bar.close()
 
-    def _steps(self, Z, dt_list, fx_args, hx_args, means, factors, variances, loglik, progress, bar) -> None:
+    def _steps(self, Z, dt_list, fx_args, hx_args, records: _Records, progress, bar) -> None:
         K, m = self._K, self._m
+        means, factors, variances, loglik = records.means, records.factors, records.variances, records.loglik
         for t in range(len(dt_list)):
             self.predict(dt_list[t], **fx_args)
             if np.isnan(Z[:, t]).all():  # no measurement at all: as update() would leave it
                 self._state = steps.StepState()
                 self.x_post, self.P1_2_post = self._x.copy(), self._S.copy()
                 self.y, self._loglik, self._maha = np.full((K, m), np.nan), np.zeros(K), np.zeros(K)
+                self._nis, self._rejected = np.zeros(K), np.zeros((K, m), dtype=bool)
             else:
                 self.update(Z[:, t], **hx_args)
-                if loglik.ndim == 1:  # keep="final": the run's total
+                if loglik.ndim == 1:  # keep="final": the run's totals
                     loglik += self._loglik
+                    records.rejected[...] += self._rejected
                 else:
                     loglik[:, t] = self._loglik
+                    records.rejected[:, t] = self._rejected
+                    records.nis[:, t] = self._nis  # type: ignore[index]  # kept unless keep="final"
             if means is not None:
                 means[:, t] = self._x
             if factors is not None:
@@ -880,6 +1012,9 @@ class Fleet:
             state_add=self.state_add,
             scheme=self._generator,
             vectorized=True,
+            gate=self._gate,
+            fx_noise=self._fx_noise or None,
+            hx_noise=self._hx_noise or None,
         )
         f.x = self._x[k]
         f.P1_2 = self._S[k]
@@ -925,6 +1060,7 @@ class Fleet:
         new.x_prior, new.x_post = self.x_prior[idx], self.x_post[idx]
         new.P1_2_prior, new.P1_2_post = self.P1_2_prior[idx], self.P1_2_post[idx]
         new.y, new._loglik, new._maha = self.y[idx], self._loglik[idx], self._maha[idx]
+        new._nis, new._rejected = self._nis[idx], self._rejected[idx]
         return new
 
     @classmethod
@@ -964,6 +1100,9 @@ class Fleet:
                 hook(f, "residual_x", np.subtract),
                 hook(f, "residual_z", np.subtract),
                 hook(f, "state_add", np.add),
+                f.gate,
+                f.fx_noise,
+                f.hx_noise,
             )
 
         def key(f):
@@ -992,6 +1131,9 @@ class Fleet:
             residual_z=c0[11],
             state_add=c0[12],
             on_error=on_error,
+            gate=c0[13],
+            fx_noise=c0[14],
+            hx_noise=c0[15],
         )
         fleet._x = np.stack([f.x for f in filters])
         fleet._S = np.stack([f.P1_2 for f in filters])
@@ -1070,6 +1212,11 @@ class Fleet:
         FleetStepError
             With ``on_error="raise"``, if some filters failed numerically.
         """
+        if self._fx_noise:
+            raise ParameterError(
+                "the RTS smoother takes additive process noise only;"
+                f" this fleet has fx_noise={self._fx_noise}"
+            )
         from .smoother import fleet_rts_smoother
 
         self._take_edits()

@@ -38,7 +38,7 @@ from . import kernels
 from .errors import ParameterError
 from .rows import WeightRows, weight_rows
 from .validate import call_hook
-from .weights import as_family
+from .weights import FilterpyPoints, as_family
 
 __all__ = [
     "SigmaSet",
@@ -48,6 +48,7 @@ __all__ = [
     "UnitSet",
     "as_generator",
     "prepare_second_set",
+    "noise_family",
     "axis_gamma",
     "sigma_points_from_factor",
     "sigma_points_and_offsets",
@@ -193,6 +194,35 @@ class UnitSet:
         self.exact = _identity_moments(family, n)
         self.gamma = axis_gamma(self.xi)
 
+    @classmethod
+    def augmented(cls, family, n: int, d: int) -> tuple[UnitSet, np.ndarray]:
+        """The state part of ``family``'s points over ``[x, noise]`` (dim ``n + d``), and the noise part.
+
+        The augmented factor is block diagonal, ``diag(S, N1_2)``, so a point
+        ``[x, 0] + xi_i diag(S, N1_2)^T`` is ``x + xi_i[:n] S^T`` beside
+        ``xi_i[n:] N1_2^T``: neither block is ever formed together.
+
+        Parameters
+        ----------
+        family : sigma-point family
+            Serving dimension ``n + d`` (:func:`noise_family` gives it).
+        n, d : int
+            State and noise dimensions.
+
+        Returns
+        -------
+        unit : UnitSet
+            Its ``xi`` ``(N, n)`` is the state part; rows and exactness are the
+            ``(n + d)``-dimensional family's (no axis structure in ``n``).
+        noise_xi : ndarray, shape (N, d)
+            The noise part of the unit points (read-only).
+        """
+        full = cls(family, n + d)
+        unit = cls.__new__(cls)
+        unit.xi = _frozen(full.xi[:, :n].copy())
+        unit.rows, unit.exact, unit.gamma = full.rows, full.exact, None
+        return unit, _frozen(full.xi[:, n:].copy())
+
     def draw(self, x: np.ndarray, S: np.ndarray, state_add=None) -> SigmaSet:
         """The set for mean ``x`` ``(..., n)`` and lower factor ``S`` ``(..., n, n)``."""
         sigmas, offsets = sigma_points_and_offsets(x, S, self.xi, state_add, self.gamma)
@@ -228,6 +258,20 @@ class Redrawn:
     def prepare(self, family, n: int) -> _RedrawnSet:
         """What this generator needs for ``family`` at dimension ``n``, prepared once."""
         return _RedrawnSet(UnitSet(self.family_for(family), n))
+
+    def prepare_augmented(self, family, n: int, d: int) -> tuple[_RedrawnSet, np.ndarray]:
+        """The drawer of the set over ``[x, v]`` (``v`` of dimension ``d`` enters ``hx``), and its noise part.
+
+        Returns
+        -------
+        drawer : object with ``draw(x, S, propagated, Q1_2, state_add) -> SigmaSet``
+            Draws the state part, ``(N2, n)`` per filter, with the weights of
+            the ``(n + d)``-dimensional family.
+        v_xi : ndarray, shape (N2, d)
+            The unit noise points (``v_i = v_xi[i] @ R1_2.T``).
+        """
+        unit, v_xi = UnitSet.augmented(noise_family(self.family_for(family), n, d), n, d)
+        return _RedrawnSet(unit), v_xi
 
     def second_set(self, x, S, *, family, propagated=None, Q1_2=None, state_add=None) -> SigmaSet:
         """The redrawn set ``x + xi @ S.T`` (see the module docstring)."""
@@ -400,6 +444,39 @@ class _UserSet:
         if sset.rows is None:
             sset = sset._replace(rows=weight_rows(sset.Wm, sset.Wc))
         return sset
+
+
+def noise_family(family, n: int, d: int):
+    """The family that weighs a set over ``[x, noise]`` (dimension ``n + d``) for ``family``.
+
+    A family with a spread parameter (Merwe, Julier: its ``augmented``) keeps
+    the spread it has at ``n``: ``kappa`` is lowered by ``d``, so that
+    ``L + kappa`` and the state part of the points are unchanged, and a model
+    whose noise is in fact additive, written with the noise as an argument,
+    gives the additive filter's numbers. A filterpy points object built for
+    ``n + d`` serves as it is (built for ``n``: its squkf equivalent is used as
+    above); any other family is asked for ``n + d`` points.
+
+    Raises
+    ------
+    ParameterError
+        A points object for another dimension with no squkf equivalent.
+    """
+    dim = n + d
+    if isinstance(family, FilterpyPoints):
+        if family.n == dim:
+            return family
+        native = family.as_native()
+        if native is None:
+            raise ParameterError(
+                f"the points object {type(family.points).__name__} was built for n={family.n}; with noise of"
+                f" dimension {d} entering the model the sets have dimension {dim}: build it with n={dim}"
+            )
+        family = native
+    if hasattr(family, "augmented"):
+        return family.augmented(d)
+    family.num_sigmas(dim)  # fails now if it cannot
+    return family
 
 
 def prepare_second_set(generator, family, n: int):

@@ -13,8 +13,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
+import numpy as np
+
 from .errors import ParameterError
-from .generators import UnitSet, prepare_second_set
+from .generators import Redrawn, UnitSet, noise_family, prepare_second_set
 
 __all__ = ["Plan", "Hooks", "build_plan"]
 
@@ -51,6 +53,11 @@ class Plan:
         The first set's unit points, weights, rows and structure.
     second : object with ``draw(x, S, propagated, Q1_2, state_add) -> SigmaSet``
         The generator's prepared second set.
+    w_xi : ndarray, shape (N, dim_w), or None
+        With noise entering ``fx`` (``fx_noise``): the first set is drawn over
+        ``[x, w]``; ``first.xi`` is its state part and ``w_xi`` its noise part.
+    v_xi : ndarray, shape (N2, dim_v), or None
+        The same for the second set over ``[x, v]`` (``hx_noise``).
     keeps_propagated : bool
         Whether the second set reads the first set's images (augmented,
         propagated), which the step then keeps (derived from ``second``).
@@ -61,6 +68,8 @@ class Plan:
     generator: Any
     first: UnitSet
     second: Any
+    w_xi: np.ndarray | None = None
+    v_xi: np.ndarray | None = None
     keeps_propagated: bool = field(init=False)
 
     def __post_init__(self):
@@ -73,7 +82,7 @@ class Plan:
         return self.first.xi.shape[0]
 
 
-def build_plan(family, generator, n: int) -> Plan:
+def build_plan(family, generator, n: int, fx_noise: int = 0, hx_noise: int = 0) -> Plan:
     """The plan for ``family`` and ``generator`` at dimension ``n``.
 
     Parameters
@@ -81,6 +90,11 @@ def build_plan(family, generator, n: int) -> Plan:
     family : sigma-point family
     generator : second-set generator
     n : int
+    fx_noise, hx_noise : int
+        Dimensions of the noise that ``fx`` and ``hx`` take as an argument
+        (0: additive noise). The sets are then drawn over ``[x, w]`` and
+        ``[x, v]`` (:meth:`squkf.generators.UnitSet.augmented`); the second
+        set must be redrawn.
 
     Returns
     -------
@@ -92,11 +106,23 @@ def build_plan(family, generator, n: int) -> Plan:
         If the family cannot give points for ``n`` or the generator cannot
         serve the family (the augmented set needs ``+/-`` pairs).
     """
+    if (fx_noise or hx_noise) and not isinstance(generator, Redrawn):
+        raise ParameterError(
+            f"noise entering fx or hx (fx_noise={fx_noise or None}, hx_noise={hx_noise or None}) needs the"
+            f" redrawn second set, scheme='redrawn', got scheme={generator!r}"
+        )
+    w_xi = v_xi = None
     try:
-        first = UnitSet(family, n)
-        second = prepare_second_set(generator, family, n)
+        if fx_noise:
+            first, w_xi = UnitSet.augmented(noise_family(family, n, fx_noise), n, fx_noise)
+        else:
+            first = UnitSet(family, n)
+        if hx_noise:
+            second, v_xi = generator.prepare_augmented(family, n, hx_noise)
+        else:
+            second = prepare_second_set(generator, family, n)
     except ParameterError:
         raise
     except Exception as exc:  # a user's family or generator that cannot serve this dimension
         raise ParameterError(f"points cannot give sigma points for dim_x={n}: {exc}") from exc
-    return Plan(n, family, generator, first, second)
+    return Plan(n, family, generator, first, second, w_xi, v_xi)

@@ -20,12 +20,14 @@ current estimate (a second sensor at the same time).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
-from .errors import CallSequenceError, NonFiniteError
+from .errors import CallSequenceError, NonFiniteError, PosteriorFactorError
 from .generators import SigmaSet, sigma_points_and_offsets
 from .linalg import all_finite
 from .measurement import Posterior, measurement_update, observed_noise_factor
@@ -44,6 +46,9 @@ __all__ = [
     "draw_second_set",
     "ask_update",
     "tell_update",
+    "GatedUpdate",
+    "gated_update",
+    "take_filters",
     "skip_update",
     "check_values",
 ]
@@ -304,7 +309,168 @@ def tell_update(
         state_add=hooks.state_add,
         UT=UT,
     )
+    _check_rank(post.S, S, Ro)
     return StepState(), post, H
+
+
+def _check_rank(S_post: np.ndarray, S_prior: np.ndarray, R1_2: np.ndarray) -> None:
+    """A posterior factor with a zero diagonal, from positive definite ``P`` and ``R``, lost rank to rounding.
+
+    Mathematically the update of a positive definite prior by a measurement
+    with positive definite noise is positive definite; a zero on the factor's
+    diagonal means the arithmetic lost it (numbers far beyond the state's
+    spread), and committing it would make the filter's covariance singular.
+    (With a singular ``R``, an exactly measured direction is legitimately 0.)
+    """
+    if (np.diagonal(S_post, 0, -2, -1) > 0).all():
+        return
+    lost = ~(np.diagonal(S_post, 0, -2, -1) > 0).all(axis=-1)
+    definite = (np.diagonal(S_prior, 0, -2, -1) > 0).all(axis=-1) & (np.diagonal(R1_2, 0, -2, -1) > 0).all(
+        axis=-1
+    )
+    if (lost & definite).any():
+        raise PosteriorFactorError(
+            "the posterior factor lost rank to rounding (a zero on its diagonal from positive definite P"
+            " and R): the covariances' scales are too far apart for double precision",
+            errno=303,
+        )
+
+
+class GatedUpdate(NamedTuple):
+    """An update through an outlier gate: what the gate saw and what was applied.
+
+    Attributes
+    ----------
+    tested : Posterior
+        The update with every measured component (the innovation, its factor
+        and NIS are what the gate tested).
+    rejected : ndarray of bool, shape (..., m_obs)
+        The measured components the gate rejected (all False without a gate).
+    x : ndarray, shape (..., n)
+    S : ndarray, shape (..., n, n)
+        The posterior after the components that passed: ``tested``'s where
+        none was rejected, the prior where all were.
+    log_likelihood : ndarray, shape (...)
+        Of the components that passed (0 where none did: nothing measured).
+    K : ndarray, shape (..., n, m_obs), or None
+        The gain that was applied (zero columns for rejected components);
+        None when nothing was rejected (it is ``tested.gain()``).
+    """
+
+    tested: Posterior
+    rejected: np.ndarray
+    x: np.ndarray
+    S: np.ndarray
+    log_likelihood: np.ndarray
+    K: np.ndarray | None
+
+
+def take_filters(state: StepState, idx: np.ndarray) -> StepState:
+    """The pending update of the filters ``idx`` of a stack (flattened to one batch axis).
+
+    Parameters
+    ----------
+    state : StepState
+        Phase ``"updating"``, of a stack with any batch shape.
+    idx : ndarray of int
+        Indices into the flattened batch.
+
+    Returns
+    -------
+    StepState
+        Of batch shape ``(len(idx),)``.
+    """
+    sset: SigmaSet = state.sset  # type: ignore[assignment]  # set in phase UPDATING, as is the prior
+    x, S = state.prior  # type: ignore[misc]
+    n = x.shape[-1]
+    N = sset.sigmas.shape[-2]
+
+    def rows(a, core):
+        return None if a is None else a.reshape((-1,) + a.shape[a.ndim - core :])[idx]
+
+    sub = sset._replace(sigmas=rows(sset.sigmas, 2), offsets=rows(sset.offsets, 2))
+    assert sub.sigmas.shape[1:] == (N, n)
+    return StepState(UPDATING, None, None, None, sub, (rows(x, 1), rows(S, 2)))
+
+
+def gated_update(
+    state: StepState,
+    values,
+    z: np.ndarray,
+    R1_2: np.ndarray,
+    observed: np.ndarray | None,
+    hooks: Hooks,
+    UT: Callable | None,
+    gate,
+    name: str = "hx values",
+) -> tuple[StepState, GatedUpdate, np.ndarray]:
+    """:func:`tell_update` through an outlier gate (:mod:`squkf.gating`).
+
+    The update is computed with every measured component; the gate's
+    rejections are then treated as missing components: a filter whose whole
+    measurement is rejected keeps its prior (and measured nothing), one with
+    some components rejected is updated again with the others. Filters of a
+    stack are decided each on its own.
+
+    Parameters
+    ----------
+    state, values, z, R1_2, observed, hooks, UT, name
+        As for :func:`tell_update`; ``R1_2`` is ``(m, m)`` or per filter
+        ``(..., m, m)``.
+    gate : Gate or None
+        None: no gating (``rejected`` all False).
+
+    Returns
+    -------
+    state : StepState
+        Phase ``"idle"``.
+    update : GatedUpdate
+    H : ndarray, shape (..., N, m)
+        The images, checked (a private array).
+    """
+    new, post, H = tell_update(state, values, z, R1_2, observed, hooks, UT, name)
+    if gate is None:
+        rejected = np.zeros(post.y.shape, dtype=bool)
+    else:
+        rejected = gate.reject(post.y, post.Sy, post.nis)
+    if not rejected.any():
+        return new, GatedUpdate(post, rejected, post.x, post.S, post.log_likelihood, None), H
+    batch, n, mo = post.x.shape[:-1], post.x.shape[-1], post.y.shape[-1]
+    B = math.prod(batch)
+    m = z.shape[-1]
+    obs_idx = np.arange(m) if observed is None else np.flatnonzero(observed)
+    x0, S0 = state.prior  # type: ignore[misc]
+    x = post.x.reshape(B, n).copy()
+    S = post.S.reshape(B, n, n).copy()
+    ll = np.asarray(post.log_likelihood, dtype=float).reshape(B).copy()
+    K = post.gain().reshape(B, n, mo).copy()
+    rej = rejected.reshape(B, mo)
+    none_left = rej.all(axis=1)
+    x[none_left], S[none_left] = x0.reshape(B, n)[none_left], S0.reshape(B, n, n)[none_left]
+    ll[none_left], K[none_left] = 0.0, 0.0
+    some = rej.any(axis=1) & ~none_left
+    if some.any():
+        Hf, zf = H.reshape((B,) + H.shape[-2:]), z.reshape(B, m)
+        Rf = R1_2.reshape((-1, m, m)) if R1_2.ndim > 2 else R1_2
+        patterns, which = np.unique(rej[some], axis=0, return_inverse=True)
+        some_idx = np.flatnonzero(some)
+        for p, pattern in enumerate(patterns):
+            ix = some_idx[which.reshape(-1) == p]
+            mask = np.zeros(m, dtype=bool)
+            mask[obs_idx[~pattern]] = True
+            R_ix = Rf[ix] if Rf.ndim > 2 else Rf
+            _, part, _ = tell_update(take_filters(state, ix), Hf[ix], zf[ix], R_ix, mask, hooks, UT, name)
+            x[ix], S[ix], ll[ix] = part.x, part.S, part.log_likelihood
+            Kp = np.zeros((ix.size, n, mo))
+            Kp[:, :, ~pattern] = part.gain()
+            K[ix] = Kp
+    x, S, ll, K = (
+        x.reshape(batch + (n,)),
+        S.reshape(batch + (n, n)),
+        ll.reshape(batch),
+        K.reshape(batch + (n, mo)),
+    )
+    return new, GatedUpdate(post, rejected, x, S, ll, K), H
 
 
 def skip_update(state: StepState) -> StepState:

@@ -23,9 +23,11 @@ from . import blas
 from . import step as steps
 from .covariance import FactorSlot
 from .errors import NonFiniteError, ParameterError, ShapeError
-from .generators import as_generator, sigma_points_from_factor
+from .gating import Gate, as_gate
+from .generators import as_generator, noise_family, sigma_points_from_factor
 from .linalg import all_finite, solve_lower
 from .measurement import gain_from_factors
+from .noise import call_model, check_accepts_noise, check_noise_dim, noise_points
 from .plan import Hooks, Plan, build_plan
 from .transform import deviations
 from .validate import as_float_array, as_measurements, check_time_step, check_values
@@ -176,6 +178,18 @@ class SquareRootUKF:
         generator object may carry its own weights (ROPT(5..7)).
     vectorized : bool, keyword-only
         Call ``fx`` and ``hx`` once with all sigma points.
+    gate : None, float or Gate, keyword-only
+        Outlier gating (off by default): a chi-square probability such as
+        ``0.999``, or a :class:`~squkf.Gate` (a squared Mahalanobis distance,
+        per-component tests). A rejected measurement is treated as missing
+        (see :mod:`squkf.gating`); ``rejected`` and ``nis`` tell what happened.
+    fx_noise, hx_noise : int, keyword-only
+        Noise that enters the model (the augmented UKF, :mod:`squkf.noise`):
+        ``fx(x, w, dt, **fx_args)`` and ``hx(x, v, **hx_args)`` take the noise
+        as their second argument (with ``vectorized=True``, ``(N, dim_w)`` and
+        ``(N, dim_v)`` noise points). ``Q`` is then w's covariance
+        ``(dim_w, dim_w)``, ``R`` v's ``(dim_v, dim_v)``. Default None:
+        additive noise. Needs the redrawn second set.
 
     Attributes
     ----------
@@ -202,7 +216,16 @@ class SquareRootUKF:
     sigmas_f, sigmas_h : ndarray
     Wm, Wc : ndarray
         Weights of the first sigma-point set.
-    log_likelihood, likelihood, mahalanobis : float
+    log_likelihood, likelihood : float
+        Of the components the last update used (0 and 1 when a gate rejected
+        them all).
+    mahalanobis, nis : float
+        ``||S1_2^-1 y||`` and its square, the normalised innovation squared
+        of the last update's measured components (what a gate tests).
+    rejected : ndarray of bool, shape (dim_z,)
+        The components of the last measurement that the gate rejected; after
+        a gated update ``y``, ``S``, ``S1_2`` are the tested innovation's,
+        ``K`` the gain applied (zero columns for rejected components).
 
     Examples
     --------
@@ -270,6 +293,9 @@ class SquareRootUKF:
         *,
         scheme="redrawn",
         vectorized: bool = False,
+        gate: float | Gate | None = None,
+        fx_noise: int | None = None,
+        hx_noise: int | None = None,
     ):
         for name, v in (("dim_x", dim_x), ("dim_z", dim_z)):
             if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
@@ -277,6 +303,10 @@ class SquareRootUKF:
         n, m = int(dim_x), int(dim_z)
         self._dim_x = n
         self._dim_z = m
+        self._fx_noise = check_noise_dim(fx_noise, "fx_noise")
+        self._hx_noise = check_noise_dim(hx_noise, "hx_noise")
+        check_accepts_noise(fx, "fx", self._fx_noise, 3)
+        check_accepts_noise(hx, "hx", self._hx_noise, 2)
         self._dt = self._check_dt(dt)
         self._plan = cast(Plan, None)  # the scheme setter below sets it
         self._family = None
@@ -292,12 +322,14 @@ class SquareRootUKF:
         self.residual_z = np.subtract if residual_z is None else residual_z
         self.state_add = np.add if state_add is None else state_add
         self.vectorized = bool(vectorized)
+        self.gate = gate
         self.inv = np.linalg.inv
 
         d = self.__dict__
         d["_P"] = FactorSlot("P", n, semidefinite=False, factor=np.eye(n))
-        d["_Q"] = FactorSlot("Q", n, semidefinite=True, factor=np.eye(n))
-        d["_R"] = FactorSlot("R", m, semidefinite=True, factor=np.eye(m))
+        q, r = self._fx_noise or n, self._hx_noise or m  # the noise's own dimensions when it enters fx, hx
+        d["_Q"] = FactorSlot("Q", q, semidefinite=True, factor=np.eye(q))
+        d["_R"] = FactorSlot("R", r, semidefinite=True, factor=np.eye(r))
         for name in ("P", "Q", "R"):
             d[name] = d["_" + name].matrix()
         d["_xs"] = np.zeros(n)
@@ -321,6 +353,7 @@ class SquareRootUKF:
         self._nis = 0.0
         self._observed = None  # mask of the measured components, None: all
         self._measured = False  # whether an update has happened
+        self._rejected = np.zeros(m, dtype=bool)  # the gate's decision in the last update
 
     # -- configuration -----------------------------------------------------
 
@@ -332,14 +365,14 @@ class SquareRootUKF:
     @points_fn.setter
     def points_fn(self, points):
         family = as_family(points)
-        n = self._dim_x
+        n, dw = self._dim_x, self._fx_noise
         try:
-            num = family.num_sigmas(n)
+            num = (noise_family(family, n, dw) if dw else family).num_sigmas(n + dw)
         except ParameterError:
             raise
         except Exception as exc:  # a user's family that cannot serve this dimension
             raise ParameterError(f"points cannot give sigma points for dim_x={n}: {exc}") from exc
-        plan = build_plan(family, self._generator, n) if self._generator is not None else None
+        plan = self._build_plan(family, self._generator) if self._generator is not None else None
         self._points = points
         self._family = family
         self._num_sigmas = num
@@ -353,11 +386,33 @@ class SquareRootUKF:
     @scheme.setter
     def scheme(self, value):
         gen = as_generator(value)
-        if hasattr(gen, "num_sigmas"):
+        if hasattr(gen, "num_sigmas") and not self._hx_noise:
             gen.num_sigmas(self._dim_x, self._family)  # fails now, not at the first update
-        plan = build_plan(self._family, gen, self._dim_x)
+        plan = self._build_plan(self._family, gen)
         self._generator = gen
         self._plan = plan
+
+    def _build_plan(self, family, generator) -> Plan:
+        return build_plan(family, generator, self._dim_x, self._fx_noise, self._hx_noise)
+
+    @property
+    def fx_noise(self) -> int | None:
+        """Dimension of the noise ``fx`` takes as its second argument (None: additive noise)."""
+        return self._fx_noise or None
+
+    @property
+    def hx_noise(self) -> int | None:
+        """Dimension of the noise ``hx`` takes as its second argument (None: additive noise)."""
+        return self._hx_noise or None
+
+    @property
+    def gate(self) -> Gate | None:
+        """The outlier gate (None: every measurement is used); assign a probability or a Gate."""
+        return self._gate
+
+    @gate.setter
+    def gate(self, value):
+        self._gate = as_gate(value)
 
     @property
     def dim_x(self) -> int:
@@ -519,6 +574,16 @@ class SquareRootUKF:
         """Mahalanobis distance of the last innovation, ``||S1_2^-1 y||`` (measured components)."""
         return math.sqrt(self._nis) if self._measured else 0.0
 
+    @property
+    def nis(self) -> float:
+        """Normalised innovation squared of the last update, ``y^T S^-1 y`` (measured components)."""
+        return self._nis if self._measured else 0.0
+
+    @property
+    def rejected(self) -> np.ndarray:
+        """Which components of the last measurement the gate rejected, shape ``(dim_z,)`` (a fresh array)."""
+        return self._rejected.copy()
+
     # -- helpers ------------------------------------------------------------
 
     @staticmethod
@@ -610,6 +675,8 @@ class SquareRootUKF:
         plan = self._plan
         state = steps.ask_predict(self._state, plan, x, S, self._hooks().state_add)
         self._state, self._step_plan = state, plan
+        if plan.w_xi is not None:  # the augmented points [x_i, w_i]
+            return np.concatenate([state.sigmas, self._noise_points(plan.w_xi, None, "Q")], axis=-1)  # type: ignore[list-item]
         return state.sigmas.copy()  # type: ignore[union-attr]  # set by ask_*
 
     def tell_predict(self, sigmas_f, Q=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -618,9 +685,11 @@ class SquareRootUKF:
         Parameters
         ----------
         sigmas_f : array_like, shape (N, dim_x)
-            The state transition at each point from :meth:`ask_predict`.
+            The state transition at each point from :meth:`ask_predict`
+            (with ``fx_noise``, at each augmented point ``[x_i, w_i]`` it gave).
         Q : ndarray, shape (dim_x, dim_x), optional
-            Process noise for this step only (default ``self.Q``).
+            Process noise for this step only (default ``self.Q``); not with
+            ``fx_noise``, where the noise is in the points already.
         UT : callable, optional
             Square-root transform with the signature of
             :func:`squkf.sqrt_unscented_transform`.
@@ -631,13 +700,33 @@ class SquareRootUKF:
         P1_2_prior : ndarray, shape (dim_x, dim_x)
             Fresh arrays.
         """
+        self._refuse_with_noise(self._step_plan.w_xi, "Q", Q, UT)
         self._tell_predict(self._state, self._step_plan, sigmas_f, Q, UT, self._hooks())
         return self.x_prior.copy(), self.P1_2_prior.copy()
+
+    def _refuse_with_noise(self, noise_xi, name: str, value, UT) -> None:
+        """With noise entering the model, ``Q``/``R`` are in the points: refuse them here (and a ``UT``)."""
+        if noise_xi is None:
+            return
+        which = "fx_noise" if name == "Q" else "hx_noise"
+        if value is not None:
+            raise ParameterError(
+                f"with {which} the noise is in the sigma points handed out by ask_*: assign ukf.{name}"
+                f" before asking, not {name}={value!r} here"
+            )
+        if UT is not None:
+            raise ParameterError(f"UT cannot be given with {which}: the transform has no noise to add")
+
+    def _noise_points(self, xi: np.ndarray, value, name: str) -> np.ndarray:
+        """The noise part of an augmented set from ``Q``/``R`` (this call's ``value``, else the attribute)."""
+        dim = xi.shape[1]
+        return noise_points(xi, self._noise_factor(value, name, dim), ())
 
     @_one_blas_thread
     def _tell_predict(self, state, plan: Plan, values, Q, UT, hooks: Hooks) -> None:
         """Finish a prediction and commit it (nothing is changed if anything fails)."""
-        Q1_2 = self._noise_factor(Q, "Q", self._dim_x)
+        # noise entering fx is in the points: no noise is added to the prior
+        Q1_2 = None if plan.w_xi is not None else self._noise_factor(Q, "Q", self._dim_x)
         state, x, S = steps.tell_predict(state, plan, values, Q1_2, hooks, UT)
         state = steps.draw_second_set(state, plan, x, S, hooks.state_add)
         # commit
@@ -658,8 +747,11 @@ class SquareRootUKF:
             :meth:`tell_update`.
         """
         x, S = self._current()
-        state = steps.ask_update(self._state, self._plan, x, S, self._hooks().state_add)
+        plan = self._plan
+        state = steps.ask_update(self._state, plan, x, S, self._hooks().state_add)
         self._state = state
+        if plan.v_xi is not None:  # the augmented points [x_i, v_i]
+            return np.concatenate([state.sigmas, self._noise_points(plan.v_xi, None, "R")], axis=-1)  # type: ignore[list-item]
         return state.sigmas.copy()  # type: ignore[union-attr]  # set by ask_*
 
     def tell_update(self, sigmas_h, z, R=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -683,6 +775,7 @@ class SquareRootUKF:
         P1_2_post : ndarray, shape (dim_x, dim_x)
             Fresh arrays.
         """
+        self._refuse_with_noise(self._plan.v_xi, "R", R, UT)
         meas = self._as_measurement(z, R)
         if meas is None:
             raise NonFiniteError(
@@ -694,27 +787,37 @@ class SquareRootUKF:
     @_one_blas_thread
     def _tell_update(self, state, values, z: np.ndarray, observed, R, UT, hooks: Hooks) -> None:
         """Finish an update and commit it (nothing is changed if anything fails)."""
-        R1_2 = self._noise_factor(R, "R", z.shape[0])
+        # noise entering hx is in the points: the update adds none
+        R1_2 = None if self._plan.v_xi is not None else self._noise_factor(R, "R", z.shape[0])
         if R1_2 is None:
             R1_2 = np.zeros((z.shape[0], z.shape[0]))
-        state, post, H = steps.tell_update(state, values, z, R1_2, observed, hooks, UT)
+        state, gated, H = steps.gated_update(state, values, z, R1_2, observed, hooks, UT, self._gate)
+        post = gated.tested
         m = z.shape[0]
+        rejected = np.zeros(m, dtype=bool)
         if observed is None:
             y = post.y
+            rejected[:] = gated.rejected
         else:
             y = np.full(m, np.nan)
             y[observed] = post.y
+            rejected[observed] = gated.rejected
+        K = None
+        if gated.K is not None:  # the gate rejected something: the gain applied, not the tested one
+            K = np.zeros((self._dim_x, m))
+            K[:, slice(None) if observed is None else observed] = gated.K
         # commit
         self._state = state
-        self._commit_estimate(post.x, post.S)
-        self.x_post = post.x.copy()
-        self.P1_2_post = post.S.copy()
+        self._commit_estimate(gated.x, gated.S)
+        self.x_post = gated.x.copy()
+        self.P1_2_post = gated.S.copy()
         self.y = y
         self.z = z
         self.sigmas_h = H
         self._Sy, self._L21, self._observed = post.Sy, post.L21, observed
-        self._ll, self._nis = float(post.log_likelihood), float(post.nis)
-        self._K = None
+        self._ll, self._nis = float(gated.log_likelihood), float(post.nis)
+        self._K = K
+        self._rejected = rejected
         self._measured = True
 
     def _as_measurement(self, z, R) -> tuple[np.ndarray, np.ndarray | None] | None:
@@ -741,7 +844,7 @@ class SquareRootUKF:
             if nan.all():
                 return None
             observed = ~nan
-        if R is None and arr.shape[0] != self._dim_z:
+        if R is None and arr.shape[0] != self._dim_z and not self._hx_noise:
             Rdim = self._R.factor_or_zeros().shape[0]
             if Rdim != arr.shape[0]:
                 raise ShapeError(
@@ -778,8 +881,13 @@ class SquareRootUKF:
         plan = self._plan
         hooks = self._hooks()
         state = steps.ask_predict(self._state, plan, x, S, hooks.state_add)
-        # not copied: these points are never read again (the step keeps only their shape)
-        values = self._evaluate(fx, state.sigmas, (dt,), fx_args)  # type: ignore[arg-type]  # set by ask_*
+        if plan.w_xi is not None:
+            self._refuse_with_noise(plan.w_xi, "Q", None, UT)
+            W = self._noise_points(plan.w_xi, Q, "Q")
+            values = call_model(fx, "fx", self._fx_noise, state.sigmas, W, (dt,), fx_args, self.vectorized)  # type: ignore[arg-type]
+        else:
+            # not copied: these points are never read again (the step keeps only their shape)
+            values = self._evaluate(fx, state.sigmas, (dt,), fx_args)  # type: ignore[arg-type]  # set by ask_*
         self._tell_predict(state, plan, values, Q, UT, hooks)
 
     def update(self, z, R=None, UT=None, hx=None, **hx_args) -> None:
@@ -806,14 +914,22 @@ class SquareRootUKF:
             x, S = self._current()
             self._state = state
             self.z = np.array([[None] * self._dim_z]).T
+            self._rejected = np.zeros(self._dim_z, dtype=bool)
             self.x_post = x.copy()
             self.P1_2_post = S.copy()
             return
         hx = self.hx if hx is None else hx
         x, S = self._current()
         hooks = self._hooks()
-        state = steps.ask_update(self._state, self._plan, x, S, hooks.state_add)
-        values = self._evaluate(hx, state.sigmas.copy(), (), hx_args)  # type: ignore[union-attr]  # set by ask_*
+        plan = self._plan
+        state = steps.ask_update(self._state, plan, x, S, hooks.state_add)
+        X = state.sigmas.copy()  # type: ignore[union-attr]  # set by ask_*
+        if plan.v_xi is not None:
+            self._refuse_with_noise(plan.v_xi, "R", None, UT)
+            V = self._noise_points(plan.v_xi, R, "R")
+            values = call_model(hx, "hx", self._hx_noise, X, V, (), hx_args, self.vectorized)
+        else:
+            values = self._evaluate(hx, X, (), hx_args)
         self._tell_update(state, values, meas[0], meas[1], R, UT, hooks)
 
     def compute_process_sigmas(self, dt, fx=None, **fx_args) -> None:
@@ -821,8 +937,13 @@ class SquareRootUKF:
         dt = self._check_dt(dt)
         fx = self.fx if fx is None else fx
         x, S = self._current()
-        sigmas = sigma_points_from_factor(x, S, self._plan.first.xi, self._hooks().state_add)
-        values = self._evaluate(fx, sigmas, (dt,), fx_args)
+        plan = self._plan
+        sigmas = sigma_points_from_factor(x, S, plan.first.xi, self._hooks().state_add)
+        if plan.w_xi is not None:
+            W = self._noise_points(plan.w_xi, None, "Q")
+            values = call_model(fx, "fx", self._fx_noise, sigmas, W, (dt,), fx_args, self.vectorized)
+        else:
+            values = self._evaluate(fx, sigmas, (dt,), fx_args)
         self.sigmas_f = check_values(values, sigmas.shape, "fx values")
 
     def cross_variance(self, x, z, sigmas_f, sigmas_h) -> np.ndarray:
@@ -892,13 +1013,22 @@ class SquareRootUKF:
         """
         from .smoother import rts_smoother
 
+        self._refuse_smoother()
         return rts_smoother(self, Xs, Ps, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
 
     def rts_smoother_factors(self, Xs, P1_2s, Qs=None, dts=None, UT=None, *, fx_args=None):
         """The smoother on lower factors; see :func:`squkf.smoother.rts_smoother_factors`."""
         from .smoother import rts_smoother_factors
 
+        self._refuse_smoother()
         return rts_smoother_factors(self, Xs, P1_2s, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
+
+    def _refuse_smoother(self) -> None:
+        if self._fx_noise:
+            raise ParameterError(
+                "the RTS smoother takes additive process noise only;"
+                f" this filter has fx_noise={self._fx_noise}"
+            )
 
     # -- transactions, copies, pickling ---------------------------------------
 
@@ -988,6 +1118,9 @@ class SquareRootUKF:
                 pretty_str("points_fn", self.points_fn),
                 pretty_str("scheme", self.scheme),
                 pretty_str("vectorized", self.vectorized),
+                pretty_str("gate", self.gate),
+                pretty_str("fx_noise", self.fx_noise),
+                pretty_str("hx_noise", self.hx_noise),
                 pretty_str("residual_x", self.residual_x),
                 pretty_str("residual_z", self.residual_z),
                 pretty_str("state_add", self.state_add),

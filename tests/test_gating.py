@@ -1,0 +1,357 @@
+"""Outlier gating (``gate=``): decisions against an independent chi-square test, and its records.
+
+The reference is filterpy's UKF with the same points, gated by hand from its
+own innovation covariance ``S`` (``y^T S^-1 y`` by ``np.linalg.solve``).
+The two filters follow the same path as long as every decision agrees, so
+the states are compared to the agreement of the two filters without a gate
+(1e-9 relative: the same arithmetic in another order, on a nonlinear model).
+"""
+
+from __future__ import annotations
+
+import math
+import pickle
+
+import numpy as np
+import pytest
+from filterpy.common import Saver
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.stats import chi2
+
+import squkf
+from squkf import Fleet, Gate, MerweScaledWeights, ParameterError, SquareRootUKF
+from squkf.batch import BatchResult
+
+DT = 1.0
+R_RANGE, R_BEARING = 0.5, 0.01
+
+
+def cv_fx(x, dt):
+    """Constant velocity in the plane, state [px, vx, py, vy] (also on stacks of points)."""
+    x = np.asarray(x)
+    out = x.copy()
+    out[..., 0] += dt * x[..., 1]
+    out[..., 2] += dt * x[..., 3]
+    return out
+
+
+def radar_hx(x):
+    """Range and bearing from a radar at the origin (also on stacks of points)."""
+    x = np.asarray(x)
+    return np.stack([np.hypot(x[..., 0], x[..., 2]), np.arctan2(x[..., 2], x[..., 0])], axis=-1)
+
+
+def radar_track(T: int, seed: int, wild: float = 0.1):
+    """A target's true states and its radar returns, a fraction ``wild`` of them far off."""
+    rng = np.random.default_rng(seed)
+    x = np.array([50.0, 1.0, 40.0, -0.5])
+    truth, zs = [], []
+    for _ in range(T):
+        x = cv_fx(x, DT) + rng.normal(scale=[0.05, 0.05, 0.05, 0.05])
+        z = radar_hx(x) + rng.normal(scale=[math.sqrt(R_RANGE), math.sqrt(R_BEARING)])
+        if rng.random() < wild:
+            z = z + rng.choice([-1.0, 1.0], 2) * np.array([15.0, 0.4])
+        truth.append(x)
+        zs.append(z)
+    return np.array(truth), np.array(zs)
+
+
+def configure(f):
+    f.x = np.array([50.0, 1.0, 40.0, -0.5])
+    f.P = np.diag([4.0, 1.0, 4.0, 1.0])
+    f.Q = np.eye(4) * 0.0025
+    f.R = np.diag([R_RANGE, R_BEARING])
+    return f
+
+
+def filterpy_ukf():
+    pts = MerweScaledSigmaPoints(4, alpha=0.5, beta=2.0, kappa=0.0)
+    return configure(UnscentedKalmanFilter(4, 2, DT, radar_hx, cv_fx, pts))
+
+
+def squkf_ukf(gate, **kw):
+    pts = MerweScaledSigmaPoints(4, alpha=0.5, beta=2.0, kappa=0.0)
+    return configure(SquareRootUKF(4, 2, DT, radar_hx, cv_fx, pts, gate=gate, **kw))
+
+
+def filterpy_gated_step(ref, z, probability, per_component):
+    """One step of filterpy's UKF with a hand-rolled gate; returns the rejected mask and the NIS."""
+    ref.predict()
+    # filterpy's own innovation covariance and innovation for this z, before deciding
+    sigmas_h = np.array([radar_hx(s) for s in ref.sigmas_f])
+    from filterpy.kalman import unscented_transform
+
+    zp, S = unscented_transform(sigmas_h, ref.Wm, ref.Wc, ref.R)
+    y = z - zp
+    nis = float(y @ np.linalg.solve(S, y))
+    if per_component:
+        stat = y**2 / np.diag(S)
+        rejected = stat > chi2.ppf(probability, 1)
+        margin = np.min(np.abs(stat - chi2.ppf(probability, 1)))
+    else:
+        rejected = np.full(2, nis > chi2.ppf(probability, 2))
+        margin = abs(nis - chi2.ppf(probability, 2))
+    keep = ~rejected
+    if keep.all():
+        ref.update(z)
+    elif keep.any():
+        R = ref.R
+        ref.update(z[keep], R=R[np.ix_(keep, keep)], hx=lambda x: radar_hx(x)[keep])
+        ref.R = R
+    else:
+        ref.update(None)
+    return rejected, nis, margin
+
+
+@pytest.mark.parametrize("per_component", [False, True], ids=["whole", "per-component"])
+def test_decisions_equal_a_chi_square_test_on_filterpys_S(per_component):
+    p = 0.99
+    _, zs = radar_track(120, seed=3, wild=0.1)
+    ref = filterpy_ukf()
+    ukf = squkf_ukf(Gate(p, per_component=per_component))
+    decisions = []
+    for z in zs:
+        rejected, nis, margin = filterpy_gated_step(ref, z, p, per_component)
+        # a decision this close to the threshold could go either way by rounding alone
+        assert margin > 1e-6
+        ukf.predict()
+        ukf.update(z)
+        np.testing.assert_array_equal(ukf.rejected, rejected)
+        assert ukf.nis == pytest.approx(nis, rel=1e-9)
+        np.testing.assert_allclose(ukf.x, ref.x, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(ukf.P, ref.P, rtol=1e-8, atol=1e-12)
+        decisions.append(rejected)
+    decisions = np.array(decisions)
+    # the run exercises the gate: some steps rejected, most accepted (and, per component, mixed steps)
+    assert 3 <= decisions.any(axis=1).sum() <= 40
+    if per_component:
+        assert (decisions.any(axis=1) & ~decisions.all(axis=1)).any()
+
+
+def test_rejected_measurement_is_a_missing_one():
+    _, zs = radar_track(40, seed=5, wild=0.0)
+    gated, plain = squkf_ukf(Gate(nis=1e-12)), squkf_ukf(None)  # this gate rejects everything
+    for z in zs[:5]:
+        gated.predict()
+        plain.predict()
+        x_prior, P_prior = gated.x.copy(), gated.P.copy()
+        gated.update(z)
+        plain.update(z)
+        assert gated.rejected.all()
+        np.testing.assert_array_equal(gated.x, x_prior)
+        np.testing.assert_array_equal(gated.P, P_prior)
+        assert gated.log_likelihood == 0.0 and gated.likelihood == 1.0
+        np.testing.assert_array_equal(gated.K, np.zeros((4, 2)))
+        # what the gate tested is reported: the innovation and its covariance, as without a gate
+        np.testing.assert_array_equal(gated.y, plain.y)
+        np.testing.assert_array_equal(gated.S, plain.S)
+        assert gated.nis == plain.nis == pytest.approx(gated.mahalanobis**2, rel=1e-15)
+        plain.x, plain.P = gated.x, gated.P  # follow the gated filter
+
+
+def test_component_rejection_updates_with_the_rest_as_a_partial_measurement():
+    _, zs = radar_track(10, seed=7, wild=0.0)
+    gated = squkf_ukf(Gate(0.999, per_component=True))
+    partial = squkf_ukf(None)
+    for k, z in enumerate(zs):
+        wild = z.copy()
+        if k % 2:
+            wild[1] += 3.0  # a bearing far off: rejected alone
+        gated.predict()
+        partial.predict()
+        gated.update(wild)
+        partial.update(np.where([False, k % 2 == 1], np.nan, wild))
+        np.testing.assert_array_equal(gated.rejected, [False, k % 2 == 1])
+        np.testing.assert_array_equal(gated.x, partial.x)
+        np.testing.assert_array_equal(gated.P1_2, partial.P1_2)
+        assert gated.log_likelihood == partial.log_likelihood
+        np.testing.assert_array_equal(gated.K, partial.K)
+
+
+def test_gate_sees_only_the_measured_components():
+    """A NaN component is missing before gating: the chi-square threshold has one degree of freedom."""
+    ref = squkf_ukf(None)
+    ref.predict()
+    zp = radar_hx(ref.x)
+    ref.update(np.array([zp[0] + 1.0, np.nan]))
+    # an offset whose NIS lies between the 0.99 quantiles for one and for two degrees of freedom
+    d2 = 0.5 * (chi2.ppf(0.99, 1) + chi2.ppf(0.99, 2))
+    z_pred = zp[0] + 1.0 - ref.y[0]  # the transform's predicted range
+    z = np.array([z_pred + math.sqrt(d2 * ref.S[0, 0]), np.nan])
+    ukf = squkf_ukf(0.99)
+    ukf.predict()
+    ukf.update(z)
+    assert ukf.nis == pytest.approx(d2, rel=1e-6)
+    np.testing.assert_array_equal(ukf.rejected, [True, False])
+    np.testing.assert_array_equal(ukf.x, ukf.x_prior)
+
+
+def fleet_and_filters(K, gate, per_filter_R=False):
+    fleet = configure(Fleet(K, 4, 2, DT, radar_hx, cv_fx, MerweScaledWeights(alpha=0.5), gate=gate))
+    if per_filter_R:
+        fleet.R = np.stack([np.diag([R_RANGE, R_BEARING]) * (1 + 0.1 * k) for k in range(K)])
+    return fleet
+
+
+@pytest.mark.parametrize("gate", [Gate(0.99), Gate(0.995, per_component=True), Gate(nis=9.0)], ids=repr)
+def test_fleet_filter_equals_its_single_filter_bit_for_bit(gate):
+    K, T = 12, 40
+    zs = np.stack([radar_track(T, seed=100 + k, wild=0.15)[1] for k in range(K)])
+    zs[2, 5] = np.nan  # missing measurements and components mix with the gate's decisions
+    zs[4, 7, 1] = np.nan
+    fleet = fleet_and_filters(K, gate, per_filter_R=True)
+    singles = [fleet[k] for k in range(K)]
+    result = fleet.batch_filter(zs)
+    assert result.rejected.shape == (K, T, 2) and result.nis.shape == (K, T)
+    assert result.rejected.any()
+    for k, f in enumerate(singles):
+        out = f.batch_filter(zs[k])
+        np.testing.assert_array_equal(out[0], result.means[k])
+        np.testing.assert_array_equal(out.rejected, result.rejected[k])
+        np.testing.assert_array_equal(out.nis, result.nis[k])
+        np.testing.assert_array_equal(out.log_likelihood, result.log_likelihood[k])
+    np.testing.assert_array_equal(fleet.rejected, result.rejected[:, -1])
+    np.testing.assert_array_equal(fleet.nis, result.nis[:, -1])
+
+
+def test_fleet_keep_final_counts_rejections():
+    K, T = 6, 30
+    zs = np.stack([radar_track(T, seed=200 + k, wild=0.2)[1] for k in range(K)])
+    full = fleet_and_filters(K, 0.99).batch_filter(zs)
+    final = fleet_and_filters(K, 0.99).batch_filter(zs, keep="final")
+    np.testing.assert_array_equal(final.rejected, full.rejected.sum(axis=1))
+    assert final.nis is None
+    np.testing.assert_array_equal(final.x, full.x)
+
+
+def test_gate_travels_with_the_filters():
+    fleet = fleet_and_filters(3, Gate(0.9, per_component=True))
+    assert fleet[1].gate == Gate(0.9, per_component=True)
+    back = Fleet.from_filters([fleet[k] for k in range(3)])
+    assert back.gate == fleet.gate
+    mixed = [fleet[0], fleet[1]]
+    mixed[1].gate = 0.5
+    with pytest.raises(ParameterError, match="differs in configuration"):
+        Fleet.from_filters(mixed)
+    assert pickle.loads(pickle.dumps(fleet.gate)) == fleet.gate
+    assert fleet.subset([0, 2]).gate == fleet.gate
+
+
+def test_batch_result_is_filterpys_pair():
+    _, zs = radar_track(20, seed=9, wild=0.2)
+    zs = list(zs)
+    zs[3] = None
+    ukf = squkf_ukf(0.99)
+    saver = Saver(ukf)
+    result = ukf.batch_filter(zs, saver=saver)
+    means, covs = result
+    assert isinstance(result, tuple) and len(result) == 2 and isinstance(result, BatchResult)
+    assert means.shape == (20, 4) and covs.shape == (20, 4, 4)
+    assert result.rejected.shape == (20, 2) and result.rejected.any()
+    assert not result.rejected[3].any() and result.nis[3] == 0.0 and result.log_likelihood[3] == 0.0
+    np.testing.assert_array_equal(np.array(saver["rejected"]), result.rejected)
+    back = pickle.loads(pickle.dumps(result))
+    np.testing.assert_array_equal(back.rejected, result.rejected)
+    np.testing.assert_array_equal(back[0], means)
+    # the record is the caller's: reading it twice gives two arrays
+    assert ukf.rejected is not ukf.rejected
+
+
+BAD_GATES = [
+    (0.0, "open interval"),
+    (1.0, "open interval"),
+    (1.5, r"Gate\(nis=1.5\)"),
+    (16, r"Gate\(nis=16\)"),
+    (-0.1, "open interval"),
+    (float("nan"), "open interval"),
+    ("0.99", "gate must be"),
+    (True, "gate must be"),
+    ([0.9], "gate must be"),
+]
+
+
+@pytest.mark.parametrize("value, message", BAD_GATES, ids=[repr(v) for v, _ in BAD_GATES])
+@pytest.mark.parametrize("front", ["ukf", "fleet", "assign"])
+def test_bad_gate_is_a_parameter_error_naming_the_value(front, value, message):
+    with pytest.raises(ParameterError, match=message) as info:
+        if front == "ukf":
+            squkf_ukf(value)
+        elif front == "fleet":
+            fleet_and_filters(2, value)
+        else:
+            f = squkf_ukf(0.9)
+            try:
+                f.gate = value
+            finally:
+                assert f.gate == Gate(0.9)  # a refused assignment changes nothing
+    assert "gate" in str(info.value)
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        ({}, "exactly one threshold"),
+        ({"probability": 0.9, "nis": 3.0}, "exactly one threshold"),
+        ({"nis": 0.0}, "positive finite"),
+        ({"nis": float("inf")}, "positive finite"),
+        ({"nis": -2.0}, "positive finite"),
+        ({"nis": "3"}, "real number"),
+        ({"probability": 2.0}, "open interval"),
+        ({"probability": 0.9, "per_component": "yes"}, "per_component"),
+    ],
+    ids=lambda v: repr(v),
+)
+def test_bad_gate_object(kwargs, message):
+    with pytest.raises(ParameterError, match=message):
+        Gate(**kwargs)
+
+
+def test_gate_is_read_only():
+    gate = Gate(0.9)
+    with pytest.raises(AttributeError):
+        gate.probability = 5.0  # type: ignore[misc]
+    assert squkf.Gate is Gate
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.integers(1, 4),
+    st.integers(0, 2**32 - 1),
+    st.floats(0.05, 0.9999),
+)
+def test_whole_gate_decides_by_the_nis(m, seed, probability):
+    """Gate.reject on (y, Sy) equals the chi-square test on y^T (Sy Sy^T)^-1 y by a dense solve."""
+    rng = np.random.default_rng(seed)
+    Sy = np.tril(rng.normal(size=(m, m))) + 3 * np.eye(m)
+    y = rng.normal(size=m) * rng.choice([0.5, 2.0, 5.0])
+    nis = float(y @ np.linalg.solve(Sy @ Sy.T, y))
+    limit = chi2.ppf(probability, m)
+    if abs(nis - limit) < 1e-9 * max(1.0, limit):
+        return  # too close to call by rounding alone
+    got = Gate(probability).reject(y, Sy, np.array(nis))
+    np.testing.assert_array_equal(got, np.full(m, nis > limit))
+    per = Gate(probability, per_component=True).reject(y, Sy, np.array(nis))
+    np.testing.assert_array_equal(per, y**2 / np.diag(Sy @ Sy.T) > chi2.ppf(probability, 1))
+
+
+@pytest.mark.parametrize("keep", ["all", "final"])
+def test_dask_gives_the_fleets_gate_records(keep):
+    da = pytest.importorskip("dask.array")
+    import squkf.dask as sd
+
+    K, T = 10, 25
+    zs = np.stack([radar_track(T, seed=300 + k, wild=0.2)[1] for k in range(K)])
+    want = fleet_and_filters(K, Gate(0.99, per_component=True)).batch_filter(zs, keep=keep)
+    lazy = sd.batch_filter(
+        fleet_and_filters(K, Gate(0.99, per_component=True)), da.from_array(zs, chunks=(3, T, 2)), keep=keep
+    )
+    got = sd.compute(lazy, scheduler="synchronous")
+    np.testing.assert_array_equal(got.rejected, want.rejected)
+    assert got.rejected.dtype == want.rejected.dtype
+    if keep == "all":
+        np.testing.assert_array_equal(got.nis, want.nis)
+    else:
+        assert got.nis is None
+    np.testing.assert_array_equal(got.x, want.x)
