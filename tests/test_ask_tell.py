@@ -5,50 +5,20 @@ import pickle
 
 import numpy as np
 import pytest
-from models import assert_filter_state, ct_fx, ct_hx, filter_state
+from models import assert_filter_state, ct_filter, ct_fx, ct_hx, ct_measurements, filter_state
 
-from squkf import CallSequenceError, MerweScaledWeights, NonFiniteError, ShapeError, SquareRootUKF
-
-Q = np.diag([0.1, 0.01, 0.1, 0.01, 1e-6])
-R = np.diag([25.0, 0.002**2])
+from squkf import CallSequenceError, MerweScaledWeights, NonFiniteError, ShapeError
 
 
 def make(scheme="redrawn", vectorized=False):
-    if vectorized:
-        fx = lambda X, dt: np.array([ct_fx(x, dt) for x in X])  # noqa: E731
-        hx = lambda X: np.array([ct_hx(x) for x in X])  # noqa: E731
-    else:
-        fx, hx = ct_fx, ct_hx
-    ukf = SquareRootUKF(
-        5,
-        2,
-        1.0,
-        hx,
-        fx,
-        MerweScaledWeights(alpha=0.1, beta=2.0, kappa=0.0),
-        scheme=scheme,
-        vectorized=vectorized,
-    )
-    ukf.x = np.array([2000.0, 10.0, 3000.0, -5.0, 0.02])
-    ukf.P = np.diag([400.0, 4.0, 400.0, 4.0, 1e-4])
-    ukf.Q, ukf.R = Q, R
-    return ukf
-
-
-def measurements(k=30, seed=0):
-    rng = np.random.default_rng(seed)
-    x = np.array([2000.0, 10.0, 3000.0, -5.0, 0.02])
-    zs = []
-    for _ in range(k):
-        x = ct_fx(x, 1.0)
-        zs.append(ct_hx(x) + rng.normal(0, [5.0, 0.002]))
-    return zs
+    """The far coordinated-turn radar, Merwe points with alpha 0.1 (a negative central weight)."""
+    return ct_filter(MerweScaledWeights(alpha=0.1, beta=2.0, kappa=0.0), scheme=scheme, vectorized=vectorized)
 
 
 @pytest.mark.parametrize("scheme", ["redrawn", "augmented"])
 def test_ask_tell_equals_predict_update(scheme):
     a, b = make(scheme), make(scheme)
-    for z in measurements():
+    for z in ct_measurements():
         a.predict()
         a.update(z)
         X = b.ask_predict()
@@ -61,7 +31,7 @@ def test_ask_tell_equals_predict_update(scheme):
 
 def test_vectorized_ask_tell_equals_per_point():
     a, b = make(), make(vectorized=True)
-    for z in measurements(10):
+    for z in ct_measurements(10):
         a.predict()
         a.update(z)
         X = b.ask_predict()
@@ -89,10 +59,10 @@ def test_telling_twice_and_without_asking():
     assert_filter_state(ukf, snap)
     Y = ukf.ask_update()
     H = [ct_hx(y) for y in Y]
-    ukf.tell_update(H, measurements(1)[0])
+    ukf.tell_update(H, ct_measurements(1)[0])
     snap = filter_state(ukf)
     with pytest.raises(CallSequenceError, match="already told"):
-        ukf.tell_update(H, measurements(1)[0])
+        ukf.tell_update(H, ct_measurements(1)[0])
     assert_filter_state(ukf, snap)
 
 
@@ -122,7 +92,7 @@ def poison(A, kind):
 )
 def test_bad_values_are_rejected_and_the_step_can_be_completed(kind, error):
     ref, ukf = make(), make()
-    z = measurements(1)[0]
+    z = ct_measurements(1)[0]
     ref.predict()
     ref.update(z)
     X = ukf.ask_predict()
@@ -144,16 +114,13 @@ def test_bad_values_are_rejected_and_the_step_can_be_completed(kind, error):
 
 @pytest.mark.parametrize("copier", [copy.deepcopy, lambda u: pickle.loads(pickle.dumps(u))])
 def test_filter_pickles_between_ask_and_tell(copier):
-    ukf = SquareRootUKF(5, 2, 1.0, ct_hx, ct_fx, MerweScaledWeights(alpha=0.1, beta=2.0, kappa=0.0))
-    ukf.x = np.array([2000.0, 10.0, 3000.0, -5.0, 0.02])
-    ukf.P = np.diag([400.0, 4.0, 400.0, 4.0, 1e-4])
-    ukf.Q, ukf.R = Q, R
+    ukf = make()
     X = ukf.ask_predict()
     twin = copier(ukf)
     F = [ct_fx(x, 1.0) for x in X]
     ukf.tell_predict(F)
     twin.tell_predict(F)
-    z = measurements(1)[0]
+    z = ct_measurements(1)[0]
     for f in (ukf, twin):
         f.tell_update([ct_hx(y) for y in f.ask_update()], z)
     np.testing.assert_array_equal(ukf.x, twin.x)

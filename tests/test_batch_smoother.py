@@ -3,37 +3,19 @@
 import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter
-from models import ct_fx, ct_hx
+from models import CT_Q, ct_filter, ct_fx, ct_simulate
 
 from squkf import MerweScaledWeights, ShapeError, SquareRootUKF
 
-Q = np.diag([0.1, 0.01, 0.1, 0.01, 1e-6])
-R = np.diag([25.0, 0.002**2])
-X0 = np.array([2000.0, 10.0, 3000.0, -5.0, 0.02])
-P0 = np.diag([400.0, 4.0, 400.0, 4.0, 1e-4])
 
-
-def simulate(T=60, seed=0, missing=(5, 17, 18, 40)):
-    rng = np.random.default_rng(seed)
-    x = X0.copy()
-    zs, truth = [], []
-    for k in range(T):
-        x = ct_fx(x, 1.0) + rng.multivariate_normal(np.zeros(5), Q)
-        truth.append(x)
-        zs.append(None if k in missing else ct_hx(x) + rng.multivariate_normal(np.zeros(2), R))
-    return zs, np.array(truth)
-
-
-def make(cls, points=None):
-    points = points or MerweScaledSigmaPoints(5, 0.3, 2.0, -2.0)
-    f = cls(5, 2, 1.0, ct_hx, ct_fx, points)
-    f.x, f.P, f.Q, f.R = X0.copy(), P0, Q, R
-    return f
+def make_ct(cls):
+    """The far coordinated-turn radar in ``cls``, filterpy's Merwe points (alpha 0.3, kappa -2)."""
+    return ct_filter(MerweScaledSigmaPoints(5, 0.3, 2.0, -2.0), cls=cls)
 
 
 def test_batch_equals_loop_exactly():
-    zs, _ = simulate()
-    a, b = make(SquareRootUKF), make(SquareRootUKF)
+    zs, _ = ct_simulate()
+    a, b = make_ct(SquareRootUKF), make_ct(SquareRootUKF)
     means, covs = a.batch_filter(zs)
     for k, z in enumerate(zs):
         b.predict()
@@ -43,20 +25,20 @@ def test_batch_equals_loop_exactly():
 
 
 def test_batch_equals_filterpy_with_missing_measurements():
-    zs, _ = simulate()
+    zs, _ = ct_simulate()
     nan_zs = [np.full(2, np.nan) if z is None else z for z in zs]
-    m_fp, P_fp = make(UnscentedKalmanFilter).batch_filter(zs)
+    m_fp, P_fp = make_ct(UnscentedKalmanFilter).batch_filter(zs)
     for data in (zs, nan_zs):
-        m, P = make(SquareRootUKF).batch_filter(data)
+        m, P = make_ct(SquareRootUKF).batch_filter(data)
         # same algorithm, different arithmetic: O(eps cond) per step, contracted by updates
         assert np.max(np.abs(m - m_fp)) / np.max(np.abs(m_fp)) < 1e-8
         assert np.max(np.abs(P - P_fp) / np.abs(P_fp).max(axis=(1, 2))[:, None, None]) < 1e-8
 
 
 def test_batch_is_transactional():
-    zs, _ = simulate(10)
+    zs, _ = ct_simulate(10)
     zs[6] = np.array([1.0, 2.0, 3.0])  # wrong length
-    f = make(SquareRootUKF)
+    f = make_ct(SquareRootUKF)
     x, S = f.x.copy(), np.array(f.P1_2)
     with pytest.raises(ShapeError, match="length 3"):
         f.batch_filter(zs)
@@ -82,12 +64,12 @@ def textbook_urts(f, xs, Ps, Qs, dts):
 
 
 def test_smoother_equals_textbook_unscented_rts_with_time_varying_Qs():
-    zs, truth = simulate()
+    zs, truth = ct_simulate()
     T = len(zs)
     rng = np.random.default_rng(7)
-    Qs = [Q * rng.uniform(0.5, 20.0) for _ in range(T)]
+    Qs = [CT_Q * rng.uniform(0.5, 20.0) for _ in range(T)]
     dts = [1.0] * T
-    f = make(SquareRootUKF)
+    f = make_ct(SquareRootUKF)
     means, covs = f.batch_filter(zs, Qs=Qs, dts=dts)
     xs, Ps, Ks = f.rts_smoother(means, covs, Qs=Qs, dts=dts)
     xs_ref, Ps_ref = textbook_urts(f, means, covs, Qs, dts)
@@ -105,8 +87,8 @@ def test_smoother_equals_textbook_unscented_rts_with_time_varying_Qs():
 
 
 def test_smoother_from_factors_equals_covariance_form():
-    zs, _ = simulate(30)
-    f = make(SquareRootUKF)
+    zs, _ = ct_simulate(30)
+    f = make_ct(SquareRootUKF)
     means, factors = f.batch_filter(zs, return_factors=True)
     xs1, S, _ = f.rts_smoother_factors(means, factors)
     xs2, Ps, _ = f.rts_smoother(means, factors @ np.swapaxes(factors, 1, 2))

@@ -12,94 +12,35 @@ import warnings
 import numpy as np
 import pytest
 from filterpy.common import Saver
-from models import assert_filter_state, ct_fx, ct_hx, filter_state
+from models import (
+    CV3_K,
+    CV3_NX,
+    CV3_NZ,
+    assert_filter_state,
+    assert_fleet_state,
+    ct_fx,
+    ct_hx,
+    cv3_zs,
+    cv_fx_nudged,
+    filter_state,
+    fleet_state,
+    make_cv3_fleet,
+    near_filter,
+    near_measurements,
+    one_d,
+    one_d_filterpy,
+    positions_hx,
+)
 
 from squkf import Fleet, MerweScaledWeights, ParameterError, ShapeError, SquareRootUKF, SqukfError
-
-DT = 1.0
-X0 = np.array([-8.0, 0.5, 1.5, 2.0, 0.05])
-P0 = np.diag([1.0, 0.1, 1.0, 0.1, 0.01])
-Q0 = np.diag([1e-3, 1e-2, 1e-3, 1e-2, 1e-4])
-R0 = np.diag([0.05, 0.01])
-
-
-def make_ukf(**kw) -> SquareRootUKF:
-    """The coordinated-turn radar of tests/models.py."""
-    f = SquareRootUKF(5, 2, DT, ct_hx, ct_fx, MerweScaledWeights(alpha=0.5), **kw)
-    f.x, f.P, f.Q, f.R = X0, P0, Q0, R0
-    return f
-
-
-def measurements(T: int, seed: int = 0) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    x, out = X0.copy(), []
-    for _ in range(T):
-        x = ct_fx(x, DT)
-        out.append(ct_hx(x) + rng.normal(0.0, [0.2, 0.1]))
-    return np.array(out)
-
-
-# -- a fleet of the same radar: the models written with X[..., i] ----------------------------
-
-
-def v_fx(X, dt, u=None, bad=None):
-    """Constant velocity in two axes, state [px, vx, py, vy] (``u``: an offset of vx; ``bad``: NaN)."""
-    out = np.stack([X[..., 0] + dt * X[..., 1], X[..., 1], X[..., 2] + dt * X[..., 3], X[..., 3]], axis=-1)
-    if u is not None:
-        out[..., 1] += u
-    if bad is not None:
-        out = np.where(np.asarray(bad)[..., None], np.nan, out)
-    return out
-
-
-def v_hx(X, scale=1.0):
-    """Both positions, times ``scale``."""
-    return np.asarray(scale)[..., None] * X[..., ::2]
-
-
-K, NX, NZ = 3, 4, 2
-
-
-def make_fleet(**kw) -> Fleet:
-    fl = Fleet(K, NX, NZ, DT, v_hx, v_fx, MerweScaledWeights(alpha=0.5), **kw)
-    fl.x = np.array([[0.0, 1.0, 0.0, -1.0], [1.0, 0.5, 2.0, 0.0], [-1.0, 0.0, 1.0, 1.0]])
-    fl.P = np.diag([1.0, 0.1, 1.0, 0.1])
-    fl.Q = 1e-3 * np.eye(NX)
-    fl.R = 0.1 * np.eye(NZ)
-    return fl
-
-
-def fleet_zs(T: int, seed: int = 1) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    return rng.normal(0.0, 1.0, (K, T, NZ))
-
-
-FLEET_STATE = ("x", "P1_2", "Q1_2", "R1_2", "x_prior", "x_post", "P1_2_prior", "P1_2_post", "y")
-
-
-def fleet_state(fl: Fleet) -> dict:
-    snap = {k: np.array(getattr(fl, k), copy=True) for k in FLEET_STATE}
-    snap["failed"] = fl.failed.copy()
-    snap["failure"] = list(fl.failure)
-    snap["phase"] = fl._state.phase
-    return snap
-
-
-def assert_fleet_state(fl: Fleet, snap: dict) -> None:
-    for k in FLEET_STATE:
-        np.testing.assert_array_equal(np.asarray(getattr(fl, k)), snap[k], err_msg=k)
-    np.testing.assert_array_equal(fl.failed, snap["failed"])
-    assert list(fl.failure) == snap["failure"]
-    assert fl._state.phase == snap["phase"]
-
 
 # -- 1. K is a fresh array on each read -------------------------------------------------------
 
 
 def test_K_is_a_fresh_array_on_each_read():
-    f = make_ukf()
+    f = near_filter()
     f.predict()
-    f.update(measurements(1)[0])
+    f.update(near_measurements(1)[0])
     first = f.K
     expected = first.copy()
     first[:] = 123.0
@@ -108,9 +49,9 @@ def test_K_is_a_fresh_array_on_each_read():
 
 
 def test_a_savers_K_history_is_never_rewritten():
-    f = make_ukf()
+    f = near_filter()
     saver = Saver(f)
-    for z in measurements(4):
+    for z in near_measurements(4):
         f.predict()
         saver.save()  # K of the previous update, read twice: two entries
         f.update(z)
@@ -123,7 +64,7 @@ def test_a_savers_K_history_is_never_rewritten():
         np.testing.assert_array_equal(Ks[j], kept[j])
     np.testing.assert_array_equal(f.K, kept[-1])
     f.predict()
-    f.update(measurements(5)[4])
+    f.update(near_measurements(5)[4])
     for j in range(2, len(Ks)):
         np.testing.assert_array_equal(Ks[j], kept[j])
 
@@ -157,53 +98,53 @@ NEGATIVE_DTS = [1.0, -0.5, 0.0, -1.0, 0.5]
 
 
 def test_negative_dts_run_the_same_on_every_single_filter_route():
-    zs = measurements(5)
-    expected = single_loop(make_ukf(), zs, NEGATIVE_DTS)
+    zs = near_measurements(5)
+    expected = single_loop(near_filter(), zs, NEGATIVE_DTS)
     for dts in (NEGATIVE_DTS, np.array(NEGATIVE_DTS), iter(NEGATIVE_DTS)):
-        means, covs = make_ukf().batch_filter(zs, dts=dts)
+        means, covs = near_filter().batch_filter(zs, dts=dts)
         np.testing.assert_array_equal(means, expected[0])
         np.testing.assert_array_equal(covs, expected[1])
-    means, covs = make_ukf().batch_filter(zs, dts=-0.5)
-    loop = single_loop(make_ukf(), zs, [-0.5] * 5)
+    means, covs = near_filter().batch_filter(zs, dts=-0.5)
+    loop = single_loop(near_filter(), zs, [-0.5] * 5)
     np.testing.assert_array_equal(means, loop[0])
-    f = make_ukf()
+    f = near_filter()
     xs, Ps, Ks = f.rts_smoother(*expected, dts=NEGATIVE_DTS)
     assert xs.shape == (5, 5) and np.all(np.isfinite(Ps))
 
 
 def test_negative_dts_run_the_same_on_every_fleet_route():
-    zs = fleet_zs(5)
-    expected = fleet_loop(make_fleet(), zs, NEGATIVE_DTS)
-    fl = make_fleet()
+    zs = cv3_zs(5)
+    expected = fleet_loop(make_cv3_fleet(), zs, NEGATIVE_DTS)
+    fl = make_cv3_fleet()
     res = fl.batch_filter(zs, dts=NEGATIVE_DTS)
     np.testing.assert_array_equal(res.means, expected)
     np.testing.assert_array_equal(
-        make_fleet().batch_filter(zs, dts=-0.5).means, fleet_loop(make_fleet(), zs, [-0.5] * 5)
+        make_cv3_fleet().batch_filter(zs, dts=-0.5).means, fleet_loop(make_cv3_fleet(), zs, [-0.5] * 5)
     )
-    sm = make_fleet().rts_smoother(res, dts=NEGATIVE_DTS)
+    sm = make_cv3_fleet().rts_smoother(res, dts=NEGATIVE_DTS)
     assert not sm.failed.any() and np.all(np.isfinite(sm[0]))
     # the smoother of one filter of the fleet, on the same data and dts
-    f = make_fleet()[1]
+    f = make_cv3_fleet()[1]
     xs, _, _ = f.rts_smoother_factors(res.means[1], res.P1_2s[1], dts=NEGATIVE_DTS)
     np.testing.assert_allclose(sm[0][1], xs, rtol=1e-10, atol=1e-12)
 
 
 def test_negative_dts_on_dask_as_in_one_process():
     sd = pytest.importorskip("squkf.dask")
-    zs = fleet_zs(5)
-    res = sd.compute(sd.batch_filter(make_fleet(), zs, dts=NEGATIVE_DTS), scheduler="synchronous")
-    np.testing.assert_array_equal(res.means, make_fleet().batch_filter(zs, dts=NEGATIVE_DTS).means)
+    zs = cv3_zs(5)
+    res = sd.compute(sd.batch_filter(make_cv3_fleet(), zs, dts=NEGATIVE_DTS), scheduler="synchronous")
+    np.testing.assert_array_equal(res.means, make_cv3_fleet().batch_filter(zs, dts=NEGATIVE_DTS).means)
 
 
 @pytest.mark.parametrize("bad", ["0.1", b"0.1", np.str_("0.1"), np.array("0.1"), "nan", "one"])
 def test_a_string_dt_is_an_error_naming_it(bad):
-    f = make_ukf()
+    f = near_filter()
     f.predict()
     snap = filter_state(f)
     with pytest.raises(ParameterError, match="dt"):
         f.predict(dt=bad)
     assert_filter_state(f, snap)
-    fl = make_fleet()
+    fl = make_cv3_fleet()
     snap = fleet_state(fl)
     with pytest.raises(ParameterError, match="dt"):
         fl.predict(dt=bad)
@@ -211,13 +152,13 @@ def test_a_string_dt_is_an_error_naming_it(bad):
     with pytest.raises(ParameterError):
         SquareRootUKF(5, 2, bad, ct_hx, ct_fx, MerweScaledWeights())
     with pytest.raises(ParameterError):
-        Fleet(K, NX, NZ, bad, v_hx, v_fx, MerweScaledWeights())
+        Fleet(CV3_K, CV3_NX, CV3_NZ, bad, positions_hx, cv_fx_nudged, MerweScaledWeights())
 
 
 def test_string_dts_are_errors_on_every_route():
-    zs, fzs = measurements(5), fleet_zs(5)
+    zs, fzs = near_measurements(5), cv3_zs(5)
     dts = [1.0, 1.0, "0.1", 1.0, 1.0]
-    f = make_ukf()
+    f = near_filter()
     snap = filter_state(f)
     with pytest.raises(ParameterError, match=r"dts\[2\]"):
         f.batch_filter(zs, dts=dts)
@@ -225,7 +166,7 @@ def test_string_dts_are_errors_on_every_route():
     means, covs = f.batch_filter(zs)
     with pytest.raises(ParameterError, match=r"dts\[2\]"):
         f.rts_smoother(means, covs, dts=dts)
-    fl = make_fleet()
+    fl = make_cv3_fleet()
     snap = fleet_state(fl)
     with pytest.raises(ParameterError, match=r"dts\[2\]"):
         fl.batch_filter(fzs, dts=dts)
@@ -237,28 +178,10 @@ def test_string_dts_are_errors_on_every_route():
         fl.rts_smoother(res, dts=dts)
     sd = pytest.importorskip("squkf.dask")
     with pytest.raises(ParameterError, match=r"dts\[2\]"):  # before anything is scheduled
-        sd.batch_filter(make_fleet(), fzs, dts=dts)
+        sd.batch_filter(make_cv3_fleet(), fzs, dts=dts)
 
 
 # -- 3. a 1-element covariance reads back as assigned (filterpy stores what it is given) ----------
-
-
-def fx1(x, dt):
-    return 0.9 * x
-
-
-def hx1(x):
-    return 0.5 * x
-
-
-def one_d(cls):
-    return cls(1, 1, 1.0, hx1, fx1, MerweScaledWeights(alpha=0.5))
-
-
-def one_d_filterpy():
-    from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
-
-    return UnscentedKalmanFilter(1, 1, 1.0, hx1, fx1, MerweScaledSigmaPoints(1, 0.5, 2.0, 0.0))
 
 
 @pytest.mark.parametrize("name", ["R", "Q", "P"])
@@ -303,7 +226,7 @@ def test_a_one_element_covariance_survives_copies_and_pickles():
 # -- 4. fx_args / hx_args reach the model functions and nothing else -------------------------
 
 CLASHES = [
-    ("hx_args", {"R": 100.0 * np.eye(NZ)}, "R"),
+    ("hx_args", {"R": 100.0 * np.eye(CV3_NZ)}, "R"),
     ("hx_args", {"z": 1.0}, "z"),
     ("fx_args", {"dt": 2.0}, "dt"),
 ]
@@ -311,38 +234,38 @@ CLASHES = [
 
 @pytest.mark.parametrize("arg, value, key", CLASHES)
 def test_a_model_argument_named_like_a_step_argument_is_an_error_for_one_filter(arg, value, key):
-    f = make_ukf()
+    f = near_filter()
     snap = filter_state(f)
     with pytest.raises(ParameterError, match=f"{arg} has the key '{key}'"):
-        f.batch_filter(measurements(3), **{arg: value})
+        f.batch_filter(near_measurements(3), **{arg: value})
     assert_filter_state(f, snap)
     if arg == "fx_args":
-        means, covs = f.batch_filter(measurements(3))
+        means, covs = f.batch_filter(near_measurements(3))
         with pytest.raises(ParameterError, match=f"{arg} has the key '{key}'"):
             f.rts_smoother(means, covs, fx_args=value)
 
 
 @pytest.mark.parametrize("arg, value, key", CLASHES)
 def test_a_model_argument_named_like_a_step_argument_is_an_error_for_a_fleet(arg, value, key):
-    fl = make_fleet()
+    fl = make_cv3_fleet()
     snap = fleet_state(fl)
     with pytest.raises(ParameterError, match=f"{arg} has the key '{key}'"):
-        fl.batch_filter(fleet_zs(3), **{arg: value})
+        fl.batch_filter(cv3_zs(3), **{arg: value})
     assert_fleet_state(fl, snap)
     if arg == "fx_args":
-        res = fl.batch_filter(fleet_zs(3))
+        res = fl.batch_filter(cv3_zs(3))
         with pytest.raises(ParameterError, match=f"{arg} has the key '{key}'"):
             fl.rts_smoother(res, fx_args=value)
     sd = pytest.importorskip("squkf.dask")
     with pytest.raises(ParameterError, match=f"{arg} has the key '{key}'"):  # before scheduling
-        sd.batch_filter(make_fleet(), fleet_zs(3), **{arg: value})
+        sd.batch_filter(make_cv3_fleet(), cv3_zs(3), **{arg: value})
 
 
 def test_hx_args_are_given_to_hx_only():
     """A fleet's ``hx_args`` reach ``hx`` as a loop of ``update(z, **hx_args)`` gives them."""
-    zs = fleet_zs(4)
-    res = make_fleet().batch_filter(zs, hx_args={"scale": 2.0}, fx_args={"u": 0.1})
-    loop = make_fleet()
+    zs = cv3_zs(4)
+    res = make_cv3_fleet().batch_filter(zs, hx_args={"scale": 2.0}, fx_args={"u": 0.1})
+    loop = make_cv3_fleet()
     for t in range(4):
         loop.predict(u=0.1)
         loop.update(zs[:, t], scale=2.0)
@@ -353,16 +276,16 @@ def test_hx_args_are_given_to_hx_only():
 
 
 def test_a_generator_yielding_a_bad_step_is_named_for_a_fleet():
-    good = fleet_zs(4)
+    good = cv3_zs(4)
     cases = [
         ([good[:, 0], good[:, 1, :1], good[:, 2]], ShapeError, r"zs\[1\] has shape \(3, 1\)"),
         ([good[:, 0], good[:, 1], None], ShapeError, r"zs\[2\] is None"),
         ([good[:2, 0], good[:2, 1]], ShapeError, r"zs\[0\] has shape \(2, 2\)"),
         ([good[:, 0], "1.0"], ShapeError, r"zs\[1\]"),
-        ([good[:, 0], np.full((K, NZ), np.inf)], SqukfError, r"zs\[1\]"),
+        ([good[:, 0], np.full((CV3_K, CV3_NZ), np.inf)], SqukfError, r"zs\[1\]"),
     ]
     for steps, error, match in cases:
-        fl = make_fleet()
+        fl = make_cv3_fleet()
         snap = fleet_state(fl)
         with pytest.raises(error, match=match):
             fl.batch_filter(z for z in steps)
@@ -370,14 +293,14 @@ def test_a_generator_yielding_a_bad_step_is_named_for_a_fleet():
 
 
 def test_a_generator_yielding_a_bad_step_is_named_for_one_filter():
-    good = measurements(3)
+    good = near_measurements(3)
     cases = [
         ([good[0], good[1][:1].reshape(1, 1, 1), good[2]], ShapeError, r"at step 1: z has shape"),
         ([good[0], "1.0"], ShapeError, r"at step 1: z"),
         ([good[0], object()], ShapeError, r"at step 1: z"),
     ]
     for steps, error, match in cases:
-        f = make_ukf()
+        f = near_filter()
         snap = filter_state(f)
         with pytest.raises(error, match=match):
             f.batch_filter(z for z in steps)
@@ -388,12 +311,12 @@ def test_a_generator_yielding_a_bad_step_is_named_for_one_filter():
     "zs", [5.0, object(), {0: [1.0, 2.0]}, {1.0, 2.0}, frozenset({(1.0, 2.0)}), "zs", b"zs"], ids=repr
 )
 def test_zs_that_is_not_array_like_is_an_error_naming_zs(zs):
-    f = make_ukf()
+    f = near_filter()
     snap = filter_state(f)
     with pytest.raises(ShapeError, match="zs"):
         f.batch_filter(zs)
     assert_filter_state(f, snap)
-    fl = make_fleet()
+    fl = make_cv3_fleet()
     snap = fleet_state(fl)
     with pytest.raises(ShapeError, match="zs"):
         fl.batch_filter(zs)
@@ -404,7 +327,7 @@ def test_zs_that_is_not_array_like_is_an_error_naming_zs(zs):
 
 
 def masked_fleet_zs(T: int = 5) -> tuple[np.ma.MaskedArray, np.ndarray]:
-    zs = fleet_zs(T)
+    zs = cv3_zs(T)
     mask = np.zeros(zs.shape, dtype=bool)
     mask[0, 1] = True  # a whole row
     mask[2, 3, 1] = True  # one component
@@ -415,11 +338,11 @@ def masked_fleet_zs(T: int = 5) -> tuple[np.ma.MaskedArray, np.ndarray]:
 
 def test_a_masked_zs_is_missing_where_masked_for_a_fleet():
     masked, nan = masked_fleet_zs()
-    expected = make_fleet().batch_filter(nan)
-    got = make_fleet().batch_filter(masked)
+    expected = make_cv3_fleet().batch_filter(nan)
+    got = make_cv3_fleet().batch_filter(masked)
     np.testing.assert_array_equal(got.means, expected.means)
     np.testing.assert_array_equal(got.log_likelihood, expected.log_likelihood)
-    steps = make_fleet().batch_filter(masked[:, t] for t in range(masked.shape[1]))
+    steps = make_cv3_fleet().batch_filter(masked[:, t] for t in range(masked.shape[1]))
     np.testing.assert_array_equal(steps.means, expected.means)
 
 
@@ -427,21 +350,21 @@ def test_a_masked_zs_is_missing_where_masked_on_dask():
     sd = pytest.importorskip("squkf.dask")
     da = pytest.importorskip("dask.array")
     masked, nan = masked_fleet_zs()
-    expected = make_fleet().batch_filter(nan)
+    expected = make_cv3_fleet().batch_filter(nan)
     for zs in (masked, da.ma.masked_array(da.from_array(masked.data, chunks=(2, -1, -1)), mask=masked.mask)):
-        got = sd.compute(sd.batch_filter(make_fleet(), zs), scheduler="synchronous")
+        got = sd.compute(sd.batch_filter(make_cv3_fleet(), zs), scheduler="synchronous")
         np.testing.assert_array_equal(got.means, expected.means)
 
 
 # -- 7. a subset of no filters is an error ---------------------------------------------------------
 
 
-NO_ROWS = [[], np.array([], dtype=int), np.zeros(K, dtype=bool), slice(0, 0)]
+NO_ROWS = [[], np.array([], dtype=int), np.zeros(CV3_K, dtype=bool), slice(0, 0)]
 
 
 @pytest.mark.parametrize("rows", NO_ROWS, ids=repr)
 def test_a_subset_of_no_filters_is_an_error_naming_rows(rows):
-    fl = make_fleet()
+    fl = make_cv3_fleet()
     snap = fleet_state(fl)
     with pytest.raises(ParameterError, match="rows"):
         fl.subset(rows)
@@ -453,13 +376,13 @@ def test_a_subset_of_no_filters_is_an_error_naming_rows(rows):
 
 
 def test_the_fleet_smoother_of_no_steps_returns_empty_arrays():
-    fl = make_fleet()
-    res = fl.batch_filter(np.zeros((K, 0, NZ)))
+    fl = make_cv3_fleet()
+    res = fl.batch_filter(np.zeros((CV3_K, 0, CV3_NZ)))
     means, P1_2s, Gs = out = fl.rts_smoother(res)
-    assert means.shape == (K, 0, NX) and P1_2s.shape == Gs.shape == (K, 0, NX, NX)
-    assert out.failed.shape == (K,) and not out.failed.any()
+    assert means.shape == (CV3_K, 0, CV3_NX) and P1_2s.shape == Gs.shape == (CV3_K, 0, CV3_NX, CV3_NX)
+    assert out.failed.shape == (CV3_K,) and not out.failed.any()
     # as the single filter's smoother does
-    f = make_ukf()
+    f = near_filter()
     xs, Ps, Ks = f.rts_smoother(*f.batch_filter(np.zeros((0, 2))))
     assert xs.shape == (0, 5) and Ps.shape == Ks.shape == (0, 5, 5)
 
@@ -474,14 +397,14 @@ def single_error(f: SquareRootUKF, call) -> str:
 
 
 def test_a_singular_innovation_is_described_by_the_failing_filters_own_values():
-    fl = make_fleet()
-    R = np.stack([0.1 * np.eye(NZ)] * K)
+    fl = make_cv3_fleet()
+    R = np.stack([0.1 * np.eye(CV3_NZ)] * CV3_K)
     R[1] = 0.0
     fl.R = R
     fl.predict()
     one = fl[1]  # filter 1 alone, as it is now
     scale = np.array([1.0, 0.0, 1.0])  # filter 1's hx is constant: with R = 0, Sy is singular
-    z = fleet_zs(1)[:, 0]
+    z = cv3_zs(1)[:, 0]
     fl.update(z, scale=scale)
     assert fl.failed.tolist() == [False, True, False]
     expected = single_error(one, lambda f: f.update(z[1], scale=0.0))
@@ -489,7 +412,7 @@ def test_a_singular_innovation_is_described_by_the_failing_filters_own_values():
 
 
 def test_non_finite_images_are_described_by_the_failing_filters_own_values():
-    fl = make_fleet()
+    fl = make_cv3_fleet()
     one = fl[2]
     fl.predict(bad=np.array([False, False, True]))
     assert fl.failed.tolist() == [False, False, True]
@@ -501,7 +424,7 @@ def test_non_finite_images_are_described_by_the_failing_filters_own_values():
 
 def edited_pair(edit):
     """A fleet edited in place by ``edit``, and one given the same values by assignment."""
-    fl, ref = make_fleet(), make_fleet()
+    fl, ref = make_cv3_fleet(), make_cv3_fleet()
     edit(fl)
     for name in ("x", "P", "Q", "R"):
         setattr(ref, name, np.array(getattr(fl, name)))
@@ -519,9 +442,9 @@ EDITS = {
 
 @pytest.mark.parametrize("name", list(EDITS))
 def test_an_edit_in_place_of_a_fleet_attribute_takes_effect(name):
-    plain = make_fleet()
+    plain = make_cv3_fleet()
     fl, ref = edited_pair(EDITS[name])
-    zs = fleet_zs(3)
+    zs = cv3_zs(3)
     for f in (fl, ref, plain):
         f.predict()
         f.update(zs[:, 0])
@@ -531,13 +454,13 @@ def test_an_edit_in_place_of_a_fleet_attribute_takes_effect(name):
 
 
 def test_several_edits_in_place_and_every_route_sees_them():
-    zs = fleet_zs(3)
-    fl = make_fleet()
+    zs = cv3_zs(3)
+    fl = make_cv3_fleet()
     fl.R[0, 0] = 2.0  # two statements on the same attribute: both kept
     fl.R[1, 1] = 3.0
     fl.x[0] += 1.0
     assert fl.R[0, 0] == 2.0 and fl.R[1, 1] == 3.0
-    ref = make_fleet()
+    ref = make_cv3_fleet()
     ref.R = np.diag([2.0, 3.0])
     x = np.array(ref.x)
     x[0] += 1.0
@@ -553,23 +476,23 @@ def test_several_edits_in_place_and_every_route_sees_them():
 
 
 def test_an_invalid_edit_in_place_raises_at_the_next_call_and_changes_nothing():
-    fl = make_fleet()
+    fl = make_cv3_fleet()
     fl.predict()
     snap = fleet_state(fl)
     P = fl.P
     P[1, 0, 0] = -1.0  # not positive definite
     with pytest.raises(SqukfError, match=r"P\[1\]"):
-        fl.update(fleet_zs(1)[:, 0])
+        fl.update(cv3_zs(1)[:, 0])
     P[1, 0, 0] = snap["P1_2"][1, 0, 0] ** 2  # put back: nothing had changed
     assert_fleet_state(fl, snap)
 
 
 def test_arrays_read_before_a_step_are_never_rewritten():
-    fl = make_fleet()
+    fl = make_cv3_fleet()
     x, P = fl.x, fl.P
     kept = x.copy(), P.copy()
     fl.predict()
-    fl.update(fleet_zs(1)[:, 0])
+    fl.update(cv3_zs(1)[:, 0])
     np.testing.assert_array_equal(x, kept[0])
     np.testing.assert_array_equal(P, kept[1])
     assert fl.x is not x and not np.array_equal(fl.x, x)
@@ -593,8 +516,8 @@ def text_versions(zs: np.ndarray) -> dict:
 
 @pytest.mark.parametrize("what", list(text_versions(np.zeros((2, 2)))))
 def test_text_measurements_are_errors_for_one_filter(what):
-    zs = text_versions(measurements(3))[what]
-    f = make_ukf()
+    zs = text_versions(near_measurements(3))[what]
+    f = near_filter()
     snap = filter_state(f)
     with pytest.raises(ShapeError, match="z"):
         f.batch_filter(zs)
@@ -606,8 +529,8 @@ def test_text_measurements_are_errors_for_one_filter(what):
 
 @pytest.mark.parametrize("what", list(text_versions(np.zeros((2, 2)))))
 def test_text_measurements_are_errors_for_a_fleet_and_on_dask(what):
-    zs = text_versions(fleet_zs(3))[what]
-    fl = make_fleet()
+    zs = text_versions(cv3_zs(3))[what]
+    fl = make_cv3_fleet()
     snap = fleet_state(fl)
     with pytest.raises(ShapeError, match="zs"):
         fl.batch_filter(zs)
@@ -616,8 +539,8 @@ def test_text_measurements_are_errors_for_a_fleet_and_on_dask(what):
     assert_fleet_state(fl, snap)
     sd = pytest.importorskip("squkf.dask")
     with pytest.raises(ShapeError, match="zs"):  # raised by batch_filter itself: nothing scheduled
-        sd.batch_filter(make_fleet(), zs)
+        sd.batch_filter(make_cv3_fleet(), zs)
     da = pytest.importorskip("dask.array")
     if np.asarray(zs).dtype.kind in "UO":
         with pytest.raises(ShapeError, match="zs"):
-            sd.batch_filter(make_fleet(), da.from_array(np.asarray(zs), chunks=(1, -1, -1)))
+            sd.batch_filter(make_cv3_fleet(), da.from_array(np.asarray(zs), chunks=(1, -1, -1)))

@@ -7,25 +7,26 @@ import numpy as np
 import pytest
 from filterpy.common import Saver
 from filterpy.kalman import CubatureKalmanFilter, KalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter
-from models import ct_fx, ct_hx
+from models import (
+    CT_P0,
+    CT_Q,
+    CT_R,
+    CT_X0,
+    ct_fx,
+    ct_hx,
+    ct_simulate,
+    spinning_heading,
+    spinning_heading_filter,
+)
 from scipy.stats import chi2
 
 from squkf import CubatureWeights, MerweScaledWeights, Propagated, SquareRootUKF
 from squkf.angles import AngleAdd, AngleMean, AngleResidual, circular_mean, wrap
 
-Q = np.diag([0.1, 0.01, 0.1, 0.01, 1e-6])
-R = np.diag([25.0, 0.002**2])
-X0 = np.array([2000.0, 10.0, 3000.0, -5.0, 0.02])
-P0 = np.diag([400.0, 4.0, 400.0, 4.0, 1e-4])
-
 
 def zs_ct(T=50, seed=0):
-    rng = np.random.default_rng(seed)
-    x, out = X0.copy(), []
-    for _ in range(T):
-        x = ct_fx(x, 1.0) + rng.multivariate_normal(np.zeros(5), Q)
-        out.append(ct_hx(x) + rng.multivariate_normal(np.zeros(2), R))
-    return out
+    """T noisy measurements of the far coordinated-turn radar, none missing."""
+    return ct_simulate(T, seed, missing=())[0]
 
 
 def test_cubature_reproduces_filterpy_ckf():
@@ -33,8 +34,8 @@ def test_cubature_reproduces_filterpy_ckf():
     ckf = CubatureKalmanFilter(5, 2, 1.0, ct_hx, ct_fx)
     sq = SquareRootUKF(5, 2, 1.0, ct_hx, ct_fx, CubatureWeights(), scheme=Propagated())
     for f in (ckf, sq):
-        f.x, f.P, f.Q, f.R = X0.copy(), P0, Q, R
-    ckf.x = X0.reshape(5, 1)  # filterpy's CKF works with column vectors
+        f.x, f.P, f.Q, f.R = CT_X0.copy(), CT_P0, CT_Q, CT_R
+    ckf.x = CT_X0.reshape(5, 1)  # filterpy's CKF works with column vectors
     for z in zs_ct():
         ckf.predict()
         sq.predict()
@@ -46,7 +47,7 @@ def test_cubature_reproduces_filterpy_ckf():
 
 def test_saver_records_a_run():
     f = SquareRootUKF(5, 2, 1.0, ct_hx, ct_fx, MerweScaledWeights(0.3))
-    f.x, f.P, f.Q, f.R = X0.copy(), P0, Q, R
+    f.x, f.P, f.Q, f.R = CT_X0.copy(), CT_P0, CT_Q, CT_R
     saver = Saver(f)
     zs = zs_ct(10)
     means, covs = f.batch_filter(zs, saver=saver)
@@ -61,7 +62,7 @@ def test_saver_records_a_run():
 def test_pickle_and_deepcopy_continue_identically(copier):
     hooks = dict(residual_x=AngleResidual([4]), state_add=AngleAdd([4]), x_mean_fn=AngleMean([4]))
     f = SquareRootUKF(5, 2, 1.0, ct_hx, ct_fx, MerweScaledWeights(0.3), **hooks)
-    f.x, f.P, f.Q, f.R = X0.copy(), P0, Q, R
+    f.x, f.P, f.Q, f.R = CT_X0.copy(), CT_P0, CT_Q, CT_R
     zs = zs_ct(6)
     for z in zs[:3]:
         f.predict()
@@ -77,7 +78,7 @@ def test_pickle_and_deepcopy_continue_identically(copier):
 
 def test_repr_shows_the_state():
     f = SquareRootUKF(5, 2, 1.0, ct_hx, ct_fx, MerweScaledWeights(0.3))
-    f.x = X0
+    f.x = CT_X0
     text = repr(f)
     assert text.startswith("SquareRootUKF object")
     for name in ("x = ", "P1_2 = ", "Q1_2 = ", "R1_2 = ", "K = ", "scheme = "):
@@ -154,53 +155,14 @@ def test_circular_mean_survives_negative_central_weight():
     assert np.isfinite(naive)
 
 
-def heading_model(seed, T=100):
-    """A vehicle turning on the spot: heading crosses +/-pi many times; bearings measured."""
-    rng = np.random.default_rng(seed)
-    q, r = 0.02, 0.05
-    x = np.array([rng.uniform(-np.pi, np.pi), 0.8])
-    truth, zs = [], []
-    for _ in range(T):
-        x = np.array([wrap(x[0] + x[1]), x[1]]) + rng.normal(0, [q, q * 0.1])
-        x[0] = wrap(x[0])
-        truth.append(x.copy())
-        zs.append(np.array([wrap(x[0] + rng.normal(0, r))]))
-    return truth, zs, q, r
-
-
-def make_heading_filter(cls, points, x0):
-    def fx(x, dt):
-        return np.array([wrap(x[0] + x[1] * dt), x[1]])
-
-    def hx(x):
-        return np.array([x[0]])
-
-    f = cls(
-        2,
-        1,
-        1.0,
-        hx,
-        fx,
-        points,
-        x_mean_fn=AngleMean([0]),
-        z_mean_fn=AngleMean([0]),
-        residual_x=AngleResidual([0]),
-        residual_z=AngleResidual([0]),
-        **({"state_add": AngleAdd([0])} if cls is SquareRootUKF else {}),
-    )
-    f.x, f.P = x0, np.diag([0.1, 0.01])
-    f.Q, f.R = np.diag([0.02**2, 0.002**2]), np.eye(1) * 0.05**2
-    return f
-
-
 def test_angles_agree_with_filterpy_where_its_hooks_are_well_defined():
     # alpha = 1: all weights positive, so filterpy's hooks are well defined
-    truth, zs, _, _ = heading_model(4)
+    truth, zs, _, _ = spinning_heading(4)
     x0 = np.array([truth[0][0], 0.8])
-    fp = make_heading_filter(
+    fp = spinning_heading_filter(
         UnscentedKalmanFilter, MerweScaledSigmaPoints(2, 1.0, 2.0, 1.0, subtract=AngleResidual([0])), x0
     )
-    sq = make_heading_filter(SquareRootUKF, MerweScaledSigmaPoints(2, 1.0, 2.0, 1.0), x0)
+    sq = spinning_heading_filter(SquareRootUKF, MerweScaledSigmaPoints(2, 1.0, 2.0, 1.0), x0)
     for z in zs:
         for f in (fp, sq):
             f.predict()
@@ -214,8 +176,8 @@ def test_angles_nees_consistent_across_the_cut():
     runs, T = 50, 100
     nees = []
     for seed in range(runs):
-        truth, zs, _, _ = heading_model(100 + seed, T)
-        f = make_heading_filter(
+        truth, zs, _, _ = spinning_heading(100 + seed, T)
+        f = spinning_heading_filter(
             SquareRootUKF, MerweScaledWeights(0.1, 2.0, 0.0), np.array([truth[0][0], 0.8])
         )
         for z, xt in zip(zs, truth):

@@ -18,7 +18,7 @@ import pytest
 from filterpy.kalman import MerweScaledSigmaPoints
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from models import l96_fx
+from models import heading_fx, l96_fx, l96_hx, xy_radar_hx
 
 from squkf import (
     Augmented,
@@ -55,20 +55,6 @@ def assert_slices_equal(stacked, single, what):
 # -- models -------------------------------------------------------------------------
 
 
-def turn_fx(x, dt=0.5):
-    """Heading model, state [px, py, heading, speed]; the heading is an angle."""
-    return np.array([x[0] + dt * np.cos(x[2]) * x[3], x[1] + dt * np.sin(x[2]) * x[3], x[2] + 0.3 * dt, x[3]])
-
-
-def radar_hx(x):
-    """Range and bearing of [px, py] from the origin (the bearing is an angle)."""
-    return np.array([np.hypot(x[0], x[1]), np.arctan2(x[1], x[0])])
-
-
-def l96_hx(x):
-    return x[::2].copy()
-
-
 class Model:
     def __init__(self, n, fx, hx, m, x0, P0, Q, R, truth_seed=0):
         self.n, self.fx, self.hx, self.m = n, fx, hx, m
@@ -91,8 +77,8 @@ class Model:
 
 TURN = Model(
     4,
-    turn_fx,
-    radar_hx,
+    heading_fx,
+    xy_radar_hx,
     2,
     np.array([30.0, 40.0, 0.4, 2.0]),
     np.diag([1.0, 1.0, 0.05, 0.1]),

@@ -18,7 +18,7 @@ dd = pytest.importorskip("dask.dataframe")
 pd = pytest.importorskip("pandas")
 distributed = pytest.importorskip("distributed")
 
-from dask_models import cv_fx, nan_for_big_fx, range_hx, slow_fx  # noqa: E402
+from models import line_fx, line_hx, nan_for_big_line_fx, slow_line_fx  # noqa: E402
 
 import squkf.dask as sd  # noqa: E402
 from squkf import Fleet, MerweScaledWeights, ParameterError, ShapeError  # noqa: E402
@@ -27,9 +27,9 @@ TESTS = Path(__file__).resolve().parent
 FIELDS = ("means", "P1_2s", "variances", "log_likelihood", "failed", "x", "P1_2")
 
 
-def make_fleet(K, fx=cv_fx, seed=0, per_filter_R=False):
+def make_fleet(K, fx=line_fx, seed=0, per_filter_R=False):
     rng = np.random.default_rng(seed)
-    f = Fleet(K, 2, 2, 0.1, range_hx, fx, MerweScaledWeights(0.5))
+    f = Fleet(K, 2, 2, 0.1, line_hx, fx, MerweScaledWeights(0.5))
     f.x = rng.normal(size=(K, 2))
     f.P = np.diag([1.0, 0.5])
     f.Q = 0.01 * np.eye(2)
@@ -84,7 +84,7 @@ def test_fields_computed_separately_agree_and_threads_scheduler():
 
 def test_a_failing_filter_is_flagged_and_the_others_are_untouched():
     K, T = 24, 10
-    fleet = make_fleet(K, fx=nan_for_big_fx)
+    fleet = make_fleet(K, fx=nan_for_big_line_fx)
     x = fleet.x
     x[13, 0] = 1e7  # filter 13's fx returns NaN: it fails at the first step
     fleet.x = x
@@ -178,7 +178,7 @@ def test_local_cluster_gives_the_same_numbers(cluster):
 @pytest.mark.slow
 def test_a_worker_killed_mid_computation_changes_nothing(cluster):
     K, T = 40, 40  # slow_fx: about 0.8 s per chunk
-    fleet = make_fleet(K, fx=slow_fx)
+    fleet = make_fleet(K, fx=slow_line_fx)
     zs = measurements(K, T)
     lazy = sd.batch_filter(fleet, da.from_array(zs, chunks=(5, T, 2)), keep="means")
     futures = cluster.compute([lazy.means, lazy.log_likelihood])

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from models import assert_filter_state, ct_fx, ct_hx, filter_state
+from models import assert_filter_state, ct_filter, ct_fx, ct_hx, filter_state
 
 from squkf import (
     CallSequenceError,
@@ -19,21 +19,11 @@ from squkf import (
     SqukfValueError,
 )
 
-Q = np.diag([0.1, 0.01, 0.1, 0.01, 1e-6])
-R = np.diag([25.0, 0.002**2])
-
 
 def make(vectorized=False, points=None, **kw):
-    if vectorized:
-        fx = lambda X, dt: np.array([ct_fx(x, dt) for x in X])  # noqa: E731
-        hx = lambda X: np.array([ct_hx(x) for x in X])  # noqa: E731
-    else:
-        fx, hx = ct_fx, ct_hx
+    """The far coordinated-turn radar (Merwe alpha 0.3, kappa -2), stopped mid-step: a prior pending."""
     points = MerweScaledWeights(0.3, 2.0, -2.0) if points is None else points
-    f = SquareRootUKF(5, 2, 1.0, hx, fx, points, vectorized=vectorized, **kw)
-    f.x = np.array([2000.0, 10.0, 3000.0, -5.0, 0.02])
-    f.P = np.diag([400.0, 4.0, 400.0, 4.0, 1e-4])
-    f.Q, f.R = Q, R
+    f = ct_filter(points, vectorized=vectorized, **kw)
     f.predict()
     f.update(ct_hx(f.x) + 1.0)
     f.predict()  # mid-step: a prior is pending

@@ -16,15 +16,11 @@ from filterpy.kalman import (
     SimplexSigmaPoints,
     UnscentedKalmanFilter,
 )
-from models import Robot, ct_fx, ct_hx, example_data, l96_fx, l96_hx
+from models import CT_P0, CT_Q, CT_R, CT_X0, Robot, ct_filter, ct_fx, ct_hx, example_data, l96_fx, l96_hx, rel
 
 from squkf import SquareRootUKF
 
 RTOL = 1e-8
-
-
-def rel(a, b):
-    return np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300)
 
 
 def run_pair(points, fx, hx, dim_x, dim_z, dt, x0, P0, Q, R, truth_fn, steps, seed, fx_args=None):
@@ -85,9 +81,6 @@ def test_robot_agrees_with_filterpy():
 def test_coordinated_turn_negative_central_weight():
     points = MerweScaledSigmaPoints(5, alpha=0.1, beta=2.0, kappa=0.0)
     assert points.Wc[0] < 0  # the downdate path is exercised at every step
-    Q = np.diag([0.1, 0.01, 0.1, 0.01, 1e-6])
-    R = np.diag([25.0, 0.002**2])
-    x0 = np.array([2000.0, 10.0, 3000.0, -5.0, 0.02])
     worst = run_pair(
         points,
         ct_fx,
@@ -95,11 +88,11 @@ def test_coordinated_turn_negative_central_weight():
         5,
         2,
         1.0,
-        x0 + np.array([20.0, 1.0, -20.0, 1.0, 0.0]),
-        np.diag([400.0, 4.0, 400.0, 4.0, 1e-4]),
-        Q,
-        R,
-        Truth(x0, lambda x, rng: ct_fx(x, 1.0) + rng.multivariate_normal(np.zeros(5), Q)),
+        CT_X0 + np.array([20.0, 1.0, -20.0, 1.0, 0.0]),
+        CT_P0,
+        CT_Q,
+        CT_R,
+        Truth(CT_X0, lambda x, rng: ct_fx(x, 1.0) + rng.multivariate_normal(np.zeros(5), CT_Q)),
         400,
         2,
     )
@@ -142,14 +135,9 @@ def test_lorenz96_agrees_with_filterpy(make_points):
 def test_filterpy_outputs_match_attribute_by_attribute():
     """K, y, S, SI, log-likelihood, mahalanobis, sigmas_f and sigmas_h mean the same things."""
     points = MerweScaledSigmaPoints(5, alpha=0.3, beta=2.0, kappa=-2.0)
-    Q = np.diag([0.1, 0.01, 0.1, 0.01, 1e-6])
-    R = np.diag([25.0, 0.002**2])
-    fp = UnscentedKalmanFilter(5, 2, 1.0, ct_hx, ct_fx, points)
-    sq = SquareRootUKF(5, 2, 1.0, ct_hx, ct_fx, points)
+    fp = ct_filter(points, cls=UnscentedKalmanFilter)
+    sq = ct_filter(points)
     for f in (fp, sq):
-        f.x = np.array([2000.0, 10.0, 3000.0, -5.0, 0.02])
-        f.P = np.diag([400.0, 4.0, 400.0, 4.0, 1e-4])
-        f.Q, f.R = Q, R
         f.predict()
     assert rel(sq.sigmas_f, fp.sigmas_f) < 1e-12
     z = ct_hx(fp.x) + np.array([3.0, -0.001])

@@ -16,7 +16,23 @@ import numpy as np
 import pytest
 from filterpy.common import Q_discrete_white_noise, Saver
 from filterpy.kalman import IMMEstimator, MerweScaledSigmaPoints, MMAEFilterBank, UnscentedKalmanFilter
-from models import FILTER_STATE, assert_filter_state, filter_state
+from models import (
+    CV_DT,
+    CV_P0,
+    CV_Q,
+    CV_R,
+    CV_X0,
+    CV_Z,
+    FILTER_STATE,
+    assert_filter_state,
+    assert_same_estimate,
+    ct_hx,
+    cv_filter,
+    cv_fx,
+    filter_state,
+    one_d_measured,
+    step,
+)
 
 from squkf import (
     CallSequenceError,
@@ -29,61 +45,6 @@ from squkf import (
     SqukfError,
     SqukfValueError,
 )
-
-DT = 0.5
-Q0 = Q_discrete_white_noise(2, dt=DT, var=0.05, block_size=2) + 1e-4 * np.eye(4)
-R0 = np.array([[0.5, 0.1], [0.1, 0.02]])
-X0 = np.array([10.0, 1.0, 20.0, -0.5])
-P0 = np.diag([4.0, 1.0, 4.0, 1.0])
-
-
-def fx(x, dt):
-    """Constant velocity, state [px, vx, py, vy]."""
-    return np.array([x[0] + dt * x[1], x[1], x[2] + dt * x[3], x[3]])
-
-
-def hx(x):
-    """Range and bearing from the origin."""
-    return np.array([np.hypot(x[0], x[2]), np.arctan2(x[2], x[0])])
-
-
-def zs(k=6, seed=3):
-    rng = np.random.default_rng(seed)
-    x = X0.copy()
-    out = []
-    for _ in range(k):
-        x = fx(x, DT)
-        out.append(hx(x) + rng.normal(0, [0.5, 0.05]))
-    return out
-
-
-Z = zs()
-
-
-def make(scheme="redrawn", points=None, **kw):
-    points = MerweScaledWeights(alpha=0.5, beta=2.0, kappa=0.0) if points is None else points
-    f = SquareRootUKF(4, 2, DT, hx, fx, points, scheme=scheme, **kw)
-    f.x, f.P, f.Q, f.R = X0, P0, Q0, R0
-    return f
-
-
-def step(f, z):
-    f.predict()
-    f.update(z)
-
-
-def assert_same_estimate(a, b, exact=True, records=True):
-    names = ("x", "P", "x_prior", "P1_2_prior", "x_post", "P1_2_post", "y", "K") if records else ("x", "P")
-    for name in names:
-        if exact:
-            np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
-        else:
-            np.testing.assert_allclose(
-                getattr(a, name), getattr(b, name), rtol=1e-12, atol=1e-12, err_msg=name
-            )
-    if exact:
-        assert a.log_likelihood == b.log_likelihood
-
 
 RECORDS = (
     "x",
@@ -108,13 +69,13 @@ RECORDS = (
 
 
 def test_every_step_assigns_fresh_arrays():
-    f, twin = make(), make()
-    step(f, Z[0])
-    step(twin, Z[0])
+    f, twin = cv_filter(), cv_filter()
+    step(f, CV_Z[0])
+    step(twin, CV_Z[0])
     before = {k: getattr(f, k) for k in RECORDS}
     kept = {k: v.copy() for k, v in before.items()}
-    step(f, Z[1])
-    step(twin, Z[1])
+    step(f, CV_Z[1])
+    step(twin, CV_Z[1])
     for k in RECORDS:
         # the step did not write into what was read before it ...
         np.testing.assert_array_equal(before[k], kept[k], err_msg=k)
@@ -123,23 +84,23 @@ def test_every_step_assigns_fresh_arrays():
     for k in RECORDS:
         before[k][...] = 123.0
     assert_filter_state(f, filter_state(twin))
-    step(f, Z[2])
-    step(twin, Z[2])
+    step(f, CV_Z[2])
+    step(twin, CV_Z[2])
     assert_same_estimate(f, twin)
 
 
 @pytest.mark.parametrize("scheme", ["redrawn", "augmented", "propagated"])
 def test_editing_factor_records_changes_nothing(scheme):
-    f, twin = make(scheme), make(scheme)
-    step(f, Z[0])
-    step(twin, Z[0])
+    f, twin = cv_filter(scheme), cv_filter(scheme)
+    step(f, CV_Z[0])
+    step(twin, CV_Z[0])
     f.predict()
     twin.predict()
     for name in ("P1_2_prior", "P1_2_post", "P1_2", "x_prior", "x_post", "sigmas_f"):
         a = getattr(f, name)
         a *= 3.0  # in place, on what the filter handed out
-    f.update(Z[1])
-    twin.update(Z[1])
+    f.update(CV_Z[1])
+    twin.update(CV_Z[1])
     assert_same_estimate(f, twin, records=False)  # x_prior and sigmas_f are records the test edited
     for name in ("x_post", "P1_2_post", "y", "K", "S1_2", "sigmas_h"):
         np.testing.assert_array_equal(getattr(f, name), getattr(twin, name), err_msg=name)
@@ -148,10 +109,10 @@ def test_editing_factor_records_changes_nothing(scheme):
 
 @pytest.mark.parametrize("scheme", ["redrawn", "augmented", "propagated"])
 def test_arrays_of_ask_and_tell_are_not_read_back(scheme):
-    f, twin = make(scheme), make(scheme)
-    step(twin, Z[0])
+    f, twin = cv_filter(scheme), cv_filter(scheme)
+    step(twin, CV_Z[0])
     X = f.ask_predict()
-    F = [fx(s, DT) for s in X]
+    F = [cv_fx(s, CV_DT) for s in X]
     X[...] = 0.0  # edited between ask and tell: the filter keeps its own set
     F = np.array(F)
     xp, Sp = f.tell_predict(F)
@@ -159,15 +120,15 @@ def test_arrays_of_ask_and_tell_are_not_read_back(scheme):
     xp[...] = np.nan
     Sp[...] = np.nan
     Y = f.ask_update()
-    H = np.array([hx(s) for s in Y])
+    H = np.array([ct_hx(s) for s in Y])
     Y[...] = 1e6
-    z = Z[0].copy()
+    z = CV_Z[0].copy()
     xq, Sq = f.tell_update(H, z)
     for a in (H, z, xq, Sq):
         a[...] = np.nan
     assert_same_estimate(f, twin)
-    step(f, Z[1])
-    step(twin, Z[1])
+    step(f, CV_Z[1])
+    step(twin, CV_Z[1])
     assert_same_estimate(f, twin)
 
 
@@ -177,21 +138,21 @@ def test_model_functions_that_scribble_on_their_points_change_nothing(scheme, ve
     """fx and hx may overwrite the points they are given (and return them): the step is unchanged."""
 
     def fx_scribble(X, dt):
-        out = np.stack([fx(s, dt) for s in X]) if vectorized else fx(X, dt)
+        out = np.stack([cv_fx(s, dt) for s in X]) if vectorized else cv_fx(X, dt)
         X[...] = out  # the images written over the points, and the points' own array returned
         return X
 
     def hx_scribble(X):
-        out = np.stack([hx(s) for s in X]) if vectorized else hx(X)
+        out = np.stack([ct_hx(s) for s in X]) if vectorized else ct_hx(X)
         X[...] = -1e9
         return out
 
-    fxv = (lambda X, dt: np.stack([fx(s, dt) for s in X])) if vectorized else fx
-    hxv = (lambda X: np.stack([hx(s) for s in X])) if vectorized else hx
-    f = make(scheme, vectorized=vectorized)
-    twin = make(scheme, vectorized=vectorized)
+    fxv = (lambda X, dt: np.stack([cv_fx(s, dt) for s in X])) if vectorized else cv_fx
+    hxv = (lambda X: np.stack([ct_hx(s) for s in X])) if vectorized else ct_hx
+    f = cv_filter(scheme, vectorized=vectorized)
+    twin = cv_filter(scheme, vectorized=vectorized)
     f.fx, f.hx, twin.fx, twin.hx = fx_scribble, hx_scribble, fxv, hxv
-    for z in Z[:3]:
+    for z in CV_Z[:3]:
         step(f, z)
         step(twin, z)
         assert_same_estimate(f, twin)
@@ -203,17 +164,17 @@ def test_model_functions_that_scribble_on_their_points_change_nothing(scheme, ve
 
 
 def test_multi_statement_symmetric_edit_equals_assignment():
-    f, twin = make(), make()
+    f, twin = cv_filter(), cv_filter()
     q = 0.003
     f.Q[0, 1] = f.Q[1, 0] = q
-    Q = Q0.copy()
+    Q = CV_Q.copy()
     Q[0, 1] = Q[1, 0] = q
     twin.Q = Q
     f.R[0, 0] *= 2.0
-    R = R0.copy()
+    R = CV_R.copy()
     R[0, 0] *= 2.0
     twin.R = R
-    for z in Z[:3]:
+    for z in CV_Z[:3]:
         step(f, z)
         step(twin, z)
         assert_same_estimate(f, twin, exact=False)
@@ -222,9 +183,9 @@ def test_multi_statement_symmetric_edit_equals_assignment():
 
 @pytest.mark.parametrize("edit", ["P *= 4", "P[0,0] = 9", "x[1] = 2"])
 def test_in_place_edits_of_state_take_effect(edit):
-    f, twin = make(), make()
-    step(f, Z[0])
-    step(twin, Z[0])
+    f, twin = cv_filter(), cv_filter()
+    step(f, CV_Z[0])
+    step(twin, CV_Z[0])
     if edit == "P *= 4":
         f.P *= 4
         twin.P = 4 * twin.P
@@ -238,8 +199,8 @@ def test_in_place_edits_of_state_take_effect(edit):
         x = twin.x.copy()
         x[1] = 2.0
         twin.x = x
-    step(f, Z[1])
-    step(twin, Z[1])
+    step(f, CV_Z[1])
+    step(twin, CV_Z[1])
     assert_same_estimate(f, twin, exact=False)
 
 
@@ -258,9 +219,9 @@ BAD_EDITS = [
 
 @pytest.mark.parametrize("name,idx,value,exc,call", BAD_EDITS)
 def test_invalid_in_place_edit_raises_at_next_call_and_changes_nothing(name, idx, value, exc, call):
-    f, twin = make(), make()
-    step(f, Z[0])
-    step(twin, Z[0])
+    f, twin = cv_filter(), cv_filter()
+    step(f, CV_Z[0])
+    step(twin, CV_Z[0])
     if call == "update":
         f.predict()
         twin.predict()
@@ -269,16 +230,16 @@ def test_invalid_in_place_edit_raises_at_next_call_and_changes_nothing(name, idx
     old = arr[idx]
     arr[idx] = value
     with pytest.raises(exc):
-        f.predict() if call == "predict" else f.update(Z[1])
+        f.predict() if call == "predict" else f.update(CV_Z[1])
     with pytest.raises(exc):  # still pending: raised again, not swallowed
-        f.predict() if call == "predict" else f.update(Z[1])
+        f.predict() if call == "predict" else f.update(CV_Z[1])
     arr[idx] = old  # undo the edit: the filter is as it was
     assert_filter_state(f, snap)
     if call == "predict":
         f.predict()
         twin.predict()
-    f.update(Z[1])
-    twin.update(Z[1])
+    f.update(CV_Z[1])
+    twin.update(CV_Z[1])
     assert_same_estimate(f, twin)
 
 
@@ -296,9 +257,9 @@ BAD_ASSIGNMENTS = [
 
 @pytest.mark.parametrize("name,bad,exc", BAD_ASSIGNMENTS)
 def test_failed_assignment_keeps_pending_in_place_edit(name, bad, exc):
-    f, twin = make(), make()
-    step(f, Z[0])
-    step(twin, Z[0])
+    f, twin = cv_filter(), cv_filter()
+    step(f, CV_Z[0])
+    step(twin, CV_Z[0])
     # a valid in-place edit, pending
     if name == "x":
         f.x[0] += 1.0
@@ -314,8 +275,8 @@ def test_failed_assignment_keeps_pending_in_place_edit(name, bad, exc):
     with pytest.raises(exc):
         setattr(f, name, bad)
     assert getattr(f, name) is edited
-    step(f, Z[1])
-    step(twin, Z[1])
+    step(f, CV_Z[1])
+    step(twin, CV_Z[1])
     assert_same_estimate(f, twin, exact=False)
 
 
@@ -332,24 +293,24 @@ def _copies(f):
 
 def _stopped_at(where):
     """An augmented filter after one step, stopped ``where`` in the next, its twin, and the points asked."""
-    f, ref = make("augmented"), make("augmented")
-    step(f, Z[0])
-    step(ref, Z[0])
+    f, ref = cv_filter("augmented"), cv_filter("augmented")
+    step(f, CV_Z[0])
+    step(ref, CV_Z[0])
     X = None
     if where == "after ask_predict":
         X = f.ask_predict()
     elif where == "after tell_predict":
-        f.tell_predict([fx(s, DT) for s in f.ask_predict()])
+        f.tell_predict([cv_fx(s, CV_DT) for s in f.ask_predict()])
     return f, ref, X
 
 
 def _finish_step(g, where, X):
     """Finish the step :func:`_stopped_at` stopped, with the update by ``Z[1]``."""
     if where == "after ask_predict":
-        g.tell_predict([fx(s, DT) for s in X])
+        g.tell_predict([cv_fx(s, CV_DT) for s in X])
     elif where == "idle":
         g.predict()
-    g.update(Z[1])
+    g.update(CV_Z[1])
 
 
 @pytest.mark.parametrize("kind", ["copy", "deepcopy", "pickle"])
@@ -362,9 +323,9 @@ def test_editing_a_copy_in_place_does_not_touch_the_original(kind, where):
     c.R *= 3.0
     c.x[0] = -99.0
     c.predict()  # and running the copy does not either
-    c.update(Z[3])
+    c.update(CV_Z[3])
     _finish_step(f, where, X)
-    step(ref, Z[1])
+    step(ref, CV_Z[1])
     assert_same_estimate(f, ref)
     assert not np.allclose(c.x, f.x)
 
@@ -376,9 +337,9 @@ def test_copy_mid_step_finishes_the_step(kind, where):
     c = _copies(f)[kind]
     for g in (c, f):  # the copy first: it must not disturb the original
         _finish_step(g, where, X)
-        step(g, Z[2])
-    step(ref, Z[1])
-    step(ref, Z[2])
+        step(g, CV_Z[2])
+    step(ref, CV_Z[1])
+    step(ref, CV_Z[2])
     assert_same_estimate(c, ref)
     assert_same_estimate(f, ref)
 
@@ -387,10 +348,10 @@ def test_copy_mid_step_finishes_the_step(kind, where):
 
 
 def test_saver_history_is_never_rewritten():
-    f = make()
+    f = cv_filter()
     s = Saver(f)
     saved_x, saved_P = [], []
-    for z in Z[:3]:
+    for z in CV_Z[:3]:
         step(f, z)
         s.save()
         saved_x.append(f.x.copy())
@@ -412,8 +373,8 @@ def test_saver_history_is_never_rewritten():
 @pytest.mark.parametrize("scheme", ["augmented", "propagated"])
 @pytest.mark.parametrize("edit", ["P *= 2", "P[0,0] += 1", "x[0] += 1", "P = P", "none"])
 def test_edit_between_predict_and_update_takes_effect(scheme, edit):
-    f = make(scheme)
-    step(f, Z[0])
+    f = cv_filter(scheme)
+    step(f, CV_Z[0])
     f.predict()
     if edit == "P *= 2":
         f.P *= 2.0
@@ -423,17 +384,17 @@ def test_edit_between_predict_and_update_takes_effect(scheme, edit):
         f.x[0] += 1.0
     elif edit == "P = P":
         f.P[0, 0] = f.P[0, 0]  # an edit that changes nothing
-    f.update(Z[1])
+    f.update(CV_Z[1])
     if edit in ("P = P", "none"):
         # no change: the propagated set is used, as by a twin that made no edit
-        t = make(scheme)
-        step(t, Z[0])
-        step(t, Z[1])
+        t = cv_filter(scheme)
+        step(t, CV_Z[0])
+        step(t, CV_Z[1])
         assert_same_estimate(f, t)
         return
     # the reference: a fresh filter set to the edited prior and updated (a set redrawn from it)
-    t = make(scheme)
-    step(t, Z[0])
+    t = cv_filter(scheme)
+    step(t, CV_Z[0])
     t.predict()
     x, P = t.x.copy(), t.P.copy()
     if edit == "P *= 2":
@@ -442,22 +403,22 @@ def test_edit_between_predict_and_update_takes_effect(scheme, edit):
         P[0, 0] += 1.0
     else:
         x[0] += 1.0
-    g = make(scheme)
+    g = cv_filter(scheme)
     g.x, g.P = x, P
-    g.update(Z[1])
+    g.update(CV_Z[1])
     np.testing.assert_allclose(f.x, g.x, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(f.P, g.P, rtol=1e-12, atol=1e-12)
-    t.update(Z[1])  # and it is not what the unedited prior gives
+    t.update(CV_Z[1])  # and it is not what the unedited prior gives
     assert not np.allclose(f.x, t.x)
 
 
 def test_replacing_points_between_ask_and_tell_uses_the_handed_out_set():
-    f, twin = make(), make()
-    step(f, Z[0])
-    step(twin, Z[0])
+    f, twin = cv_filter(), cv_filter()
+    step(f, CV_Z[0])
+    step(twin, CV_Z[0])
     X = f.ask_predict()
     f.points_fn = JulierWeights(kappa=1.0)
-    xp, Sp = f.tell_predict([fx(s, DT) for s in X])
+    xp, Sp = f.tell_predict([cv_fx(s, CV_DT) for s in X])
     twin.predict()
     np.testing.assert_array_equal(xp, twin.x_prior)
     np.testing.assert_array_equal(Sp, twin.P1_2_prior)
@@ -492,14 +453,14 @@ def test_a_hook_assigned_between_steps_is_used_from_the_next_step(hook, value, d
 
     Each hook here deliberately changes the numbers, so that a hook left unused shows.
     """
-    f, plain = make(), make()
-    step(f, Z[0])
-    step(plain, Z[0])
+    f, plain = cv_filter(), cv_filter()
+    step(f, CV_Z[0])
+    step(plain, CV_Z[0])
     setattr(f, hook, value)
-    ref = make(**{{"x_mean": "x_mean_fn", "z_mean": "z_mean_fn"}.get(hook, hook): value})
+    ref = cv_filter(**{{"x_mean": "x_mean_fn", "z_mean": "z_mean_fn"}.get(hook, hook): value})
     ref.x, ref.P = f.x, f.P
     assert getattr(f, hook) is value
-    for z in Z[1:3]:
+    for z in CV_Z[1:3]:
         step(f, z)
         step(ref, z)
         step(plain, z)
@@ -508,10 +469,10 @@ def test_a_hook_assigned_between_steps_is_used_from_the_next_step(hook, value, d
     assert not np.allclose(f.x, plain.x, rtol=1e-6, atol=0)
     # and set back, the plain operation is used again
     setattr(f, hook, default)
-    back = make()
+    back = cv_filter()
     back.x, back.P = f.x, f.P
-    step(f, Z[3])
-    step(back, Z[3])
+    step(f, CV_Z[3])
+    step(back, CV_Z[3])
     np.testing.assert_allclose(f.x, back.x, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(f.P, back.P, rtol=1e-12, atol=1e-12)
 
@@ -524,13 +485,13 @@ def test_dt_conventions():
 
     def rec_fx(x, dt):
         seen.append(dt)
-        return fx(x, dt)
+        return cv_fx(x, dt)
 
-    f = SquareRootUKF(4, 2, DT, hx, rec_fx, MerweScaledWeights())
-    f.x, f.P = X0, P0
+    f = SquareRootUKF(4, 2, CV_DT, ct_hx, rec_fx, MerweScaledWeights())
+    f.x, f.P = CV_X0, CV_P0
     f.predict(dt=0)
     assert set(seen) == {0.0}
-    np.testing.assert_allclose(f.x, X0, atol=1e-12)
+    np.testing.assert_allclose(f.x, CV_X0, atol=1e-12)
     seen.clear()
     f.predict(dt=-1.0)
     assert set(seen) == {-1.0}
@@ -547,10 +508,10 @@ def _bank_pair():
     """Two SquareRootUKFs and two filterpy UKFs, the same models (different process noise)."""
     ours, theirs = [], []
     for q in (0.01, 1.0):
-        Q = Q_discrete_white_noise(2, dt=DT, var=q, block_size=2) + 1e-6 * np.eye(4)
+        Q = Q_discrete_white_noise(2, dt=CV_DT, var=q, block_size=2) + 1e-6 * np.eye(4)
         for lst, cls in ((ours, SquareRootUKF), (theirs, UnscentedKalmanFilter)):
-            f = cls(4, 2, DT, hx, fx, MerweScaledSigmaPoints(4, 0.5, 2.0, 0.0))
-            f.x, f.P, f.Q, f.R = X0.copy(), P0.copy(), Q.copy(), R0.copy()
+            f = cls(4, 2, CV_DT, ct_hx, cv_fx, MerweScaledSigmaPoints(4, 0.5, 2.0, 0.0))
+            f.x, f.P, f.Q, f.R = CV_X0.copy(), CV_P0.copy(), Q.copy(), CV_R.copy()
             lst.append(f)
     return ours, theirs
 
@@ -559,7 +520,7 @@ def test_mmae_filter_bank_runs_with_squkf():
     ours, theirs = _bank_pair()
     a = MMAEFilterBank(ours, [0.5, 0.5], 4)
     b = MMAEFilterBank(theirs, [0.5, 0.5], 4)
-    for z in Z:
+    for z in CV_Z:
         a.predict()  # filterpy's bank calls f.predict(0): dt = 0
         b.predict()
         a.update(z)
@@ -575,7 +536,7 @@ def test_imm_estimator_runs_with_squkf():
     M = np.array([[0.95, 0.05], [0.05, 0.95]])
     a = IMMEstimator(ours, [0.5, 0.5], M)
     b = IMMEstimator(theirs, [0.5, 0.5], M)
-    for z in Z:
+    for z in CV_Z:
         a.predict()
         b.predict()
         a.update(z)
@@ -585,22 +546,16 @@ def test_imm_estimator_runs_with_squkf():
         np.testing.assert_allclose(a.mu, b.mu, rtol=1e-9, atol=1e-12)
 
 
-def _one_d():
-    f = SquareRootUKF(1, 1, 1.0, lambda x: x, lambda x, dt: 0.9 * x, MerweScaledWeights())
-    f.x, f.P = np.array([1.0]), np.array([[2.0]])
-    return f
-
-
 @pytest.mark.parametrize("value", [2.2e-5, np.array([2.2e-5]), np.array([[2.2e-5]]), np.float64(2.2e-5)])
 def test_scalar_and_one_element_noise_in_one_dimension(value):
-    f = _one_d()
+    f = one_d_measured()
     f.R = value
     f.Q = value
     # read back as assigned, as filterpy: a 1-element vector stays one (f.R[0] is a number)
     shape = (1,) if np.ndim(value) == 1 else (1, 1)
     np.testing.assert_array_equal(f.R, np.full(shape, 2.2e-5))
     np.testing.assert_array_equal(f.Q, np.full(shape, 2.2e-5))
-    g = _one_d()
+    g = one_d_measured()
     g.R, g.Q = np.array([[2.2e-5]]), np.array([[2.2e-5]])
     for h in (f, g):
         h.predict()
@@ -610,17 +565,17 @@ def test_scalar_and_one_element_noise_in_one_dimension(value):
 
 
 def test_scalar_noise_means_a_multiple_of_identity():
-    f, g = make(), make()
+    f, g = cv_filter(), cv_filter()
     f.R = 0.3
     g.R = 0.3 * np.eye(2)
-    step(f, Z[0])
-    step(g, Z[0])
+    step(f, CV_Z[0])
+    step(g, CV_Z[0])
     assert_same_estimate(f, g)
 
 
 @pytest.mark.parametrize("name", ["R", "Q", "P"])
 def test_one_d_array_of_length_above_one_is_an_error_naming_np_diag(name):
-    f = make()
+    f = cv_filter()
     snap = filter_state(f)
     with pytest.raises(ShapeError, match=r"np\.diag"):
         setattr(f, name, np.ones(4 if name != "R" else 2))
@@ -639,7 +594,7 @@ def test_one_d_array_of_length_above_one_is_an_error_naming_np_diag(name):
     ids=["None", "nan", "[nan]", "masked_all", "masked"],
 )
 def test_no_measurement_in_one_dimension(z):
-    f = _one_d()
+    f = one_d_measured()
     f.R = 0.1
     f.predict()
     f.update(z)
@@ -655,9 +610,9 @@ def test_no_measurement_in_one_dimension(z):
     ids=["None", "all-nan", "masked_all", "masked"],
 )
 def test_no_measurement(z):
-    f, twin = make(), make()
-    step(f, Z[0])
-    step(twin, Z[0])
+    f, twin = cv_filter(), cv_filter()
+    step(f, CV_Z[0])
+    step(twin, CV_Z[0])
     f.predict()
     f.update(z)
     assert f._state.phase == "idle"
@@ -666,8 +621,8 @@ def test_no_measurement(z):
     # and the next step is an ordinary one from that prior
     twin.predict()
     twin.update(None)
-    step(f, Z[1])
-    step(twin, Z[1])
+    step(f, CV_Z[1])
+    step(twin, CV_Z[1])
     assert_same_estimate(f, twin)
 
 
@@ -675,19 +630,19 @@ COMPLEX_OR_TEXT = [
     ("z", np.array([1.0 + 1e-3j, 0.2])),
     ("z", ["a", "b"]),
     ("z", np.array(["1.0", "2.0"])),
-    ("x", X0 + 0j),
+    ("x", CV_X0 + 0j),
     ("x", ["1", "2", "3", "4"]),
-    ("P", P0 + 0j),
+    ("P", CV_P0 + 0j),
     ("P", np.array([["1"] * 4] * 4)),
-    ("R", R0.astype(complex)),
+    ("R", CV_R.astype(complex)),
     ("Q", [[object()] * 4] * 4),
 ]
 
 
 @pytest.mark.parametrize("name,value", COMPLEX_OR_TEXT, ids=lambda v: type(v).__name__)
 def test_complex_or_non_numeric_input_is_a_shape_error(name, value):
-    f = make()
-    step(f, Z[0])
+    f = cv_filter()
+    step(f, CV_Z[0])
     f.predict()
     snap = filter_state(f)
     with pytest.raises(ShapeError):
@@ -729,14 +684,14 @@ BAD_HOOKS = [
 
 @pytest.mark.parametrize("hook,bad,exc,call", BAD_HOOKS)
 def test_bad_hook_result_names_the_hook_and_changes_nothing(hook, bad, exc, call):
-    f = make(
+    f = cv_filter(
         x_mean_fn=_good_mean,
         z_mean_fn=_good_mean,
         residual_x=_good_residual,
         residual_z=_good_residual,
         state_add=_good_add,
     )
-    step(f, Z[0])
+    step(f, CV_Z[0])
     if call == "update":
         f.predict()
     snap = filter_state(f)
@@ -744,24 +699,24 @@ def test_bad_hook_result_names_the_hook_and_changes_nothing(hook, bad, exc, call
     setattr(f, hook, bad)
     name = {"x_mean": "x_mean_fn", "z_mean": "z_mean_fn"}.get(hook, hook)
     with pytest.raises(exc, match=name):
-        f.predict() if call == "predict" else f.update(Z[1])
+        f.predict() if call == "predict" else f.update(CV_Z[1])
     setattr(f, hook, good)
     assert_filter_state(f, snap)
 
 
 def test_update_none_during_a_pending_prediction_is_a_call_sequence_error():
-    f, twin = make(), make()
-    step(f, Z[0])
-    step(twin, Z[0])
+    f, twin = cv_filter(), cv_filter()
+    step(f, CV_Z[0])
+    step(twin, CV_Z[0])
     X = f.ask_predict()
     snap = filter_state(f)
     with pytest.raises(CallSequenceError):
         f.update(None)
     assert_filter_state(f, snap)
-    f.tell_predict([fx(s, DT) for s in X])  # the prediction is still pending
+    f.tell_predict([cv_fx(s, CV_DT) for s in X])  # the prediction is still pending
     twin.predict()
-    f.update(Z[1])
-    twin.update(Z[1])
+    f.update(CV_Z[1])
+    twin.update(CV_Z[1])
     assert_same_estimate(f, twin)
 
 
@@ -769,29 +724,29 @@ def test_update_none_during_a_pending_prediction_is_a_call_sequence_error():
 
 
 def test_a_singular_noise_has_a_factor_accepted_back():
-    f = make()
+    f = cv_filter()
     f.R = np.diag([1.0, 0.0])
-    f.Q = Q_discrete_white_noise(2, dt=DT, var=0.1, block_size=2)  # rank 2 of 4
+    f.Q = Q_discrete_white_noise(2, dt=CV_DT, var=0.1, block_size=2)  # rank 2 of 4
     R, Q = f.R.copy(), f.Q.copy()
     f.R1_2 = f.R1_2
     f.Q1_2 = f.Q1_2
     np.testing.assert_allclose(f.R, R, rtol=0, atol=1e-15)
     np.testing.assert_allclose(f.Q, Q, rtol=0, atol=1e-15 * np.abs(Q).max() * 16)
-    Q1 = Q_discrete_white_noise(2, dt=DT, var=0.1)  # 2x2 of rank 1 in a 2-state filter
+    Q1 = Q_discrete_white_noise(2, dt=CV_DT, var=0.1)  # 2x2 of rank 1 in a 2-state filter
     g = SquareRootUKF(
-        2, 1, DT, lambda x: x[:1], lambda x, dt: np.array([x[0] + dt * x[1], x[1]]), MerweScaledWeights()
+        2, 1, CV_DT, lambda x: x[:1], lambda x, dt: np.array([x[0] + dt * x[1], x[1]]), MerweScaledWeights()
     )
     g.Q = Q1
     g.Q1_2 = g.Q1_2
     np.testing.assert_allclose(g.Q, Q1, rtol=0, atol=1e-15)
-    step(f, Z[0])
+    step(f, CV_Z[0])
     assert np.all(np.isfinite(f.P))
 
 
 def test_records_list_is_complete():
     # the helpers compare what a failed call must keep; they read each record without error
-    f = make()
-    step(f, Z[0])
+    f = cv_filter()
+    step(f, CV_Z[0])
     for k in FILTER_STATE:
         assert np.all(np.isfinite(np.asarray(getattr(f, k), dtype=float))), k
     assert math.isfinite(f.log_likelihood)

@@ -22,6 +22,14 @@ import pytest
 from filterpy.kalman import MerweScaledSigmaPoints
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from models import (
+    assert_fleet_state,
+    cv_fx_stacked,
+    fleet_state,
+    range_bearing_hx,
+    turn_fx_stacked,
+    xy_radar_hx_stacked,
+)
 
 import squkf.fleet
 from squkf import (
@@ -48,52 +56,8 @@ RTOL = 1e-10
 N_X, N_Z, DT = 4, 2, 0.5
 P0 = np.diag([1.0, 0.1, 1.0, 0.1])
 
-# -- models: X[..., i] indexing, so they serve a fleet (K, N, n) and one vectorised filter (N, n) --
-
-
-def cv_fx(X, dt, u=None, bad=None, kick=None):
-    """Constant velocity, state [px, vx, py, vy]; ``u`` an acceleration (per filter in a fleet).
-
-    ``bad`` (a flag per filter) makes the images NaN; ``kick`` moves every non-central point
-    by the same amount (an indefinite weighted covariance with a negative weight).
-    """
-    out = np.stack([X[..., 0] + dt * X[..., 1], X[..., 1], X[..., 2] + dt * X[..., 3], X[..., 3]], axis=-1)
-    if u is not None:
-        u = np.asarray(u, dtype=float)
-        out = out + dt * np.stack([0.5 * dt * u[..., 0], u[..., 0], 0.5 * dt * u[..., 1], u[..., 1]], axis=-1)
-    if bad is not None:
-        out = np.where(np.asarray(bad)[..., None], np.nan, out)
-    if kick is not None:
-        noncentral = (np.arange(X.shape[-2]) != 0)[:, None]
-        out = out + np.asarray(kick)[..., None] * noncentral
-    return out
-
-
-def rb_hx(X, scale=None):
-    """Range and bearing from the origin; ``scale`` 0 makes the measurement constant."""
-    h = np.stack([np.hypot(X[..., 0], X[..., 2]), np.arctan2(X[..., 2], X[..., 0])], axis=-1)
-    if scale is not None:
-        h = h * np.asarray(scale)[..., None]
-    return h
-
-
-def turn_fx(X, dt):
-    """State [px, py, heading, speed]: the heading is an angle and keeps turning."""
-    return np.stack(
-        [
-            X[..., 0] + dt * np.cos(X[..., 2]) * X[..., 3],
-            X[..., 1] + dt * np.sin(X[..., 2]) * X[..., 3],
-            X[..., 2] + 0.8 * dt,
-            X[..., 3],
-        ],
-        axis=-1,
-    )
-
-
-def turn_hx(X):
-    """Range and bearing of [px, py] (the bearing near +-pi, where wrapping matters)."""
-    return np.stack([np.hypot(X[..., 0], X[..., 1]), np.arctan2(X[..., 1], X[..., 0])], axis=-1)
-
+# models (tests/models.py): cv_fx_stacked and range_bearing_hx, turn_fx_stacked and xy_radar_hx_stacked,
+# written with X[..., i], so they serve a fleet (K, N, n) and one vectorised filter (N, n)
 
 FAMILIES = {
     "merwe": lambda: MerweScaledWeights(),
@@ -112,10 +76,10 @@ def data(K, T, seed=0, model="cv"):
     rng = np.random.default_rng(seed)
     if model == "cv":
         x0 = np.array([10.0, 1.0, 5.0, -0.5]) + rng.normal(0, 1.0, (K, N_X))
-        fx, hx = cv_fx, rb_hx
+        fx, hx = cv_fx_stacked, range_bearing_hx
     else:
         x0 = np.array([-8.0, 0.5, 1.5, 2.0]) + rng.normal(0, 0.3, (K, N_X))
-        fx, hx = turn_fx, turn_hx
+        fx, hx = turn_fx_stacked, xy_radar_hx_stacked
     truth = [x0 + rng.normal(0, 0.3, (K, N_X))]
     for _ in range(T - 1):
         truth.append(fx(truth[-1], DT))
@@ -128,12 +92,12 @@ def data(K, T, seed=0, model="cv"):
 
 
 def make_fleet(K, points, scheme="redrawn", model="cv", **kw):
-    fx, hx = (cv_fx, rb_hx) if model == "cv" else (turn_fx, turn_hx)
+    fx, hx = (cv_fx_stacked, range_bearing_hx) if model == "cv" else (turn_fx_stacked, xy_radar_hx_stacked)
     return Fleet(K, N_X, N_Z, DT, hx, fx, points, scheme=scheme, **kw)
 
 
 def make_single(points, scheme="redrawn", model="cv", **kw):
-    fx, hx = (cv_fx, rb_hx) if model == "cv" else (turn_fx, turn_hx)
+    fx, hx = (cv_fx_stacked, range_bearing_hx) if model == "cv" else (turn_fx_stacked, xy_radar_hx_stacked)
     return SquareRootUKF(N_X, N_Z, DT, hx, fx, points, scheme=scheme, vectorized=True, **kw)
 
 
@@ -286,7 +250,7 @@ def test_per_filter_fx_args_reach_fx_with_a_point_axis():
 
     def fx(X, dt, u=None):
         seen.append(np.shape(u))
-        return cv_fx(X, dt, u=u)
+        return cv_fx_stacked(X, dt, u=u)
 
     fleet.fx = fx
     run_and_compare(fleet, singles, zs[:, :3], fx_args={"u": u})
@@ -400,51 +364,27 @@ def test_constructor_checks():
     for kw in ({"n_filters": 0}, {"n_filters": True}, {"n_filters": 2.0}, {"dim_x": 0}, {"dim_z": -1}):
         args = {"n_filters": 2, "dim_x": 4, "dim_z": 2} | kw
         with pytest.raises(ParameterError):
-            Fleet(args["n_filters"], args["dim_x"], args["dim_z"], DT, rb_hx, cv_fx, MerweScaledWeights())
+            Fleet(
+                args["n_filters"],
+                args["dim_x"],
+                args["dim_z"],
+                DT,
+                range_bearing_hx,
+                cv_fx_stacked,
+                MerweScaledWeights(),
+            )
     with pytest.raises(ParameterError):
         make_fleet(2, MerweScaledWeights(), on_error="ignore")
     with pytest.raises(ParameterError):
         make_fleet(2, MerweScaledWeights(), scheme="nope")
     for dt in (np.nan, np.inf, "a", 1j, None):
         with pytest.raises(ParameterError):
-            Fleet(2, 4, 2, dt, rb_hx, cv_fx, MerweScaledWeights())
+            Fleet(2, 4, 2, dt, range_bearing_hx, cv_fx_stacked, MerweScaledWeights())
     fleet = make_fleet(3, MerweScaledWeights())
     assert (fleet.n_filters, fleet.dim_x, fleet.dim_z, len(fleet)) == (3, 4, 2, 3)
 
 
 # -- failure isolation -------------------------------------------------------------------------
-
-
-def fleet_state(fleet):
-    """Copies of everything a failed call must leave unchanged."""
-    snap = {
-        a: np.array(getattr(fleet, a), copy=True)
-        for a in (
-            "x",
-            "P1_2",
-            "Q1_2",
-            "R1_2",
-            "x_prior",
-            "x_post",
-            "P1_2_prior",
-            "P1_2_post",
-            "y",
-            "log_likelihood",
-            "mahalanobis",
-            "failed",
-            "failure",
-        )
-    }
-    snap["phase"] = fleet._state.phase
-    return snap
-
-
-def assert_fleet_state(fleet, snap):
-    now = fleet_state(fleet)
-    assert now["phase"] == snap["phase"]
-    for a, v in snap.items():
-        if a != "phase":
-            np.testing.assert_array_equal(now[a], v, err_msg=a)
 
 
 def assert_rows_equal(big, small, keep, what):
@@ -770,13 +710,13 @@ def test_bad_input_changes_nothing():
     X = fleet.ask_predict()
     snap = fleet_state(fleet)
     with pytest.raises(ShapeError):
-        fleet.tell_predict(cv_fx(X, DT)[:, :-1])
+        fleet.tell_predict(cv_fx_stacked(X, DT)[:, :-1])
     assert_fleet_state(fleet, snap)
-    fleet.tell_predict(cv_fx(X, DT))
+    fleet.tell_predict(cv_fx_stacked(X, DT))
     X2 = fleet.ask_update()
     snap = fleet_state(fleet)
     with pytest.raises(ShapeError):
-        fleet.tell_update(rb_hx(X2)[..., :1], z)
+        fleet.tell_update(range_bearing_hx(X2)[..., :1], z)
     assert_fleet_state(fleet, snap)
 
 
@@ -865,7 +805,13 @@ def test_from_filters_round_trip():
 
 def test_from_filters_rejects_mixed_configurations():
     def single(**kw):
-        args = {"points": MerweScaledWeights(), "scheme": "redrawn", "fx": cv_fx, "hx": rb_hx, "dt": DT}
+        args = {
+            "points": MerweScaledWeights(),
+            "scheme": "redrawn",
+            "fx": cv_fx_stacked,
+            "hx": range_bearing_hx,
+            "dt": DT,
+        }
         args |= kw
         return SquareRootUKF(
             N_X,
@@ -884,28 +830,41 @@ def test_from_filters_rejects_mixed_configurations():
         single(points=MerweScaledWeights(alpha=0.5)),
         single(scheme="augmented"),
         single(scheme=Augmented(weights=JulierWeights(kappa=0.0))),
-        single(fx=turn_fx),
-        single(hx=turn_hx),
+        single(fx=turn_fx_stacked),
+        single(hx=xy_radar_hx_stacked),
         single(dt=0.25),
-        SquareRootUKF(N_X, 1, DT, rb_hx, cv_fx, MerweScaledWeights(), vectorized=True),
+        SquareRootUKF(N_X, 1, DT, range_bearing_hx, cv_fx_stacked, MerweScaledWeights(), vectorized=True),
         SquareRootUKF(
-            N_X, N_Z, DT, rb_hx, cv_fx, MerweScaledWeights(), residual_z=AngleResidual([1]), vectorized=True
+            N_X,
+            N_Z,
+            DT,
+            range_bearing_hx,
+            cv_fx_stacked,
+            MerweScaledWeights(),
+            residual_z=AngleResidual([1]),
+            vectorized=True,
         ),
     ]
     for other in others:
         with pytest.raises(ParameterError):
             Fleet.from_filters([base, other])
     with pytest.raises(ParameterError):
-        Fleet.from_filters([SquareRootUKF(N_X, N_Z, DT, rb_hx, cv_fx, MerweScaledWeights())])
+        Fleet.from_filters(
+            [SquareRootUKF(N_X, N_Z, DT, range_bearing_hx, cv_fx_stacked, MerweScaledWeights())]
+        )
     with pytest.raises(ParameterError):
-        Fleet.from_filters([base, SquareRootUKF(N_X, N_Z, DT, rb_hx, cv_fx, MerweScaledWeights())])
+        Fleet.from_filters(
+            [base, SquareRootUKF(N_X, N_Z, DT, range_bearing_hx, cv_fx_stacked, MerweScaledWeights())]
+        )
     with pytest.raises(ParameterError):
         Fleet.from_filters([])
     assert Fleet.from_filters([base, single()]).n_filters == 2
 
     # hooks: squkf's angle hooks of the same components are one configuration, others are not
     def hooked(**kw):
-        return SquareRootUKF(N_X, N_Z, DT, rb_hx, cv_fx, MerweScaledWeights(), vectorized=True, **kw)
+        return SquareRootUKF(
+            N_X, N_Z, DT, range_bearing_hx, cv_fx_stacked, MerweScaledWeights(), vectorized=True, **kw
+        )
 
     fs = [hooked(z_mean_fn=AngleMean([1]), residual_z=AngleResidual([1])) for _ in range(2)]
     assert Fleet.from_filters(fs).n_filters == 2
@@ -1053,7 +1012,7 @@ def test_batch_filter_on_error_raise_changes_nothing():
 
     def fx(X, dt):
         fx.calls += 1
-        out = cv_fx(X, dt)
+        out = cv_fx_stacked(X, dt)
         if fx.calls == 3:  # the third prediction fails for filter 1
             out[1] = np.nan
         return out
@@ -1080,11 +1039,11 @@ def test_ask_tell_equals_predict_update(scheme):
         assert X.shape == (K, N, N_X)
         X[:] = 0.0  # a fresh array: the fleet's points are not changed through it
         X = fleet.ask_predict()
-        fleet.tell_predict(cv_fx(X, DT))
+        fleet.tell_predict(cv_fx_stacked(X, DT))
         X2 = fleet.ask_update()
         n2 = 4 * N_X + 1 if scheme == "augmented" else N
         assert X2.shape == (K, n2, N_X)
-        fleet.tell_update(rb_hx(X2), zs[:, t])
+        fleet.tell_update(range_bearing_hx(X2), zs[:, t])
         ref.predict()
         ref.update(zs[:, t])
         assert_fleet_state(fleet, fleet_state(ref))
@@ -1098,7 +1057,7 @@ def test_ask_tell_equals_predict_update(scheme):
 def test_ask_update_without_prediction_redraws():
     fleet, singles, zs = setup_pair(2, "merwe", "propagated")
     X = fleet.ask_update()
-    fleet.tell_update(rb_hx(X), zs[:, 0], R=np.eye(2) * 0.1)
+    fleet.tell_update(range_bearing_hx(X), zs[:, 0], R=np.eye(2) * 0.1)
     for k, f in enumerate(singles):
         f.update(zs[k, 0], R=np.eye(2) * 0.1)
         assert_close(fleet.x[k], f.x, "x")
@@ -1120,7 +1079,7 @@ def test_copies_are_independent(how, phase):
     if phase != "idle":
         X = fleet.ask_predict()
         if phase != "asked-predict":
-            fleet.tell_predict(cv_fx(X, DT))
+            fleet.tell_predict(cv_fx_stacked(X, DT))
             if phase == "asked-update":
                 fleet.ask_update()
     clone = {"pickle": lambda f: pickle.loads(pickle.dumps(f)), "copy": copy.copy, "deepcopy": copy.deepcopy}[
@@ -1130,11 +1089,11 @@ def test_copies_are_independent(how, phase):
 
     def finish(f):
         if phase == "asked-predict":
-            f.tell_predict(cv_fx(f._state.sigmas, DT))
+            f.tell_predict(cv_fx_stacked(f._state.sigmas, DT))
         if phase in ("asked-predict", "told-predict"):
             f.ask_update()
         if phase != "idle":
-            f.tell_update(rb_hx(f._state.sigmas), zs[:, 1])
+            f.tell_update(range_bearing_hx(f._state.sigmas), zs[:, 1])
 
     finish(fleet)
     finish(clone)
@@ -1156,11 +1115,11 @@ def test_ask_tell_values_may_be_edited_by_the_caller():
     fleet, _, zs = setup_pair(2, "merwe", "propagated")
     ref = copy.deepcopy(fleet)
     X = fleet.ask_predict()
-    F = cv_fx(X, DT)
+    F = cv_fx_stacked(X, DT)
     fleet.tell_predict(F)
     F[:] = np.nan
     X2 = fleet.ask_update()
-    H = rb_hx(X2)
+    H = range_bearing_hx(X2)
     z = zs[:, 0].copy()
     fleet.tell_update(H, z)
     H[:] = 0.0

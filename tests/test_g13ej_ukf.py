@@ -2,47 +2,21 @@
 
 import numpy as np
 import pytest
-from models import Robot, example_data
-
-from squkf import MerweScaledWeights, SquareRootUKF
+from models import example_data, run_g13ej
 
 DATA = example_data()
 
 
-def run_example(scheme: str, vectorized: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    robot = Robot(DATA)
-    if vectorized:
-
-        def fx(X, dt, phi_r, phi_l):
-            return np.array([robot.fx(x, dt, phi_r, phi_l) for x in X])
-
-        def hx(X):
-            return np.array([robot.hx(x) for x in X])
-    else:
-        fx, hx = robot.fx, robot.hx
-    ukf = SquareRootUKF(3, 2, 1.0, hx, fx, MerweScaledWeights(), scheme=scheme, vectorized=vectorized)
-    ukf.x = np.array(DATA["x0"])
-    ukf.P1_2 = np.array(DATA["st0"])
-    ukf.Q1_2 = np.array(DATA["lx"])
-    ukf.R1_2 = np.array(DATA["ly"])
-    xs = []
-    for t, y in enumerate(DATA["y"]):
-        ukf.predict(phi_r=DATA["phi_r"][t], phi_l=DATA["phi_l"][t])
-        ukf.update(np.array(y))
-        xs.append(ukf.x.copy())
-    return np.array(xs), np.array(ukf.P1_2)
-
-
 @pytest.mark.parametrize("vectorized", [False, True])
 def test_published_state_estimates(vectorized):
-    xs, _ = run_example("redrawn", vectorized)
+    xs, _ = run_g13ej("redrawn", vectorized)
     published = np.array(DATA["published_state_estimates"]["x"])
     # NAG prints 3 decimals: our values must round to exactly the printed ones.
     np.testing.assert_array_equal(np.round(xs, 3), published)
 
 
 def test_published_final_factor():
-    _, st = run_example("redrawn")
+    _, st = run_g13ej("redrawn")
     rows = DATA["published_final_st"]["rows"]
     for i, row in enumerate(rows):
         for j, printed in enumerate(row):
@@ -53,8 +27,8 @@ def test_published_final_factor():
 
 
 def test_augmented_runs_to_completion_and_stays_close():
-    xs_a, st_a = run_example("augmented")
-    xs_r, _ = run_example("redrawn")
+    xs_a, st_a = run_g13ej("augmented")
+    xs_r, _ = run_g13ej("redrawn")
     assert np.all(np.isfinite(xs_a)) and np.all(np.isfinite(st_a))
     assert np.all(np.diag(st_a) > 0) and np.all(np.triu(st_a, 1) == 0)
     # The schemes differ only in higher moments; on this mildly nonlinear example the

@@ -13,6 +13,7 @@ import pytest
 from filterpy.kalman import KalmanFilter
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from models import linear_pair
 
 import squkf.covariance
 from squkf import MerweScaledWeights, SquareRootUKF, sqrt_unscented_transform
@@ -153,19 +154,6 @@ def test_joint_qr_update_is_the_published_update(n, m, alpha, seed):
     via_ut = measurement_update(x, S, sset, H, z, R1_2, UT=sqrt_unscented_transform)
     np.testing.assert_allclose(via_ut.x, post.x, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(via_ut.S @ via_ut.S.T, post.S @ post.S.T, rtol=1e-9, atol=1e-12)
-
-
-def linear_pair(n=3, m=2, alpha=1.0, x0=None, seed=3):
-    rng = np.random.default_rng(seed)
-    F = np.eye(n) + 0.05 * rng.standard_normal((n, n))
-    H = rng.standard_normal((m, n))
-    Q, R = 0.01 * np.eye(n), 0.2 * np.eye(m)
-    x0 = np.ones(n) if x0 is None else x0
-    kf = KalmanFilter(n, m)
-    kf.F, kf.H, kf.Q, kf.R, kf.P, kf.x = F, H, Q, R, np.eye(n) * 2.0, x0.copy()
-    ukf = SquareRootUKF(n, m, 1.0, lambda x: H @ x, lambda x, dt: F @ x, MerweScaledWeights(alpha, 2.0, 0.0))
-    ukf.x, ukf.P, ukf.Q, ukf.R = x0.copy(), np.eye(n) * 2.0, Q, R
-    return kf, ukf, rng
 
 
 def test_tiny_alpha_equals_the_kalman_filter():

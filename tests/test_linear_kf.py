@@ -10,6 +10,7 @@ below the asserted 1e-9 relative.
 import numpy as np
 import pytest
 from filterpy.kalman import JulierSigmaPoints, KalmanFilter, MerweScaledSigmaPoints, SimplexSigmaPoints
+from models import random_linear_model
 
 from squkf import (
     Augmented,
@@ -24,19 +25,8 @@ from squkf import (
 RTOL = 1e-9
 
 
-def model(seed=0, n=4, m=2):
-    rng = np.random.default_rng(seed)
-    F = np.eye(n) + 0.1 * rng.standard_normal((n, n))
-    H = rng.standard_normal((m, n))
-    A = rng.standard_normal((n, n))
-    Q = 0.01 * (A @ A.T) + 0.001 * np.eye(n)
-    B = rng.standard_normal((m, m))
-    R = 0.5 * (B @ B.T) + 0.1 * np.eye(m)
-    return F, H, Q, R
-
-
 def run(points, scheme, seed=0, steps=100, n=4, m=2, vectorized=False):
-    F, H, Q, R = model(seed, n, m)
+    F, H, Q, R = random_linear_model(seed, n, m)
     rng = np.random.default_rng(seed + 100)
     kf = KalmanFilter(n, m)
     kf.F, kf.H, kf.Q, kf.R = F, H, Q, R
@@ -103,7 +93,7 @@ def test_augmented_with_own_weights_follows_the_covariance_equations():
     so the filter is not the Kalman filter; it must still follow g13ej's equations
     (8)-(12) with the second set's weights and the prior P from step (c). Checked
     against those equations in covariance form, one step at a time."""
-    F, H, Q, R = model(1)
+    F, H, Q, R = random_linear_model(1)
     fam2 = MerweScaledWeights(alpha=0.8, beta=2.0, kappa=-1.0)
     ukf = SquareRootUKF(
         4, 2, 1.0, lambda x: H @ x, lambda x, dt: F @ x, MerweScaledWeights(), scheme=Augmented(weights=fam2)

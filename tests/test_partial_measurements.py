@@ -10,55 +10,26 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from filterpy.common import Q_discrete_white_noise
-from filterpy.kalman import KalmanFilter
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from models import (
+    LIN4_DT,
+    LIN4_H,
+    LIN4_P0,
+    LIN4_Q,
+    LIN4_R,
+    LIN4_T,
+    LIN4_X0,
+    lin4_fx,
+    lin4_kf,
+    lin4_measurements,
+    lin4_ukf,
+)
 
 from squkf import MerweScaledWeights, SquareRootUKF
 
 RTOL = 1e-9
-DT = 1.0
-F = np.array([[1.0, DT, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, DT], [0, 0, 0, 1.0]])
-H = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0], [0, 1.0, 0, 1.0]])
-Q = Q_discrete_white_noise(2, dt=DT, var=0.2, block_size=2) + 1e-3 * np.eye(4)
-R = np.array([[1.0, 0.4, 0.1], [0.4, 2.0, -0.3], [0.1, -0.3, 0.5]])  # correlated
-X0 = np.array([0.0, 1.0, 5.0, -0.5])
-P0 = np.diag([10.0, 2.0, 10.0, 2.0])
-T = 8
-
-
-def fx(x, dt):
-    return F @ x
-
-
-def hx(x):
-    return H @ x
-
-
-def make_ukf():
-    f = SquareRootUKF(4, 3, DT, hx, fx, MerweScaledWeights(alpha=1.0, beta=2.0, kappa=0.0))
-    f.x, f.P, f.Q, f.R = X0, P0, Q, R
-    return f
-
-
-def make_kf():
-    kf = KalmanFilter(4, 3)
-    kf.x, kf.P, kf.F, kf.H, kf.Q, kf.R = X0.copy(), P0.copy(), F, H, Q, R
-    return kf
-
-
-def measurements(seed=0):
-    rng = np.random.default_rng(seed)
-    x, out = X0.copy(), []
-    L = np.linalg.cholesky(R)
-    for _ in range(T):
-        x = F @ x + rng.normal(0, 0.3, 4)
-        out.append(H @ x + L @ rng.normal(size=3))
-    return out
-
-
-ZS = measurements()
+ZS = lin4_measurements()
 
 
 def close(a, b, what):
@@ -75,13 +46,13 @@ def with_missing(z, observed, masked):
     return out
 
 
-patterns = st.lists(st.lists(st.booleans(), min_size=3, max_size=3), min_size=T, max_size=T)
+patterns = st.lists(st.lists(st.booleans(), min_size=3, max_size=3), min_size=LIN4_T, max_size=LIN4_T)
 
 
 @settings(max_examples=40, deadline=None)
 @given(pattern=patterns, masked=st.booleans())
 def test_missing_components_equal_kalman_filter_on_observed_rows(pattern, masked):
-    ukf, kf = make_ukf(), make_kf()
+    ukf, kf = lin4_ukf(), lin4_kf()
     for z, obs in zip(ZS, pattern):
         obs = np.array(obs)
         ukf.predict()
@@ -91,7 +62,7 @@ def test_missing_components_equal_kalman_filter_on_observed_rows(pattern, masked
             kf.update(None)
             np.testing.assert_array_equal(ukf.x_post, ukf.x_prior)
         else:
-            kf.update(z[obs], R=R[np.ix_(obs, obs)], H=H[obs])
+            kf.update(z[obs], R=LIN4_R[np.ix_(obs, obs)], H=LIN4_H[obs])
             close(ukf.y[obs], kf.y, "y")
             close(ukf.S[np.ix_(obs, obs)], kf.S, "S")
             close(ukf.K[:, obs], kf.K, "K")
@@ -103,7 +74,7 @@ def test_missing_components_equal_kalman_filter_on_observed_rows(pattern, masked
 
 @pytest.mark.parametrize("missing", [[0], [1], [2], [0, 2], [1, 2]])
 def test_record_conventions_at_missing_components(missing):
-    ukf = make_ukf()
+    ukf = lin4_ukf()
     ukf.predict()
     z = ZS[0].copy()
     z[missing] = np.nan
@@ -131,7 +102,7 @@ def test_record_conventions_at_missing_components(missing):
 
 
 def test_a_full_measurement_after_a_partial_one_has_full_records():
-    ukf = make_ukf()
+    ukf = lin4_ukf()
     ukf.predict()
     ukf.update(np.array([ZS[0][0], np.nan, ZS[0][2]]))
     ukf.predict()
@@ -146,7 +117,7 @@ def test_batch_filter_with_nan_entries_equals_the_step_loop():
     zs = np.array(ZS)
     zs[rng.random(zs.shape) < 0.35] = np.nan
     zs[3] = np.nan  # a step with no measurement at all
-    a, b = make_ukf(), make_ukf()
+    a, b = lin4_ukf(), lin4_ukf()
     means, covs = a.batch_filter(zs)
     for k, z in enumerate(zs):
         b.predict()
@@ -156,11 +127,11 @@ def test_batch_filter_with_nan_entries_equals_the_step_loop():
     np.testing.assert_array_equal(a.x, b.x)
     np.testing.assert_array_equal(a.P, b.P)
     # and the loop is the Kalman filter on the observed rows
-    kf = make_kf()
+    kf = lin4_kf()
     for z in zs:
         obs = ~np.isnan(z)
         kf.predict()
-        kf.update(z[obs] if obs.any() else None, R=R[np.ix_(obs, obs)], H=H[obs])
+        kf.update(z[obs] if obs.any() else None, R=LIN4_R[np.ix_(obs, obs)], H=LIN4_H[obs])
     close(b.x, kf.x, "x")
     close(b.P, kf.P, "P")
 
@@ -168,13 +139,18 @@ def test_batch_filter_with_nan_entries_equals_the_step_loop():
 def test_missing_components_with_the_augmented_set():
     """The augmented set's update on the observed components equals a filter measuring those only."""
     obs = np.array([True, False, True])
-    a = make_ukf()
+    a = lin4_ukf()
     a.scheme = "augmented"
     b = SquareRootUKF(
-        4, 2, DT, lambda x: (H @ x)[obs], fx, MerweScaledWeights(alpha=1.0, beta=2.0, kappa=0.0)
+        4,
+        2,
+        LIN4_DT,
+        lambda x: (LIN4_H @ x)[obs],
+        lin4_fx,
+        MerweScaledWeights(alpha=1.0, beta=2.0, kappa=0.0),
     )
     b.scheme = "augmented"
-    b.x, b.P, b.Q, b.R = X0, P0, Q, R[np.ix_(obs, obs)]
+    b.x, b.P, b.Q, b.R = LIN4_X0, LIN4_P0, LIN4_Q, LIN4_R[np.ix_(obs, obs)]
     for z in ZS:
         a.predict()
         b.predict()

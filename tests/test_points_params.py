@@ -7,6 +7,7 @@ import pytest
 from filterpy.kalman import JulierSigmaPoints, MerweScaledSigmaPoints, SimplexSigmaPoints
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from models import identity_filter
 
 from squkf import (
     CubatureWeights,
@@ -15,7 +16,6 @@ from squkf import (
     MerweScaledWeights,
     ParameterError,
     SimplexWeights,
-    SquareRootUKF,
 )
 
 EPS = np.finfo(float).eps
@@ -33,18 +33,6 @@ NOT_REAL = [
     np.bool_(False),
     object(),
 ]
-
-
-def hx(x):
-    return x[:1]
-
-
-def fx(x, dt):
-    return x
-
-
-def make_ukf(points, dim_x=2):
-    return SquareRootUKF(dim_x, 1, 1.0, hx, fx, points)
 
 
 def check_weights(fam, n):
@@ -147,7 +135,7 @@ def test_merwe_with_l_plus_lambda_zero_or_inf_is_refused_naming_the_parameters(a
 
 def test_l_plus_lambda_zero_reaches_the_filter_at_construction():
     with pytest.raises(ParameterError, match="alpha"):
-        make_ukf(MerweScaledWeights(1e-9, 2.0, 1.0))
+        identity_filter(MerweScaledWeights(1e-9, 2.0, 1.0))
 
 
 @pytest.mark.parametrize("fam", [MerweScaledWeights(), JulierWeights(), SimplexWeights(), CubatureWeights()])
@@ -170,7 +158,7 @@ def test_filterpy_merwe_with_bad_alpha_is_refused_when_given(alpha):
         FilterpyPoints(pts)
     assert info.value.errno == 173
     with pytest.raises(ParameterError, match="alpha"):
-        make_ukf(pts)
+        identity_filter(pts)
 
 
 def test_filterpy_merwe_nan_alpha_straight_from_its_constructor():
@@ -178,7 +166,7 @@ def test_filterpy_merwe_nan_alpha_straight_from_its_constructor():
         warnings.simplefilter("ignore")  # filterpy's own arithmetic on NaN
         pts = MerweScaledSigmaPoints(2, float("nan"), 2.0, 1.0)
     with pytest.raises(ParameterError, match="alpha=nan"):
-        make_ukf(pts)
+        identity_filter(pts)
 
 
 @pytest.mark.parametrize("param, value", [("beta", float("inf")), ("kappa", float("nan")), ("kappa", 1j)])
@@ -186,7 +174,7 @@ def test_filterpy_merwe_with_bad_beta_or_kappa_is_refused(param, value):
     pts = MerweScaledSigmaPoints(2, 0.5, 2.0, 1.0)
     setattr(pts, param, value)
     with pytest.raises(ParameterError, match=param):
-        make_ukf(pts)
+        identity_filter(pts)
 
 
 @pytest.mark.parametrize("kappa", [-2.0, -2.5, -10.0])
@@ -194,14 +182,14 @@ def test_filterpy_julier_with_n_plus_kappa_not_positive_is_refused(kappa):
     pts = JulierSigmaPoints(2, 1.0)
     pts.kappa = kappa  # filterpy divides by n + kappa = 0 for -2
     with pytest.raises(ParameterError, match="kappa") as info:
-        make_ukf(pts)
+        identity_filter(pts)
     assert info.value.errno == 172
 
 
 @pytest.mark.parametrize("alpha", [float("nan"), 0.0, -1.0, "1"])
 def test_filterpy_simplex_with_bad_alpha_is_refused(alpha):
     with pytest.raises(ParameterError, match="alpha"):
-        make_ukf(SimplexSigmaPoints(2, alpha=alpha))
+        identity_filter(SimplexSigmaPoints(2, alpha=alpha))
 
 
 @settings(max_examples=60, deadline=None)
@@ -227,11 +215,11 @@ def test_filterpy_alpha_property(alpha, which):
 )
 def test_filterpy_points_for_another_dimension_give_a_clear_error(pts):
     with pytest.raises(ParameterError, match=r"n=3.*n=2"):
-        make_ukf(pts, dim_x=2)
+        identity_filter(pts, dim_x=2)
 
 
 def test_points_fn_setter_refuses_and_keeps_the_old_points():
-    ukf = make_ukf(MerweScaledWeights(0.5))
+    ukf = identity_filter(MerweScaledWeights(0.5))
     before = ukf.points_fn
     Wm = ukf.Wm.copy()
     bad = MerweScaledSigmaPoints(2, 0.5, 2.0, 0.0)
@@ -287,9 +275,9 @@ def test_points_objects_with_bad_weights_or_points_are_refused(kwargs):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         with pytest.raises(ParameterError):
-            make_ukf(FakePoints(**kwargs))
+            identity_filter(FakePoints(**kwargs))
 
 
 def test_a_good_fake_points_object_works():
-    ukf = make_ukf(FakePoints([0.0, 0.25, 0.25, 0.25, 0.25]))
+    ukf = identity_filter(FakePoints([0.0, 0.25, 0.25, 0.25, 0.25]))
     np.testing.assert_allclose(ukf.Wm, [0.0, 0.25, 0.25, 0.25, 0.25])

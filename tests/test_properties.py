@@ -4,17 +4,11 @@ import numpy as np
 from filterpy.kalman import KalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
+from models import spd
 
 from squkf import MerweScaledWeights, SquareRootUKF, SqukfError
 
 EPS = np.finfo(float).eps
-
-
-def spd(rng, n, log10_cond):
-    """A random symmetric positive-definite matrix with the given condition number."""
-    U, _ = np.linalg.qr(rng.standard_normal((n, n)))
-    w = np.logspace(0, -log10_cond, n) if n > 1 else np.ones(1)
-    return (U * w) @ U.T
 
 
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -5,68 +5,35 @@ import copy
 import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter
+from models import LIN2_Q, LIN2_T, assert_results_equal, counting, lin2_F, lin2_filter, lin2_fx
 
 from squkf import (
-    MerweScaledWeights,
     NonFiniteError,
     NotPositiveDefiniteError,
     ParameterError,
     ShapeError,
-    SquareRootUKF,
     SqukfValueError,
 )
-
-T = 12
-Q = np.array([[0.01, 0.002], [0.002, 0.02]])
-H = np.array([[1.0, 0.0]])
-
-
-def F(dt):
-    return np.array([[1.0, dt], [0.0, 1.0]])
-
-
-def fx(x, dt, bad=False):
-    return np.full(2, np.nan) if bad else F(dt) @ x
-
-
-def make(fx=fx):
-    f = SquareRootUKF(2, 1, 1.0, lambda x: H @ x, fx, MerweScaledWeights(0.5, 2.0, 0.0))
-    f.x, f.P, f.Q, f.R = np.array([0.0, 1.0]), np.eye(2) * 4.0, Q, 0.5
-    return f
-
-
-def counting(fn):
-    calls = []
-
-    def wrapped(*args, **kwargs):
-        calls.append(1)
-        return fn(*args, **kwargs)
-
-    return wrapped, calls
 
 
 @pytest.fixture(scope="module")
 def filtered():
     rng = np.random.default_rng(5)
-    zs = np.arange(T) + rng.normal(0.0, 0.7, T)
-    means, covs = make().batch_filter(zs)
-    _, factors = make().batch_filter(zs, return_factors=True)
+    zs = np.arange(LIN2_T) + rng.normal(0.0, 0.7, LIN2_T)
+    means, covs = lin2_filter().batch_filter(zs)
+    _, factors = lin2_filter().batch_filter(zs, return_factors=True)
     return means, covs, factors
 
 
-def assert_results_equal(a, b):
-    for u, v in zip(a, b):
-        assert u.shape == v.shape
-        np.testing.assert_array_equal(u, v)
-
-
-@pytest.mark.parametrize("dts", [[0.0] * T, [1.0, 0.0, 0.5, 0.0, 0.0, 2.0, 1.0, 0.0, 0.3, 0.0, 1.0, 0.0]])
+@pytest.mark.parametrize(
+    "dts", [[0.0] * LIN2_T, [1.0, 0.0, 0.5, 0.0, 0.0, 2.0, 1.0, 0.0, 0.3, 0.0, 1.0, 0.0]]
+)
 def test_zero_time_steps_are_accepted_and_agree_with_the_kalman_smoother(filtered, dts):
     means, covs, _ = filtered
-    Qs = [Q * s for s in np.linspace(0.5, 2.0, T)]
-    xs, Ps, Ks = make().rts_smoother(means, covs, Qs=Qs, dts=dts)
+    Qs = [LIN2_Q * s for s in np.linspace(0.5, 2.0, LIN2_T)]
+    xs, Ps, Ks = lin2_filter().rts_smoother(means, covs, Qs=Qs, dts=dts)
     kf = KalmanFilter(2, 1)
-    x_ref, P_ref, K_ref, _ = kf.rts_smoother(means, covs, Fs=[F(dt) for dt in dts], Qs=Qs)
+    x_ref, P_ref, K_ref, _ = kf.rts_smoother(means, covs, Fs=[lin2_F(dt) for dt in dts], Qs=Qs)
     # a linear model: the unscented transform is exact, so the two agree to rounding
     np.testing.assert_allclose(xs, x_ref, rtol=1e-10, atol=1e-10)
     np.testing.assert_allclose(Ps, P_ref, rtol=1e-9, atol=1e-12)
@@ -76,25 +43,26 @@ def test_zero_time_steps_are_accepted_and_agree_with_the_kalman_smoother(filtere
 def test_a_scalar_dt_of_zero(filtered):
     means, covs, _ = filtered
     assert_results_equal(
-        make().rts_smoother(means, covs, dts=0.0), make().rts_smoother(means, covs, dts=[0.0] * T)
+        lin2_filter().rts_smoother(means, covs, dts=0.0),
+        lin2_filter().rts_smoother(means, covs, dts=[0.0] * LIN2_T),
     )
 
 
 def test_scalar_and_single_matrix_Qs_mean_every_step(filtered):
     means, covs, _ = filtered
-    expected = make().rts_smoother(means, covs, Qs=[0.03 * np.eye(2)] * T)
-    assert_results_equal(make().rts_smoother(means, covs, Qs=0.03), expected)
-    assert_results_equal(make().rts_smoother(means, covs, Qs=0.03 * np.eye(2)), expected)
+    expected = lin2_filter().rts_smoother(means, covs, Qs=[0.03 * np.eye(2)] * LIN2_T)
+    assert_results_equal(lin2_filter().rts_smoother(means, covs, Qs=0.03), expected)
+    assert_results_equal(lin2_filter().rts_smoother(means, covs, Qs=0.03 * np.eye(2)), expected)
 
 
 def test_lists_generators_and_column_vectors(filtered):
     means, covs, factors = filtered
-    expected = make().rts_smoother(means, covs)
-    assert_results_equal(make().rts_smoother(list(means), [P for P in covs]), expected)
-    assert_results_equal(make().rts_smoother((x for x in means), iter(covs)), expected)
-    assert_results_equal(make().rts_smoother(means[:, :, None], covs), expected)
-    expected = make().rts_smoother_factors(means, factors)
-    assert_results_equal(make().rts_smoother_factors(iter(means), list(factors)), expected)
+    expected = lin2_filter().rts_smoother(means, covs)
+    assert_results_equal(lin2_filter().rts_smoother(list(means), [P for P in covs]), expected)
+    assert_results_equal(lin2_filter().rts_smoother((x for x in means), iter(covs)), expected)
+    assert_results_equal(lin2_filter().rts_smoother(means[:, :, None], covs), expected)
+    expected = lin2_filter().rts_smoother_factors(means, factors)
+    assert_results_equal(lin2_filter().rts_smoother_factors(iter(means), list(factors)), expected)
 
 
 def test_a_negative_diagonal_is_a_sign_of_its_column(filtered):
@@ -102,8 +70,8 @@ def test_a_negative_diagonal_is_a_sign_of_its_column(filtered):
     flipped = factors.copy()
     flipped[4][:, 1] *= -1  # the same covariance
     flipped[7] *= -1
-    xs, S, _ = make().rts_smoother_factors(means, flipped)
-    xs_ref, S_ref, _ = make().rts_smoother_factors(means, factors)
+    xs, S, _ = lin2_filter().rts_smoother_factors(means, flipped)
+    xs_ref, S_ref, _ = lin2_filter().rts_smoother_factors(means, factors)
     np.testing.assert_allclose(xs, xs_ref, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(S, S_ref, rtol=1e-10, atol=1e-12)
     assert np.all(np.diagonal(S, axis1=1, axis2=2) > 0)
@@ -115,7 +83,7 @@ def test_empty_and_single_step(filtered, method, n):
     means, covs, factors = filtered
     second = covs if method == "rts_smoother" else factors
     Xs, Ps = (means[:n], second[:n]) if n else ([], [])
-    xs, Ps_s, Ks = getattr(make(), method)(Xs, Ps)
+    xs, Ps_s, Ks = getattr(lin2_filter(), method)(Xs, Ps)
     assert xs.shape == (n, 2) and Ps_s.shape == (n, 2, 2) and Ks.shape == (n, 2, 2)
     if n:
         np.testing.assert_array_equal(xs, means[:1])
@@ -135,15 +103,15 @@ def _corrupt(filtered, what):
     elif what == "mean inf":
         means[3][1] = np.inf
     elif what == "numeric text dt":  # a negative dt is a step, as for predict
-        kwargs["dts"] = [1.0] * 3 + ["0.5"] + [1.0] * (T - 4)
+        kwargs["dts"] = [1.0] * 3 + ["0.5"] + [1.0] * (LIN2_T - 4)
     elif what == "nan dt":
-        kwargs["dts"] = [1.0] * 3 + [np.nan] + [1.0] * (T - 4)
+        kwargs["dts"] = [1.0] * 3 + [np.nan] + [1.0] * (LIN2_T - 4)
     elif what == "inf dt":
-        kwargs["dts"] = [1.0] * 3 + [np.inf] + [1.0] * (T - 4)
+        kwargs["dts"] = [1.0] * 3 + [np.inf] + [1.0] * (LIN2_T - 4)
     elif what == "text dt":
-        kwargs["dts"] = [1.0] * 3 + ["one"] + [1.0] * (T - 4)
+        kwargs["dts"] = [1.0] * 3 + ["one"] + [1.0] * (LIN2_T - 4)
     elif what == "fx_args entry":
-        kwargs["fx_args"] = [{}] * 3 + [5] + [{}] * (T - 4)
+        kwargs["fx_args"] = [{}] * 3 + [5] + [{}] * (LIN2_T - 4)
     return means, factors, kwargs
 
 
@@ -163,8 +131,8 @@ def _corrupt(filtered, what):
 )
 def test_bad_factor_inputs_are_named_with_their_step(filtered, what, error, match):
     means, factors, kwargs = _corrupt(filtered, what)
-    counted, calls = counting(fx)
-    f = make(fx=counted)
+    counted, calls = counting(lin2_fx)
+    f = lin2_filter(fx=counted)
     before = copy.deepcopy(f)
     with pytest.raises(error, match=match):
         f.rts_smoother_factors(means, factors, **kwargs)
@@ -191,7 +159,7 @@ def test_bad_covariances_are_named_with_their_step(filtered, change, error, matc
     else:
         covs[4] = np.array([[1.0, 2.0], [2.0, 1.0]])
     with pytest.raises(error, match=match):
-        make().rts_smoother(means, covs)
+        lin2_filter().rts_smoother(means, covs)
 
 
 @pytest.mark.parametrize("name", ["Qs", "dts", "fx_args"])
@@ -199,23 +167,23 @@ def test_bad_covariances_are_named_with_their_step(filtered, change, error, matc
 def test_per_step_lengths_must_match(filtered, name, method):
     means, covs, factors = filtered
     second = covs if method == "rts_smoother" else factors
-    entry = {"Qs": Q, "dts": 1.0, "fx_args": {}}[name]
-    for n in (T - 1, T + 1):
-        with pytest.raises(ShapeError, match=f"^{name} has {n} entries but Xs has {T}$"):
-            getattr(make(), method)(means, second, **{name: [entry] * n})
+    entry = {"Qs": LIN2_Q, "dts": 1.0, "fx_args": {}}[name]
+    for n in (LIN2_T - 1, LIN2_T + 1):
+        with pytest.raises(ShapeError, match=f"^{name} has {n} entries but Xs has {LIN2_T}$"):
+            getattr(lin2_filter(), method)(means, second, **{name: [entry] * n})
 
 
 def test_shapes_and_lengths_of_the_filtered_results(filtered):
     means, covs, factors = filtered
-    f = make()
-    with pytest.raises(ShapeError, match=f"Ps has {T - 1} entries but Xs has {T}"):
+    f = lin2_filter()
+    with pytest.raises(ShapeError, match=f"Ps has {LIN2_T - 1} entries but Xs has {LIN2_T}"):
         f.rts_smoother(means, covs[:-1])
-    with pytest.raises(ShapeError, match=f"P1_2s has {T + 1} entries but Xs has {T}"):
+    with pytest.raises(ShapeError, match=f"P1_2s has {LIN2_T + 1} entries but Xs has {LIN2_T}"):
         f.rts_smoother_factors(means, np.concatenate([factors, factors[:1]]))
     with pytest.raises(ShapeError, match=r"Xs has shape \(12, 3\), expected \(T, 2\)"):
-        f.rts_smoother(np.zeros((T, 3)), covs)
+        f.rts_smoother(np.zeros((LIN2_T, 3)), covs)
     with pytest.raises(ShapeError, match=r"P1_2s has shape \(12, 3, 3\), expected \(T, 2, 2\)"):
-        f.rts_smoother_factors(means, np.zeros((T, 3, 3)))
+        f.rts_smoother_factors(means, np.zeros((LIN2_T, 3, 3)))
     with pytest.raises(ShapeError, match="Xs must be an array"):
         f.rts_smoother([[1.0, 2.0], [1.0]], covs[:2])
     with pytest.raises(ShapeError, match="Ps must be an array"):
@@ -230,21 +198,21 @@ def test_shapes_and_lengths_of_the_filtered_results(filtered):
 
 def test_a_failure_in_the_backward_pass_names_the_step(filtered):
     means, _, factors = filtered
-    fx_args = [{}] * T
+    fx_args = [{}] * LIN2_T
     fx_args[6] = {"bad": True}  # the prediction into step 6, used by smoothing step 5
     with pytest.raises(NonFiniteError, match=r"^at smoothing step 5 \(Qs\[6\], dts\[6\], fx_args\[6\]\): "):
-        make().rts_smoother_factors(means, factors, fx_args=fx_args)
-    Qs = [Q] * T
+        lin2_filter().rts_smoother_factors(means, factors, fx_args=fx_args)
+    Qs = [LIN2_Q] * LIN2_T
     Qs[9] = np.eye(3)
     with pytest.raises(ShapeError, match=r"^at smoothing step 8 \(Qs\[9\]"):
-        make().rts_smoother_factors(means, factors, Qs=Qs)
+        lin2_filter().rts_smoother_factors(means, factors, Qs=Qs)
 
 
 def test_the_smoother_leaves_the_filter_alone(filtered):
     means, covs, _ = filtered
-    f = make()
+    f = lin2_filter()
     f.predict()
     before = copy.deepcopy(f)
-    f.rts_smoother(means, covs, Qs=[Q] * T, fx_args={})
+    f.rts_smoother(means, covs, Qs=[LIN2_Q] * LIN2_T, fx_args={})
     for name in ("x", "P1_2", "x_prior", "P1_2_prior"):
         np.testing.assert_array_equal(getattr(f, name), getattr(before, name))

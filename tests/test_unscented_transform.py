@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from models import polar, polar_rows
 
 from squkf import JulierWeights, MerweScaledWeights, unscented_transform
 
@@ -21,14 +22,6 @@ def test_exact_on_linear_functions():
             np.testing.assert_allclose(mean, A @ x + b, rtol=1e-12, atol=1e-12)
             np.testing.assert_allclose(S @ S.T, P, rtol=1e-11, atol=1e-11 * np.abs(P).max())
             np.testing.assert_allclose(Pxy, L @ L.T @ A.T, rtol=1e-11, atol=1e-11)
-
-
-def polar(v):
-    return np.array([v[0] * np.cos(v[1]), v[0] * np.sin(v[1])])
-
-
-def polar_rows(V):
-    return np.c_[V[:, 0] * np.cos(V[:, 1]), V[:, 0] * np.sin(V[:, 1])]
 
 
 def test_vectorized_equals_per_point():

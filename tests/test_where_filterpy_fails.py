@@ -2,38 +2,20 @@
 
 import numpy as np
 import pytest
-from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from filterpy.kalman import UnscentedKalmanFilter
+from models import PRECISE_F, precise_filter
 
 from squkf import NotPositiveDefiniteError, SquareRootUKF
-
-F = np.array([[1.0, 1.0], [0.0, 1.0]])
-
-
-def fx(x, dt):
-    return F @ x
-
-
-def hx(x):
-    return x[:1]
-
-
-def make(cls, P0):
-    ukf = cls(2, 1, 1.0, hx, fx, MerweScaledSigmaPoints(2, 0.1, 2.0, 0.0))
-    ukf.x = np.array([0.0, 1.0])
-    ukf.P = np.eye(2) * P0
-    ukf.Q = np.eye(2) * 1e-14
-    ukf.R = np.eye(1) * 1e-12
-    return ukf
 
 
 @pytest.mark.parametrize("P0", [1e4, 1e6])
 def test_precise_sensor_breaks_filterpy_not_squkf(P0):
     rng = np.random.default_rng(0)
-    fp, sq = make(UnscentedKalmanFilter, P0), make(SquareRootUKF, P0)
+    fp, sq = precise_filter(UnscentedKalmanFilter, P0), precise_filter(SquareRootUKF, P0)
     xt = np.array([0.0, 1.0])
     failed_at = None
     for k in range(2000):
-        xt = F @ xt
+        xt = PRECISE_F @ xt
         z = xt[:1] + rng.normal(0.0, 1e-6, 1)
         if failed_at is None:
             try:
@@ -42,7 +24,7 @@ def test_precise_sensor_breaks_filterpy_not_squkf(P0):
             except np.linalg.LinAlgError:
                 # the covariance filterpy was left with is no covariance: squkf refuses it
                 with pytest.raises(NotPositiveDefiniteError):
-                    make(SquareRootUKF, P0).P = fp.P
+                    precise_filter(SquareRootUKF, P0).P = fp.P
                 failed_at = k
         sq.predict()
         sq.update(z)
