@@ -34,6 +34,8 @@ from filterpy.kalman import KalmanFilter, MerweScaledSigmaPoints, UnscentedKalma
 
 from squkf import Fleet, MerweScaledWeights, SquareRootUKF
 from squkf.angles import AngleAdd, AngleMean, AngleResidual, wrap
+from squkf.examples import g13ej_example as ex
+from squkf.nag import kalman_unscented_state_revcom as g13ej
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -66,6 +68,66 @@ class Robot:
         if a < 0:
             a += 2 * np.pi
         return np.array([self.Delta - x[0] * np.cos(self.A) - x[1] * np.sin(self.A), a])
+
+
+# the g13ej calling sequence (squkf.nag): the arguments as a dict, a call, the model's images
+G13EJ = ex.load_data()
+
+
+def first_entry(ropt=None, lx="default"):
+    lx = np.array(G13EJ["lx"]) if lx == "default" else lx
+    x = np.array(G13EJ["x0"], dtype=float)
+    st = np.array(G13EJ["st0"], dtype=float)
+    xt = np.zeros((3, 13))
+    fxt = np.zeros((3, 13))
+    comm = {}
+    return dict(
+        irevcm=0,
+        y=G13EJ["y"][0],
+        ly=np.array(G13EJ["ly"]),
+        x=x,
+        st=st,
+        xt=xt,
+        fxt=fxt,
+        comm=comm,
+        lx=lx,
+        ropt=ropt,
+    )
+
+
+def call(a):
+    a["irevcm"], n = g13ej(
+        a["irevcm"],
+        a["y"],
+        a["ly"],
+        a["x"],
+        a["st"],
+        a["xt"],
+        a["fxt"],
+        a["comm"],
+        lx=a["lx"],
+        ropt=a["ropt"],
+    )
+    return a["irevcm"], n
+
+
+def fill(a, n):
+    m = G13EJ["model"]
+    if a["irevcm"] == 1:
+        a["fxt"][:3, :n] = ex.f(a["xt"][:, :n], m["r"], m["d"], 0.4, 0.1)
+    else:
+        a["fxt"][:2, :n] = ex.h(a["xt"][:, :n], m["Delta"], m["A"])
+
+
+def at_exit(k, ropt=None):
+    """Arguments positioned at intermediate exit k (1 or 2)."""
+    a = first_entry(ropt=ropt)
+    _, n = call(a)
+    if k == 2:
+        fill(a, n)
+        _, n = call(a)
+    fill(a, n)
+    return a
 
 
 def run_g13ej(scheme: str, vectorized: bool = False) -> tuple[np.ndarray, np.ndarray]:
@@ -169,6 +231,26 @@ def ct_filter(points, cls=SquareRootUKF, vectorized=False, **kw):
         f = cls(5, 2, 1.0, ct_hx, ct_fx, points, **kw)
     f.x, f.P, f.Q, f.R = CT_X0.copy(), CT_P0, CT_Q, CT_R
     return f
+
+
+def ct_negative_weight_filter(scheme="redrawn", vectorized=False):
+    """The far scenario, Merwe points with alpha 0.1 (a negative central weight)."""
+    return ct_filter(MerweScaledWeights(alpha=0.1, beta=2.0, kappa=0.0), scheme=scheme, vectorized=vectorized)
+
+
+def ct_mid_step_filter(vectorized=False, points=None, **kw):
+    """The far scenario (Merwe alpha 0.3, kappa -2 unless ``points``) stopped mid-step: a prior pending."""
+    points = MerweScaledWeights(0.3, 2.0, -2.0) if points is None else points
+    f = ct_filter(points, vectorized=vectorized, **kw)
+    f.predict()
+    f.update(ct_hx(f.x) + 1.0)
+    f.predict()  # mid-step: a prior is pending
+    return f
+
+
+def ct_merwe_filter(cls):
+    """The far scenario in ``cls`` (SquareRootUKF or filterpy's UKF), filterpy's Merwe points (0.3, 2, -2)."""
+    return ct_filter(MerweScaledSigmaPoints(5, 0.3, 2.0, -2.0), cls=cls)
 
 
 def ct_simulate(T=60, seed=0, missing=(5, 17, 18, 40)):

@@ -3,7 +3,7 @@
 The reference for every filter of a fleet is :class:`squkf.SquareRootUKF` with
 ``vectorized=True`` on the same data, stepped on its own. The fleet's stacked
 arrays go through numpy's stacked QR and matmul while a single filter calls LAPACK
-directly (see tests/test_core_stacked.py), so they agree to rounding, not bit for bit:
+directly (see tests/test_step.py), so they agree to rounding, not bit for bit:
 measured at most 1e-13 relative on these models (filterpy's points with alpha 0.3,
 weights near 1e1). ``RTOL = 1e-10`` leaves a margin of 1000 and is far below any real
 difference (a wrong weight, a dropped row, filters mixed up: 1e-3 or more).
@@ -295,7 +295,7 @@ def test_state_assignment_broadcasts_and_checks():
     fleet.P1_2 = S
     np.testing.assert_array_equal(fleet.P1_2, np.broadcast_to(S, (K, 4, 4)))
     # the factors are fresh copies: editing one changes nothing; x and P edited in place are taken
-    # (issue 20: an edit is never lost; tests/test_boundary_promises.py)
+    # (issue 20: an edit is never lost; tests/test_records.py)
     fleet.P1_2[0, 0, 0] = 99.0
     assert fleet.P1_2[0, 0, 0] == S[0, 0]
     fleet.x[0, 0] = 99.0

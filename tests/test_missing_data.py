@@ -1,9 +1,11 @@
-"""Partial measurements: NaN (or masked) components of ``z`` are missing, the others are used.
+"""Missing data: NaN, masked or ``None`` measurements (or components of one) are missing, the others used.
 
 On a linear model the UKF is the Kalman filter (the unscented transform of a linear function is
 exact), so the reference is filterpy's ``KalmanFilter`` given only the observed rows:
 ``H[obs]``, ``R[obs][:, obs]`` and ``z[obs]``. The two agree to rounding; ``RTOL`` allows for
 a few hundred roundings on matrices of condition number ~1e2 (measured differences: ~1e-14).
+Also: no measurement at all (``None``, all-NaN, fully masked), and masked measurements on every
+route of the fleet and of squkf.dask.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from models import (
+    CV_Z,
     LIN4_DT,
     LIN4_H,
     LIN4_P0,
@@ -20,13 +23,24 @@ from models import (
     LIN4_R,
     LIN4_T,
     LIN4_X0,
+    assert_same_estimate,
+    cv3_zs,
+    cv_filter,
     lin4_fx,
     lin4_kf,
     lin4_measurements,
     lin4_ukf,
+    make_cv3_fleet,
+    one_d_measured,
+    step,
 )
 
-from squkf import MerweScaledWeights, SquareRootUKF
+from squkf import (
+    MerweScaledWeights,
+    SquareRootUKF,
+)
+
+# == partial measurements: the Kalman filter on the observed rows ==================================
 
 RTOL = 1e-9
 ZS = lin4_measurements()
@@ -159,3 +173,86 @@ def test_missing_components_with_the_augmented_set():
         close(a.x, b.x, "x")
         close(a.P, b.P, "P")
         close(a.log_likelihood, b.log_likelihood, "log_likelihood")
+
+
+# == no measurement ================================================================================
+
+
+@pytest.mark.parametrize(
+    "z",
+    [
+        None,
+        np.nan,
+        np.array([np.nan]),
+        np.ma.masked_all(1),
+        np.ma.masked_array([1.0], mask=[True]),
+    ],
+    ids=["None", "nan", "[nan]", "masked_all", "masked"],
+)
+def test_no_measurement_in_one_dimension(z):
+    f = one_d_measured()
+    f.R = 0.1
+    f.predict()
+    f.update(z)
+    assert f._state.phase == "idle"
+    np.testing.assert_array_equal(f.x_post, f.x_prior)
+    np.testing.assert_array_equal(f.P1_2_post, f.P1_2_prior)
+    np.testing.assert_array_equal(f.x, f.x_prior)
+
+
+@pytest.mark.parametrize(
+    "z",
+    [None, np.array([np.nan, np.nan]), np.ma.masked_all(2), np.ma.masked_array([1.0, 2.0], mask=[1, 1])],
+    ids=["None", "all-nan", "masked_all", "masked"],
+)
+def test_no_measurement(z):
+    f, twin = cv_filter(), cv_filter()
+    step(f, CV_Z[0])
+    step(twin, CV_Z[0])
+    f.predict()
+    f.update(z)
+    assert f._state.phase == "idle"
+    np.testing.assert_array_equal(f.x_post, f.x_prior)
+    np.testing.assert_array_equal(f.P1_2_post, f.P1_2_prior)
+    # and the next step is an ordinary one from that prior
+    twin.predict()
+    twin.update(None)
+    step(f, CV_Z[1])
+    step(twin, CV_Z[1])
+    assert_same_estimate(f, twin)
+
+
+# == masked measurements on every route (issue 20's promises) ======================================
+
+
+# -- 6. masked measurements are missing where masked, on every route ----------------------------
+
+
+def masked_fleet_zs(T: int = 5) -> tuple[np.ma.MaskedArray, np.ndarray]:
+    zs = cv3_zs(T)
+    mask = np.zeros(zs.shape, dtype=bool)
+    mask[0, 1] = True  # a whole row
+    mask[2, 3, 1] = True  # one component
+    data = zs.copy()
+    data[mask] = 1e6  # what a masked entry holds must never be read
+    return np.ma.masked_array(data, mask=mask), np.where(mask, np.nan, zs)
+
+
+def test_a_masked_zs_is_missing_where_masked_for_a_fleet():
+    masked, nan = masked_fleet_zs()
+    expected = make_cv3_fleet().batch_filter(nan)
+    got = make_cv3_fleet().batch_filter(masked)
+    np.testing.assert_array_equal(got.means, expected.means)
+    np.testing.assert_array_equal(got.log_likelihood, expected.log_likelihood)
+    steps = make_cv3_fleet().batch_filter(masked[:, t] for t in range(masked.shape[1]))
+    np.testing.assert_array_equal(steps.means, expected.means)
+
+
+def test_a_masked_zs_is_missing_where_masked_on_dask():
+    sd = pytest.importorskip("squkf.dask")
+    da = pytest.importorskip("dask.array")
+    masked, nan = masked_fleet_zs()
+    expected = make_cv3_fleet().batch_filter(nan)
+    for zs in (masked, da.ma.masked_array(da.from_array(masked.data, chunks=(2, -1, -1)), mask=masked.mask)):
+        got = sd.compute(sd.batch_filter(make_cv3_fleet(), zs), scheduler="synchronous")
+        np.testing.assert_array_equal(got.means, expected.means)

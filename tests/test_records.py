@@ -1,8 +1,10 @@
-"""SquareRootUKF's attributes behave as filterpy's: what a filterpy program does to them works.
+"""Records handed out: arrays read from a filter or fleet are the caller's, and edits in place are taken.
 
 filterpy code reads arrays and keeps them (a ``Saver``, a plot's list), edits covariances in
-place, copies and pickles filters in the middle of a step and runs filters inside filterpy's
-banks. Each test compares with an untouched twin filter, a freshly built reference or filterpy.
+place, copies and pickles filters in the middle of a step. Every array read is a fresh one that
+the filter never rewrites, an edit in place of ``x``, ``P``, ``Q`` or ``R`` takes effect at the
+next call (single filter and fleet), and a 1-element covariance reads back as assigned. Each test
+compares with an untouched twin filter, a freshly built reference or filterpy.
 """
 
 from __future__ import annotations
@@ -15,36 +17,35 @@ import warnings
 import numpy as np
 import pytest
 from filterpy.common import Q_discrete_white_noise, Saver
-from filterpy.kalman import IMMEstimator, MerweScaledSigmaPoints, MMAEFilterBank, UnscentedKalmanFilter
 from models import (
     CV_DT,
-    CV_P0,
     CV_Q,
     CV_R,
-    CV_X0,
     CV_Z,
     FILTER_STATE,
     assert_filter_state,
     assert_same_estimate,
     ct_hx,
+    cv3_zs,
     cv_filter,
     cv_fx,
     filter_state,
-    one_d_measured,
+    linear_pair,
+    make_cv3_fleet,
+    near_filter,
+    near_measurements,
+    one_d,
+    one_d_filterpy,
     step,
 )
 
 from squkf import (
-    CallSequenceError,
     JulierWeights,
     MerweScaledWeights,
-    NonFiniteError,
-    ParameterError,
-    ShapeError,
     SquareRootUKF,
-    SqukfError,
-    SqukfValueError,
 )
+
+# == the single filter's records ===================================================================
 
 RECORDS = (
     "x",
@@ -204,82 +205,6 @@ def test_in_place_edits_of_state_take_effect(edit):
     assert_same_estimate(f, twin, exact=False)
 
 
-BAD_EDITS = [
-    ("Q", (0, 1), 0.5, SqukfValueError, "predict"),  # asymmetric
-    ("Q", (2, 2), np.nan, NonFiniteError, "predict"),
-    ("P", (0, 1), 0.5, SqukfValueError, "predict"),
-    ("P", (1, 1), np.inf, NonFiniteError, "update"),
-    ("P", (0, 0), -50.0, SqukfError, "predict"),  # not positive definite
-    ("R", (0, 1), 0.3, SqukfValueError, "update"),
-    ("R", (1, 1), np.nan, NonFiniteError, "update"),
-    ("x", (2,), np.nan, NonFiniteError, "predict"),
-    ("x", (0,), np.inf, NonFiniteError, "update"),
-]
-
-
-@pytest.mark.parametrize("name,idx,value,exc,call", BAD_EDITS)
-def test_invalid_in_place_edit_raises_at_next_call_and_changes_nothing(name, idx, value, exc, call):
-    f, twin = cv_filter(), cv_filter()
-    step(f, CV_Z[0])
-    step(twin, CV_Z[0])
-    if call == "update":
-        f.predict()
-        twin.predict()
-    snap = filter_state(f)
-    arr = getattr(f, name)
-    old = arr[idx]
-    arr[idx] = value
-    with pytest.raises(exc):
-        f.predict() if call == "predict" else f.update(CV_Z[1])
-    with pytest.raises(exc):  # still pending: raised again, not swallowed
-        f.predict() if call == "predict" else f.update(CV_Z[1])
-    arr[idx] = old  # undo the edit: the filter is as it was
-    assert_filter_state(f, snap)
-    if call == "predict":
-        f.predict()
-        twin.predict()
-    f.update(CV_Z[1])
-    twin.update(CV_Z[1])
-    assert_same_estimate(f, twin)
-
-
-BAD_ASSIGNMENTS = [
-    ("P", np.array([[1.0, 0.5], [0.0, 1.0]]), ShapeError),
-    ("P", np.diag([1.0, 1.0, -1.0, 1.0]), SqukfError),
-    ("P", np.full((4, 4), np.nan), NonFiniteError),
-    ("P", np.triu(np.ones((4, 4))) + np.eye(4), SqukfValueError),
-    ("Q", "big", ShapeError),
-    ("R", np.array([1.0, 2.0]), ShapeError),
-    ("x", np.zeros(3), ShapeError),
-    ("x", np.array([1.0, np.nan, 0.0, 0.0]), NonFiniteError),
-]
-
-
-@pytest.mark.parametrize("name,bad,exc", BAD_ASSIGNMENTS)
-def test_failed_assignment_keeps_pending_in_place_edit(name, bad, exc):
-    f, twin = cv_filter(), cv_filter()
-    step(f, CV_Z[0])
-    step(twin, CV_Z[0])
-    # a valid in-place edit, pending
-    if name == "x":
-        f.x[0] += 1.0
-        x = twin.x.copy()
-        x[0] += 1.0
-        twin.x = x
-    else:
-        getattr(f, name)[0, 0] *= 2.0
-        A = getattr(twin, name).copy()
-        A[0, 0] *= 2.0
-        setattr(twin, name, A)
-    edited = getattr(f, name)
-    with pytest.raises(exc):
-        setattr(f, name, bad)
-    assert getattr(f, name) is edited
-    step(f, CV_Z[1])
-    step(twin, CV_Z[1])
-    assert_same_estimate(f, twin, exact=False)
-
-
 # -- copies and pickles -------------------------------------------------------------------------
 
 
@@ -426,300 +351,6 @@ def test_replacing_points_between_ask_and_tell_uses_the_handed_out_set():
     assert f.Wm.shape[0] == 9 and not np.array_equal(f.Wm, twin.Wm)
 
 
-def _scaled_residual(a, b):
-    return 1.1 * np.subtract(a, b)
-
-
-def _half_step_add(x, dx):
-    return x + 0.5 * dx
-
-
-def _shifted_mean(sigmas, Wm):
-    return Wm @ sigmas + 0.01
-
-
-@pytest.mark.parametrize(
-    "hook, value, default",
-    [
-        ("residual_z", _scaled_residual, np.subtract),
-        ("residual_x", _scaled_residual, np.subtract),
-        ("state_add", _half_step_add, np.add),
-        ("x_mean", _shifted_mean, None),
-        ("z_mean", _shifted_mean, None),
-    ],
-)
-def test_a_hook_assigned_between_steps_is_used_from_the_next_step(hook, value, default):
-    """filterpy's hooks are plain attributes: assigning one after some steps changes the next steps.
-
-    Each hook here deliberately changes the numbers, so that a hook left unused shows.
-    """
-    f, plain = cv_filter(), cv_filter()
-    step(f, CV_Z[0])
-    step(plain, CV_Z[0])
-    setattr(f, hook, value)
-    ref = cv_filter(**{{"x_mean": "x_mean_fn", "z_mean": "z_mean_fn"}.get(hook, hook): value})
-    ref.x, ref.P = f.x, f.P
-    assert getattr(f, hook) is value
-    for z in CV_Z[1:3]:
-        step(f, z)
-        step(ref, z)
-        step(plain, z)
-    np.testing.assert_allclose(f.x, ref.x, rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(f.P, ref.P, rtol=1e-12, atol=1e-12)
-    assert not np.allclose(f.x, plain.x, rtol=1e-6, atol=0)
-    # and set back, the plain operation is used again
-    setattr(f, hook, default)
-    back = cv_filter()
-    back.x, back.P = f.x, f.P
-    step(f, CV_Z[3])
-    step(back, CV_Z[3])
-    np.testing.assert_allclose(f.x, back.x, rtol=1e-12, atol=1e-12)
-    np.testing.assert_allclose(f.P, back.P, rtol=1e-12, atol=1e-12)
-
-
-# -- conventions --------------------------------------------------------------------------------
-
-
-def test_dt_conventions():
-    seen = []
-
-    def rec_fx(x, dt):
-        seen.append(dt)
-        return cv_fx(x, dt)
-
-    f = SquareRootUKF(4, 2, CV_DT, ct_hx, rec_fx, MerweScaledWeights())
-    f.x, f.P = CV_X0, CV_P0
-    f.predict(dt=0)
-    assert set(seen) == {0.0}
-    np.testing.assert_allclose(f.x, CV_X0, atol=1e-12)
-    seen.clear()
-    f.predict(dt=-1.0)
-    assert set(seen) == {-1.0}
-    for bad in (np.nan, np.inf, -np.inf, 1 + 2j, np.complex128(1.0), np.array(1 + 0j), "1.0x", [1.0, 2.0]):
-        snap = filter_state(f)
-        with warnings.catch_warnings():
-            warnings.simplefilter("error")  # refused, not cast with a ComplexWarning
-            with pytest.raises(ParameterError):
-                f.predict(dt=bad)
-        assert_filter_state(f, snap)
-
-
-def _bank_pair():
-    """Two SquareRootUKFs and two filterpy UKFs, the same models (different process noise)."""
-    ours, theirs = [], []
-    for q in (0.01, 1.0):
-        Q = Q_discrete_white_noise(2, dt=CV_DT, var=q, block_size=2) + 1e-6 * np.eye(4)
-        for lst, cls in ((ours, SquareRootUKF), (theirs, UnscentedKalmanFilter)):
-            f = cls(4, 2, CV_DT, ct_hx, cv_fx, MerweScaledSigmaPoints(4, 0.5, 2.0, 0.0))
-            f.x, f.P, f.Q, f.R = CV_X0.copy(), CV_P0.copy(), Q.copy(), CV_R.copy()
-            lst.append(f)
-    return ours, theirs
-
-
-def test_mmae_filter_bank_runs_with_squkf():
-    ours, theirs = _bank_pair()
-    a = MMAEFilterBank(ours, [0.5, 0.5], 4)
-    b = MMAEFilterBank(theirs, [0.5, 0.5], 4)
-    for z in CV_Z:
-        a.predict()  # filterpy's bank calls f.predict(0): dt = 0
-        b.predict()
-        a.update(z)
-        b.update(z)
-        np.testing.assert_allclose(a.x, b.x, rtol=1e-9, atol=1e-9)
-        np.testing.assert_allclose(a.P, b.P, rtol=1e-9, atol=1e-9)
-        np.testing.assert_allclose(a.p, b.p, rtol=1e-9, atol=1e-12)
-    assert not np.allclose(a.p, 0.5)
-
-
-def test_imm_estimator_runs_with_squkf():
-    ours, theirs = _bank_pair()
-    M = np.array([[0.95, 0.05], [0.05, 0.95]])
-    a = IMMEstimator(ours, [0.5, 0.5], M)
-    b = IMMEstimator(theirs, [0.5, 0.5], M)
-    for z in CV_Z:
-        a.predict()
-        b.predict()
-        a.update(z)
-        b.update(z)
-        np.testing.assert_allclose(a.x, b.x, rtol=1e-9, atol=1e-9)
-        np.testing.assert_allclose(a.P, b.P, rtol=1e-9, atol=1e-9)
-        np.testing.assert_allclose(a.mu, b.mu, rtol=1e-9, atol=1e-12)
-
-
-@pytest.mark.parametrize("value", [2.2e-5, np.array([2.2e-5]), np.array([[2.2e-5]]), np.float64(2.2e-5)])
-def test_scalar_and_one_element_noise_in_one_dimension(value):
-    f = one_d_measured()
-    f.R = value
-    f.Q = value
-    # read back as assigned, as filterpy: a 1-element vector stays one (f.R[0] is a number)
-    shape = (1,) if np.ndim(value) == 1 else (1, 1)
-    np.testing.assert_array_equal(f.R, np.full(shape, 2.2e-5))
-    np.testing.assert_array_equal(f.Q, np.full(shape, 2.2e-5))
-    g = one_d_measured()
-    g.R, g.Q = np.array([[2.2e-5]]), np.array([[2.2e-5]])
-    for h in (f, g):
-        h.predict()
-        h.update(1.3)
-    np.testing.assert_array_equal(f.x, g.x)
-    np.testing.assert_array_equal(f.P, g.P)
-
-
-def test_scalar_noise_means_a_multiple_of_identity():
-    f, g = cv_filter(), cv_filter()
-    f.R = 0.3
-    g.R = 0.3 * np.eye(2)
-    step(f, CV_Z[0])
-    step(g, CV_Z[0])
-    assert_same_estimate(f, g)
-
-
-@pytest.mark.parametrize("name", ["R", "Q", "P"])
-def test_one_d_array_of_length_above_one_is_an_error_naming_np_diag(name):
-    f = cv_filter()
-    snap = filter_state(f)
-    with pytest.raises(ShapeError, match=r"np\.diag"):
-        setattr(f, name, np.ones(4 if name != "R" else 2))
-    assert_filter_state(f, snap)
-
-
-@pytest.mark.parametrize(
-    "z",
-    [
-        None,
-        np.nan,
-        np.array([np.nan]),
-        np.ma.masked_all(1),
-        np.ma.masked_array([1.0], mask=[True]),
-    ],
-    ids=["None", "nan", "[nan]", "masked_all", "masked"],
-)
-def test_no_measurement_in_one_dimension(z):
-    f = one_d_measured()
-    f.R = 0.1
-    f.predict()
-    f.update(z)
-    assert f._state.phase == "idle"
-    np.testing.assert_array_equal(f.x_post, f.x_prior)
-    np.testing.assert_array_equal(f.P1_2_post, f.P1_2_prior)
-    np.testing.assert_array_equal(f.x, f.x_prior)
-
-
-@pytest.mark.parametrize(
-    "z",
-    [None, np.array([np.nan, np.nan]), np.ma.masked_all(2), np.ma.masked_array([1.0, 2.0], mask=[1, 1])],
-    ids=["None", "all-nan", "masked_all", "masked"],
-)
-def test_no_measurement(z):
-    f, twin = cv_filter(), cv_filter()
-    step(f, CV_Z[0])
-    step(twin, CV_Z[0])
-    f.predict()
-    f.update(z)
-    assert f._state.phase == "idle"
-    np.testing.assert_array_equal(f.x_post, f.x_prior)
-    np.testing.assert_array_equal(f.P1_2_post, f.P1_2_prior)
-    # and the next step is an ordinary one from that prior
-    twin.predict()
-    twin.update(None)
-    step(f, CV_Z[1])
-    step(twin, CV_Z[1])
-    assert_same_estimate(f, twin)
-
-
-COMPLEX_OR_TEXT = [
-    ("z", np.array([1.0 + 1e-3j, 0.2])),
-    ("z", ["a", "b"]),
-    ("z", np.array(["1.0", "2.0"])),
-    ("x", CV_X0 + 0j),
-    ("x", ["1", "2", "3", "4"]),
-    ("P", CV_P0 + 0j),
-    ("P", np.array([["1"] * 4] * 4)),
-    ("R", CV_R.astype(complex)),
-    ("Q", [[object()] * 4] * 4),
-]
-
-
-@pytest.mark.parametrize("name,value", COMPLEX_OR_TEXT, ids=lambda v: type(v).__name__)
-def test_complex_or_non_numeric_input_is_a_shape_error(name, value):
-    f = cv_filter()
-    step(f, CV_Z[0])
-    f.predict()
-    snap = filter_state(f)
-    with pytest.raises(ShapeError):
-        if name == "z":
-            f.update(value)
-        else:
-            setattr(f, name, value)
-    assert_filter_state(f, snap)
-
-
-# -- hooks ------------------------------------------------------------------------------------
-
-
-def _good_residual(a, b):
-    return np.subtract(a, b)
-
-
-def _good_mean(sigmas, Wm):
-    return np.dot(Wm, sigmas)
-
-
-def _good_add(x, dx):
-    return np.add(x, dx)
-
-
-BAD_HOOKS = [
-    ("state_add", lambda x, dx: 1.0, ShapeError, "predict"),
-    ("state_add", lambda x, dx: np.append(x + dx, 0.0), ShapeError, "update"),
-    ("residual_x", lambda a, b: (a - b)[:2], ShapeError, "predict"),
-    ("residual_x", lambda a, b: np.full(4, np.nan), NonFiniteError, "update"),
-    ("x_mean", lambda s, W: np.zeros(3), ShapeError, "predict"),
-    ("x_mean", lambda s, W: np.full(4, np.inf), NonFiniteError, "predict"),
-    ("z_mean", lambda s, W: np.zeros((2, 2)), ShapeError, "update"),
-    ("z_mean", lambda s, W: np.array([np.nan, 0.0]), NonFiniteError, "update"),
-    ("residual_z", lambda a, b: np.zeros(3), ShapeError, "update"),
-    ("residual_z", lambda a, b: np.array([np.inf, 0.0]), NonFiniteError, "update"),
-]
-
-
-@pytest.mark.parametrize("hook,bad,exc,call", BAD_HOOKS)
-def test_bad_hook_result_names_the_hook_and_changes_nothing(hook, bad, exc, call):
-    f = cv_filter(
-        x_mean_fn=_good_mean,
-        z_mean_fn=_good_mean,
-        residual_x=_good_residual,
-        residual_z=_good_residual,
-        state_add=_good_add,
-    )
-    step(f, CV_Z[0])
-    if call == "update":
-        f.predict()
-    snap = filter_state(f)
-    good = getattr(f, hook)
-    setattr(f, hook, bad)
-    name = {"x_mean": "x_mean_fn", "z_mean": "z_mean_fn"}.get(hook, hook)
-    with pytest.raises(exc, match=name):
-        f.predict() if call == "predict" else f.update(CV_Z[1])
-    setattr(f, hook, good)
-    assert_filter_state(f, snap)
-
-
-def test_update_none_during_a_pending_prediction_is_a_call_sequence_error():
-    f, twin = cv_filter(), cv_filter()
-    step(f, CV_Z[0])
-    step(twin, CV_Z[0])
-    X = f.ask_predict()
-    snap = filter_state(f)
-    with pytest.raises(CallSequenceError):
-        f.update(None)
-    assert_filter_state(f, snap)
-    f.tell_predict([cv_fx(s, CV_DT) for s in X])  # the prediction is still pending
-    twin.predict()
-    f.update(CV_Z[1])
-    twin.update(CV_Z[1])
-    assert_same_estimate(f, twin)
-
-
 # -- factors accepted back ------------------------------------------------------------------------
 
 
@@ -750,3 +381,167 @@ def test_records_list_is_complete():
     for k in FILTER_STATE:
         assert np.all(np.isfinite(np.asarray(getattr(f, k), dtype=float))), k
     assert math.isfinite(f.log_likelihood)
+
+
+# == an edit of x between predict and update =======================================================
+
+
+def test_editing_x_in_place_between_predict_and_update_redraws():
+    _, a, rng = linear_pair()
+    _, b, _ = linear_pair()
+    z = rng.standard_normal(2)
+    a.predict()
+    b.predict()
+    a.x[1] += 0.5  # in place: the second set drawn at predict is stale now
+    b.x = b.x + np.array([0.0, 0.5, 0.0])
+    a.update(z)
+    b.update(z)
+    np.testing.assert_array_equal(a.sigmas_h, b.sigmas_h)  # hx saw the same, redrawn, points
+    np.testing.assert_array_equal(a.x, b.x)
+    np.testing.assert_array_equal(a.P1_2, b.P1_2)
+
+
+# == K, 1-element covariances and the fleet's edits in place (issue 20's promises) =================
+
+# -- 1. K is a fresh array on each read -------------------------------------------------------
+
+
+def test_K_is_a_fresh_array_on_each_read():
+    f = near_filter()
+    f.predict()
+    f.update(near_measurements(1)[0])
+    first = f.K
+    expected = first.copy()
+    first[:] = 123.0
+    np.testing.assert_array_equal(f.K, expected)
+    assert f.K is not f.K
+
+
+def test_a_savers_K_history_is_never_rewritten():
+    f = near_filter()
+    saver = Saver(f)
+    for z in near_measurements(4):
+        f.predict()
+        saver.save()  # K of the previous update, read twice: two entries
+        f.update(z)
+        saver.save()
+    Ks = saver["K"]
+    assert len({id(k) for k in Ks}) == len(Ks)
+    kept = [k.copy() for k in Ks]
+    Ks[1][:] = np.nan  # editing one saved entry changes no other, nor the filter's K
+    for j in (0, 2, 3):
+        np.testing.assert_array_equal(Ks[j], kept[j])
+    np.testing.assert_array_equal(f.K, kept[-1])
+    f.predict()
+    f.update(near_measurements(5)[4])
+    for j in range(2, len(Ks)):
+        np.testing.assert_array_equal(Ks[j], kept[j])
+
+
+# -- 3. a 1-element covariance reads back as assigned (filterpy stores what it is given) ----------
+
+
+@pytest.mark.parametrize("name", ["R", "Q", "P"])
+def test_a_one_element_covariance_reads_back_as_assigned(name):
+    ours, theirs = one_d(SquareRootUKF), one_d_filterpy()
+    for f in (ours, theirs):
+        setattr(f, name, np.array([0.25]))
+    assert getattr(ours, name).shape == getattr(theirs, name).shape == (1,)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "conversion of an array with ndim > 0 to a scalar"
+        value = getattr(ours, name)[0]
+        assert np.ndim(value) == 0 and value == 0.25
+        if name == "R":
+            ours.P[0, 0] = ours.R[0]  # a client program's line
+            theirs.P[0, 0] = theirs.R[0]
+    # an edit in place takes effect, as for a matrix
+    getattr(ours, name)[0] = 0.5
+    getattr(theirs, name)[0] = 0.5
+    for f in (ours, theirs):
+        f.predict()
+        f.update(np.array([1.0]))
+    np.testing.assert_allclose(ours.x, theirs.x, rtol=1e-12)
+    np.testing.assert_allclose(np.atleast_2d(ours.P), np.atleast_2d(theirs.P), rtol=1e-12)
+    # as filterpy, a step assigns P a matrix; Q and R keep what was assigned
+    assert ours.P.shape == theirs.P.shape == (1, 1)
+    if name != "P":
+        assert getattr(ours, name).shape == (1,)
+
+
+def test_a_one_element_covariance_survives_copies_and_pickles():
+    import pickle
+
+    f = one_d(SquareRootUKF)
+    f.R = np.array([0.25])
+    for g in (copy.copy(f), copy.deepcopy(f), pickle.loads(pickle.dumps(f))):
+        assert g.R.shape == (1,) and g.R[0] == 0.25
+        g.R[0] = 4.0
+        assert f.R[0] == 0.25
+        np.testing.assert_array_equal(g.R1_2, [[2.0]])
+
+
+# -- 10. an in-place edit of fleet.x, P, Q or R is never lost: taken at the next call --------------
+
+
+def edited_pair(edit):
+    """A fleet edited in place by ``edit``, and one given the same values by assignment."""
+    fl, ref = make_cv3_fleet(), make_cv3_fleet()
+    edit(fl)
+    for name in ("x", "P", "Q", "R"):
+        setattr(ref, name, np.array(getattr(fl, name)))
+    return fl, ref
+
+
+EDITS = {
+    "x": lambda fl: fl.x.__setitem__((1, 0), 5.0),
+    "P": lambda fl: fl.P.__setitem__((2, 0, 0), 4.0),
+    "P *=": lambda fl: fl.P.__imul__(2.0),
+    "Q": lambda fl: fl.Q.__setitem__((1, 1), 0.5),
+    "R": lambda fl: fl.R.__setitem__((0, 0), 2.0),
+}
+
+
+@pytest.mark.parametrize("name", list(EDITS))
+def test_an_edit_in_place_of_a_fleet_attribute_takes_effect(name):
+    plain = make_cv3_fleet()
+    fl, ref = edited_pair(EDITS[name])
+    zs = cv3_zs(3)
+    for f in (fl, ref, plain):
+        f.predict()
+        f.update(zs[:, 0])
+    np.testing.assert_array_equal(fl.x, ref.x)
+    np.testing.assert_array_equal(fl.P1_2, ref.P1_2)
+    assert not np.array_equal(fl.P1_2, plain.P1_2) or not np.array_equal(fl.x, plain.x)
+
+
+def test_several_edits_in_place_and_every_route_sees_them():
+    zs = cv3_zs(3)
+    fl = make_cv3_fleet()
+    fl.R[0, 0] = 2.0  # two statements on the same attribute: both kept
+    fl.R[1, 1] = 3.0
+    fl.x[0] += 1.0
+    assert fl.R[0, 0] == 2.0 and fl.R[1, 1] == 3.0
+    ref = make_cv3_fleet()
+    ref.R = np.diag([2.0, 3.0])
+    x = np.array(ref.x)
+    x[0] += 1.0
+    ref.x = x
+    np.testing.assert_array_equal(fl.batch_filter(zs).means, ref.batch_filter(zs).means)
+    for route in (lambda f: f.subset(slice(None)).x, lambda f: f[0].x, lambda f: copy.copy(f).x):
+        fl, ref = edited_pair(EDITS["x"])
+        np.testing.assert_array_equal(route(fl), route(ref))
+    sd = pytest.importorskip("squkf.dask")
+    fl, ref = edited_pair(EDITS["P"])
+    got = sd.compute(sd.batch_filter(fl, zs), scheduler="synchronous")
+    np.testing.assert_array_equal(got.means, ref.batch_filter(zs).means)
+
+
+def test_arrays_read_before_a_step_are_never_rewritten():
+    fl = make_cv3_fleet()
+    x, P = fl.x, fl.P
+    kept = x.copy(), P.copy()
+    fl.predict()
+    fl.update(cv3_zs(1)[:, 0])
+    np.testing.assert_array_equal(x, kept[0])
+    np.testing.assert_array_equal(P, kept[1])
+    assert fl.x is not x and not np.array_equal(fl.x, x)

@@ -1,28 +1,93 @@
-"""The lean hot path: the row forms, the joint-QR update, exact offsets, nothing redone per step.
+"""The unscented transform (squkf.transform, squkf.rows, squkf.covariance): exact on linear maps, row forms.
 
-References are written out here in covariance form (the UKF equations as
-published) or are filterpy's linear ``KalmanFilter``; tolerances follow from
-the conditioning of each case (stated where it is set).
+``squkf.unscented_transform`` is exact on linear maps and meets the polar-to-Cartesian benchmark;
+the row forms of the weighted covariance reproduce it (negative rows downdated where no form avoids
+them). References are written out here in covariance form; tolerances follow from the conditioning
+of each case (stated where it is set).
 """
 
-import warnings
+from __future__ import annotations
+
 from fractions import Fraction
 
 import numpy as np
 import pytest
-from filterpy.kalman import KalmanFilter
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from models import linear_pair
+from models import polar, polar_rows
 
-import squkf.covariance
-from squkf import MerweScaledWeights, SquareRootUKF, sqrt_unscented_transform
+from squkf import JulierWeights, MerweScaledWeights, unscented_transform
 from squkf.errors import DowndateError
-from squkf.generators import Redrawn
-from squkf.linalg import all_finite
-from squkf.measurement import measurement_update
 from squkf.rows import weight_rows as weight_plan
 from squkf.transform import transform_factor
+
+# == squkf.unscented_transform =====================================================================
+
+
+def test_exact_on_linear_functions():
+    rng = np.random.default_rng(0)
+    for n, m in ((1, 1), (3, 2), (4, 6)):
+        A = rng.standard_normal((m, n))
+        b = rng.standard_normal(m)
+        x = rng.standard_normal(n)
+        L = np.tril(rng.standard_normal((n, n)))
+        L[np.diag_indices(n)] = np.abs(L.diagonal()) + 0.5
+        N = np.tril(rng.standard_normal((m, m))) * 0.1
+        for fam in (MerweScaledWeights(), MerweScaledWeights(0.2, 2.0, 0.0), JulierWeights(1.0)):
+            mean, S, Pxy = unscented_transform(lambda v, A=A, b=b: A @ v + b, x, L, fam, N, return_cross=True)
+            P = A @ L @ L.T @ A.T + N @ N.T
+            np.testing.assert_allclose(mean, A @ x + b, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(S @ S.T, P, rtol=1e-11, atol=1e-11 * np.abs(P).max())
+            np.testing.assert_allclose(Pxy, L @ L.T @ A.T, rtol=1e-11, atol=1e-11)
+
+
+def test_vectorized_equals_per_point():
+    x = np.array([1.0, np.pi / 2])
+    S = np.diag([0.02, np.radians(15)])
+    a = unscented_transform(polar, x, S)
+    b = unscented_transform(polar_rows, x, S, vectorized=True)
+    np.testing.assert_array_equal(a[0], b[0])
+    np.testing.assert_array_equal(a[1], b[1])
+
+
+def test_polar_to_cartesian_against_monte_carlo():
+    """Julier & Uhlmann (1997a): range 1 +/- 0.02, bearing pi/2 +/- 15 degrees.
+
+    The true mean of y = r sin(theta) is E[r] * exp(-sigma^2/2) = 0.9663 (bias 0.034 from the
+    first-order answer 1). With N = 400,000 samples the Monte-Carlo mean's standard error is
+    sigma_y / sqrt(N) ~ 8e-5 per axis; the UT's mean (exact to 4th order in theta here) must
+    sit within 5 standard errors of it, while the linearisation's mean is off by the full
+    bias, 0.034: over 50 times that whole sampling band.
+    """
+    rng = np.random.default_rng(1997)
+    sr, st_ = 0.02, np.radians(15)
+    x = np.array([1.0, np.pi / 2])
+    S = np.diag([sr, st_])
+    N = 400_000
+    samples = x + rng.standard_normal((N, 2)) * [sr, st_]
+    Y = polar_rows(samples)
+    mc_mean = Y.mean(axis=0)
+    mc_cov = np.cov(Y.T)
+    se = np.sqrt(np.diag(mc_cov) / N)
+    mean, Sy = unscented_transform(polar, x, S, MerweScaledWeights())  # kappa = 3 - n = 1
+    assert np.all(np.abs(mean - mc_mean) < 5 * se)
+    lin_err = np.abs(polar(x) - mc_mean)
+    assert lin_err[1] > 50 * 5 * se[1]
+    assert lin_err[1] > 0.03
+    # Covariance: with alpha = 1, beta = 2, kappa = 1 the central weight Wc0 = Wm0 + beta adds
+    # beta * (Y0 - mean)(Y0 - mean)^T; here Y0 - mean = (0, 0.034), inflating var(y) by
+    # 2 * 0.034^2 = 2.3e-3 relative to the truth (var y ~ 2.2e-3) -- so y's variance is compared
+    # against the truth plus that term, and x's (where Y0 - mean is 0) directly.
+    P = Sy @ Sy.T
+    dy0 = polar(x)[1] - mean[1]
+    assert P[0, 0] == pytest.approx(mc_cov[0, 0], rel=0.05)
+    assert P[1, 1] == pytest.approx(mc_cov[1, 1] + 2.0 * dy0**2, rel=0.1)
+    # with beta = 0 (Julier's weights) the inflation vanishes and var(y) is close to the truth
+    _, Sj = unscented_transform(polar, x, S, JulierWeights(1.0))
+    assert (Sj @ Sj.T)[1, 1] == pytest.approx(mc_cov[1, 1], rel=0.25)
+
+
+# == the row forms of the weighted covariance ======================================================
 
 EPS = np.finfo(float).eps
 
@@ -111,139 +176,6 @@ def test_row_forms_reproduce_the_weighted_covariance(n, alpha, beta, kappa, seed
         # for tiny alpha the mean form cancels weights of +-1/alpha^2 and is off by ~1e-6
         # (which is why the filter prefers the central form); here the weights are <= ~1e2
         np.testing.assert_allclose((D.T * form.weights) @ D, P, rtol=0, atol=gram_tol(D, form.weights, rho))
-
-
-def covariance_form_update(x, S, sset, H, z, R, residual=None):
-    """The UKF measurement update as published, in covariance form (no factors)."""
-    zhat = sset.Wm @ H
-    dz = H - zhat
-    dx = sset.sigmas - x
-    Pzz = (dz.T * sset.Wc) @ dz + R
-    Pxz = (dx.T * sset.Wc) @ dz
-    K = np.linalg.solve(Pzz, Pxz.T).T
-    return x + K @ (z - zhat), S @ S.T - K @ Pzz @ K.T, K, Pzz
-
-
-@settings(max_examples=60, deadline=None)
-@given(
-    n=st.integers(1, 6),
-    m=st.integers(1, 4),
-    alpha=st.floats(0.01, 1.0),
-    seed=st.integers(0, 2**16),
-)
-def test_joint_qr_update_is_the_published_update(n, m, alpha, seed):
-    rng = np.random.default_rng(seed)
-    A = rng.standard_normal((n, n))
-    S = np.linalg.cholesky(A @ A.T / n + 0.5 * np.eye(n))
-    x = rng.standard_normal(n)
-    B = rng.standard_normal((m, n))
-    R1_2 = np.linalg.cholesky(np.eye(m) * 0.3 + 0.1 * np.ones((m, m)))
-    family = MerweScaledWeights(alpha, 2.0, 0.0)
-    sset = Redrawn().second_set(x, S, family=family)
-    H = np.tanh(sset.sigmas @ B.T)  # mildly nonlinear, bounded
-    z = rng.standard_normal(m)
-    post = measurement_update(x, S, sset, H, z, R1_2)
-    x_ref, P_ref, K_ref, Pzz = covariance_form_update(x, S, sset, H, z, R1_2 @ R1_2.T)
-    # cond(P) <= ~20 and cond(Pzz) <= ~40 here: rounding stays near 1e-13; 1e-9 is generous
-    np.testing.assert_allclose(post.Sy @ post.Sy.T, Pzz, rtol=1e-9, atol=1e-12)
-    np.testing.assert_allclose(post.gain(), K_ref, rtol=1e-9, atol=1e-11)
-    np.testing.assert_allclose(post.x, x_ref, rtol=1e-9, atol=1e-11)
-    np.testing.assert_allclose(post.S @ post.S.T, P_ref, rtol=1e-9, atol=1e-11)
-    assert np.all(np.triu(post.S, 1) == 0) and np.all(np.diag(post.S) >= 0)
-    # the user-UT path (cross-covariance, then the QR form with the gain) agrees too
-    via_ut = measurement_update(x, S, sset, H, z, R1_2, UT=sqrt_unscented_transform)
-    np.testing.assert_allclose(via_ut.x, post.x, rtol=1e-10, atol=1e-12)
-    np.testing.assert_allclose(via_ut.S @ via_ut.S.T, post.S @ post.S.T, rtol=1e-9, atol=1e-12)
-
-
-def test_tiny_alpha_equals_the_kalman_filter():
-    """alpha = 1e-3 makes the weights ~1e5 and of both signs; no downdate, still the KF.
-
-    The rows scale as sqrt(W) * gamma * S = S / sqrt(2): no growth. Only the mean sums
-    offsets with weights ~1/alpha^2 over offsets ~alpha: about 1e3 * eps per step.
-    """
-    kf, ukf, rng = linear_pair(alpha=1e-3)
-    for _ in range(50):
-        z = rng.standard_normal(2)
-        kf.predict()
-        ukf.predict()
-        kf.update(z)
-        ukf.update(z)
-        np.testing.assert_allclose(ukf.x, kf.x, rtol=1e-9, atol=1e-10)
-        np.testing.assert_allclose(ukf.P, kf.P, rtol=1e-9, atol=1e-12)
-
-
-def test_a_large_state_keeps_its_covariance():
-    """x[0] ~ 1e12 with P ~ 1: the update uses the redrawn set's exact offsets from x.
-
-    x[0] is not measured but is correlated with what is, so the update changes its
-    variance through the cross-covariance. Subtracting the rounded points (spacing 1.2e-4
-    at 1e12) would perturb that by ~1e-4; the KF's P does not depend on x at all, and
-    cond(P) < 10 leaves the factored update within ~1e-14 of it.
-    """
-    x0 = np.array([1e12, 0.5, -0.3])
-    P0 = np.array([[2.0, 0.8, 0.0], [0.8, 1.0, 0.2], [0.0, 0.2, 1.5]])
-    H = np.array([[0.0, 1.0, 0.0], [0.0, 0.5, 1.0]])
-    R = 0.2 * np.eye(2)
-    kf = KalmanFilter(3, 2)
-    kf.H, kf.R, kf.P, kf.x = H, R, P0.copy(), x0.copy()
-    ukf = SquareRootUKF(3, 2, 1.0, lambda x: H @ x, lambda x, dt: x, MerweScaledWeights())
-    ukf.x, ukf.P, ukf.R = x0.copy(), P0.copy(), R
-    z = np.array([0.9, -0.4])
-    kf.update(z)
-    ukf.update(z)
-    assert abs(kf.P[0, 0] - P0[0, 0]) > 0.1  # the unmeasured variance did change
-    np.testing.assert_allclose(ukf.P, kf.P, rtol=1e-12, atol=1e-14)
-    np.testing.assert_allclose(ukf.x, kf.x, rtol=1e-15)
-
-
-def test_user_matrices_are_factored_once_not_per_step(monkeypatch):
-    calls = []
-    real = squkf.covariance.factor_covariance
-    monkeypatch.setattr(
-        squkf.covariance, "factor_covariance", lambda *a, **k: calls.append(a[1]) or real(*a, **k)
-    )
-    kf, ukf, rng = linear_pair()
-    assert calls == ["P", "Q", "R"]  # assigned: factored once each
-    calls.clear()
-    _ = ukf.Q, ukf.R  # handing the matrices out must not make each step compare or refactor them
-    for _ in range(20):
-        ukf.predict()
-        ukf.update(rng.standard_normal(2))
-    assert calls == []
-    ukf.Q[0, 0] *= 2.0  # an in-place edit is seen, and factored once
-    ukf.predict()
-    ukf.update(rng.standard_normal(2))
-    ukf.predict()
-    assert calls == ["Q"]
-    np.testing.assert_allclose(ukf.Q1_2 @ ukf.Q1_2.T, np.diag([0.02, 0.01, 0.01]), rtol=1e-14)
-
-
-def test_editing_x_in_place_between_predict_and_update_redraws():
-    _, a, rng = linear_pair()
-    _, b, _ = linear_pair()
-    z = rng.standard_normal(2)
-    a.predict()
-    b.predict()
-    a.x[1] += 0.5  # in place: the second set drawn at predict is stale now
-    b.x = b.x + np.array([0.0, 0.5, 0.0])
-    a.update(z)
-    b.update(z)
-    np.testing.assert_array_equal(a.sigmas_h, b.sigmas_h)  # hx saw the same, redrawn, points
-    np.testing.assert_array_equal(a.x, b.x)
-    np.testing.assert_array_equal(a.P1_2, b.P1_2)
-
-
-def test_all_finite_is_exact_and_quiet():
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        assert all_finite(np.array([1e200, -1e200, 3.0]))  # the dot overflows; the entries are finite
-        assert all_finite(np.zeros((0, 3)))
-        for bad in (np.nan, np.inf, -np.inf):
-            a = np.ones((4, 3))
-            a[2, 1] = bad
-            assert not all_finite(a)
-            assert not all_finite(np.asfortranarray(a))
 
 
 def test_negative_rows_are_downdated_when_no_form_avoids_them():
