@@ -1,23 +1,28 @@
 """The tests' shared models and factories: import from here, define nothing of the kind locally.
 
-- the g13ej example: :func:`example_data`, :class:`Robot`, :func:`run_g13ej`
+tests/README.md lists them by kind. In the order of this file:
+
+- the g13ej example: :func:`example_data`, :class:`Robot`, :func:`run_g13ej`, and squkf.nag's
+  calling sequence (:func:`first_entry`, :func:`call`, :func:`fill`, :func:`at_exit`)
 - the coordinated-turn radar (state ``[px, vx, py, vy, omega]``, range and bearing):
   :func:`ct_fx`, :func:`ct_hx`, their row-wise and ``X[..., i]`` (stacked) forms, the far scenario
-  ``CT_*`` (:func:`ct_filter`, :func:`ct_simulate`, :func:`ct_measurements`) and the near one
-  ``NEAR_*`` (:func:`near_filter`, :func:`near_measurements`)
+  ``CT_*`` (:func:`ct_filter` and its configurations, :func:`ct_simulate`, :func:`ct_measurements`)
+  and the near one ``NEAR_*`` (:func:`near_filter`, :func:`near_measurements`)
 - constant velocity in the plane (state ``[px, vx, py, vy]``): :func:`cv_fx` for one point, its
-  stacked forms :func:`cv_fx_stacked` (the fleet tests') and :func:`cv_fx_nudged` with
-  :func:`positions_hx` (a fleet of three, :func:`make_cv_fleet`), and the four-state radar of
-  the filterpy-habit tests ``CV_*`` (:func:`cv_filter`, :func:`cv_measurements`)
-- constant velocity on a line, for the Dask tests: :func:`line_fx`, :func:`line_hx` and the
-  failing :func:`slow_line_fx`, :func:`nan_for_big_line_fx` (module level, so that Dask's worker
-  processes can import them by name: the cluster fixture puts this folder on their path)
-- Lorenz-96: :func:`l96_fx`, :func:`l96_hx`
+  stacked forms :func:`cv_fx_stacked` and :func:`cv_fx_nudged` with :func:`positions_hx` (a fleet
+  of three, :func:`make_cv3_fleet`), and the four-state radar ``CV_*`` (:func:`cv_filter`)
+- the fleet tests' K filters (``FLEET_*``, :func:`fleet_data`, :func:`cv_fleet`, :func:`cv_single`,
+  :func:`fleet_and_singles`, ...) and the fleet smoother's K coordinated-turn tracks (``CTF_*``)
+- constant velocity on a line, for the Dask tests: :func:`line_fx`, :func:`line_hx`, the failing
+  :func:`slow_line_fx`, :func:`nan_for_big_line_fx`, and :func:`line_fleet` (module level, so that
+  Dask's worker processes can import them by name: the cluster fixture puts this folder on their path)
+- Lorenz-96, heading models, plain-arithmetic models (bit-for-bit comparisons)
 - linear models: the precise sensor ``PRECISE_*`` (filterpy's UKF fails on it), the correlated
   four-state linear model ``LIN4_*``, the one-sensor constant velocity ``LIN2_*`` of the smoother
-  tests, :func:`random_linear_model`, :func:`linear_pair`, :func:`spd`
-- one-dimensional filters: :func:`one_d`, :func:`one_d_filterpy`
-- polar to Cartesian: :func:`polar`, :func:`polar_rows`
+  tests, the drifting ``DRIFT_*`` of the batch tests, :func:`random_linear_model`,
+  :func:`linear_pair`, :func:`spd`
+- small filters (:func:`identity_filter`, :func:`decay_filter`, :func:`one_d`, ...) and polar to
+  Cartesian (:func:`polar`, :func:`polar_rows`)
 - checks: :func:`filter_state` / :func:`assert_filter_state`, :func:`fleet_state` /
   :func:`assert_fleet_state`, :func:`assert_results_equal`, :func:`counting`, :func:`rel`
 """
@@ -32,12 +37,15 @@ import numpy as np
 from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import KalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter
 
-from squkf import Fleet, MerweScaledWeights, SquareRootUKF
+from squkf import CubatureWeights, Fleet, JulierWeights, MerweScaledWeights, SimplexWeights, SquareRootUKF
 from squkf.angles import AngleAdd, AngleMean, AngleResidual, wrap
 from squkf.examples import g13ej_example as ex
 from squkf.nag import kalman_unscented_state_revcom as g13ej
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+# -- the g13ej example -----------------------------------------------------------------------------
 
 
 def example_data() -> dict:
@@ -154,6 +162,9 @@ def run_g13ej(scheme: str, vectorized: bool = False) -> tuple[np.ndarray, np.nda
         ukf.update(np.array(y))
         xs.append(ukf.x.copy())
     return np.array(xs), np.array(ukf.P1_2)
+
+
+# -- the coordinated-turn radar --------------------------------------------------------------------
 
 
 def ct_fx(x, dt):
@@ -411,6 +422,136 @@ def assert_same_estimate(a, b, exact=True, records=True):
         assert a.log_likelihood == b.log_likelihood
 
 
+# -- the fleet tests' targets: four states in range and bearing, K of them, noise per filter -------
+FLEET_N_X, FLEET_N_Z, FLEET_DT = 4, 2, 0.5
+FLEET_P0 = np.diag([1.0, 0.1, 1.0, 0.1])
+
+# models (tests/models.py): cv_fx_stacked and range_bearing_hx, turn_fx_stacked and xy_radar_hx_stacked,
+# written with X[..., i], so they serve a fleet (K, N, n) and one vectorised filter (N, n)
+
+FLEET_FAMILIES = {
+    "merwe": lambda: MerweScaledWeights(),
+    "merwe-alpha0.3": lambda: MerweScaledWeights(alpha=0.3),
+    "julier": lambda: JulierWeights(),
+    "simplex": lambda: SimplexWeights(),
+    "cubature": lambda: CubatureWeights(),
+    "filterpy-merwe": lambda: MerweScaledSigmaPoints(FLEET_N_X, alpha=0.3, beta=2.0, kappa=-1.0),
+}
+SCHEMES = ("redrawn", "augmented", "propagated")
+
+
+def fleet_data(K, T, seed=0, model="cv"):
+    """Initial states (K, n), per-filter Q (K, n, n) and R (K, m, m), measurements (K, T, m)."""
+    rng = np.random.default_rng(seed)
+    if model == "cv":
+        x0 = np.array([10.0, 1.0, 5.0, -0.5]) + rng.normal(0, 1.0, (K, FLEET_N_X))
+        fx, hx = cv_fx_stacked, range_bearing_hx
+    else:
+        x0 = np.array([-8.0, 0.5, 1.5, 2.0]) + rng.normal(0, 0.3, (K, FLEET_N_X))
+        fx, hx = turn_fx_stacked, xy_radar_hx_stacked
+    truth = [x0 + rng.normal(0, 0.3, (K, FLEET_N_X))]
+    for _ in range(T - 1):
+        truth.append(fx(truth[-1], FLEET_DT))
+    zs = np.stack([hx(t) for t in truth], axis=1) + rng.normal(0, 0.05, (K, T, FLEET_N_Z))
+    if model == "turn":
+        zs[..., 1] = np.arctan2(np.sin(zs[..., 1]), np.cos(zs[..., 1]))
+    Q = np.stack([np.diag([0.01, 0.02, 0.01, 0.02]) * (1 + 0.5 * k) for k in range(K)])
+    R = np.stack([np.array([[0.05, 0.01], [0.01, 0.02]]) * (1 + 0.3 * k) for k in range(K)])
+    return x0, Q, R, zs
+
+
+def cv_fleet(K, points, scheme="redrawn", model="cv", **kw):
+    fx, hx = (cv_fx_stacked, range_bearing_hx) if model == "cv" else (turn_fx_stacked, xy_radar_hx_stacked)
+    return Fleet(K, FLEET_N_X, FLEET_N_Z, FLEET_DT, hx, fx, points, scheme=scheme, **kw)
+
+
+def cv_single(points, scheme="redrawn", model="cv", **kw):
+    fx, hx = (cv_fx_stacked, range_bearing_hx) if model == "cv" else (turn_fx_stacked, xy_radar_hx_stacked)
+    return SquareRootUKF(FLEET_N_X, FLEET_N_Z, FLEET_DT, hx, fx, points, scheme=scheme, vectorized=True, **kw)
+
+
+def fleet_angle_hooks(model):
+    z = {"z_mean_fn": AngleMean([1]), "residual_z": AngleResidual([1])}
+    if model == "turn":
+        z.update(x_mean_fn=AngleMean([2]), residual_x=AngleResidual([2]), state_add=AngleAdd([2]))
+    return z
+
+
+def fleet_and_singles(K, name, scheme, model="cv", per_filter=True, hooks=None, seed=0, T=6):
+    x0, Q, R, zs = fleet_data(K, T, seed, model)
+    hooks = hooks or {}
+    fleet = cv_fleet(K, FLEET_FAMILIES[name](), scheme, model, **hooks)
+    fleet.x, fleet.P = x0, FLEET_P0
+    fleet.Q = Q if per_filter else Q[0]
+    fleet.R = R if per_filter else R[0]
+    singles = []
+    for k in range(K):
+        f = cv_single(FLEET_FAMILIES[name](), scheme, model, **hooks)
+        f.x, f.P = x0[k].copy(), FLEET_P0.copy()
+        f.Q = Q[k] if per_filter else Q[0]
+        f.R = R[k] if per_filter else R[0]
+        singles.append(f)
+    return fleet, singles, zs
+
+
+def fleet_with_and_without(K, k, scheme="redrawn", name="merwe", seed=1, **kw):
+    """A fleet of K filters and one of the K-1 others, same data (per-filter Q and R)."""
+    x0, Q, R, zs = fleet_data(K, 6, seed)
+    keep = np.array([j for j in range(K) if j != k], dtype=int)
+    big = cv_fleet(K, FLEET_FAMILIES[name](), scheme, **kw)
+    small = cv_fleet(K - 1, FLEET_FAMILIES[name](), scheme, **kw)
+    for fl, idx in ((big, np.arange(K)), (small, keep)):
+        fl.x, fl.P, fl.Q, fl.R = x0[idx], FLEET_P0, Q[idx], R[idx]
+    return big, small, keep, zs
+
+
+def fleet_batch_setup(K=3, T=7, scheme="redrawn"):
+    fleet, singles, zs = fleet_and_singles(K, "merwe-alpha0.3", scheme, T=T)
+    zs[0, 2] = np.nan
+    zs[1, T - 3, 1] = np.nan
+    zs[:, T - 2] = np.nan
+    return fleet, singles, zs
+
+
+# -- the fleet smoother's: K coordinated-turn tracks of the far scenario --------------------------
+
+# == Fleet.rts_smoother ============================================================================
+
+CTF_K, CTF_T = 3, 20
+
+
+def ct_fleet_measurements(seed=0, dts=None):
+    """``(K, T, 2)`` noisy range-bearing measurements of K coordinated-turn tracks, a few missing."""
+    rng = np.random.default_rng(seed)
+    dts = np.ones(CTF_T) if dts is None else dts
+    zs = np.empty((CTF_K, CTF_T, 2))
+    for k in range(CTF_K):
+        x = CT_X0 + rng.normal(size=5) * [20, 1, 20, 1, 0.005]
+        for t in range(CTF_T):
+            x = ct_fx_stacked(x, dts[t]) + rng.multivariate_normal(np.zeros(5), CT_Q)
+            zs[k, t] = range_bearing_hx(x) + rng.multivariate_normal(np.zeros(2), CT_R)
+    zs[0, 4] = np.nan  # no measurement
+    zs[1, 9, 1] = np.nan  # a missing component
+    return zs
+
+
+def ct_per_filter_Q():
+    return np.stack([CT_Q * s for s in (0.5, 1.0, 3.0)])
+
+
+def make_ct_fleet(points, scheme="redrawn", Q=CT_Q, **kw):
+    fleet = Fleet(CTF_K, 5, 2, 1.0, range_bearing_hx, ct_fx_stacked, points, scheme=scheme, **kw)
+    fleet.x, fleet.P, fleet.Q, fleet.R = CT_X0, CT_P0, Q, CT_R
+    return fleet
+
+
+def make_ct_single(points, k, scheme="redrawn", Q=CT_Q, **kw):
+    """Filter ``k`` of :func:`make_fleet`, built independently (fx called once per point)."""
+    f = SquareRootUKF(5, 2, 1.0, range_bearing_hx, ct_fx_stacked, points, scheme=scheme, **kw)
+    f.x, f.P, f.Q, f.R = CT_X0.copy(), CT_P0, (Q if Q.ndim == 2 else Q[k]), CT_R
+    return f
+
+
 # -- constant velocity on a line, for the Dask tests (worker processes import these by name) -----
 
 
@@ -438,6 +579,27 @@ def nan_for_big_line_fx(X, dt):
     bad = np.abs(X[..., 0]).max(axis=-1) > 1e6
     out[bad] = np.nan
     return out
+
+
+def line_fleet(K, fx=line_fx, seed=0, per_filter_R=False):
+    rng = np.random.default_rng(seed)
+    f = Fleet(K, 2, 2, 0.1, line_hx, fx, MerweScaledWeights(0.5))
+    f.x = rng.normal(size=(K, 2))
+    f.P = np.diag([1.0, 0.5])
+    f.Q = 0.01 * np.eye(2)
+    if per_filter_R:
+        f.R = np.stack([np.diag([0.1 + 0.01 * k, 0.2]) for k in range(K)])
+    else:
+        f.R = 0.1 * np.eye(2)
+    return f
+
+
+def line_measurements(K, T, seed=1):
+    rng = np.random.default_rng(seed)
+    zs = rng.normal(size=(K, T, 2)) + 1.5
+    zs[3 % K, 5 % T] = np.nan  # a missing row
+    zs[7 % K, 2 % T, 1] = np.nan  # a missing component
+    return zs
 
 
 # -- Lorenz-96 ---------------------------------------------------------------------------------

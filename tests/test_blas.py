@@ -1,4 +1,4 @@
-"""The filter's own numerics run on one BLAS thread for larger states, and nothing else is touched.
+"""squkf.blas: the filter's own numerics run on one BLAS thread for larger states, nothing else touched.
 
 The counts are read through threadpoolctl's own controllers, independently of
 ``squkf.blas``; the numerics are observed from inside a ``UT=`` transform,

@@ -1,4 +1,4 @@
-"""The compiled core's promises: one filter is a block of one, so a fleet filter equals its single filter.
+"""squkf.kernels, the compiled core: one filter is a block of one, so a fleet filter equals its single one.
 
 Every phase of the step is one numba kernel (:mod:`squkf.kernels`) that computes each filter in its
 own lane with the same operations in the same order, whatever the other lanes hold, however many

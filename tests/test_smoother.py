@@ -15,10 +15,9 @@ import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter, MerweScaledSigmaPoints
 from models import (
-    CT_P0,
     CT_Q,
-    CT_R,
-    CT_X0,
+    CTF_K,
+    CTF_T,
     CV3_K,
     CV3_NX,
     CV3_NZ,
@@ -26,13 +25,17 @@ from models import (
     LIN2_T,
     assert_results_equal,
     counting,
+    ct_fleet_measurements,
     ct_fx,
     ct_fx_stacked,
     ct_merwe_filter,
+    ct_per_filter_Q,
     ct_simulate,
     lin2_F,
     lin2_filter,
     lin2_fx,
+    make_ct_fleet,
+    make_ct_single,
     make_cv3_fleet,
     near_filter,
     range_bearing_hx,
@@ -335,43 +338,6 @@ def test_the_smoother_leaves_the_filter_alone(lin2_filtered):
     f.rts_smoother(means, covs, Qs=[LIN2_Q] * LIN2_T, fx_args={})
     for name in ("x", "P1_2", "x_prior", "P1_2_prior"):
         np.testing.assert_array_equal(getattr(f, name), getattr(before, name))
-
-
-# == Fleet.rts_smoother ============================================================================
-
-CTF_K, CTF_T = 3, 20
-
-
-def ct_fleet_measurements(seed=0, dts=None):
-    """``(K, T, 2)`` noisy range-bearing measurements of K coordinated-turn tracks, a few missing."""
-    rng = np.random.default_rng(seed)
-    dts = np.ones(CTF_T) if dts is None else dts
-    zs = np.empty((CTF_K, CTF_T, 2))
-    for k in range(CTF_K):
-        x = CT_X0 + rng.normal(size=5) * [20, 1, 20, 1, 0.005]
-        for t in range(CTF_T):
-            x = ct_fx_stacked(x, dts[t]) + rng.multivariate_normal(np.zeros(5), CT_Q)
-            zs[k, t] = range_bearing_hx(x) + rng.multivariate_normal(np.zeros(2), CT_R)
-    zs[0, 4] = np.nan  # no measurement
-    zs[1, 9, 1] = np.nan  # a missing component
-    return zs
-
-
-def ct_per_filter_Q():
-    return np.stack([CT_Q * s for s in (0.5, 1.0, 3.0)])
-
-
-def make_ct_fleet(points, scheme="redrawn", Q=CT_Q, **kw):
-    fleet = Fleet(CTF_K, 5, 2, 1.0, range_bearing_hx, ct_fx_stacked, points, scheme=scheme, **kw)
-    fleet.x, fleet.P, fleet.Q, fleet.R = CT_X0, CT_P0, Q, CT_R
-    return fleet
-
-
-def make_ct_single(points, k, scheme="redrawn", Q=CT_Q, **kw):
-    """Filter ``k`` of :func:`make_fleet`, built independently (fx called once per point)."""
-    f = SquareRootUKF(5, 2, 1.0, range_bearing_hx, ct_fx_stacked, points, scheme=scheme, **kw)
-    f.x, f.P, f.Q, f.R = CT_X0.copy(), CT_P0, (Q if Q.ndim == 2 else Q[k]), CT_R
-    return f
 
 
 def assert_matches_single(points, scheme="redrawn", Q=CT_Q, dts=None, chained_tol=1e-10, **kw):

@@ -2,16 +2,21 @@
 
 A bad in-place edit raises at the next call and leaves the filter as before; a failed assignment
 keeps a pending edit; a bad hook result, a bad value told or a model function that raises leaves
-the step where it was, so that it can be completed. (The fault matrix of tests/test_errors.py
-checks the same for every bad input; the fleet's own transactions are in tests/test_fleet.py.)
+the step where it was, so that it can be completed; a fleet given bad input, or failing with
+``on_error='raise'``, changes no filter. (The fault matrix of tests/test_errors.py checks the same
+for every bad input of the single filter.)
 """
 
 from __future__ import annotations
+
+import copy
+import pickle
 
 import numpy as np
 import pytest
 from models import (
     CV_Z,
+    FLEET_DT,
     assert_filter_state,
     assert_fleet_state,
     assert_same_estimate,
@@ -21,14 +26,25 @@ from models import (
     ct_negative_weight_filter,
     cv3_zs,
     cv_filter,
+    cv_fleet,
+    cv_fx_stacked,
     filter_state,
+    fleet_and_singles,
+    fleet_batch_setup,
     fleet_state,
+    fleet_with_and_without,
     make_cv3_fleet,
+    range_bearing_hx,
     step,
 )
 
 from squkf import (
+    CallSequenceError,
+    FleetStepError,
+    MerweScaledWeights,
     NonFiniteError,
+    NotPositiveDefiniteError,
+    ParameterError,
     ShapeError,
     SqukfError,
     SqukfValueError,
@@ -231,3 +247,163 @@ def test_an_invalid_edit_in_place_raises_at_the_next_call_and_changes_nothing():
         fl.update(cv3_zs(1)[:, 0])
     P[1, 0, 0] = snap["P1_2"][1, 0, 0] ** 2  # put back: nothing had changed
     assert_fleet_state(fl, snap)
+
+
+# == the fleet: bad input or on_error='raise' changes no filter ====================================
+
+
+def test_reset_bad_input_changes_nothing():
+    fleet = cv_fleet(3, MerweScaledWeights())
+    fleet.x = np.arange(4.0)
+    fleet.predict(bad=np.array([False, True, False]))
+    snap = fleet_state(fleet)
+    for kw, exc in [
+        ({"x": np.zeros(3)}, ShapeError),
+        ({"x": np.full(4, np.nan)}, NonFiniteError),
+        ({"P": np.eye(3)}, ShapeError),
+        ({"P": -np.eye(4)}, NotPositiveDefiniteError),
+        ({"x": np.zeros(4), "P": -np.eye(4)}, NotPositiveDefiniteError),
+    ]:
+        with pytest.raises(exc):
+            fleet.reset(1, **kw)
+        assert_fleet_state(fleet, snap)
+
+
+@pytest.mark.parametrize("where", ["predict", "update"])
+def test_on_error_raise_changes_no_filter(where):
+    K, k = 4, 1
+    big, _, _, zs = fleet_with_and_without(K, k, on_error="raise")
+    big.predict()
+    big.update(zs[:, 0])
+    bad = np.zeros(K, dtype=bool)
+    bad[k] = True
+    if where == "update":  # filter k's R zero and its hx constant: a singular innovation factor
+        R = big.R
+        R[k] = 0.0
+        big.R = R
+        big.predict()
+    other = copy.deepcopy(big)
+    snap = fleet_state(big)
+    with pytest.raises(FleetStepError) as info:
+        if where == "predict":
+            big.predict(bad=bad)
+        else:
+            big.update(zs[:, 1], scale=np.where(bad, 0.0, 1.0))
+    assert info.value.filters == (k,)
+    assert len(info.value.reasons) == 1 and info.value.reasons[0]
+    assert str(k) in str(info.value)
+    assert isinstance(info.value, SqukfError) and isinstance(info.value, ArithmeticError)
+    assert_fleet_state(big, snap)
+    assert not big.failed.any()
+    again = pickle.loads(pickle.dumps(info.value))
+    assert again.filters == (k,) and again.reasons == info.value.reasons
+    # the fleet goes on as if the failing call had not been made
+    if where == "predict":
+        big.predict()
+        other.predict()
+    else:
+        big.update(zs[:, 1])
+        other.update(zs[:, 1])
+    assert_fleet_state(big, fleet_state(other))
+
+
+# -- bad input raises for the whole call and changes nothing ------------------------------
+
+
+def test_bad_input_changes_nothing():
+    K = 3
+    fleet, _, zs = fleet_and_singles(K, "merwe", "augmented")
+    fleet.predict()
+    fleet.update(zs[:, 0])
+    fleet.predict()
+    reference = copy.deepcopy(fleet)
+    snap = fleet_state(fleet)
+    z = zs[:, 1]
+    z_inf = z.copy()
+    z_inf[1, 0] = np.inf
+    R_bad = np.stack([np.eye(2)] * K)
+    R_bad[2] = -np.eye(2)
+    calls = [
+        (lambda: fleet.update(z[:2]), ShapeError),
+        (lambda: fleet.update(z[:, :1]), ShapeError),
+        (lambda: fleet.update(z.ravel()), ShapeError),
+        (lambda: fleet.update(z_inf), NonFiniteError),
+        (lambda: fleet.update(-z_inf), NonFiniteError),
+        (lambda: fleet.update(z, R=np.eye(3)), ShapeError),
+        (lambda: fleet.update(z, R=np.ones((K + 1, 2, 2))), ShapeError),
+        (lambda: fleet.update(z, R=R_bad), SqukfError),
+        (lambda: fleet.update(z, R=np.full((2, 2), np.nan)), NonFiniteError),
+        (lambda: fleet.tell_update(np.zeros((K, 3, 2)), z), CallSequenceError),
+        (lambda: fleet.tell_predict(np.zeros((K, 9, 4))), CallSequenceError),
+    ]
+    for call, exc in calls:
+        with pytest.raises(exc):
+            call()
+        assert_fleet_state(fleet, snap)
+    # the pending update still works, as in the fleet that never saw the bad calls
+    fleet.update(z)
+    reference.update(z)
+    np.testing.assert_array_equal(fleet.x, reference.x)
+    np.testing.assert_array_equal(fleet.P1_2, reference.P1_2)
+    snap = fleet_state(fleet)
+    for dt in (np.nan, np.inf, "a", 1j, np.complex128(1.0)):
+        with pytest.raises(ParameterError):
+            fleet.predict(dt)
+        assert_fleet_state(fleet, snap)
+    # tell_predict with values of the wrong shape, mid ask/tell
+    X = fleet.ask_predict()
+    snap = fleet_state(fleet)
+    with pytest.raises(ShapeError):
+        fleet.tell_predict(cv_fx_stacked(X, FLEET_DT)[:, :-1])
+    assert_fleet_state(fleet, snap)
+    fleet.tell_predict(cv_fx_stacked(X, FLEET_DT))
+    X2 = fleet.ask_update()
+    snap = fleet_state(fleet)
+    with pytest.raises(ShapeError):
+        fleet.tell_update(range_bearing_hx(X2)[..., :1], z)
+    assert_fleet_state(fleet, snap)
+
+
+def test_batch_filter_bad_input_changes_nothing():
+    K, T = 3, 5
+    fleet, _, zs = fleet_batch_setup(K, T)
+    fleet.predict()
+    snap = fleet_state(fleet)
+    late_inf = zs.copy()
+    late_inf[1, 3, 0] = np.inf
+    calls = [
+        (lambda: fleet.batch_filter(zs, keep="some"), ParameterError),
+        (lambda: fleet.batch_filter(zs[:2]), ShapeError),
+        (lambda: fleet.batch_filter(zs[..., :1]), ShapeError),
+        (lambda: fleet.batch_filter(zs[0]), ShapeError),
+        (lambda: fleet.batch_filter(zs, dts=[0.5, np.nan, 0.5, 0.5, 0.5]), ParameterError),
+        (lambda: fleet.batch_filter(zs, fx_args=[1]), ParameterError),
+        (lambda: fleet.batch_filter(zs, dts=[0.5] * (T + 1)), ShapeError),
+        (lambda: fleet.batch_filter(zs, dts=np.ones((T, 1))), ShapeError),
+        (lambda: fleet.batch_filter(late_inf), NonFiniteError),
+    ]
+    for call, exc in calls:
+        with pytest.raises(exc):
+            call()
+        assert_fleet_state(fleet, snap)
+
+
+def test_batch_filter_on_error_raise_changes_nothing():
+    K, T = 3, 4
+    fleet, _, zs = fleet_batch_setup(K, T)
+    fleet.on_error = "raise"
+    snap = fleet_state(fleet)
+
+    def fx(X, dt):
+        fx.calls += 1
+        out = cv_fx_stacked(X, dt)
+        if fx.calls == 3:  # the third prediction fails for filter 1
+            out[1] = np.nan
+        return out
+
+    fx.calls = 0
+    fleet.fx = fx
+    with pytest.raises(FleetStepError) as info:
+        fleet.batch_filter(zs)
+    assert info.value.filters == (1,)
+    assert_fleet_state(fleet, snap)

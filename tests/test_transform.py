@@ -1,4 +1,4 @@
-"""The unscented transform (squkf.transform, squkf.rows, squkf.covariance): exact on linear maps, row forms.
+"""The unscented transform (squkf.ut, .transform, .rows, .covariance): exact on linear maps, row forms.
 
 ``squkf.unscented_transform`` is exact on linear maps and meets the polar-to-Cartesian benchmark;
 the row forms of the weighted covariance reproduce it (negative rows downdated where no form avoids
