@@ -1,13 +1,51 @@
-"""Models shared by the tests: the g13ej robot, a coordinated-turn radar, Lorenz-96."""
+"""The tests' shared models and factories: import from here, define nothing of the kind locally.
+
+tests/README.md lists them by kind. In the order of this file:
+
+- the g13ej example: :func:`example_data`, :class:`Robot`, :func:`run_g13ej`, and squkf.nag's
+  calling sequence (:func:`first_entry`, :func:`call`, :func:`fill`, :func:`at_exit`)
+- the coordinated-turn radar (state ``[px, vx, py, vy, omega]``, range and bearing):
+  :func:`ct_fx`, :func:`ct_hx`, their row-wise and ``X[..., i]`` (stacked) forms, the far scenario
+  ``CT_*`` (:func:`ct_filter` and its configurations, :func:`ct_simulate`, :func:`ct_measurements`)
+  and the near one ``NEAR_*`` (:func:`near_filter`, :func:`near_measurements`)
+- constant velocity in the plane (state ``[px, vx, py, vy]``): :func:`cv_fx` for one point, its
+  stacked forms :func:`cv_fx_stacked` and :func:`cv_fx_nudged` with :func:`positions_hx` (a fleet
+  of three, :func:`make_cv3_fleet`), and the four-state radar ``CV_*`` (:func:`cv_filter`)
+- the fleet tests' K filters (``FLEET_*``, :func:`fleet_data`, :func:`cv_fleet`, :func:`cv_single`,
+  :func:`fleet_and_singles`, ...) and the fleet smoother's K coordinated-turn tracks (``CTF_*``)
+- constant velocity on a line, for the Dask tests: :func:`line_fx`, :func:`line_hx`, the failing
+  :func:`slow_line_fx`, :func:`nan_for_big_line_fx`, and :func:`line_fleet` (module level, so that
+  Dask's worker processes can import them by name: the cluster fixture puts this folder on their path)
+- Lorenz-96, heading models, plain-arithmetic models (bit-for-bit comparisons)
+- linear models: the precise sensor ``PRECISE_*`` (filterpy's UKF fails on it), the correlated
+  four-state linear model ``LIN4_*``, the one-sensor constant velocity ``LIN2_*`` of the smoother
+  tests, the drifting ``DRIFT_*`` of the batch tests, :func:`random_linear_model`,
+  :func:`linear_pair`, :func:`spd`
+- small filters (:func:`identity_filter`, :func:`decay_filter`, :func:`one_d`, ...) and polar to
+  Cartesian (:func:`polar`, :func:`polar_rows`)
+- checks: :func:`filter_state` / :func:`assert_filter_state`, :func:`fleet_state` /
+  :func:`assert_fleet_state`, :func:`assert_results_equal`, :func:`counting`, :func:`rel`
+"""
 
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
+from filterpy.common import Q_discrete_white_noise
+from filterpy.kalman import KalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+from squkf import CubatureWeights, Fleet, JulierWeights, MerweScaledWeights, SimplexWeights, SquareRootUKF
+from squkf.angles import AngleAdd, AngleMean, AngleResidual, wrap
+from squkf.examples import g13ej_example as ex
+from squkf.nag import kalman_unscented_state_revcom as g13ej
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+# -- the g13ej example -----------------------------------------------------------------------------
 
 
 def example_data() -> dict:
@@ -40,6 +78,95 @@ class Robot:
         return np.array([self.Delta - x[0] * np.cos(self.A) - x[1] * np.sin(self.A), a])
 
 
+# the g13ej calling sequence (squkf.nag): the arguments as a dict, a call, the model's images
+G13EJ = ex.load_data()
+
+
+def first_entry(ropt=None, lx="default"):
+    lx = np.array(G13EJ["lx"]) if lx == "default" else lx
+    x = np.array(G13EJ["x0"], dtype=float)
+    st = np.array(G13EJ["st0"], dtype=float)
+    xt = np.zeros((3, 13))
+    fxt = np.zeros((3, 13))
+    comm = {}
+    return dict(
+        irevcm=0,
+        y=G13EJ["y"][0],
+        ly=np.array(G13EJ["ly"]),
+        x=x,
+        st=st,
+        xt=xt,
+        fxt=fxt,
+        comm=comm,
+        lx=lx,
+        ropt=ropt,
+    )
+
+
+def call(a):
+    a["irevcm"], n = g13ej(
+        a["irevcm"],
+        a["y"],
+        a["ly"],
+        a["x"],
+        a["st"],
+        a["xt"],
+        a["fxt"],
+        a["comm"],
+        lx=a["lx"],
+        ropt=a["ropt"],
+    )
+    return a["irevcm"], n
+
+
+def fill(a, n):
+    m = G13EJ["model"]
+    if a["irevcm"] == 1:
+        a["fxt"][:3, :n] = ex.f(a["xt"][:, :n], m["r"], m["d"], 0.4, 0.1)
+    else:
+        a["fxt"][:2, :n] = ex.h(a["xt"][:, :n], m["Delta"], m["A"])
+
+
+def at_exit(k, ropt=None):
+    """Arguments positioned at intermediate exit k (1 or 2)."""
+    a = first_entry(ropt=ropt)
+    _, n = call(a)
+    if k == 2:
+        fill(a, n)
+        _, n = call(a)
+    fill(a, n)
+    return a
+
+
+def run_g13ej(scheme: str, vectorized: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """The g13ej example through SquareRootUKF: the state estimates and the final factor."""
+    data = example_data()
+    robot = Robot(data)
+    if vectorized:
+
+        def fx(X, dt, phi_r, phi_l):
+            return np.array([robot.fx(x, dt, phi_r, phi_l) for x in X])
+
+        def hx(X):
+            return np.array([robot.hx(x) for x in X])
+    else:
+        fx, hx = robot.fx, robot.hx
+    ukf = SquareRootUKF(3, 2, 1.0, hx, fx, MerweScaledWeights(), scheme=scheme, vectorized=vectorized)
+    ukf.x = np.array(data["x0"])
+    ukf.P1_2 = np.array(data["st0"])
+    ukf.Q1_2 = np.array(data["lx"])
+    ukf.R1_2 = np.array(data["ly"])
+    xs = []
+    for t, y in enumerate(data["y"]):
+        ukf.predict(phi_r=data["phi_r"][t], phi_l=data["phi_l"][t])
+        ukf.update(np.array(y))
+        xs.append(ukf.x.copy())
+    return np.array(xs), np.array(ukf.P1_2)
+
+
+# -- the coordinated-turn radar --------------------------------------------------------------------
+
+
 def ct_fx(x, dt):
     """Coordinated turn with unknown turn rate; state [px, vx, py, vy, omega]."""
     px, vx, py, vy, w = x
@@ -62,6 +189,422 @@ def ct_hx(x):
     return np.array([np.hypot(x[0], x[2]), np.arctan2(x[2], x[0])])
 
 
+def ct_fx_rows(X, dt):
+    """:func:`ct_fx` of each row of ``X`` (a ``vectorized=True`` model)."""
+    return np.array([ct_fx(x, dt) for x in X])
+
+
+def ct_hx_rows(X):
+    """:func:`ct_hx` of each row of ``X``."""
+    return np.array([ct_hx(x) for x in X])
+
+
+def ct_fx_stacked(X, dt, scale=1.0, poison=0.0):
+    """Coordinated turn, written with ``X[..., i]``: one point, N points or K sets of N points alike.
+
+    ``scale`` and ``poison`` (per filter in a fleet) let a test break one filter's images.
+    """
+    px, vx, py, vy, w = (X[..., i] for i in range(5))
+    s, c = np.sin(w * dt), np.cos(w * dt)
+    out = np.stack(
+        [
+            px + (s * vx - (1 - c) * vy) / w,
+            c * vx - s * vy,
+            py + ((1 - c) * vx + s * vy) / w,
+            s * vx + c * vy,
+            w,
+        ],
+        axis=-1,
+    )
+    return out * np.asarray(scale)[..., None] + np.asarray(poison)[..., None]
+
+
+def range_bearing_hx(X, scale=None):
+    """Range and bearing of ``[X[..., 0], X[..., 2]]`` from the origin; ``scale`` 0 makes it constant."""
+    h = np.stack([np.hypot(X[..., 0], X[..., 2]), np.arctan2(X[..., 2], X[..., 0])], axis=-1)
+    if scale is not None:
+        h = h * np.asarray(scale)[..., None]
+    return h
+
+
+# the far scenario: a target 3.6 km out, turning slowly
+CT_Q = np.diag([0.1, 0.01, 0.1, 0.01, 1e-6])
+CT_R = np.diag([25.0, 0.002**2])
+CT_X0 = np.array([2000.0, 10.0, 3000.0, -5.0, 0.02])
+CT_P0 = np.diag([400.0, 4.0, 400.0, 4.0, 1e-4])
+
+
+def ct_filter(points, cls=SquareRootUKF, vectorized=False, **kw):
+    """A ``cls`` (SquareRootUKF or a filterpy filter) on the far scenario, at ``CT_X0``, ``CT_P0``."""
+    if vectorized:
+        f = cls(5, 2, 1.0, ct_hx_rows, ct_fx_rows, points, vectorized=True, **kw)
+    else:
+        f = cls(5, 2, 1.0, ct_hx, ct_fx, points, **kw)
+    f.x, f.P, f.Q, f.R = CT_X0.copy(), CT_P0, CT_Q, CT_R
+    return f
+
+
+def ct_negative_weight_filter(scheme="redrawn", vectorized=False):
+    """The far scenario, Merwe points with alpha 0.1 (a negative central weight)."""
+    return ct_filter(MerweScaledWeights(alpha=0.1, beta=2.0, kappa=0.0), scheme=scheme, vectorized=vectorized)
+
+
+def ct_mid_step_filter(vectorized=False, points=None, **kw):
+    """The far scenario (Merwe alpha 0.3, kappa -2 unless ``points``) stopped mid-step: a prior pending."""
+    points = MerweScaledWeights(0.3, 2.0, -2.0) if points is None else points
+    f = ct_filter(points, vectorized=vectorized, **kw)
+    f.predict()
+    f.update(ct_hx(f.x) + 1.0)
+    f.predict()  # mid-step: a prior is pending
+    return f
+
+
+def ct_merwe_filter(cls):
+    """The far scenario in ``cls`` (SquareRootUKF or filterpy's UKF), filterpy's Merwe points (0.3, 2, -2)."""
+    return ct_filter(MerweScaledSigmaPoints(5, 0.3, 2.0, -2.0), cls=cls)
+
+
+def ct_simulate(T=60, seed=0, missing=(5, 17, 18, 40)):
+    """Measurements (``None`` at the steps ``missing``, a few by default) and true states of T noisy steps."""
+    rng = np.random.default_rng(seed)
+    x = CT_X0.copy()
+    zs, truth = [], []
+    for k in range(T):
+        x = ct_fx(x, 1.0) + rng.multivariate_normal(np.zeros(5), CT_Q)
+        truth.append(x)
+        zs.append(None if k in missing else ct_hx(x) + rng.multivariate_normal(np.zeros(2), CT_R))
+    return zs, np.array(truth)
+
+
+def ct_measurements(k=30, seed=0, x0=CT_X0, sd=(5.0, 0.002), dt=1.0):
+    """Noisy measurements of a noise-free track from ``x0`` (a list of k)."""
+    rng = np.random.default_rng(seed)
+    x = np.array(x0, dtype=float)
+    zs = []
+    for _ in range(k):
+        x = ct_fx(x, dt)
+        zs.append(ct_hx(x) + rng.normal(0, list(sd)))
+    return zs
+
+
+# the near scenario: a target a few units out, turning fast
+NEAR_DT = 1.0
+NEAR_X0 = np.array([-8.0, 0.5, 1.5, 2.0, 0.05])
+NEAR_P0 = np.diag([1.0, 0.1, 1.0, 0.1, 0.01])
+NEAR_Q = np.diag([1e-3, 1e-2, 1e-3, 1e-2, 1e-4])
+NEAR_R = np.diag([0.05, 0.01])
+
+
+def near_filter(**kw) -> SquareRootUKF:
+    """The coordinated-turn radar on the near scenario."""
+    f = SquareRootUKF(5, 2, NEAR_DT, ct_hx, ct_fx, MerweScaledWeights(alpha=0.5), **kw)
+    f.x, f.P, f.Q, f.R = NEAR_X0, NEAR_P0, NEAR_Q, NEAR_R
+    return f
+
+
+def near_measurements(T: int, seed: int = 0) -> np.ndarray:
+    """``(T, 2)`` measurements of the near scenario's noise-free track."""
+    rng = np.random.default_rng(seed)
+    x, out = NEAR_X0.copy(), []
+    for _ in range(T):
+        x = ct_fx(x, NEAR_DT)
+        out.append(ct_hx(x) + rng.normal(0.0, [0.2, 0.1]))
+    return np.array(out)
+
+
+# -- constant velocity in the plane, state [px, vx, py, vy] ------------------------------------
+
+
+def cv_fx(x, dt):
+    """Constant velocity, state [px, vx, py, vy] (one point; :func:`ct_hx` measures it)."""
+    return np.array([x[0] + dt * x[1], x[1], x[2] + dt * x[3], x[3]])
+
+
+def cv_fx_stacked(X, dt, u=None, bad=None, kick=None):
+    """Constant velocity, state [px, vx, py, vy]; ``u`` an acceleration (per filter in a fleet).
+
+    ``bad`` (a flag per filter) makes the images NaN; ``kick`` moves every non-central point
+    by the same amount (an indefinite weighted covariance with a negative weight).
+    """
+    out = np.stack([X[..., 0] + dt * X[..., 1], X[..., 1], X[..., 2] + dt * X[..., 3], X[..., 3]], axis=-1)
+    if u is not None:
+        u = np.asarray(u, dtype=float)
+        out = out + dt * np.stack([0.5 * dt * u[..., 0], u[..., 0], 0.5 * dt * u[..., 1], u[..., 1]], axis=-1)
+    if bad is not None:
+        out = np.where(np.asarray(bad)[..., None], np.nan, out)
+    if kick is not None:
+        noncentral = (np.arange(X.shape[-2]) != 0)[:, None]
+        out = out + np.asarray(kick)[..., None] * noncentral
+    return out
+
+
+def cv_fx_nudged(X, dt, u=None, bad=None):
+    """Constant velocity in two axes, state [px, vx, py, vy] (``u``: an offset of vx; ``bad``: NaN)."""
+    out = np.stack([X[..., 0] + dt * X[..., 1], X[..., 1], X[..., 2] + dt * X[..., 3], X[..., 3]], axis=-1)
+    if u is not None:
+        out[..., 1] += u
+    if bad is not None:
+        out = np.where(np.asarray(bad)[..., None], np.nan, out)
+    return out
+
+
+def positions_hx(X, scale=1.0):
+    """Both positions, times ``scale``."""
+    return np.asarray(scale)[..., None] * X[..., ::2]
+
+
+# a fleet of three: cv_fx_nudged measured by positions_hx
+CV3_K, CV3_NX, CV3_NZ, CV3_DT = 3, 4, 2, 1.0
+
+
+def make_cv3_fleet(**kw) -> Fleet:
+    """The fleet of three constant-velocity filters."""
+    fl = Fleet(CV3_K, CV3_NX, CV3_NZ, CV3_DT, positions_hx, cv_fx_nudged, MerweScaledWeights(alpha=0.5), **kw)
+    fl.x = np.array([[0.0, 1.0, 0.0, -1.0], [1.0, 0.5, 2.0, 0.0], [-1.0, 0.0, 1.0, 1.0]])
+    fl.P = np.diag([1.0, 0.1, 1.0, 0.1])
+    fl.Q = 1e-3 * np.eye(CV3_NX)
+    fl.R = 0.1 * np.eye(CV3_NZ)
+    return fl
+
+
+def cv3_zs(T: int, seed: int = 1) -> np.ndarray:
+    """``(K, T, 2)`` measurements for :func:`make_cv3_fleet` (pure noise)."""
+    rng = np.random.default_rng(seed)
+    return rng.normal(0.0, 1.0, (CV3_K, T, CV3_NZ))
+
+
+# the four-state radar of the filterpy-habit tests: cv_fx measured by ct_hx (range and bearing)
+CV_DT = 0.5
+CV_Q = Q_discrete_white_noise(2, dt=CV_DT, var=0.05, block_size=2) + 1e-4 * np.eye(4)
+CV_R = np.array([[0.5, 0.1], [0.1, 0.02]])
+CV_X0 = np.array([10.0, 1.0, 20.0, -0.5])
+CV_P0 = np.diag([4.0, 1.0, 4.0, 1.0])
+
+
+def cv_measurements(k=6, seed=3):
+    rng = np.random.default_rng(seed)
+    x = CV_X0.copy()
+    out = []
+    for _ in range(k):
+        x = cv_fx(x, CV_DT)
+        out.append(ct_hx(x) + rng.normal(0, [0.5, 0.05]))
+    return out
+
+
+CV_Z = cv_measurements()
+
+
+def cv_filter(scheme="redrawn", points=None, **kw):
+    """The four-state radar (Merwe alpha 0.5 unless ``points``)."""
+    points = MerweScaledWeights(alpha=0.5, beta=2.0, kappa=0.0) if points is None else points
+    f = SquareRootUKF(4, 2, CV_DT, ct_hx, cv_fx, points, scheme=scheme, **kw)
+    f.x, f.P, f.Q, f.R = CV_X0, CV_P0, CV_Q, CV_R
+    return f
+
+
+def step(f, z):
+    """One predict and one update."""
+    f.predict()
+    f.update(z)
+
+
+def assert_same_estimate(a, b, exact=True, records=True):
+    """``a`` and ``b`` hold the same estimate (and records), bit for bit or to 1e-12."""
+    names = ("x", "P", "x_prior", "P1_2_prior", "x_post", "P1_2_post", "y", "K") if records else ("x", "P")
+    for name in names:
+        if exact:
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+        else:
+            np.testing.assert_allclose(
+                getattr(a, name), getattr(b, name), rtol=1e-12, atol=1e-12, err_msg=name
+            )
+    if exact:
+        assert a.log_likelihood == b.log_likelihood
+
+
+# -- the fleet tests' targets: four states in range and bearing, K of them, noise per filter -------
+FLEET_N_X, FLEET_N_Z, FLEET_DT = 4, 2, 0.5
+FLEET_P0 = np.diag([1.0, 0.1, 1.0, 0.1])
+
+# models (tests/models.py): cv_fx_stacked and range_bearing_hx, turn_fx_stacked and xy_radar_hx_stacked,
+# written with X[..., i], so they serve a fleet (K, N, n) and one vectorised filter (N, n)
+
+FLEET_FAMILIES = {
+    "merwe": lambda: MerweScaledWeights(),
+    "merwe-alpha0.3": lambda: MerweScaledWeights(alpha=0.3),
+    "julier": lambda: JulierWeights(),
+    "simplex": lambda: SimplexWeights(),
+    "cubature": lambda: CubatureWeights(),
+    "filterpy-merwe": lambda: MerweScaledSigmaPoints(FLEET_N_X, alpha=0.3, beta=2.0, kappa=-1.0),
+}
+SCHEMES = ("redrawn", "augmented", "propagated")
+
+
+def fleet_data(K, T, seed=0, model="cv"):
+    """Initial states (K, n), per-filter Q (K, n, n) and R (K, m, m), measurements (K, T, m)."""
+    rng = np.random.default_rng(seed)
+    if model == "cv":
+        x0 = np.array([10.0, 1.0, 5.0, -0.5]) + rng.normal(0, 1.0, (K, FLEET_N_X))
+        fx, hx = cv_fx_stacked, range_bearing_hx
+    else:
+        x0 = np.array([-8.0, 0.5, 1.5, 2.0]) + rng.normal(0, 0.3, (K, FLEET_N_X))
+        fx, hx = turn_fx_stacked, xy_radar_hx_stacked
+    truth = [x0 + rng.normal(0, 0.3, (K, FLEET_N_X))]
+    for _ in range(T - 1):
+        truth.append(fx(truth[-1], FLEET_DT))
+    zs = np.stack([hx(t) for t in truth], axis=1) + rng.normal(0, 0.05, (K, T, FLEET_N_Z))
+    if model == "turn":
+        zs[..., 1] = np.arctan2(np.sin(zs[..., 1]), np.cos(zs[..., 1]))
+    Q = np.stack([np.diag([0.01, 0.02, 0.01, 0.02]) * (1 + 0.5 * k) for k in range(K)])
+    R = np.stack([np.array([[0.05, 0.01], [0.01, 0.02]]) * (1 + 0.3 * k) for k in range(K)])
+    return x0, Q, R, zs
+
+
+def cv_fleet(K, points, scheme="redrawn", model="cv", **kw):
+    fx, hx = (cv_fx_stacked, range_bearing_hx) if model == "cv" else (turn_fx_stacked, xy_radar_hx_stacked)
+    return Fleet(K, FLEET_N_X, FLEET_N_Z, FLEET_DT, hx, fx, points, scheme=scheme, **kw)
+
+
+def cv_single(points, scheme="redrawn", model="cv", **kw):
+    fx, hx = (cv_fx_stacked, range_bearing_hx) if model == "cv" else (turn_fx_stacked, xy_radar_hx_stacked)
+    return SquareRootUKF(FLEET_N_X, FLEET_N_Z, FLEET_DT, hx, fx, points, scheme=scheme, vectorized=True, **kw)
+
+
+def fleet_angle_hooks(model):
+    z = {"z_mean_fn": AngleMean([1]), "residual_z": AngleResidual([1])}
+    if model == "turn":
+        z.update(x_mean_fn=AngleMean([2]), residual_x=AngleResidual([2]), state_add=AngleAdd([2]))
+    return z
+
+
+def fleet_and_singles(K, name, scheme, model="cv", per_filter=True, hooks=None, seed=0, T=6):
+    x0, Q, R, zs = fleet_data(K, T, seed, model)
+    hooks = hooks or {}
+    fleet = cv_fleet(K, FLEET_FAMILIES[name](), scheme, model, **hooks)
+    fleet.x, fleet.P = x0, FLEET_P0
+    fleet.Q = Q if per_filter else Q[0]
+    fleet.R = R if per_filter else R[0]
+    singles = []
+    for k in range(K):
+        f = cv_single(FLEET_FAMILIES[name](), scheme, model, **hooks)
+        f.x, f.P = x0[k].copy(), FLEET_P0.copy()
+        f.Q = Q[k] if per_filter else Q[0]
+        f.R = R[k] if per_filter else R[0]
+        singles.append(f)
+    return fleet, singles, zs
+
+
+def fleet_with_and_without(K, k, scheme="redrawn", name="merwe", seed=1, **kw):
+    """A fleet of K filters and one of the K-1 others, same data (per-filter Q and R)."""
+    x0, Q, R, zs = fleet_data(K, 6, seed)
+    keep = np.array([j for j in range(K) if j != k], dtype=int)
+    big = cv_fleet(K, FLEET_FAMILIES[name](), scheme, **kw)
+    small = cv_fleet(K - 1, FLEET_FAMILIES[name](), scheme, **kw)
+    for fl, idx in ((big, np.arange(K)), (small, keep)):
+        fl.x, fl.P, fl.Q, fl.R = x0[idx], FLEET_P0, Q[idx], R[idx]
+    return big, small, keep, zs
+
+
+def fleet_batch_setup(K=3, T=7, scheme="redrawn"):
+    fleet, singles, zs = fleet_and_singles(K, "merwe-alpha0.3", scheme, T=T)
+    zs[0, 2] = np.nan
+    zs[1, T - 3, 1] = np.nan
+    zs[:, T - 2] = np.nan
+    return fleet, singles, zs
+
+
+# -- the fleet smoother's: K coordinated-turn tracks of the far scenario --------------------------
+
+# == Fleet.rts_smoother ============================================================================
+
+CTF_K, CTF_T = 3, 20
+
+
+def ct_fleet_measurements(seed=0, dts=None):
+    """``(K, T, 2)`` noisy range-bearing measurements of K coordinated-turn tracks, a few missing."""
+    rng = np.random.default_rng(seed)
+    dts = np.ones(CTF_T) if dts is None else dts
+    zs = np.empty((CTF_K, CTF_T, 2))
+    for k in range(CTF_K):
+        x = CT_X0 + rng.normal(size=5) * [20, 1, 20, 1, 0.005]
+        for t in range(CTF_T):
+            x = ct_fx_stacked(x, dts[t]) + rng.multivariate_normal(np.zeros(5), CT_Q)
+            zs[k, t] = range_bearing_hx(x) + rng.multivariate_normal(np.zeros(2), CT_R)
+    zs[0, 4] = np.nan  # no measurement
+    zs[1, 9, 1] = np.nan  # a missing component
+    return zs
+
+
+def ct_per_filter_Q():
+    return np.stack([CT_Q * s for s in (0.5, 1.0, 3.0)])
+
+
+def make_ct_fleet(points, scheme="redrawn", Q=CT_Q, **kw):
+    fleet = Fleet(CTF_K, 5, 2, 1.0, range_bearing_hx, ct_fx_stacked, points, scheme=scheme, **kw)
+    fleet.x, fleet.P, fleet.Q, fleet.R = CT_X0, CT_P0, Q, CT_R
+    return fleet
+
+
+def make_ct_single(points, k, scheme="redrawn", Q=CT_Q, **kw):
+    """Filter ``k`` of :func:`make_fleet`, built independently (fx called once per point)."""
+    f = SquareRootUKF(5, 2, 1.0, range_bearing_hx, ct_fx_stacked, points, scheme=scheme, **kw)
+    f.x, f.P, f.Q, f.R = CT_X0.copy(), CT_P0, (Q if Q.ndim == 2 else Q[k]), CT_R
+    return f
+
+
+# -- constant velocity on a line, for the Dask tests (worker processes import these by name) -----
+
+
+def line_fx(X, dt):
+    """Constant velocity in 1-D: ``[p, v]``, vectorised over any leading axes."""
+    out = X.copy()
+    out[..., 0] = X[..., 0] + dt * X[..., 1]
+    return out
+
+
+def line_hx(X):
+    """Range to a point one unit off the line, and the velocity."""
+    return np.stack([np.hypot(X[..., 0], 1.0), X[..., 1]], axis=-1)
+
+
+def slow_line_fx(X, dt):
+    """``line_fx`` that takes a while (so that a worker can be killed mid-chunk)."""
+    time.sleep(0.02)
+    return line_fx(X, dt)
+
+
+def nan_for_big_line_fx(X, dt):
+    """``line_fx``, but NaN for filters whose position exceeds 1e6 (an injected failure)."""
+    out = line_fx(X, dt)
+    bad = np.abs(X[..., 0]).max(axis=-1) > 1e6
+    out[bad] = np.nan
+    return out
+
+
+def line_fleet(K, fx=line_fx, seed=0, per_filter_R=False):
+    rng = np.random.default_rng(seed)
+    f = Fleet(K, 2, 2, 0.1, line_hx, fx, MerweScaledWeights(0.5))
+    f.x = rng.normal(size=(K, 2))
+    f.P = np.diag([1.0, 0.5])
+    f.Q = 0.01 * np.eye(2)
+    if per_filter_R:
+        f.R = np.stack([np.diag([0.1 + 0.01 * k, 0.2]) for k in range(K)])
+    else:
+        f.R = 0.1 * np.eye(2)
+    return f
+
+
+def line_measurements(K, T, seed=1):
+    rng = np.random.default_rng(seed)
+    zs = rng.normal(size=(K, T, 2)) + 1.5
+    zs[3 % K, 5 % T] = np.nan  # a missing row
+    zs[7 % K, 2 % T, 1] = np.nan  # a missing component
+    return zs
+
+
+# -- Lorenz-96 ---------------------------------------------------------------------------------
+
+
 def l96_fx(x, dt, F=8.0):
     """Lorenz-96, one RK4 step."""
 
@@ -78,6 +621,365 @@ def l96_fx(x, dt, F=8.0):
 def l96_hx(x):
     """Every other component observed."""
     return x[::2].copy()
+
+
+# -- heading models: state [px, py, heading, speed], the heading an angle --------------------
+
+
+def heading_fx(x, dt=0.5):
+    """Heading model, state [px, py, heading, speed]; the heading is an angle."""
+    return np.array([x[0] + dt * np.cos(x[2]) * x[3], x[1] + dt * np.sin(x[2]) * x[3], x[2] + 0.3 * dt, x[3]])
+
+
+def xy_radar_hx(x):
+    """Range and bearing of [px, py] from the origin (the bearing is an angle)."""
+    return np.array([np.hypot(x[0], x[1]), np.arctan2(x[1], x[0])])
+
+
+def turn_fx_stacked(X, dt):
+    """State [px, py, heading, speed]: the heading is an angle and keeps turning."""
+    return np.stack(
+        [
+            X[..., 0] + dt * np.cos(X[..., 2]) * X[..., 3],
+            X[..., 1] + dt * np.sin(X[..., 2]) * X[..., 3],
+            X[..., 2] + 0.8 * dt,
+            X[..., 3],
+        ],
+        axis=-1,
+    )
+
+
+def xy_radar_hx_stacked(X):
+    """Range and bearing of [px, py] (the bearing near +-pi, where wrapping matters)."""
+    return np.stack([np.hypot(X[..., 0], X[..., 1]), np.arctan2(X[..., 1], X[..., 0])], axis=-1)
+
+
+def spinning_heading(seed, T=100):
+    """A vehicle turning on the spot: heading crosses +/-pi many times; bearings measured.
+
+    Returns the true states, the measurements and the noise levels q, r.
+    """
+    rng = np.random.default_rng(seed)
+    q, r = 0.02, 0.05
+    x = np.array([rng.uniform(-np.pi, np.pi), 0.8])
+    truth, zs = [], []
+    for _ in range(T):
+        x = np.array([wrap(x[0] + x[1]), x[1]]) + rng.normal(0, [q, q * 0.1])
+        x[0] = wrap(x[0])
+        truth.append(x.copy())
+        zs.append(np.array([wrap(x[0] + rng.normal(0, r))]))
+    return truth, zs, q, r
+
+
+def spinning_heading_filter(cls, points, x0):
+    """A ``cls`` (SquareRootUKF or filterpy's UKF) for :func:`spinning_heading`, with angle hooks."""
+
+    def fx(x, dt):
+        return np.array([wrap(x[0] + x[1] * dt), x[1]])
+
+    def hx(x):
+        return np.array([x[0]])
+
+    f = cls(
+        2,
+        1,
+        1.0,
+        hx,
+        fx,
+        points,
+        x_mean_fn=AngleMean([0]),
+        z_mean_fn=AngleMean([0]),
+        residual_x=AngleResidual([0]),
+        residual_z=AngleResidual([0]),
+        **({"state_add": AngleAdd([0])} if cls is SquareRootUKF else {}),
+    )
+    f.x, f.P = x0, np.diag([0.1, 0.01])
+    f.Q, f.R = np.diag([0.02**2, 0.002**2]), np.eye(1) * 0.05**2
+    return f
+
+
+# -- plain arithmetic models (no transcendental function), for bit-for-bit comparisons -------------
+
+
+def plain_fx(X, dt):
+    """A nonlinear constant-velocity model in plain arithmetic (vectorised over leading axes)."""
+    Y = np.array(X, dtype=float, copy=True)
+    Y[..., 0] += dt * X[..., 1]
+    Y[..., 2] += dt * X[..., 3]
+    Y[..., 1] -= dt * 0.01 * X[..., 1] * np.abs(X[..., 1])
+    return Y
+
+
+def plain_hx(X):
+    """Squared range and a cross term: nonlinear, no transcendental function."""
+    return np.stack([X[..., 0] * X[..., 0] + X[..., 2] * X[..., 2], X[..., 0] * X[..., 2] * 1e-2], axis=-1)
+
+
+def plain_scenario(K, T=6, seed=0):
+    """K filters of the plain model: x0 (K, 4), P0 (K, 4, 4), Q, R (K, 2, 2), zs (T, K, 2), some NaN."""
+    rng = np.random.default_rng(seed)
+    x0 = np.array([30.0, 1.0, 20.0, -1.0]) + rng.normal(size=(K, 4))
+    A = rng.normal(size=(K, 4, 4)) * 0.3
+    P0 = A @ np.swapaxes(A, -1, -2) + np.eye(4)
+    Q = np.eye(4) * 0.01 + np.diag(rng.uniform(0, 0.01, 4))
+    R = np.stack([np.diag(rng.uniform(0.5, 2.0, 2)) for _ in range(K)])
+    zs = plain_hx(x0[:, None, :])[:, 0] + rng.normal(size=(T, K, 2))
+    zs[2 % T, ::3, 1] = np.nan  # missing components for a third of the filters at one step
+    zs[(T - 1), 1::5] = np.nan  # and whole measurements missing for others
+    return x0, P0, Q, R, zs
+
+
+# -- linear models -------------------------------------------------------------------------------
+
+# the precise sensor: position measured to 1e-6, almost no process noise (filterpy's UKF fails)
+PRECISE_F = np.array([[1.0, 1.0], [0.0, 1.0]])
+PRECISE_H = np.array([[1.0, 0.0]])
+PRECISE_Q = np.eye(2) * 1e-14
+PRECISE_R = np.eye(1) * 1e-12
+
+
+def precise_fx(x, dt):
+    return PRECISE_F @ x
+
+
+def precise_hx(x):
+    return x[:1]
+
+
+def precise_fx_rows(X, dt):
+    return X @ PRECISE_F.T
+
+
+def precise_hx_rows(X):
+    return X[:, :1]
+
+
+def precise_filter(cls, P0):
+    """A ``cls`` (SquareRootUKF or filterpy's UKF) on the precise sensor, P = P0 I."""
+    ukf = cls(2, 1, 1.0, precise_hx, precise_fx, MerweScaledSigmaPoints(2, 0.1, 2.0, 0.0))
+    ukf.x = np.array([0.0, 1.0])
+    ukf.P = np.eye(2) * P0
+    ukf.Q = PRECISE_Q
+    ukf.R = PRECISE_R
+    return ukf
+
+
+# four states (constant velocity in two axes), three correlated measurements of which one mixes
+LIN4_DT = 1.0
+LIN4_F = np.array([[1.0, LIN4_DT, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, LIN4_DT], [0, 0, 0, 1.0]])
+LIN4_H = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0], [0, 1.0, 0, 1.0]])
+LIN4_Q = Q_discrete_white_noise(2, dt=LIN4_DT, var=0.2, block_size=2) + 1e-3 * np.eye(4)
+LIN4_R = np.array([[1.0, 0.4, 0.1], [0.4, 2.0, -0.3], [0.1, -0.3, 0.5]])  # correlated
+LIN4_X0 = np.array([0.0, 1.0, 5.0, -0.5])
+LIN4_P0 = np.diag([10.0, 2.0, 10.0, 2.0])
+LIN4_T = 8
+
+
+def lin4_fx(x, dt):
+    return LIN4_F @ x
+
+
+def lin4_hx(x):
+    return LIN4_H @ x
+
+
+def lin4_ukf():
+    f = SquareRootUKF(4, 3, LIN4_DT, lin4_hx, lin4_fx, MerweScaledWeights(alpha=1.0, beta=2.0, kappa=0.0))
+    f.x, f.P, f.Q, f.R = LIN4_X0, LIN4_P0, LIN4_Q, LIN4_R
+    return f
+
+
+def lin4_kf():
+    """filterpy's KalmanFilter on the same model."""
+    kf = KalmanFilter(4, 3)
+    kf.x, kf.P, kf.F, kf.H, kf.Q, kf.R = LIN4_X0.copy(), LIN4_P0.copy(), LIN4_F, LIN4_H, LIN4_Q, LIN4_R
+    return kf
+
+
+def lin4_measurements(seed=0):
+    rng = np.random.default_rng(seed)
+    x, out = LIN4_X0.copy(), []
+    L = np.linalg.cholesky(LIN4_R)
+    for _ in range(LIN4_T):
+        x = LIN4_F @ x + rng.normal(0, 0.3, 4)
+        out.append(LIN4_H @ x + L @ rng.normal(size=3))
+    return out
+
+
+# constant velocity on a line, its position measured: the smoother-input tests' model
+LIN2_T = 12
+LIN2_Q = np.array([[0.01, 0.002], [0.002, 0.02]])
+LIN2_H = np.array([[1.0, 0.0]])
+
+
+def lin2_F(dt):
+    return np.array([[1.0, dt], [0.0, 1.0]])
+
+
+def lin2_fx(x, dt, bad=False):
+    """``bad``: NaN images."""
+    return np.full(2, np.nan) if bad else lin2_F(dt) @ x
+
+
+def lin2_filter(fx=lin2_fx):
+    f = SquareRootUKF(2, 1, 1.0, lambda x: LIN2_H @ x, fx, MerweScaledWeights(0.5, 2.0, 0.0))
+    f.x, f.P, f.Q, f.R = np.array([0.0, 1.0]), np.eye(2) * 4.0, LIN2_Q, 0.5
+    return f
+
+
+# constant velocity on a line with a drift, the position and the sine of the velocity measured
+DRIFT_Q = np.array([[0.02, 0.01], [0.01, 0.05]])
+DRIFT_R = np.array([[0.5, 0.1], [0.1, 0.3]])
+
+
+def drift_fx(x, dt, drift=0.0):
+    return np.array([x[0] + dt * x[1], x[1] + drift])
+
+
+def sine_hx(x, scale=1.0, flat=False):
+    """``flat``: a constant measurement."""
+    if flat:
+        return np.zeros(2)
+    return np.array([x[0], scale * np.sin(x[1])])
+
+
+def drift_filter(fx=drift_fx, hx=sine_hx):
+    f = SquareRootUKF(2, 2, 1.0, hx, fx, MerweScaledWeights(0.5, 2.0, 0.0))
+    f.x, f.P, f.Q, f.R = np.array([0.0, 1.0]), np.eye(2), DRIFT_Q, DRIFT_R
+    return f
+
+
+def drift_measurements(T, seed=0, missing=()):
+    """T measurements, ``None`` at the steps ``missing``."""
+    rng = np.random.default_rng(seed)
+    zs = [np.array([k + rng.normal(), np.sin(1.0) + 0.3 * rng.normal()]) for k in range(T)]
+    return [None if k in missing else z for k, z in enumerate(zs)]
+
+
+def random_linear_model(seed=0, n=4, m=2):
+    """F, H, Q, R of a random well-conditioned linear-Gaussian model."""
+    rng = np.random.default_rng(seed)
+    F = np.eye(n) + 0.1 * rng.standard_normal((n, n))
+    H = rng.standard_normal((m, n))
+    A = rng.standard_normal((n, n))
+    Q = 0.01 * (A @ A.T) + 0.001 * np.eye(n)
+    B = rng.standard_normal((m, m))
+    R = 0.5 * (B @ B.T) + 0.1 * np.eye(m)
+    return F, H, Q, R
+
+
+def linear_pair(n=3, m=2, alpha=1.0, x0=None, seed=3):
+    """filterpy's KalmanFilter and a SquareRootUKF on one random linear model, and the rng after it."""
+    rng = np.random.default_rng(seed)
+    F = np.eye(n) + 0.05 * rng.standard_normal((n, n))
+    H = rng.standard_normal((m, n))
+    Q, R = 0.01 * np.eye(n), 0.2 * np.eye(m)
+    x0 = np.ones(n) if x0 is None else x0
+    kf = KalmanFilter(n, m)
+    kf.F, kf.H, kf.Q, kf.R, kf.P, kf.x = F, H, Q, R, np.eye(n) * 2.0, x0.copy()
+    ukf = SquareRootUKF(n, m, 1.0, lambda x: H @ x, lambda x, dt: F @ x, MerweScaledWeights(alpha, 2.0, 0.0))
+    ukf.x, ukf.P, ukf.Q, ukf.R = x0.copy(), np.eye(n) * 2.0, Q, R
+    return kf, ukf, rng
+
+
+def spd(rng, n, log10_cond):
+    """A random symmetric positive-definite matrix with the given condition number."""
+    U, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    w = np.logspace(0, -log10_cond, n) if n > 1 else np.ones(1)
+    return (U * w) @ U.T
+
+
+# -- small filters -------------------------------------------------------------------------------
+
+
+def first_of(x):
+    """The first component (a measurement of a state of any size)."""
+    return x[:1]
+
+
+def identity_fx(x, dt):
+    return x
+
+
+def identity_filter(points, dim_x=2):
+    """A SquareRootUKF whose model does nothing, to check what ``points`` accepts."""
+    return SquareRootUKF(dim_x, 1, 1.0, first_of, identity_fx, points)
+
+
+def decay_fx(x, dt):
+    return 0.9 * x
+
+
+def half_hx(x):
+    return 0.5 * x
+
+
+def decay_filter(n, fx=None, hx=None):
+    """An n-state filter (x decays by 0.9 a step unless ``fx``), its first two components measured."""
+    fx = fx or (lambda x, dt: 0.9 * x)
+    hx = hx or (lambda x: x[:2])
+    f = SquareRootUKF(n, 2, 1.0, hx, fx, MerweScaledWeights(0.5, 2.0, 0.0))
+    f.Q = np.eye(n) * 0.01
+    return f
+
+
+def one_d(cls):
+    """A one-state filter: x decays by 0.9 a step and is measured times 0.5."""
+    return cls(1, 1, 1.0, half_hx, decay_fx, MerweScaledWeights(alpha=0.5))
+
+
+def one_d_filterpy():
+    """:func:`one_d` in filterpy."""
+    return UnscentedKalmanFilter(1, 1, 1.0, half_hx, decay_fx, MerweScaledSigmaPoints(1, 0.5, 2.0, 0.0))
+
+
+def one_d_measured():
+    """A one-state filter measured as it is, at x = 1, P = 2."""
+    f = SquareRootUKF(1, 1, 1.0, lambda x: x, lambda x, dt: 0.9 * x, MerweScaledWeights())
+    f.x, f.P = np.array([1.0]), np.array([[2.0]])
+    return f
+
+
+def polar(v):
+    """Polar to Cartesian, one point ``[r, theta]``."""
+    return np.array([v[0] * np.cos(v[1]), v[0] * np.sin(v[1])])
+
+
+def polar_rows(V):
+    """:func:`polar` of each row."""
+    return np.c_[V[:, 0] * np.cos(V[:, 1]), V[:, 0] * np.sin(V[:, 1])]
+
+
+# -- checks --------------------------------------------------------------------------------------
+
+
+def rel(a, b):
+    """The normwise relative difference of ``a`` from ``b`` (``b`` all zero: divided by 1e-300)."""
+    return np.max(np.abs(a - b)) / max(np.max(np.abs(b)), 1e-300)
+
+
+def rel_unfloored(a, b):
+    """:func:`rel` without the floor (``b`` all zero: inf or nan, a failed comparison)."""
+    return np.max(np.abs(a - b)) / np.max(np.abs(b))
+
+
+def assert_results_equal(a, b):
+    """Two tuples of arrays (batch or smoother results) are equal, shapes and all."""
+    assert len(a) == len(b)
+    for u, v in zip(a, b):
+        assert u.shape == v.shape
+        np.testing.assert_array_equal(u, v)
+
+
+def counting(fn):
+    """``fn`` wrapped to count its calls, and the list the calls are counted in."""
+    calls = []
+
+    def wrapped(*args, **kwargs):
+        calls.append(1)
+        return fn(*args, **kwargs)
+
+    return wrapped, calls
 
 
 FILTER_STATE = (
@@ -111,3 +1013,36 @@ def assert_filter_state(f, snap: dict) -> None:
         np.testing.assert_array_equal(np.asarray(getattr(f, k)), snap[k], err_msg=k)
     assert f._state.phase == snap["phase"]
     assert f.log_likelihood == snap["log_likelihood"]
+
+
+FLEET_STATE = (
+    "x",
+    "P1_2",
+    "Q1_2",
+    "R1_2",
+    "x_prior",
+    "x_post",
+    "P1_2_prior",
+    "P1_2_post",
+    "y",
+    "log_likelihood",
+    "mahalanobis",
+    "failed",
+    "failure",
+)
+
+
+def fleet_state(fleet) -> dict:
+    """Copies of everything a failed call must leave unchanged."""
+    snap = {a: np.array(getattr(fleet, a), copy=True) for a in FLEET_STATE}
+    snap["failure list"] = list(fleet.failure)
+    snap["phase"] = fleet._state.phase
+    return snap
+
+
+def assert_fleet_state(fleet, snap: dict) -> None:
+    """The fleet is bit for bit as in ``snap``."""
+    for a in FLEET_STATE:
+        np.testing.assert_array_equal(np.asarray(getattr(fleet, a)), snap[a], err_msg=a)
+    assert list(fleet.failure) == snap["failure list"]
+    assert fleet._state.phase == snap["phase"]

@@ -18,34 +18,13 @@ dd = pytest.importorskip("dask.dataframe")
 pd = pytest.importorskip("pandas")
 distributed = pytest.importorskip("distributed")
 
-from dask_models import cv_fx, nan_for_big_fx, range_hx, slow_fx  # noqa: E402
+from models import line_fleet, line_measurements, nan_for_big_line_fx, slow_line_fx  # noqa: E402
 
 import squkf.dask as sd  # noqa: E402
-from squkf import Fleet, MerweScaledWeights, ParameterError, ShapeError  # noqa: E402
+from squkf import ParameterError, ShapeError  # noqa: E402
 
 TESTS = Path(__file__).resolve().parent
 FIELDS = ("means", "P1_2s", "variances", "log_likelihood", "failed", "x", "P1_2")
-
-
-def make_fleet(K, fx=cv_fx, seed=0, per_filter_R=False):
-    rng = np.random.default_rng(seed)
-    f = Fleet(K, 2, 2, 0.1, range_hx, fx, MerweScaledWeights(0.5))
-    f.x = rng.normal(size=(K, 2))
-    f.P = np.diag([1.0, 0.5])
-    f.Q = 0.01 * np.eye(2)
-    if per_filter_R:
-        f.R = np.stack([np.diag([0.1 + 0.01 * k, 0.2]) for k in range(K)])
-    else:
-        f.R = 0.1 * np.eye(2)
-    return f
-
-
-def measurements(K, T, seed=1):
-    rng = np.random.default_rng(seed)
-    zs = rng.normal(size=(K, T, 2)) + 1.5
-    zs[3 % K, 5 % T] = np.nan  # a missing row
-    zs[7 % K, 2 % T, 1] = np.nan  # a missing component
-    return zs
 
 
 def same(a, b):
@@ -63,8 +42,8 @@ def in_process(fleet, zs, **options):
 @pytest.mark.parametrize("chunks", [(40, 12, 2), (7, 5, 1), (1, 12, 2), (25, -1, -1)])
 @pytest.mark.parametrize("keep", ["all", "diagonals", "means", "final"])
 def test_bit_identical_to_the_fleet_whatever_the_chunking(chunks, keep):
-    fleet = make_fleet(40, per_filter_R=True)
-    zs = measurements(40, 12)
+    fleet = line_fleet(40, per_filter_R=True)
+    zs = line_measurements(40, 12)
     before = fleet.x, fleet.P1_2
     lazy = sd.batch_filter(fleet, da.from_array(zs, chunks=chunks), keep=keep)
     assert isinstance(lazy.log_likelihood, da.Array)
@@ -74,8 +53,8 @@ def test_bit_identical_to_the_fleet_whatever_the_chunking(chunks, keep):
 
 
 def test_fields_computed_separately_agree_and_threads_scheduler():
-    fleet = make_fleet(30)
-    zs = measurements(30, 8)
+    fleet = line_fleet(30)
+    zs = line_measurements(30, 8)
     lazy = sd.batch_filter(fleet, da.from_array(zs, chunks=(10, 8, 2)))
     ref = in_process(fleet, zs)
     assert np.array_equal(lazy.means.compute(scheduler="threads"), ref.means)
@@ -84,16 +63,16 @@ def test_fields_computed_separately_agree_and_threads_scheduler():
 
 def test_a_failing_filter_is_flagged_and_the_others_are_untouched():
     K, T = 24, 10
-    fleet = make_fleet(K, fx=nan_for_big_fx)
+    fleet = line_fleet(K, fx=nan_for_big_line_fx)
     x = fleet.x
     x[13, 0] = 1e7  # filter 13's fx returns NaN: it fails at the first step
     fleet.x = x
-    zs = measurements(K, T)
+    zs = line_measurements(K, T)
     got = sd.compute(sd.batch_filter(fleet, da.from_array(zs, chunks=(5, T, 2))), scheduler="synchronous")
     assert got.failed.tolist() == [k == 13 for k in range(K)]
     assert np.array_equal(got.means[13], np.broadcast_to(x[13], (T, 2)))  # kept its state
     others = np.arange(K) != 13
-    clean = make_fleet(K).subset(others)
+    clean = line_fleet(K).subset(others)
     ref = clean.batch_filter(zs[others])
     assert np.array_equal(got.means[others], ref.means)
     assert np.array_equal(got.P1_2s[others], ref.P1_2s)
@@ -111,14 +90,14 @@ def test_a_failing_filter_is_flagged_and_the_others_are_untouched():
 def test_bad_input_raises_before_anything_is_scheduled(zs, error):
     with dask.config.set(scheduler="synchronous"):
         with pytest.raises(error):
-            sd.batch_filter(make_fleet(40), da.from_array(zs))
+            sd.batch_filter(line_fleet(40), da.from_array(zs))
 
 
 def test_bad_options():
     with pytest.raises(ParameterError):
-        sd.batch_filter(make_fleet(4), da.zeros((4, 3, 2)), keep="some")
+        sd.batch_filter(line_fleet(4), da.zeros((4, 3, 2)), keep="some")
     with pytest.raises(ParameterError):
-        sd.batch_filter(make_fleet(4), da.zeros((4, 3, 2)), hx_args=[1])
+        sd.batch_filter(line_fleet(4), da.zeros((4, 3, 2)), hx_args=[1])
     with pytest.raises(ParameterError):
         sd.batch_filter(object(), da.zeros((4, 3, 2)))
 
@@ -169,8 +148,8 @@ def cluster(monkeypatch):
 
 @pytest.mark.slow
 def test_local_cluster_gives_the_same_numbers(cluster):
-    fleet = make_fleet(60, per_filter_R=True)
-    zs = measurements(60, 10)
+    fleet = line_fleet(60, per_filter_R=True)
+    zs = line_measurements(60, 10)
     got = sd.compute(sd.batch_filter(fleet, da.from_array(zs, chunks=(15, 10, 2))))
     same(got, in_process(fleet, zs))
 
@@ -178,8 +157,8 @@ def test_local_cluster_gives_the_same_numbers(cluster):
 @pytest.mark.slow
 def test_a_worker_killed_mid_computation_changes_nothing(cluster):
     K, T = 40, 40  # slow_fx: about 0.8 s per chunk
-    fleet = make_fleet(K, fx=slow_fx)
-    zs = measurements(K, T)
+    fleet = line_fleet(K, fx=slow_line_fx)
+    zs = line_measurements(K, T)
     lazy = sd.batch_filter(fleet, da.from_array(zs, chunks=(5, T, 2)), keep="means")
     futures = cluster.compute([lazy.means, lazy.log_likelihood])
     pids = cluster.run(os.getpid)
@@ -219,7 +198,7 @@ def long_frame(n_series=12, seed=3):
 def test_filter_frame_matches_a_fleet_per_series():
     df = long_frame()
     frame = dd.from_pandas(df, npartitions=3).set_index("series", sorted=False)
-    template = make_fleet(1)
+    template = line_fleet(1)
     x0 = pd.DataFrame({"p": np.linspace(-1, 1, 12), "v": 0.0}, index=range(12))
     out = sd.filter_frame(
         frame, template, key="series", time="t", columns=["r", "v"], x0=x0, state_names=["p", "v"]
@@ -241,7 +220,7 @@ def test_filter_frame_matches_a_fleet_per_series():
 
 def test_filter_frame_rejects_frames_it_cannot_filter_per_series():
     df = long_frame()
-    template = make_fleet(1)
+    template = line_fleet(1)
     unindexed = dd.from_pandas(df, npartitions=3)  # the key is a column: a series may be split
     with pytest.raises(ParameterError, match="sorted index"):
         sd.filter_frame(unindexed, template, key="series", time="t", columns=["r", "v"])

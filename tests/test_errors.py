@@ -1,8 +1,40 @@
-"""The fault matrix: every bad input raises a specific, documented exception and loses nothing."""
+"""Errors: every bad input raises a specific, documented squkf exception and loses nothing.
+
+The fault matrix (bad measurements, matrices, factors, model functions, weights, dt; failed
+downdates, singular innovations) on the single filter, each error checked to leave the filter as
+it was and able to go on; the fleet's errors naming the rows or describing the failing filter's
+own values; complex and text input; junk input (property-based). g13ej's IFAIL numbers are
+checked in tests/test_nag.py.
+"""
+
+from __future__ import annotations
 
 import numpy as np
 import pytest
-from models import assert_filter_state, ct_fx, ct_hx, filter_state
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from models import (
+    CV3_K,
+    CV3_NZ,
+    CV_DT,
+    CV_P0,
+    CV_R,
+    CV_X0,
+    CV_Z,
+    assert_filter_state,
+    assert_fleet_state,
+    assert_same_estimate,
+    ct_fx,
+    ct_hx,
+    ct_mid_step_filter,
+    cv3_zs,
+    cv_filter,
+    cv_fx,
+    filter_state,
+    fleet_state,
+    make_cv3_fleet,
+    step,
+)
 
 from squkf import (
     CallSequenceError,
@@ -19,25 +51,7 @@ from squkf import (
     SqukfValueError,
 )
 
-Q = np.diag([0.1, 0.01, 0.1, 0.01, 1e-6])
-R = np.diag([25.0, 0.002**2])
-
-
-def make(vectorized=False, points=None, **kw):
-    if vectorized:
-        fx = lambda X, dt: np.array([ct_fx(x, dt) for x in X])  # noqa: E731
-        hx = lambda X: np.array([ct_hx(x) for x in X])  # noqa: E731
-    else:
-        fx, hx = ct_fx, ct_hx
-    points = MerweScaledWeights(0.3, 2.0, -2.0) if points is None else points
-    f = SquareRootUKF(5, 2, 1.0, hx, fx, points, vectorized=vectorized, **kw)
-    f.x = np.array([2000.0, 10.0, 3000.0, -5.0, 0.02])
-    f.P = np.diag([400.0, 4.0, 400.0, 4.0, 1e-4])
-    f.Q, f.R = Q, R
-    f.predict()
-    f.update(ct_hx(f.x) + 1.0)
-    f.predict()  # mid-step: a prior is pending
-    return f
+# == the fault matrix of the single filter =========================================================
 
 
 def still_works(f):
@@ -68,7 +82,7 @@ def check(f, action, error, match=None):
     ],
 )
 def test_bad_measurements(z, error, match):
-    check(make(), lambda f: f.update(z), error, match)
+    check(ct_mid_step_filter(), lambda f: f.update(z), error, match)
 
 
 BAD_MATRICES = [
@@ -82,13 +96,18 @@ BAD_MATRICES = [
 @pytest.mark.parametrize("name", ["P", "Q"])
 @pytest.mark.parametrize("value, label, error", BAD_MATRICES, ids=[b[1] for b in BAD_MATRICES])
 def test_bad_state_matrices(name, value, label, error):
-    e = check(make(), lambda f: setattr(f, name, value), error)
+    e = check(ct_mid_step_filter(), lambda f: setattr(f, name, value), error)
     assert name in str(e)
 
 
 def test_singular_P_rejected_but_singular_Q_accepted():
-    check(make(), lambda f: setattr(f, "P", np.diag([1.0, 1, 1, 1, 0])), NotPositiveDefiniteError, "P")
-    f = make()
+    check(
+        ct_mid_step_filter(),
+        lambda f: setattr(f, "P", np.diag([1.0, 1, 1, 1, 0])),
+        NotPositiveDefiniteError,
+        "P",
+    )
+    f = ct_mid_step_filter()
     f.Q = np.diag([1.0, 1, 0, 0, 0])  # lower-rank process noise (Q_discrete_white_noise) is fine
     f.update(ct_hx(f.x))
     f.predict()
@@ -105,14 +124,14 @@ BAD_R = [
 
 @pytest.mark.parametrize("value, error", BAD_R)
 def test_bad_R_as_attribute_and_per_call(value, error):
-    check(make(), lambda f: setattr(f, "R", value), error, "R")
+    check(ct_mid_step_filter(), lambda f: setattr(f, "R", value), error, "R")
     if value.shape == (2, 2):
-        check(make(), lambda f: f.update(ct_hx(f.x), R=value), error, "R")
+        check(ct_mid_step_filter(), lambda f: f.update(ct_hx(f.x), R=value), error, "R")
 
 
 @pytest.mark.parametrize("value, error", [(np.eye(4), ShapeError), (-np.eye(5), NotPositiveDefiniteError)])
 def test_bad_Q_per_call(value, error):
-    check(make(), lambda f: f.predict(Q=value), error, "Q")
+    check(ct_mid_step_filter(), lambda f: f.predict(Q=value), error, "Q")
 
 
 @pytest.mark.parametrize("name", ["P1_2", "R1_2"])
@@ -120,19 +139,24 @@ def test_bad_factors(name):
     n = 5 if name == "P1_2" else 2
     upper = np.eye(n)
     upper[0, 1] = 0.5
-    check(make(), lambda f: setattr(f, name, upper), SqukfValueError, "lower triangular")
+    check(ct_mid_step_filter(), lambda f: setattr(f, name, upper), SqukfValueError, "lower triangular")
     if name == "P1_2":  # a singular R is a valid noise model, and so is its factor
         zero_diag = np.eye(n)
         zero_diag[1, 1] = 0.0
-        check(make(), lambda f: setattr(f, name, zero_diag), NotPositiveDefiniteError, "zero on its diagonal")
-    check(make(), lambda f: setattr(f, name, np.eye(n + 1)), ShapeError)
+        check(
+            ct_mid_step_filter(),
+            lambda f: setattr(f, name, zero_diag),
+            NotPositiveDefiniteError,
+            "zero on its diagonal",
+        )
+    check(ct_mid_step_filter(), lambda f: setattr(f, name, np.eye(n + 1)), ShapeError)
 
 
 @pytest.mark.parametrize("vectorized", [False, True])
 @pytest.mark.parametrize("where", ["fx", "hx"])
 @pytest.mark.parametrize("fault", ["shape", "nan", "inf", "raises"])
 def test_bad_model_functions(vectorized, where, fault):
-    f = make(vectorized)
+    f = ct_mid_step_filter(vectorized)
     good = getattr(f, where)
 
     def bad(*args):
@@ -151,23 +175,26 @@ def test_bad_model_functions(vectorized, where, fault):
         check(f, lambda g: g.update(ct_hx(g.x), hx=bad), error)
 
 
-def test_weight_parameters_out_of_domain():
-    with pytest.raises(ParameterError, match="alpha"):
-        SquareRootUKF(5, 2, 1.0, ct_hx, ct_fx, MerweScaledWeights(alpha=0.0))
-    with pytest.raises(ParameterError, match="kappa"):
-        SquareRootUKF(5, 2, 1.0, ct_hx, ct_fx, MerweScaledWeights(kappa=-5.0))
-    with pytest.raises(ParameterError, match="augmented"):
-        SquareRootUKF(5, 2, 1.0, ct_hx, ct_fx, CubatureWeights(), scheme="augmented")
-    with pytest.raises(ParameterError, match="scheme"):
-        SquareRootUKF(5, 2, 1.0, ct_hx, ct_fx, MerweScaledWeights(), scheme="sideways")
-    with pytest.raises(ParameterError, match="dim_x"):
-        SquareRootUKF(0, 2, 1.0, ct_hx, ct_fx, MerweScaledWeights())
+@pytest.mark.parametrize(
+    "dim_x, points, kw, match",
+    [
+        pytest.param(5, lambda: MerweScaledWeights(alpha=0.0), {}, "alpha", id="alpha-zero"),
+        pytest.param(5, lambda: MerweScaledWeights(kappa=-5.0), {}, "kappa", id="kappa-below-minus-n"),
+        pytest.param(5, CubatureWeights, {"scheme": "augmented"}, "augmented", id="cubature-augmented"),
+        pytest.param(5, MerweScaledWeights, {"scheme": "sideways"}, "scheme", id="unknown-scheme"),
+        pytest.param(0, MerweScaledWeights, {}, "dim_x", id="dim_x-zero"),
+    ],
+)
+def test_weight_parameters_out_of_domain(dim_x, points, kw, match):
+    """The points (built inside the check: some refuse at construction), scheme or size refused."""
+    with pytest.raises(ParameterError, match=match):
+        SquareRootUKF(dim_x, 2, 1.0, ct_hx, ct_fx, points(), **kw)
 
 
 def test_failed_negative_weight_downdate():
     # beta = 0 keeps Wc[0] close to Wm[0] = -17.5: moving the centre alone makes the weighted
     # "covariance" Wc0 (1 - Wm0)^2 d^2 + Wm0 (1 - Wm0) d^2 negative along that axis
-    f = make(points=MerweScaledWeights(0.3, 0.0, -2.0))
+    f = ct_mid_step_filter(points=MerweScaledWeights(0.3, 0.0, -2.0))
     f.Q = None
     f.update(ct_hx(f.x))
     X = f.ask_predict()
@@ -182,7 +209,7 @@ def test_failed_negative_weight_downdate():
 
 
 def test_singular_innovation():
-    f = make(points=MerweScaledWeights())  # positive weights: no downdate before the gain
+    f = ct_mid_step_filter(points=MerweScaledWeights())  # positive weights: no downdate before the gain
     f.R = np.zeros((2, 2))
     e = check(f, lambda g: g.update(np.zeros(2), hx=lambda x: np.array([1.0, 2.0])), GainError)
     assert e.errno == 302
@@ -190,11 +217,11 @@ def test_singular_innovation():
 
 @pytest.mark.parametrize("dt", [np.nan, np.inf, "x", 1j])
 def test_bad_dt(dt):
-    check(make(), lambda f: f.predict(dt=dt), ParameterError, "dt")
+    check(ct_mid_step_filter(), lambda f: f.predict(dt=dt), ParameterError, "dt")
 
 
 def test_call_sequence_errors_are_runtime_errors():
-    f = make()
+    f = ct_mid_step_filter()
     f.ask_predict()
     with pytest.raises(CallSequenceError) as info:
         f.ask_update()
@@ -202,7 +229,7 @@ def test_call_sequence_errors_are_runtime_errors():
 
 
 def test_integer_and_float32_inputs_compute_in_float64():
-    a, b = make(), make()
+    a, b = ct_mid_step_filter(), ct_mid_step_filter()
     a.x = np.array([2000, 10, 3000, -5, 0], dtype=np.int64)
     b.x = np.array([2000, 10, 3000, -5, 0], dtype=np.float64)
     a.P = np.diag([400, 4, 400, 4, 1]).astype(np.float32)
@@ -212,3 +239,157 @@ def test_integer_and_float32_inputs_compute_in_float64():
     assert a.x.dtype == np.float64 and np.asarray(a.P1_2).dtype == np.float64
     np.testing.assert_array_equal(a.x, b.x)
     np.testing.assert_array_equal(a.P1_2, b.P1_2)
+
+
+# == one-dimensional arrays, complex and text input, update(None) mid-step =========================
+
+
+@pytest.mark.parametrize("name", ["R", "Q", "P"])
+def test_one_d_array_of_length_above_one_is_an_error_naming_np_diag(name):
+    f = cv_filter()
+    snap = filter_state(f)
+    with pytest.raises(ShapeError, match=r"np\.diag"):
+        setattr(f, name, np.ones(4 if name != "R" else 2))
+    assert_filter_state(f, snap)
+
+
+COMPLEX_OR_TEXT = [
+    ("z", np.array([1.0 + 1e-3j, 0.2])),
+    ("z", ["a", "b"]),
+    ("z", np.array(["1.0", "2.0"])),
+    ("x", CV_X0 + 0j),
+    ("x", ["1", "2", "3", "4"]),
+    ("P", CV_P0 + 0j),
+    ("P", np.array([["1"] * 4] * 4)),
+    ("R", CV_R.astype(complex)),
+    ("Q", [[object()] * 4] * 4),
+]
+
+
+@pytest.mark.parametrize("name,value", COMPLEX_OR_TEXT, ids=lambda v: type(v).__name__)
+def test_complex_or_non_numeric_input_is_a_shape_error(name, value):
+    f = cv_filter()
+    step(f, CV_Z[0])
+    f.predict()
+    snap = filter_state(f)
+    with pytest.raises(ShapeError):
+        if name == "z":
+            f.update(value)
+        else:
+            setattr(f, name, value)
+    assert_filter_state(f, snap)
+
+
+def test_update_none_during_a_pending_prediction_is_a_call_sequence_error():
+    f, twin = cv_filter(), cv_filter()
+    step(f, CV_Z[0])
+    step(twin, CV_Z[0])
+    X = f.ask_predict()
+    snap = filter_state(f)
+    with pytest.raises(CallSequenceError):
+        f.update(None)
+    assert_filter_state(f, snap)
+    f.tell_predict([cv_fx(s, CV_DT) for s in X])  # the prediction is still pending
+    twin.predict()
+    f.update(CV_Z[1])
+    twin.update(CV_Z[1])
+    assert_same_estimate(f, twin)
+
+
+# == junk input (property-based) ===================================================================
+
+
+JUNK_INPUTS = st.one_of(
+    st.none(),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.lists(st.floats(allow_nan=True, allow_infinity=True, width=64), max_size=6),
+    st.builds(
+        lambda a, b, v: np.full((a, b), v),
+        st.integers(0, 4),
+        st.integers(0, 4),
+        st.floats(allow_nan=True, allow_infinity=True),
+    ),
+    st.text(max_size=3),
+)
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    target=st.sampled_from(["x", "P", "Q", "R", "P1_2", "Q1_2", "R1_2", "z", "dt", "Qcall", "Rcall"]),
+    value=JUNK_INPUTS,
+)
+def test_junk_inputs_raise_documented_errors_or_are_harmless(target, value):
+    f = SquareRootUKF(3, 2, 1.0, lambda x: np.tanh(x[:2]), lambda x, dt: x + dt, MerweScaledWeights())
+    f.x, f.P, f.Q, f.R = np.ones(3), np.eye(3), np.eye(3) * 0.1, np.eye(2)
+    try:
+        if target == "z":
+            f.predict()
+            f.update(value)
+        elif target == "dt":
+            f.predict(dt=value)
+        elif target == "Qcall":
+            f.predict(Q=value)
+        elif target == "Rcall":
+            f.predict()
+            f.update(np.ones(2), R=value)
+        else:
+            setattr(f, target, value)
+            f.predict()
+            f.update(np.ones(2))
+    except SqukfError:
+        pass
+    # whatever happened, the filter holds no NaN and a valid factor
+    S = np.asarray(f.P1_2)
+    assert np.all(np.isfinite(f.x)) and np.all(np.isfinite(S))
+    assert np.all(np.diag(S) > 0) and np.all(np.triu(S, 1) == 0)
+
+
+# == the fleet: a subset of no filters, a failing filter described by its own values ===============
+
+
+# -- 7. a subset of no filters is an error ---------------------------------------------------------
+
+
+NO_ROWS = [[], np.array([], dtype=int), np.zeros(CV3_K, dtype=bool), slice(0, 0)]
+
+
+@pytest.mark.parametrize("rows", NO_ROWS, ids=repr)
+def test_a_subset_of_no_filters_is_an_error_naming_rows(rows):
+    fl = make_cv3_fleet()
+    snap = fleet_state(fl)
+    with pytest.raises(ParameterError, match="rows"):
+        fl.subset(rows)
+    assert_fleet_state(fl, snap)
+    assert len(fl.subset([2])) == 1
+
+
+# -- 9. a flagged filter's failure describes its own values, as the single filter's error does ----
+
+
+def single_error(f: SquareRootUKF, call) -> str:
+    with pytest.raises(SqukfError) as info:
+        call(f)
+    return f"{type(info.value).__name__}: {info.value}"
+
+
+def test_a_singular_innovation_is_described_by_the_failing_filters_own_values():
+    fl = make_cv3_fleet()
+    R = np.stack([0.1 * np.eye(CV3_NZ)] * CV3_K)
+    R[1] = 0.0
+    fl.R = R
+    fl.predict()
+    one = fl[1]  # filter 1 alone, as it is now
+    scale = np.array([1.0, 0.0, 1.0])  # filter 1's hx is constant: with R = 0, Sy is singular
+    z = cv3_zs(1)[:, 0]
+    fl.update(z, scale=scale)
+    assert fl.failed.tolist() == [False, True, False]
+    expected = single_error(one, lambda f: f.update(z[1], scale=0.0))
+    assert fl.failure[1] == expected
+
+
+def test_non_finite_images_are_described_by_the_failing_filters_own_values():
+    fl = make_cv3_fleet()
+    one = fl[2]
+    fl.predict(bad=np.array([False, False, True]))
+    assert fl.failed.tolist() == [False, False, True]
+    assert fl.failure[2] == single_error(one, lambda f: f.predict(bad=True))

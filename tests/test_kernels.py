@@ -1,4 +1,4 @@
-"""The compiled core's promises: one filter is a block of one, so a fleet filter equals its single filter.
+"""squkf.kernels, the compiled core: one filter is a block of one, so a fleet filter equals its single one.
 
 Every phase of the step is one numba kernel (:mod:`squkf.kernels`) that computes each filter in its
 own lane with the same operations in the same order, whatever the other lanes hold, however many
@@ -15,6 +15,7 @@ import sys
 
 import numpy as np
 import pytest
+from models import plain_fx, plain_hx, plain_scenario
 
 import squkf.fleet
 from squkf import Fleet, JulierWeights, MerweScaledWeights, SquareRootUKF, kernels
@@ -22,33 +23,6 @@ from squkf.kernels import phases
 from squkf.linalg import chol_update
 
 ENTRY_KERNELS = [name for name in phases.__all__ if name.endswith("_kernel")]
-
-
-def fx(X, dt):
-    """A nonlinear constant-velocity model in plain arithmetic (vectorised over leading axes)."""
-    Y = np.array(X, dtype=float, copy=True)
-    Y[..., 0] += dt * X[..., 1]
-    Y[..., 2] += dt * X[..., 3]
-    Y[..., 1] -= dt * 0.01 * X[..., 1] * np.abs(X[..., 1])
-    return Y
-
-
-def hx(X):
-    """Squared range and a cross term: nonlinear, no transcendental function."""
-    return np.stack([X[..., 0] * X[..., 0] + X[..., 2] * X[..., 2], X[..., 0] * X[..., 2] * 1e-2], axis=-1)
-
-
-def scenario(K, T=6, seed=0):
-    rng = np.random.default_rng(seed)
-    x0 = np.array([30.0, 1.0, 20.0, -1.0]) + rng.normal(size=(K, 4))
-    A = rng.normal(size=(K, 4, 4)) * 0.3
-    P0 = A @ np.swapaxes(A, -1, -2) + np.eye(4)
-    Q = np.eye(4) * 0.01 + np.diag(rng.uniform(0, 0.01, 4))
-    R = np.stack([np.diag(rng.uniform(0.5, 2.0, 2)) for _ in range(K)])
-    zs = hx(x0[:, None, :])[:, 0] + rng.normal(size=(T, K, 2))
-    zs[2 % T, ::3, 1] = np.nan  # missing components for a third of the filters at one step
-    zs[(T - 1), 1::5] = np.nan  # and whole measurements missing for others
-    return x0, P0, Q, R, zs
 
 
 CONFIGS = {
@@ -60,7 +34,7 @@ CONFIGS = {
 
 
 def run_fleet(K, config, x0, P0, Q, R, zs):
-    fleet = Fleet(K, 4, 2, 0.1, hx, fx, **config)
+    fleet = Fleet(K, 4, 2, 0.1, plain_hx, plain_fx, **config)
     fleet.x, fleet.P, fleet.Q, fleet.R = x0, P0, Q, R
     out = []
     for z in zs:
@@ -76,10 +50,10 @@ def test_a_fleet_filter_equals_its_single_filter_bit_for_bit(name):
     """70 filters (a block of 64 lanes and a partial one), per-filter R, missing data."""
     config = CONFIGS[name]
     K = 70
-    x0, P0, Q, R, zs = scenario(K)
+    x0, P0, Q, R, zs = plain_scenario(K)
     fleet = run_fleet(K, config, x0, P0, Q, R, zs)
     for k in (0, 1, 3, 63, 64, 69):
-        f = SquareRootUKF(4, 2, 0.1, hx, fx, vectorized=True, **config)
+        f = SquareRootUKF(4, 2, 0.1, plain_hx, plain_fx, vectorized=True, **config)
         f.x, f.P, f.Q, f.R = x0[k].copy(), P0[k].copy(), Q.copy(), R[k].copy()
         for t, z in enumerate(zs):
             f.predict()
@@ -93,7 +67,7 @@ def test_a_fleet_filter_equals_its_single_filter_bit_for_bit(name):
 
 def test_results_do_not_depend_on_block_size_or_thread_count(monkeypatch):
     K = 300
-    x0, P0, Q, R, zs = scenario(K, T=4, seed=1)
+    x0, P0, Q, R, zs = plain_scenario(K, T=4, seed=1)
     config = CONFIGS["merwe"]
     reference = run_fleet(K, config, x0, P0, Q, R, zs)
     monkeypatch.setattr(kernels, "MIN_FILTERS_PER_THREAD", 7)  # cut small stacks too
@@ -119,10 +93,10 @@ def test_the_thread_count_must_be_a_whole_number_of_at_least_one(bad):
 
 def test_every_kernel_has_one_signature():
     """float64, C-contiguous, fixed ranks: each kernel compiles once, whatever the configuration."""
-    x0, P0, Q, R, zs = scenario(5, T=3)
+    x0, P0, Q, R, zs = plain_scenario(5, T=3)
     for config in CONFIGS.values():
         run_fleet(5, config, x0, P0, Q, R, zs)
-        f = SquareRootUKF(4, 2, 0.1, hx, fx, vectorized=True, **config)
+        f = SquareRootUKF(4, 2, 0.1, plain_hx, plain_fx, vectorized=True, **config)
         f.x, f.P, f.Q, f.R = x0[0], P0[0], Q, R[0]
         means, covariances = f.batch_filter(list(zs[:, 0]))[:2]
         f.rts_smoother(means, covariances)

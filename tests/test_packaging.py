@@ -40,7 +40,7 @@ NOT_SOURCES = shutil.ignore_patterns(
     ".ipynb_checkpoints",
 )
 
-# Files the tests open by path (tests/test_readme.py, tests/models.py, tests/test_benchmarks_smoke.py
+# Files the tests open by path (tests/test_readme.py, tests/models.py, tests/test_benchmarks.py
 # and the files benchmarks/run.py imports), besides every tests/*.py and benchmarks/*.py.
 READ_BY_TESTS = ["README.md", ".ci/run", "squkf/examples/g13ej_example.json"]
 

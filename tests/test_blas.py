@@ -1,4 +1,4 @@
-"""The filter's own numerics run on one BLAS thread for larger states, and nothing else is touched.
+"""squkf.blas: the filter's own numerics run on one BLAS thread for larger states, nothing else touched.
 
 The counts are read through threadpoolctl's own controllers, independently of
 ``squkf.blas``; the numerics are observed from inside a ``UT=`` transform,
@@ -13,8 +13,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from models import decay_filter
 
-from squkf import MerweScaledWeights, SquareRootUKF, blas, sqrt_unscented_transform
+from squkf import blas, sqrt_unscented_transform
 from squkf.errors import NonFiniteError
 
 _TPC = []
@@ -64,14 +65,6 @@ def libs(monkeypatch):
     _set_all(libs, before)
 
 
-def _filter(n, fx=None, hx=None):
-    fx = fx or (lambda x, dt: 0.9 * x)
-    hx = hx or (lambda x: x[:2])
-    f = SquareRootUKF(n, 2, 1.0, hx, fx, MerweScaledWeights(0.5, 2.0, 0.0))
-    f.Q = np.eye(n) * 0.01
-    return f
-
-
 def _recording_ut(seen, libs, inside=None):
     """A ``UT=`` transform: the default one, recording the counts (and running ``inside``) first."""
 
@@ -90,7 +83,7 @@ def _recording_ut(seen, libs, inside=None):
 @pytest.mark.parametrize("n, inside", [(8, 1), (7, 2)])
 def test_numerics_on_one_thread_user_functions_untouched(libs, n, inside):
     seen = {"fx": [], "hx": [], "UT": []}
-    f = _filter(
+    f = decay_filter(
         n,
         fx=lambda x, dt: seen["fx"].append(_counts(libs)) or 0.9 * x,
         hx=lambda x: seen["hx"].append(_counts(libs)) or x[:2],
@@ -108,7 +101,7 @@ def test_numerics_on_one_thread_user_functions_untouched(libs, n, inside):
 def test_min_dim_none_leaves_the_blas_alone(libs, monkeypatch):
     monkeypatch.setattr(blas, "MIN_DIM", None)
     seen = []
-    f = _filter(8)
+    f = decay_filter(8)
     f.predict(UT=_recording_ut(seen, libs))
     f.update(np.zeros(2), UT=_recording_ut(seen, libs))
     assert seen == [[2] * len(libs)] * 2
@@ -126,7 +119,7 @@ def test_hold_restores_on_return_and_on_error(libs):
 
 
 def test_failed_step_restores_the_count(libs):
-    f = _filter(8, fx=lambda x, dt: x * np.nan)
+    f = decay_filter(8, fx=lambda x, dt: x * np.nan)
     with pytest.raises(NonFiniteError):
         f.predict()
     assert _counts(libs) == [2] * len(libs)
@@ -136,7 +129,7 @@ def test_failed_step_restores_the_count(libs):
         raise ZeroDivisionError("user transform")
 
     with pytest.raises(ZeroDivisionError):
-        _filter(8).predict(UT=failing)
+        decay_filter(8).predict(UT=failing)
     assert _counts(libs) == [2] * len(libs)
 
 
@@ -150,7 +143,7 @@ def test_hold_nests(libs):
 
 def test_a_count_changed_during_the_step_is_not_overwritten(libs):
     seen = []
-    f = _filter(8)
+    f = decay_filter(8)
     f.predict(UT=_recording_ut(seen, libs, inside=lambda: _set_all(libs, 3)))
     assert seen == [[1] * len(libs)]
     assert _counts(libs) == [3] * len(libs)
@@ -164,7 +157,7 @@ def test_a_threadpool_limits_block_ending_during_the_step_stands(libs):
     with ExitStack() as stack:
         stack.enter_context(threadpoolctl.threadpool_limits(limits=3, user_api="blas"))
         assert _counts(libs) == [3] * len(libs)
-        _filter(8).predict(UT=_recording_ut(seen, libs, inside=stack.close))
+        decay_filter(8).predict(UT=_recording_ut(seen, libs, inside=stack.close))
     assert seen == [[1] * len(libs)]
     assert _counts(libs) == [2] * len(libs)
 
@@ -183,7 +176,7 @@ def test_filters_stepped_in_several_threads_at_once(libs):
 
     def run(i):
         try:
-            f = _filter(8 + i)
+            f = decay_filter(8 + i)
             # every thread inside its hold at once, then each leaves at its own time
             UT = _recording_ut(seen, libs, inside=barrier.wait)
             for j in range(4):
@@ -209,7 +202,7 @@ def test_unsynchronised_threads_leave_the_count_as_found(libs):
     def run(seed):
         try:
             rng = np.random.default_rng(seed)
-            f = _filter(8)
+            f = decay_filter(8)
             for _ in range(30):
                 f.predict()
                 f.update(rng.standard_normal(2) * 0.1)
@@ -310,7 +303,7 @@ def test_without_threadpoolctl_the_hold_does_nothing(monkeypatch):
     monkeypatch.setattr(blas, "MIN_DIM", 8)
     with blas.one_blas_thread():
         pass
-    f = _filter(8)
+    f = decay_filter(8)
     f.predict()
     f.update(np.zeros(2))
     assert np.all(np.isfinite(f.x))
@@ -320,7 +313,7 @@ def test_without_threadpoolctl_counts_are_untouched(libs, monkeypatch):
     monkeypatch.setitem(sys.modules, "threadpoolctl", None)
     monkeypatch.setattr(blas, "_found", None)
     seen = []
-    f = _filter(8)
+    f = decay_filter(8)
     f.predict(UT=_recording_ut(seen, libs))
     assert seen == [[2] * len(libs)]
 

@@ -1,64 +1,49 @@
-"""Partial measurements: NaN (or masked) components of ``z`` are missing, the others are used.
+"""Missing data: NaN, masked or ``None`` measurements (or components of one) are missing, the others used.
 
 On a linear model the UKF is the Kalman filter (the unscented transform of a linear function is
 exact), so the reference is filterpy's ``KalmanFilter`` given only the observed rows:
 ``H[obs]``, ``R[obs][:, obs]`` and ``z[obs]``. The two agree to rounding; ``RTOL`` allows for
 a few hundred roundings on matrices of condition number ~1e2 (measured differences: ~1e-14).
+Also: no measurement at all (``None``, all-NaN, fully masked), and masked measurements on every
+route of the fleet and of squkf.dask.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from filterpy.common import Q_discrete_white_noise
-from filterpy.kalman import KalmanFilter
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from models import (
+    CV_Z,
+    LIN4_DT,
+    LIN4_H,
+    LIN4_P0,
+    LIN4_Q,
+    LIN4_R,
+    LIN4_T,
+    LIN4_X0,
+    assert_same_estimate,
+    cv3_zs,
+    cv_filter,
+    lin4_fx,
+    lin4_kf,
+    lin4_measurements,
+    lin4_ukf,
+    make_cv3_fleet,
+    one_d_measured,
+    step,
+)
 
-from squkf import MerweScaledWeights, SquareRootUKF
+from squkf import (
+    MerweScaledWeights,
+    SquareRootUKF,
+)
+
+# == partial measurements: the Kalman filter on the observed rows ==================================
 
 RTOL = 1e-9
-DT = 1.0
-F = np.array([[1.0, DT, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, DT], [0, 0, 0, 1.0]])
-H = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0], [0, 1.0, 0, 1.0]])
-Q = Q_discrete_white_noise(2, dt=DT, var=0.2, block_size=2) + 1e-3 * np.eye(4)
-R = np.array([[1.0, 0.4, 0.1], [0.4, 2.0, -0.3], [0.1, -0.3, 0.5]])  # correlated
-X0 = np.array([0.0, 1.0, 5.0, -0.5])
-P0 = np.diag([10.0, 2.0, 10.0, 2.0])
-T = 8
-
-
-def fx(x, dt):
-    return F @ x
-
-
-def hx(x):
-    return H @ x
-
-
-def make_ukf():
-    f = SquareRootUKF(4, 3, DT, hx, fx, MerweScaledWeights(alpha=1.0, beta=2.0, kappa=0.0))
-    f.x, f.P, f.Q, f.R = X0, P0, Q, R
-    return f
-
-
-def make_kf():
-    kf = KalmanFilter(4, 3)
-    kf.x, kf.P, kf.F, kf.H, kf.Q, kf.R = X0.copy(), P0.copy(), F, H, Q, R
-    return kf
-
-
-def measurements(seed=0):
-    rng = np.random.default_rng(seed)
-    x, out = X0.copy(), []
-    L = np.linalg.cholesky(R)
-    for _ in range(T):
-        x = F @ x + rng.normal(0, 0.3, 4)
-        out.append(H @ x + L @ rng.normal(size=3))
-    return out
-
-
-ZS = measurements()
+ZS = lin4_measurements()
 
 
 def close(a, b, what):
@@ -75,13 +60,13 @@ def with_missing(z, observed, masked):
     return out
 
 
-patterns = st.lists(st.lists(st.booleans(), min_size=3, max_size=3), min_size=T, max_size=T)
+patterns = st.lists(st.lists(st.booleans(), min_size=3, max_size=3), min_size=LIN4_T, max_size=LIN4_T)
 
 
 @settings(max_examples=40, deadline=None)
 @given(pattern=patterns, masked=st.booleans())
 def test_missing_components_equal_kalman_filter_on_observed_rows(pattern, masked):
-    ukf, kf = make_ukf(), make_kf()
+    ukf, kf = lin4_ukf(), lin4_kf()
     for z, obs in zip(ZS, pattern):
         obs = np.array(obs)
         ukf.predict()
@@ -91,7 +76,7 @@ def test_missing_components_equal_kalman_filter_on_observed_rows(pattern, masked
             kf.update(None)
             np.testing.assert_array_equal(ukf.x_post, ukf.x_prior)
         else:
-            kf.update(z[obs], R=R[np.ix_(obs, obs)], H=H[obs])
+            kf.update(z[obs], R=LIN4_R[np.ix_(obs, obs)], H=LIN4_H[obs])
             close(ukf.y[obs], kf.y, "y")
             close(ukf.S[np.ix_(obs, obs)], kf.S, "S")
             close(ukf.K[:, obs], kf.K, "K")
@@ -103,7 +88,7 @@ def test_missing_components_equal_kalman_filter_on_observed_rows(pattern, masked
 
 @pytest.mark.parametrize("missing", [[0], [1], [2], [0, 2], [1, 2]])
 def test_record_conventions_at_missing_components(missing):
-    ukf = make_ukf()
+    ukf = lin4_ukf()
     ukf.predict()
     z = ZS[0].copy()
     z[missing] = np.nan
@@ -131,7 +116,7 @@ def test_record_conventions_at_missing_components(missing):
 
 
 def test_a_full_measurement_after_a_partial_one_has_full_records():
-    ukf = make_ukf()
+    ukf = lin4_ukf()
     ukf.predict()
     ukf.update(np.array([ZS[0][0], np.nan, ZS[0][2]]))
     ukf.predict()
@@ -146,7 +131,7 @@ def test_batch_filter_with_nan_entries_equals_the_step_loop():
     zs = np.array(ZS)
     zs[rng.random(zs.shape) < 0.35] = np.nan
     zs[3] = np.nan  # a step with no measurement at all
-    a, b = make_ukf(), make_ukf()
+    a, b = lin4_ukf(), lin4_ukf()
     means, covs = a.batch_filter(zs)
     for k, z in enumerate(zs):
         b.predict()
@@ -156,11 +141,11 @@ def test_batch_filter_with_nan_entries_equals_the_step_loop():
     np.testing.assert_array_equal(a.x, b.x)
     np.testing.assert_array_equal(a.P, b.P)
     # and the loop is the Kalman filter on the observed rows
-    kf = make_kf()
+    kf = lin4_kf()
     for z in zs:
         obs = ~np.isnan(z)
         kf.predict()
-        kf.update(z[obs] if obs.any() else None, R=R[np.ix_(obs, obs)], H=H[obs])
+        kf.update(z[obs] if obs.any() else None, R=LIN4_R[np.ix_(obs, obs)], H=LIN4_H[obs])
     close(b.x, kf.x, "x")
     close(b.P, kf.P, "P")
 
@@ -168,13 +153,18 @@ def test_batch_filter_with_nan_entries_equals_the_step_loop():
 def test_missing_components_with_the_augmented_set():
     """The augmented set's update on the observed components equals a filter measuring those only."""
     obs = np.array([True, False, True])
-    a = make_ukf()
+    a = lin4_ukf()
     a.scheme = "augmented"
     b = SquareRootUKF(
-        4, 2, DT, lambda x: (H @ x)[obs], fx, MerweScaledWeights(alpha=1.0, beta=2.0, kappa=0.0)
+        4,
+        2,
+        LIN4_DT,
+        lambda x: (LIN4_H @ x)[obs],
+        lin4_fx,
+        MerweScaledWeights(alpha=1.0, beta=2.0, kappa=0.0),
     )
     b.scheme = "augmented"
-    b.x, b.P, b.Q, b.R = X0, P0, Q, R[np.ix_(obs, obs)]
+    b.x, b.P, b.Q, b.R = LIN4_X0, LIN4_P0, LIN4_Q, LIN4_R[np.ix_(obs, obs)]
     for z in ZS:
         a.predict()
         b.predict()
@@ -183,3 +173,86 @@ def test_missing_components_with_the_augmented_set():
         close(a.x, b.x, "x")
         close(a.P, b.P, "P")
         close(a.log_likelihood, b.log_likelihood, "log_likelihood")
+
+
+# == no measurement ================================================================================
+
+
+@pytest.mark.parametrize(
+    "z",
+    [
+        None,
+        np.nan,
+        np.array([np.nan]),
+        np.ma.masked_all(1),
+        np.ma.masked_array([1.0], mask=[True]),
+    ],
+    ids=["None", "nan", "[nan]", "masked_all", "masked"],
+)
+def test_no_measurement_in_one_dimension(z):
+    f = one_d_measured()
+    f.R = 0.1
+    f.predict()
+    f.update(z)
+    assert f._state.phase == "idle"
+    np.testing.assert_array_equal(f.x_post, f.x_prior)
+    np.testing.assert_array_equal(f.P1_2_post, f.P1_2_prior)
+    np.testing.assert_array_equal(f.x, f.x_prior)
+
+
+@pytest.mark.parametrize(
+    "z",
+    [None, np.array([np.nan, np.nan]), np.ma.masked_all(2), np.ma.masked_array([1.0, 2.0], mask=[1, 1])],
+    ids=["None", "all-nan", "masked_all", "masked"],
+)
+def test_no_measurement(z):
+    f, twin = cv_filter(), cv_filter()
+    step(f, CV_Z[0])
+    step(twin, CV_Z[0])
+    f.predict()
+    f.update(z)
+    assert f._state.phase == "idle"
+    np.testing.assert_array_equal(f.x_post, f.x_prior)
+    np.testing.assert_array_equal(f.P1_2_post, f.P1_2_prior)
+    # and the next step is an ordinary one from that prior
+    twin.predict()
+    twin.update(None)
+    step(f, CV_Z[1])
+    step(twin, CV_Z[1])
+    assert_same_estimate(f, twin)
+
+
+# == masked measurements on every route (issue 20's promises) ======================================
+
+
+# -- 6. masked measurements are missing where masked, on every route ----------------------------
+
+
+def masked_fleet_zs(T: int = 5) -> tuple[np.ma.MaskedArray, np.ndarray]:
+    zs = cv3_zs(T)
+    mask = np.zeros(zs.shape, dtype=bool)
+    mask[0, 1] = True  # a whole row
+    mask[2, 3, 1] = True  # one component
+    data = zs.copy()
+    data[mask] = 1e6  # what a masked entry holds must never be read
+    return np.ma.masked_array(data, mask=mask), np.where(mask, np.nan, zs)
+
+
+def test_a_masked_zs_is_missing_where_masked_for_a_fleet():
+    masked, nan = masked_fleet_zs()
+    expected = make_cv3_fleet().batch_filter(nan)
+    got = make_cv3_fleet().batch_filter(masked)
+    np.testing.assert_array_equal(got.means, expected.means)
+    np.testing.assert_array_equal(got.log_likelihood, expected.log_likelihood)
+    steps = make_cv3_fleet().batch_filter(masked[:, t] for t in range(masked.shape[1]))
+    np.testing.assert_array_equal(steps.means, expected.means)
+
+
+def test_a_masked_zs_is_missing_where_masked_on_dask():
+    sd = pytest.importorskip("squkf.dask")
+    da = pytest.importorskip("dask.array")
+    masked, nan = masked_fleet_zs()
+    expected = make_cv3_fleet().batch_filter(nan)
+    for zs in (masked, da.ma.masked_array(da.from_array(masked.data, chunks=(2, -1, -1)), mask=masked.mask)):
+        got = sd.compute(sd.batch_filter(make_cv3_fleet(), zs), scheduler="synchronous")
+        np.testing.assert_array_equal(got.means, expected.means)

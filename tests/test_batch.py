@@ -1,4 +1,10 @@
-"""batch_filter's inputs: any iterable of measurements, progress, per-step arguments, errors at step k."""
+"""batch_filter (squkf.batch): equal to the step loop, and its inputs.
+
+Any iterable of measurements, progress, per-step arguments, an error at step k (nothing changed),
+missing measurements against filterpy's batch_filter.
+"""
+
+from __future__ import annotations
 
 import copy
 import io
@@ -8,8 +14,20 @@ import sys
 
 import numpy as np
 import pytest
+from filterpy.kalman import UnscentedKalmanFilter
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from models import (
+    DRIFT_Q,
+    DRIFT_R,
+    assert_results_equal,
+    counting,
+    ct_merwe_filter,
+    ct_simulate,
+    drift_filter,
+    drift_fx,
+    drift_measurements,
+)
 
 import squkf.batch
 from squkf import (
@@ -22,32 +40,45 @@ from squkf import (
     SqukfError,
 )
 
+# == the step loop and filterpy ====================================================================
+
+
+def test_batch_equals_loop_exactly():
+    zs, _ = ct_simulate()
+    a, b = ct_merwe_filter(SquareRootUKF), ct_merwe_filter(SquareRootUKF)
+    means, covs = a.batch_filter(zs)
+    for k, z in enumerate(zs):
+        b.predict()
+        b.update(z)
+        np.testing.assert_array_equal(means[k], b.x)
+        np.testing.assert_array_equal(covs[k], b.P)
+
+
+def test_batch_equals_filterpy_with_missing_measurements():
+    zs, _ = ct_simulate()
+    nan_zs = [np.full(2, np.nan) if z is None else z for z in zs]
+    m_fp, P_fp = ct_merwe_filter(UnscentedKalmanFilter).batch_filter(zs)
+    for data in (zs, nan_zs):
+        m, P = ct_merwe_filter(SquareRootUKF).batch_filter(data)
+        # same algorithm, different arithmetic: O(eps cond) per step, contracted by updates
+        assert np.max(np.abs(m - m_fp)) / np.max(np.abs(m_fp)) < 1e-8
+        assert np.max(np.abs(P - P_fp) / np.abs(P_fp).max(axis=(1, 2))[:, None, None]) < 1e-8
+
+
+def test_batch_is_transactional():
+    zs, _ = ct_simulate(10)
+    zs[6] = np.array([1.0, 2.0, 3.0])  # wrong length
+    f = ct_merwe_filter(SquareRootUKF)
+    x, S = f.x.copy(), np.array(f.P1_2)
+    with pytest.raises(ShapeError, match="length 3"):
+        f.batch_filter(zs)
+    np.testing.assert_array_equal(f.x, x)
+    np.testing.assert_array_equal(f.P1_2, S)
+
+
+# == batch_filter's inputs =========================================================================
+
 tqdm = pytest.importorskip("tqdm").tqdm
-
-Q2 = np.array([[0.02, 0.01], [0.01, 0.05]])
-R2 = np.array([[0.5, 0.1], [0.1, 0.3]])
-
-
-def fx(x, dt, drift=0.0):
-    return np.array([x[0] + dt * x[1], x[1] + drift])
-
-
-def hx(x, scale=1.0, flat=False):
-    if flat:
-        return np.zeros(2)
-    return np.array([x[0], scale * np.sin(x[1])])
-
-
-def make(fx=fx, hx=hx):
-    f = SquareRootUKF(2, 2, 1.0, hx, fx, MerweScaledWeights(0.5, 2.0, 0.0))
-    f.x, f.P, f.Q, f.R = np.array([0.0, 1.0]), np.eye(2), Q2, R2
-    return f
-
-
-def measurements(T, seed=0, missing=()):
-    rng = np.random.default_rng(seed)
-    zs = [np.array([k + rng.normal(), np.sin(1.0) + 0.3 * rng.normal()]) for k in range(T)]
-    return [None if k in missing else z for k, z in enumerate(zs)]
 
 
 def loop(f, zs, Rs=None, dts=None, Qs=None, fx_args=None, hx_args=None):
@@ -65,13 +96,6 @@ def loop(f, zs, Rs=None, dts=None, Qs=None, fx_args=None, hx_args=None):
     return means, covs
 
 
-def assert_results_equal(a, b):
-    assert len(a) == len(b)
-    for u, v in zip(a, b):
-        assert u.shape == v.shape
-        np.testing.assert_array_equal(u, v)
-
-
 def assert_same_filter(f, g, z=(1.0, 0.5)):
     """``f`` and ``g`` hold the same state and take the same next step."""
     for name in ("x", "P1_2", "x_prior", "P1_2_prior", "x_post", "P1_2_post", "y", "S1_2", "z"):
@@ -82,16 +106,6 @@ def assert_same_filter(f, g, z=(1.0, 0.5)):
         h.update(np.array(z))
     np.testing.assert_array_equal(f.x, g.x)
     np.testing.assert_array_equal(f.P1_2, g.P1_2)
-
-
-def counting(fn):
-    calls = []
-
-    def wrapped(*args, **kwargs):
-        calls.append(1)
-        return fn(*args, **kwargs)
-
-    return wrapped, calls
 
 
 # -- any iterable of measurements ---------------------------------------------
@@ -116,11 +130,11 @@ CONTAINERS = {
     split=st.integers(0, 12),
 )
 def test_every_kind_of_iterable_gives_the_loops_results(T, seed, kind, split):
-    zs = measurements(T, seed)
-    expected = loop(make(), zs)
-    assert_results_equal(make().batch_filter(CONTAINERS[kind](zs)), expected)
+    zs = drift_measurements(T, seed)
+    expected = loop(drift_filter(), zs)
+    assert_results_equal(drift_filter().batch_filter(CONTAINERS[kind](zs)), expected)
     # and the batch keeps no state of its own: two batches in a row are one batch
-    f = make()
+    f = drift_filter()
     split = min(split, T)
     first = f.batch_filter(CONTAINERS[kind](zs[:split]))
     second = f.batch_filter(CONTAINERS[kind](zs[split:]))
@@ -128,14 +142,14 @@ def test_every_kind_of_iterable_gives_the_loops_results(T, seed, kind, split):
 
 
 def test_missing_measurements_in_a_generator():
-    zs = measurements(15, missing=(3, 4, 11))
-    assert_results_equal(make().batch_filter(z for z in zs), loop(make(), zs))
+    zs = drift_measurements(15, missing=(3, 4, 11))
+    assert_results_equal(drift_filter().batch_filter(z for z in zs), loop(drift_filter(), zs))
 
 
 def test_tqdm_of_the_measurements_shows_its_bar(capsys):
-    zs = measurements(40)
-    result = make().batch_filter(tqdm(zs))
-    assert_results_equal(result, loop(make(), zs))
+    zs = drift_measurements(40)
+    result = drift_filter().batch_filter(tqdm(zs))
+    assert_results_equal(result, loop(drift_filter(), zs))
     assert "40/40" in capsys.readouterr().err
 
 
@@ -143,27 +157,29 @@ def test_a_generator_is_read_lazily():
     seen = []
 
     def source():
-        for k, z in enumerate(measurements(10)):
+        for k, z in enumerate(drift_measurements(10)):
             seen.append(k)
             yield z
 
     def progress(k):
         assert seen[-1] == k  # step k ran when only measurements 0..k had been read
 
-    make().batch_filter(source(), progress=progress)
+    drift_filter().batch_filter(source(), progress=progress)
     assert seen == list(range(10))
 
 
 def test_the_module_function_and_the_method_agree():
-    zs = measurements(8)
-    Rs = [R2 * s for s in np.linspace(0.5, 2, 8)]
-    assert_results_equal(squkf.batch.batch_filter(make(), zs, Rs, 0.5), make().batch_filter(zs, Rs, 0.5))
-    assert_results_equal(make().batch_filter(zs, Rs, 0.5), loop(make(), zs, Rs=Rs, dts=0.5))
+    zs = drift_measurements(8)
+    Rs = [DRIFT_R * s for s in np.linspace(0.5, 2, 8)]
+    assert_results_equal(
+        squkf.batch.batch_filter(drift_filter(), zs, Rs, 0.5), drift_filter().batch_filter(zs, Rs, 0.5)
+    )
+    assert_results_equal(drift_filter().batch_filter(zs, Rs, 0.5), loop(drift_filter(), zs, Rs=Rs, dts=0.5))
 
 
 @pytest.mark.parametrize("zs", [3.0, None, "abc", b"ab", {"a": 1}, np.float64(2.0)])
 def test_not_an_iterable_of_measurements(zs):
-    f = make()
+    f = drift_filter()
     before = copy.deepcopy(f)
     with pytest.raises(ShapeError, match="zs must be an iterable"):
         f.batch_filter(zs)
@@ -176,7 +192,7 @@ def test_not_an_iterable_of_measurements(zs):
 @pytest.mark.parametrize("zs", [[], (), np.zeros((0, 2)), iter([]), (z for z in [])])
 @pytest.mark.parametrize("return_factors", [False, True])
 def test_no_measurements_give_empty_results_and_leave_the_filter(zs, return_factors):
-    f = make()
+    f = drift_filter()
     before = copy.deepcopy(f)
     means, covs = f.batch_filter(zs, return_factors=return_factors)
     assert means.shape == (0, 2) and covs.shape == (0, 2, 2)
@@ -186,28 +202,28 @@ def test_no_measurements_give_empty_results_and_leave_the_filter(zs, return_fact
 
 def test_no_measurements_with_per_step_arguments_of_the_wrong_length():
     with pytest.raises(ShapeError, match="Rs has 2 entries but zs has 0"):
-        make().batch_filter([], Rs=[R2, R2])
+        drift_filter().batch_filter([], Rs=[DRIFT_R, DRIFT_R])
 
 
 # -- progress -------------------------------------------------------------------
 
 
 def test_progress_true_shows_a_bar(capsys):
-    zs = measurements(25)
-    assert_results_equal(make().batch_filter(zs, progress=True), loop(make(), zs))
+    zs = drift_measurements(25)
+    assert_results_equal(drift_filter().batch_filter(zs, progress=True), loop(drift_filter(), zs))
     err = capsys.readouterr().err
     assert "batch_filter" in err and "25/25" in err
 
 
 def test_progress_false_is_silent(capsys):
-    make().batch_filter(measurements(5))
+    drift_filter().batch_filter(drift_measurements(5))
     assert capsys.readouterr().err == ""
 
 
 def test_progress_callable_is_called_after_each_step():
-    zs = measurements(12, missing=(4,))
-    means, _ = loop(make(), zs)
-    f = make()
+    zs = drift_measurements(12, missing=(4,))
+    means, _ = loop(drift_filter(), zs)
+    f = drift_filter()
     calls = []
 
     def progress(k):
@@ -221,11 +237,11 @@ def test_progress_callable_is_called_after_each_step():
 def test_progress_true_without_tqdm_is_an_error_before_any_step(monkeypatch):
     monkeypatch.setitem(sys.modules, "tqdm", None)  # makes "import tqdm" fail
     monkeypatch.setitem(sys.modules, "tqdm.auto", None)
-    counted, calls = counting(fx)
-    f = make(fx=counted)
+    counted, calls = counting(drift_fx)
+    f = drift_filter(fx=counted)
     before = copy.deepcopy(f)
     with pytest.raises(ParameterError, match="tqdm"):
-        f.batch_filter(measurements(5), progress=True)
+        f.batch_filter(drift_measurements(5), progress=True)
     assert calls == []
     assert_same_filter(f, before)
 
@@ -233,7 +249,7 @@ def test_progress_true_without_tqdm_is_an_error_before_any_step(monkeypatch):
 @pytest.mark.parametrize("progress", [1, "yes", 0.5, [print]])
 def test_progress_must_be_a_bool_or_a_callable(progress):
     with pytest.raises(ParameterError, match="progress"):
-        make().batch_filter(measurements(3), progress=progress)
+        drift_filter().batch_filter(drift_measurements(3), progress=progress)
 
 
 def test_importing_squkf_does_not_import_tqdm():
@@ -248,9 +264,9 @@ def test_importing_squkf_does_not_import_tqdm():
 @pytest.mark.parametrize("kind", ["list", "array", "generator", "tqdm"])
 @pytest.mark.parametrize("k", [0, 1, 7, 19])
 def test_error_at_step_k_names_the_step_and_carries_the_results_before_it(kind, k):
-    zs = measurements(20)
+    zs = drift_measurements(20)
     zs[k] = np.array([np.inf, 0.0])
-    f = make()
+    f = drift_filter()
     before, clean = copy.deepcopy(f), copy.deepcopy(f)
     with pytest.raises(NonFiniteError, match=f"^at step {k}: ") as info:
         f.batch_filter(CONTAINERS[kind](zs))
@@ -265,16 +281,16 @@ def test_error_keeps_its_type_and_errno_and_pickles_with_the_step():
     T, k = 10, 6
     hx_args = [{}] * T
     hx_args[k] = {"flat": True}  # a constant measurement function ...
-    Rs = [R2] * T
+    Rs = [DRIFT_R] * T
     Rs[k] = np.zeros((2, 2))  # ... and no noise: the innovation factor is singular
-    f = make()
+    f = drift_filter()
     before = copy.deepcopy(f)
     with pytest.raises(GainError) as info:
-        f.batch_filter(measurements(T), Rs=Rs, hx_args=hx_args, return_factors=True)
+        f.batch_filter(drift_measurements(T), Rs=Rs, hx_args=hx_args, return_factors=True)
     exc = info.value
     assert exc.errno == 302 and str(exc).startswith(f"at step {k}: ")
     assert_results_equal(
-        exc.partial, copy.deepcopy(before).batch_filter(measurements(k), return_factors=True)
+        exc.partial, copy.deepcopy(before).batch_filter(drift_measurements(k), return_factors=True)
     )
     again = pickle.loads(pickle.dumps(exc))
     assert type(again) is GainError and again.errno == 302 and str(again) == str(exc)
@@ -292,20 +308,20 @@ def test_an_exception_from_fx_keeps_its_message_and_gets_the_partial_results():
         if failing_fx.calls >= k * 5:  # five sigma points per prediction
             raise ModelFailureError("model diverged")
         failing_fx.calls += 1
-        return fx(x, dt)
+        return drift_fx(x, dt)
 
     failing_fx.calls = 0
-    f = make(fx=failing_fx)
-    before = copy.deepcopy(make())
+    f = drift_filter(fx=failing_fx)
+    before = copy.deepcopy(drift_filter())
     with pytest.raises(ModelFailureError) as info:
-        f.batch_filter(measurements(9))
+        f.batch_filter(drift_measurements(9))
     exc = info.value
     assert str(exc) == "model diverged" and exc.step == k
     if sys.version_info >= (3, 11):
         assert any(f"at step {k}" in note for note in exc.__notes__)
-    assert_results_equal(exc.partial, before.batch_filter(measurements(k)))
-    np.testing.assert_array_equal(f.x, make().x)
-    np.testing.assert_array_equal(f.P1_2, make().P1_2)
+    assert_results_equal(exc.partial, before.batch_filter(drift_measurements(k)))
+    np.testing.assert_array_equal(f.x, drift_filter().x)
+    np.testing.assert_array_equal(f.P1_2, drift_filter().P1_2)
 
 
 def test_an_interrupt_restores_the_filter_and_keeps_the_results_so_far():
@@ -313,13 +329,13 @@ def test_an_interrupt_restores_the_filter_and_keeps_the_results_so_far():
         if k == 3:
             raise KeyboardInterrupt
 
-    f = make()
+    f = drift_filter()
     before = copy.deepcopy(f)
     with pytest.raises(KeyboardInterrupt) as info:
-        f.batch_filter(measurements(10), progress=progress)
+        f.batch_filter(drift_measurements(10), progress=progress)
     # step 3 was complete, but the call failed there: the results before it are kept
     assert info.value.step == 3
-    assert_results_equal(info.value.partial, copy.deepcopy(before).batch_filter(measurements(3)))
+    assert_results_equal(info.value.partial, copy.deepcopy(before).batch_filter(drift_measurements(3)))
     assert_same_filter(f, before)
 
 
@@ -333,10 +349,10 @@ def test_a_failing_saver_fails_its_step():
             if self.n == 4:
                 raise ShapeError("disk full")
 
-    f = make()
+    f = drift_filter()
     before = copy.deepcopy(f)
     with pytest.raises(ShapeError, match="^at step 3: disk full$") as info:
-        f.batch_filter(measurements(6), saver=Saver())
+        f.batch_filter(drift_measurements(6), saver=Saver())
     assert info.value.partial[0].shape == (3, 2)
     assert_same_filter(f, before)
 
@@ -345,12 +361,12 @@ def test_a_failing_saver_fails_its_step():
 @given(T=st.integers(1, 15), data=st.data(), seed=st.integers(0, 1000))
 def test_partial_results_are_a_prefix_of_the_clean_run(T, data, seed):
     k = data.draw(st.integers(0, T - 1))
-    zs = measurements(T, seed)
-    clean = make().batch_filter(zs)
+    zs = drift_measurements(T, seed)
+    clean = drift_filter().batch_filter(zs)
     bad = list(zs)
     bad[k] = np.array([0.0, 1.0, 2.0])[: data.draw(st.sampled_from([1, 3]))]  # wrong length
     with pytest.raises(ShapeError, match=f"^at step {k}: ") as info:
-        make().batch_filter(bad)
+        drift_filter().batch_filter(bad)
     assert_results_equal(info.value.partial, (clean[0][:k], clean[1][:k]))
 
 
@@ -358,71 +374,78 @@ def test_partial_results_are_a_prefix_of_the_clean_run(T, data, seed):
 
 
 def test_scalar_Rs_and_Qs_mean_that_multiple_of_the_identity_at_every_step():
-    zs = measurements(10)
-    expected = loop(make(), zs, Rs=[0.7 * np.eye(2)] * 10, Qs=[0.03 * np.eye(2)] * 10)
+    zs = drift_measurements(10)
+    expected = loop(drift_filter(), zs, Rs=[0.7 * np.eye(2)] * 10, Qs=[0.03 * np.eye(2)] * 10)
     for r, q in [(0.7, 0.03), (np.float64(0.7), np.array(0.03))]:
-        assert_results_equal(make().batch_filter(zs, Rs=r, Qs=q), expected)
-    g = make()
+        assert_results_equal(drift_filter().batch_filter(zs, Rs=r, Qs=q), expected)
+    g = drift_filter()
     g.R, g.Q = 0.7 * np.eye(2), 0.03 * np.eye(2)
     assert_results_equal(g.batch_filter(zs), expected)
 
 
 def test_the_forms_of_a_per_step_noise_argument():
-    zs = measurements(6)
+    zs = drift_measurements(6)
     scales = np.linspace(0.5, 3.0, 6)
-    per_step = [R2 * s for s in scales]
-    expected = loop(make(), zs, Rs=per_step)
+    per_step = [DRIFT_R * s for s in scales]
+    expected = loop(drift_filter(), zs, Rs=per_step)
     for Rs in (per_step, tuple(per_step), np.array(per_step), iter(per_step), (R for R in per_step)):
-        assert_results_equal(make().batch_filter(zs, Rs=Rs), expected)
+        assert_results_equal(drift_filter().batch_filter(zs, Rs=Rs), expected)
     # one matrix for every step
-    assert_results_equal(make().batch_filter(zs, Rs=R2 * 2), loop(make(), zs, Rs=R2 * 2))
+    assert_results_equal(
+        drift_filter().batch_filter(zs, Rs=DRIFT_R * 2), loop(drift_filter(), zs, Rs=DRIFT_R * 2)
+    )
     # one scalar per step
     assert_results_equal(
-        make().batch_filter(zs, Rs=scales), loop(make(), zs, Rs=[s * np.eye(2) for s in scales])
+        drift_filter().batch_filter(zs, Rs=scales),
+        loop(drift_filter(), zs, Rs=[s * np.eye(2) for s in scales]),
     )
 
 
 def test_per_step_dts_fx_args_hx_args():
-    zs = measurements(7)
+    zs = drift_measurements(7)
     dts = [0.5, 1.0, 2.0, 0.25, 1.0, 1.5, 0.75]
     fx_args = [{"drift": 0.01 * k} for k in range(7)]
     hx_args = [None, {"scale": 1.1}, {}, None, {"scale": 0.9}, None, {}]
-    expected = loop(make(), zs, dts=dts, fx_args=fx_args, hx_args=hx_args)
-    got = make().batch_filter(zs, dts=dts, fx_args=fx_args, hx_args=hx_args)
+    expected = loop(drift_filter(), zs, dts=dts, fx_args=fx_args, hx_args=hx_args)
+    got = drift_filter().batch_filter(zs, dts=dts, fx_args=fx_args, hx_args=hx_args)
     assert_results_equal(got, expected)
     # the same through generators
-    got = make().batch_filter(iter(zs), dts=iter(dts), fx_args=iter(fx_args), hx_args=(h for h in hx_args))
+    got = drift_filter().batch_filter(
+        iter(zs), dts=iter(dts), fx_args=iter(fx_args), hx_args=(h for h in hx_args)
+    )
     assert_results_equal(got, expected)
     # one dict for every step
-    expected = loop(make(), zs, fx_args={"drift": 0.1}, hx_args={"scale": 1.2})
-    assert_results_equal(make().batch_filter(zs, fx_args={"drift": 0.1}, hx_args={"scale": 1.2}), expected)
+    expected = loop(drift_filter(), zs, fx_args={"drift": 0.1}, hx_args={"scale": 1.2})
+    assert_results_equal(
+        drift_filter().batch_filter(zs, fx_args={"drift": 0.1}, hx_args={"scale": 1.2}), expected
+    )
 
 
 @pytest.mark.parametrize("name", ["Rs", "Qs", "dts", "fx_args", "hx_args"])
 @pytest.mark.parametrize("length", [4, 9])
 def test_lengths_must_match_the_measurements(name, length):
-    entry = {"Rs": R2, "Qs": Q2, "dts": 1.0, "fx_args": {}, "hx_args": {}}[name]
-    counted, calls = counting(fx)
-    f = make(fx=counted)
+    entry = {"Rs": DRIFT_R, "Qs": DRIFT_Q, "dts": 1.0, "fx_args": {}, "hx_args": {}}[name]
+    counted, calls = counting(drift_fx)
+    f = drift_filter(fx=counted)
     before = copy.deepcopy(f)
     # a list of measurements: found before any step
     with pytest.raises(ShapeError, match=f"^{name} has {length} entries but zs has 6$"):
-        f.batch_filter(measurements(6), **{name: [entry] * length})
+        f.batch_filter(drift_measurements(6), **{name: [entry] * length})
     assert calls == []
     assert_same_filter(f, before)
     # a generator: found when one of them runs out
     with pytest.raises(ShapeError, match=name) as info:
-        f.batch_filter((z for z in measurements(6)), **{name: [entry] * length})
+        f.batch_filter((z for z in drift_measurements(6)), **{name: [entry] * length})
     assert info.value.partial[0].shape == (min(length, 6), 2)
     assert info.value.step == (4 if length == 4 else None)
     assert_same_filter(f, before)
 
 
 def test_a_generator_of_dts_longer_than_the_measurements():
-    f = make()
+    f = drift_filter()
     before = copy.deepcopy(f)
     with pytest.raises(ShapeError, match="dts has more entries than the 3 in zs"):
-        f.batch_filter(measurements(3), dts=(1.0 for _ in range(4)))
+        f.batch_filter(drift_measurements(3), dts=(1.0 for _ in range(4)))
     assert_same_filter(f, before)
 
 
@@ -435,15 +458,15 @@ def test_a_generator_of_dts_longer_than_the_measurements():
         ({"fx_args": [{}, {"drift": 1}, ("drift", 1)]}, r"fx_args\[2\] must be a dict"),
         ({"fx_args": {1: 2}}, "fx_args has the key 1"),
         ({"fx_args": {"dt": 2.0}}, "fx_args has the key 'dt'"),
-        ({"fx_args": [{}, {"Q": Q2}, {}]}, r"fx_args\[1\] has the key 'Q'"),
-        ({"hx_args": {"R": R2}}, "hx_args has the key 'R'"),
+        ({"fx_args": [{}, {"Q": DRIFT_Q}, {}]}, r"fx_args\[1\] has the key 'Q'"),
+        ({"hx_args": {"R": DRIFT_R}}, "hx_args has the key 'R'"),
         ({"hx_args": {"z": 1}}, "hx_args has the key 'z'"),
         ({"dts": [1.0, "1.0", 1.0]}, r"dts\[1\] must be a finite number"),  # a negative dt is a step
         ({"dts": [1.0, 1.0, np.nan]}, r"dts\[2\]"),
         ({"dts": np.inf}, "dts must be a finite number"),
         ({"dts": [1.0, "a", 1.0]}, r"dts\[1\]"),
         ({"dts": {"a": 1}}, "dts must be None, a number"),
-        ({"Rs": {0: R2}}, "Rs must be None, a scalar"),
+        ({"Rs": {0: DRIFT_R}}, "Rs must be None, a scalar"),
         ({"Qs": object()}, "Qs must be None, a scalar"),
         ({"UT": 3}, "UT must be a callable"),
         ({"saver": object()}, "saver must have a save"),
@@ -451,38 +474,40 @@ def test_a_generator_of_dts_longer_than_the_measurements():
     ],
 )
 def test_bad_options_are_named_before_any_step(kwargs, match):
-    counted, calls = counting(fx)
-    f = make(fx=counted)
+    counted, calls = counting(drift_fx)
+    f = drift_filter(fx=counted)
     before = copy.deepcopy(f)
     with pytest.raises(ParameterError, match=match):
-        f.batch_filter(measurements(3), **kwargs)
+        f.batch_filter(drift_measurements(3), **kwargs)
     assert calls == []
     assert_same_filter(f, before)
 
 
 def test_noise_arrays_of_the_wrong_rank():
     with pytest.raises(ShapeError, match=r"Rs has shape \(3, 2, 2, 1\)"):
-        make().batch_filter(measurements(3), Rs=np.zeros((3, 2, 2, 1)))
+        drift_filter().batch_filter(drift_measurements(3), Rs=np.zeros((3, 2, 2, 1)))
     with pytest.raises(ShapeError, match=r"dts has shape \(3, 1\)"):
-        make().batch_filter(measurements(3), dts=np.ones((3, 1)))
+        drift_filter().batch_filter(drift_measurements(3), dts=np.ones((3, 1)))
 
 
 def test_a_bad_noise_entry_fails_its_step():
-    Rs = [R2, R2, np.eye(3), R2]
-    f = make()
+    Rs = [DRIFT_R, DRIFT_R, np.eye(3), DRIFT_R]
+    f = drift_filter()
     before = copy.deepcopy(f)
     with pytest.raises(ShapeError, match="^at step 2: ") as info:
-        f.batch_filter(measurements(4), Rs=Rs)
+        f.batch_filter(drift_measurements(4), Rs=Rs)
     assert info.value.partial[0].shape == (2, 2)
     assert_same_filter(f, before)
 
 
 def test_filterpy_positional_order_and_keyword_only_extras():
-    zs = measurements(5)
-    Rs, dts = [R2] * 5, [1.0] * 5
-    assert_results_equal(make().batch_filter(zs, Rs, dts, None, None), loop(make(), zs, Rs=Rs, dts=dts))
+    zs = drift_measurements(5)
+    Rs, dts = [DRIFT_R] * 5, [1.0] * 5
+    assert_results_equal(
+        drift_filter().batch_filter(zs, Rs, dts, None, None), loop(drift_filter(), zs, Rs=Rs, dts=dts)
+    )
     with pytest.raises(TypeError):
-        squkf.batch.batch_filter(make(), zs, Rs, dts, None, None, [Q2] * 5)
+        squkf.batch.batch_filter(drift_filter(), zs, Rs, dts, None, None, [DRIFT_Q] * 5)
 
 
 # -- a long run through tqdm ----------------------------------------------------------
@@ -517,16 +542,16 @@ def test_tqdm_over_a_long_random_walk_fails_at_the_bad_step(capsys):
 def test_squkf_errors_are_value_errors_too():
     # a caller's ``except ValueError`` still catches the annotated errors
     with pytest.raises(ValueError, match="at step 0"):
-        make().batch_filter([np.array([np.inf, 1.0])])
+        drift_filter().batch_filter([np.array([np.inf, 1.0])])
     assert issubclass(ShapeError, SqukfError)
 
 
 def test_a_failed_run_leaves_a_tqdm_bar_closed_where_it_stopped():
-    zs = measurements(20)
+    zs = drift_measurements(20)
     zs[7] = np.array([np.inf, 0.0])
     out = io.StringIO()
     with pytest.raises(NonFiniteError) as info:
-        make().batch_filter(tqdm(zs, file=out, mininterval=1e9))  # drawn only when opened and closed
+        drift_filter().batch_filter(tqdm(zs, file=out, mininterval=1e9))  # drawn only when opened and closed
     # closed by batch_filter, not later when the exception (and its traceback) is freed
     assert info.value.step == 7
     assert "7/20" in out.getvalue() and out.getvalue().endswith("\n")

@@ -1,4 +1,4 @@
-"""The core on stacked arrays: a batch of 3 filters run at once equals each filter run alone.
+"""The step (squkf.step, squkf.plan) on stacked arrays: a batch of 3 filters run at once equals each alone.
 
 Every configuration goes through the step's pure transitions (:mod:`squkf.step`) with a plan
 from :func:`squkf.plan.build_plan`, once with a leading batch axis of 3 and once per slice
@@ -8,7 +8,7 @@ Bit for bit. Every phase's numerics is a compiled kernel (:mod:`squkf.kernels`) 
 each filter in its own lane, with the same operations in the same order whatever the other lanes
 hold and however many there are; one filter is a stack of one. So the slices are compared for
 equality, not to a tolerance: this is the promise that a filter in a fleet equals the same filter
-alone.
+alone. (The linalg functions' stacked forms: tests/test_linalg.py.)
 """
 
 from __future__ import annotations
@@ -16,9 +16,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from filterpy.kalman import MerweScaledSigmaPoints
-from hypothesis import given, settings
-from hypothesis import strategies as st
-from models import l96_fx
+from models import heading_fx, l96_fx, l96_hx, xy_radar_hx
 
 from squkf import (
     Augmented,
@@ -32,7 +30,6 @@ from squkf import (
 )
 from squkf import step as steps
 from squkf.angles import AngleAdd, AngleMean, AngleResidual
-from squkf.linalg import chol_update, solve_lower, tria
 from squkf.measurement import measurement_update
 from squkf.plan import Hooks, build_plan
 from squkf.transform import transform_factor
@@ -53,20 +50,6 @@ def assert_slices_equal(stacked, single, what):
 
 
 # -- models -------------------------------------------------------------------------
-
-
-def turn_fx(x, dt=0.5):
-    """Heading model, state [px, py, heading, speed]; the heading is an angle."""
-    return np.array([x[0] + dt * np.cos(x[2]) * x[3], x[1] + dt * np.sin(x[2]) * x[3], x[2] + 0.3 * dt, x[3]])
-
-
-def radar_hx(x):
-    """Range and bearing of [px, py] from the origin (the bearing is an angle)."""
-    return np.array([np.hypot(x[0], x[1]), np.arctan2(x[1], x[0])])
-
-
-def l96_hx(x):
-    return x[::2].copy()
 
 
 class Model:
@@ -91,8 +74,8 @@ class Model:
 
 TURN = Model(
     4,
-    turn_fx,
-    radar_hx,
+    heading_fx,
+    xy_radar_hx,
     2,
     np.array([30.0, 40.0, 0.4, 2.0]),
     np.diag([1.0, 1.0, 0.05, 0.1]),
@@ -233,107 +216,3 @@ def test_transform_and_measurement_update_stacked():
         assert_slices_equal(SF[k : k + 1], [SF_k], "S")
         for field in ("x", "S", "y", "Sy", "L21", "w"):
             assert_slices_equal(getattr(post, field)[k : k + 1], [getattr(p_k, field)], field)
-
-
-# -- linalg, stacked versus per slice ---------------------------------------------------
-
-dims = st.integers(1, 7)
-seeds = st.integers(0, 2**32 - 1)
-
-
-def lower_factor(rng, n, batch=()):
-    """Well-conditioned random lower factors with a positive diagonal."""
-    L = np.tril(rng.normal(size=batch + (n, n)), -1) * 0.3
-    d = rng.uniform(0.5, 2.0, batch + (n,))
-    return L + d[..., None] * np.eye(n)
-
-
-@settings(max_examples=60, deadline=None)
-@given(seed=seeds, n=dims, extra=st.integers(-3, 4))
-def test_tria_stacked_equals_per_slice(seed, n, extra):
-    rng = np.random.default_rng(seed)
-    k = max(1, n + extra)
-    rows = rng.normal(size=(B, k, n))
-    S = tria(rows.copy())
-    for i in range(B):
-        Si = tria(rows[i].copy(order="F"))  # tria overwrites a single matrix
-        np.testing.assert_array_equal(np.triu(S[i], 1), 0.0)
-        assert np.all(np.diagonal(S[i]) >= 0)
-        # the Gram matrix is what tria promises; for k >= n the factor is unique, so compare it too
-        G = rows[i].T @ rows[i]
-        np.testing.assert_allclose(S[i] @ S[i].T, G, rtol=0, atol=1e-12 * max(1.0, np.abs(G).max()))
-        np.testing.assert_array_equal(S[i], Si)  # one kernel, one lane per matrix
-
-
-@settings(max_examples=100, deadline=None)
-@given(
-    seed=seeds,
-    n=st.integers(1, 20),
-    extra=st.integers(-3, 6),
-    scale=st.sampled_from([1e-150, 1e-8, 1.0, 1e8, 1e150]),
-    zero_col=st.booleans(),
-    fortran=st.booleans(),
-)
-def test_tria_of_one_matrix_is_a_lower_factor_with_a_non_negative_diagonal(
-    seed, n, extra, scale, zero_col, fortran
-):
-    """The Householder kernel alone gives the diagonal's sign: check it on any rows, any layout.
-
-    Zero columns (a singular noise factor), fewer rows than columns and extreme scales included;
-    the Gram matrix is reproduced to the rounding of a QR (``c k eps`` relative to its size).
-    """
-    rng = np.random.default_rng(seed)
-    k = max(1, n + extra)
-    rows = rng.normal(size=(k, n)) * scale
-    if zero_col:
-        rows[:, rng.integers(n)] = 0.0
-    rows = np.asfortranarray(rows) if fortran else np.ascontiguousarray(rows)
-    G = rows.T @ rows
-    S = tria(rows.copy(order="F" if fortran else "C"))
-    assert S.shape == (n, n)
-    np.testing.assert_array_equal(np.triu(S, 1), 0.0)
-    assert np.all(np.diagonal(S) >= 0.0)
-    assert np.all(np.isfinite(S))
-    np.testing.assert_allclose(S @ S.T, G, rtol=0, atol=1e-13 * max(k, n) * np.abs(G).max())
-
-
-@settings(max_examples=60, deadline=None)
-@given(seed=seeds, n=dims, nrhs=st.sampled_from([None, 1, 3]), trans=st.booleans())
-def test_solve_lower_stacked_equals_per_slice(seed, n, nrhs, trans):
-    rng = np.random.default_rng(seed)
-    S = lower_factor(rng, n, (B,))
-    b = rng.normal(size=(B, n) if nrhs is None else (B, n, nrhs))
-    X = solve_lower(S, b, trans=trans)
-    assert X.shape == b.shape
-    for i in range(B):
-        Xi = solve_lower(np.asfortranarray(S[i]), b[i].copy(), trans=trans)
-        A = S[i].T if trans else S[i]
-        # both solve the same system: residuals at rounding, and they agree to cond * eps
-        np.testing.assert_allclose(A @ X[i], b[i], rtol=0, atol=1e-12 * max(1.0, np.abs(b[i]).max()))
-        np.testing.assert_array_equal(X[i], Xi)
-
-
-def test_solve_lower_stacked_singular_raises():
-    S = lower_factor(np.random.default_rng(0), 3, (B,))
-    S[1, 2, 2] = 0.0
-    with pytest.raises(np.linalg.LinAlgError):
-        solve_lower(S, np.ones((B, 3)))
-
-
-@settings(max_examples=60, deadline=None)
-@given(seed=seeds, n=dims, sign=st.sampled_from([1.0, -1.0]), size=st.floats(0.05, 0.9))
-def test_chol_update_stacked_equals_per_slice(seed, n, sign, size):
-    rng = np.random.default_rng(seed)
-    S = lower_factor(rng, n, (B,))
-    u = rng.normal(size=(B, n))
-    u /= np.linalg.norm(u, axis=-1, keepdims=True)
-    # v = S u * size has ||S^-1 v|| = size < 1: a downdate that keeps P positive definite
-    v = np.einsum("bij,bj->bi", S, u) * size
-    S1 = chol_update(S, v, sign)
-    for i in range(B):
-        S1i = chol_update(S[i], v[i], sign)
-        target = S[i] @ S[i].T + sign * np.outer(v[i], v[i])
-        scale = np.abs(S[i] @ S[i].T).max() / (1.0 - size**2)
-        np.testing.assert_allclose(S1[i] @ S1[i].T, target, rtol=0, atol=1e-12 * scale)
-        np.testing.assert_array_equal(np.triu(S1[i], 1), 0.0)
-        np.testing.assert_array_equal(S1[i], S1i)

@@ -1,0 +1,123 @@
+"""The benchmarks' --quick modes run and write complete results (no time is asserted).
+
+benchmarks/run.py (the single filter), benchmarks/fleet.py (its table, figure and JSON, and the
+fleet matching the loop) and benchmarks/dask_bench.py (on a LocalCluster).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_quick_benchmark_writes_results(tmp_path):
+    subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "run.py"), "--quick", "--out", str(tmp_path)],
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    text = (tmp_path / "results.md").read_text()
+    for name in ("filterpy UKF", "squkf redrawn per-point", "squkf augmented vectorised"):
+        assert f"| g13ej robot n=3 | {name} |" in text
+        assert f"| coordinated turn n=5 | {name} |" in text
+    # SquareRootUKF completes the near-singular sweep at every P0
+    sweep = text.split("## Near-singular sweep")[1].split("##")[0]
+    rows = [line for line in sweep.splitlines() if line.startswith("| 1e+")]
+    assert len(rows) == 5
+    for row in rows:
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert cells[2:6] == ["completed"] * 4, row
+    # the hand-inlined reference step is the same filter (same RMSE and NEES as SquareRootUKF)
+    rows = {
+        cells[1]: cells
+        for line in text.splitlines()
+        if line.startswith("| g13ej robot n=3 |")
+        for cells in [[c.strip() for c in line.strip("|").split("|")]]
+    }
+    ref = rows["reference: inlined step, no checks vectorised"]
+    assert ref[5:7] == rows["squkf redrawn vectorised"][5:7]
+    assert "| g13ej robot n=3 | " in text.split("## Where the library's time goes")[1]
+    # the profile's parts add up to the whole step (the facade's share is the remainder, so
+    # this checks that every part was measured and written)
+    profile = text.split("## Profile of one step")[1].split("##")[0]
+    cells = {
+        row.split("|")[1].strip(): float(row.split("|")[2])
+        for row in profile.splitlines()
+        if row.startswith("| ") and "---" not in row and "part" not in row
+    }
+    whole = cells.pop("whole step")
+    assert len(cells) == 7 and abs(sum(cells.values()) - whole) < 0.5
+    assert (tmp_path / "scaling.png").stat().st_size > 1000
+    assert (tmp_path / "failure_map.png").stat().st_size > 1000
+
+
+def test_quick_fleet_benchmark(tmp_path):
+    subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "fleet.py"), "--quick", "--out", str(tmp_path)],
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert (tmp_path / "fleet.png").stat().st_size > 1000
+    text = (tmp_path / "fleet.md").read_text()
+    results = json.loads((tmp_path / "fleet.json").read_text())
+    assert set(results) >= {"machine", "impls", "skipped", "models", "targets"}
+    assert {"fleet", "loop", "filterpy"} <= set(results["impls"])
+    assert len(results["models"]) == 2
+    for name, res in results["models"].items():
+        assert f"## {name}" in text
+        assert set(res["timing"]) == {"1", "10"}
+        for row in res["timing"].values():
+            assert row["fleet"]["us"] > 0 and row["loop"]["us"] > 0 and row["filterpy"]["us"] > 0
+        assert all(m["peak_MB"] > 0 for m in res["memory"].values())
+        acc = res["accuracy"]
+        # the fleet and the loop of SquareRootUKF are the same filters: same RMSE, same estimates
+        assert acc["fleet_equals_loop"] is True
+        assert abs(acc["fleet"]["rmse"] - acc["loop"]["rmse"]) <= 1e-9
+        assert acc["loop"]["max_abs_diff"] <= 1e-6  # positions of ~1e3 m: 1e-9 relative
+        # filterpy's UKF with the same points is the same filter to rounding
+        assert abs(acc["fleet"]["rmse"] - acc["filterpy"]["rmse"]) <= 1e-6 * acc["fleet"]["rmse"]
+        if "dynamax" in results["impls"]:
+            assert abs(acc["fleet"]["rmse"] - acc["dynamax"]["rmse"]) <= 1e-4 * acc["fleet"]["rmse"]
+
+
+def test_quick_dask_benchmark_writes_results(tmp_path):
+    pytest.importorskip("distributed")
+    pytest.importorskip("psutil")
+    subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "dask_bench.py"), "--quick", "--out", str(tmp_path)],
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    text = (tmp_path / "dask.md").read_text()
+    rows = {}
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        if line.startswith("| ") and len(cells) == 4:
+            rows[cells[0]] = cells
+    for name in ("in-process Fleet", "1 worker", "2 workers", "1 worker, dask's default environment"):
+        assert float(rows[name][1]) > 0, name
+        assert float(rows[name][2].replace(",", "")) > 0, name
+    # the cluster's means are bit-identical to Fleet.batch_filter's in this process
+    assert "bit-identical to the in-process fleet's in every repetition: True" in text
+    speedups = re.findall(r"\*\*([0-9.]+)x\*\*", text)
+    assert len(speedups) == 3  # two workers / one, one worker / in process, untuned worker / in process
+    # the reduced run: every filter converged (no failures, a few metres of error), memory polled per worker
+    mem = text.split('keep="means", 2 workers')[1]
+    assert "0 filters failed" in mem
+    first, last = (float(v) for v in re.search(r"([0-9.]+) m at the first step, ([0-9.]+) m", mem).groups())
+    assert 0 < last < first < 20
+    peaks = [line for line in mem.splitlines() if re.match(r"\| [01] \| \d+ \| \d+ \|", line)]
+    assert len(peaks) == 2

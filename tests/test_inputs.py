@@ -1,0 +1,290 @@
+"""One rule per input on every route: SquareRootUKF, its batch_filter and smoother, Fleet, squkf.dask.
+
+dt is any finite real number (negative: a step backwards), never a string; fx_args and hx_args
+reach the model functions only and may not be named like a step argument; what a zs iterable
+yields is checked naming the step, and zs must be array-like; text measurements are errors before
+anything runs. Each test failed on the code before its fix (issue 20).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from models import (
+    CV3_K,
+    CV3_NX,
+    CV3_NZ,
+    assert_filter_state,
+    assert_fleet_state,
+    ct_fx,
+    ct_hx,
+    cv3_zs,
+    cv_fx_nudged,
+    filter_state,
+    fleet_state,
+    make_cv3_fleet,
+    near_filter,
+    near_measurements,
+    positions_hx,
+)
+
+from squkf import Fleet, MerweScaledWeights, ParameterError, ShapeError, SquareRootUKF, SqukfError
+
+# -- 2. one rule for dt on every route: any finite real number; strings are refused ----------
+#
+# The rule is filterpy's (and ``SquareRootUKF.predict``'s since tests/test_ukf.py's
+# test_dt_conventions): a negative dt is a step backwards in time, passed to fx as it is.
+
+
+def single_loop(f: SquareRootUKF, zs, dts) -> tuple[np.ndarray, np.ndarray]:
+    means, covs = [], []
+    for z, dt in zip(zs, dts):
+        f.predict(dt=dt)
+        f.update(z)
+        means.append(f.x)
+        covs.append(f.P)
+    return np.array(means), np.array(covs)
+
+
+def fleet_loop(fl: Fleet, zs, dts) -> np.ndarray:
+    means = []
+    for t, dt in enumerate(dts):
+        fl.predict(dt)
+        fl.update(zs[:, t])
+        means.append(fl.x)
+    return np.stack(means, axis=1)
+
+
+NEGATIVE_DTS = [1.0, -0.5, 0.0, -1.0, 0.5]
+
+
+def test_negative_dts_run_the_same_on_every_single_filter_route():
+    zs = near_measurements(5)
+    expected = single_loop(near_filter(), zs, NEGATIVE_DTS)
+    for dts in (NEGATIVE_DTS, np.array(NEGATIVE_DTS), iter(NEGATIVE_DTS)):
+        means, covs = near_filter().batch_filter(zs, dts=dts)
+        np.testing.assert_array_equal(means, expected[0])
+        np.testing.assert_array_equal(covs, expected[1])
+    means, covs = near_filter().batch_filter(zs, dts=-0.5)
+    loop = single_loop(near_filter(), zs, [-0.5] * 5)
+    np.testing.assert_array_equal(means, loop[0])
+    f = near_filter()
+    xs, Ps, Ks = f.rts_smoother(*expected, dts=NEGATIVE_DTS)
+    assert xs.shape == (5, 5) and np.all(np.isfinite(Ps))
+
+
+def test_negative_dts_run_the_same_on_every_fleet_route():
+    zs = cv3_zs(5)
+    expected = fleet_loop(make_cv3_fleet(), zs, NEGATIVE_DTS)
+    fl = make_cv3_fleet()
+    res = fl.batch_filter(zs, dts=NEGATIVE_DTS)
+    np.testing.assert_array_equal(res.means, expected)
+    np.testing.assert_array_equal(
+        make_cv3_fleet().batch_filter(zs, dts=-0.5).means, fleet_loop(make_cv3_fleet(), zs, [-0.5] * 5)
+    )
+    sm = make_cv3_fleet().rts_smoother(res, dts=NEGATIVE_DTS)
+    assert not sm.failed.any() and np.all(np.isfinite(sm[0]))
+    # the smoother of one filter of the fleet, on the same data and dts
+    f = make_cv3_fleet()[1]
+    xs, _, _ = f.rts_smoother_factors(res.means[1], res.P1_2s[1], dts=NEGATIVE_DTS)
+    np.testing.assert_allclose(sm[0][1], xs, rtol=1e-10, atol=1e-12)
+
+
+def test_negative_dts_on_dask_as_in_one_process():
+    sd = pytest.importorskip("squkf.dask")
+    zs = cv3_zs(5)
+    res = sd.compute(sd.batch_filter(make_cv3_fleet(), zs, dts=NEGATIVE_DTS), scheduler="synchronous")
+    np.testing.assert_array_equal(res.means, make_cv3_fleet().batch_filter(zs, dts=NEGATIVE_DTS).means)
+
+
+@pytest.mark.parametrize("bad", ["0.1", b"0.1", np.str_("0.1"), np.array("0.1"), "nan", "one"])
+def test_a_string_dt_is_an_error_naming_it(bad):
+    f = near_filter()
+    f.predict()
+    snap = filter_state(f)
+    with pytest.raises(ParameterError, match="dt"):
+        f.predict(dt=bad)
+    assert_filter_state(f, snap)
+    fl = make_cv3_fleet()
+    snap = fleet_state(fl)
+    with pytest.raises(ParameterError, match="dt"):
+        fl.predict(dt=bad)
+    assert_fleet_state(fl, snap)
+    with pytest.raises(ParameterError):
+        SquareRootUKF(5, 2, bad, ct_hx, ct_fx, MerweScaledWeights())
+    with pytest.raises(ParameterError):
+        Fleet(CV3_K, CV3_NX, CV3_NZ, bad, positions_hx, cv_fx_nudged, MerweScaledWeights())
+
+
+def test_string_dts_are_errors_on_every_route():
+    zs, fzs = near_measurements(5), cv3_zs(5)
+    dts = [1.0, 1.0, "0.1", 1.0, 1.0]
+    f = near_filter()
+    snap = filter_state(f)
+    with pytest.raises(ParameterError, match=r"dts\[2\]"):
+        f.batch_filter(zs, dts=dts)
+    assert_filter_state(f, snap)
+    means, covs = f.batch_filter(zs)
+    with pytest.raises(ParameterError, match=r"dts\[2\]"):
+        f.rts_smoother(means, covs, dts=dts)
+    fl = make_cv3_fleet()
+    snap = fleet_state(fl)
+    with pytest.raises(ParameterError, match=r"dts\[2\]"):
+        fl.batch_filter(fzs, dts=dts)
+    with pytest.raises(ParameterError, match="dts"):
+        fl.batch_filter(fzs, dts=np.array(dts))
+    assert_fleet_state(fl, snap)
+    res = fl.batch_filter(fzs)
+    with pytest.raises(ParameterError, match=r"dts\[2\]"):
+        fl.rts_smoother(res, dts=dts)
+    sd = pytest.importorskip("squkf.dask")
+    with pytest.raises(ParameterError, match=r"dts\[2\]"):  # before anything is scheduled
+        sd.batch_filter(make_cv3_fleet(), fzs, dts=dts)
+
+
+# -- 4. fx_args / hx_args reach the model functions and nothing else -------------------------
+
+CLASHES = [
+    ("hx_args", {"R": 100.0 * np.eye(CV3_NZ)}, "R"),
+    ("hx_args", {"z": 1.0}, "z"),
+    ("fx_args", {"dt": 2.0}, "dt"),
+]
+
+
+@pytest.mark.parametrize("arg, value, key", CLASHES)
+def test_a_model_argument_named_like_a_step_argument_is_an_error_for_one_filter(arg, value, key):
+    f = near_filter()
+    snap = filter_state(f)
+    with pytest.raises(ParameterError, match=f"{arg} has the key '{key}'"):
+        f.batch_filter(near_measurements(3), **{arg: value})
+    assert_filter_state(f, snap)
+    if arg == "fx_args":
+        means, covs = f.batch_filter(near_measurements(3))
+        with pytest.raises(ParameterError, match=f"{arg} has the key '{key}'"):
+            f.rts_smoother(means, covs, fx_args=value)
+
+
+@pytest.mark.parametrize("arg, value, key", CLASHES)
+def test_a_model_argument_named_like_a_step_argument_is_an_error_for_a_fleet(arg, value, key):
+    fl = make_cv3_fleet()
+    snap = fleet_state(fl)
+    with pytest.raises(ParameterError, match=f"{arg} has the key '{key}'"):
+        fl.batch_filter(cv3_zs(3), **{arg: value})
+    assert_fleet_state(fl, snap)
+    if arg == "fx_args":
+        res = fl.batch_filter(cv3_zs(3))
+        with pytest.raises(ParameterError, match=f"{arg} has the key '{key}'"):
+            fl.rts_smoother(res, fx_args=value)
+    sd = pytest.importorskip("squkf.dask")
+    with pytest.raises(ParameterError, match=f"{arg} has the key '{key}'"):  # before scheduling
+        sd.batch_filter(make_cv3_fleet(), cv3_zs(3), **{arg: value})
+
+
+def test_hx_args_are_given_to_hx_only():
+    """A fleet's ``hx_args`` reach ``hx`` as a loop of ``update(z, **hx_args)`` gives them."""
+    zs = cv3_zs(4)
+    res = make_cv3_fleet().batch_filter(zs, hx_args={"scale": 2.0}, fx_args={"u": 0.1})
+    loop = make_cv3_fleet()
+    for t in range(4):
+        loop.predict(u=0.1)
+        loop.update(zs[:, t], scale=2.0)
+    np.testing.assert_array_equal(res.x, loop.x)
+
+
+# -- 5. what a zs iterable yields is checked, naming the step; zs itself must be array-like ------
+
+
+def test_a_generator_yielding_a_bad_step_is_named_for_a_fleet():
+    good = cv3_zs(4)
+    cases = [
+        ([good[:, 0], good[:, 1, :1], good[:, 2]], ShapeError, r"zs\[1\] has shape \(3, 1\)"),
+        ([good[:, 0], good[:, 1], None], ShapeError, r"zs\[2\] is None"),
+        ([good[:2, 0], good[:2, 1]], ShapeError, r"zs\[0\] has shape \(2, 2\)"),
+        ([good[:, 0], "1.0"], ShapeError, r"zs\[1\]"),
+        ([good[:, 0], np.full((CV3_K, CV3_NZ), np.inf)], SqukfError, r"zs\[1\]"),
+    ]
+    for steps, error, match in cases:
+        fl = make_cv3_fleet()
+        snap = fleet_state(fl)
+        with pytest.raises(error, match=match):
+            fl.batch_filter(z for z in steps)
+        assert_fleet_state(fl, snap)
+
+
+def test_a_generator_yielding_a_bad_step_is_named_for_one_filter():
+    good = near_measurements(3)
+    cases = [
+        ([good[0], good[1][:1].reshape(1, 1, 1), good[2]], ShapeError, r"at step 1: z has shape"),
+        ([good[0], "1.0"], ShapeError, r"at step 1: z"),
+        ([good[0], object()], ShapeError, r"at step 1: z"),
+    ]
+    for steps, error, match in cases:
+        f = near_filter()
+        snap = filter_state(f)
+        with pytest.raises(error, match=match):
+            f.batch_filter(z for z in steps)
+        assert_filter_state(f, snap)
+
+
+@pytest.mark.parametrize(
+    "zs", [5.0, object(), {0: [1.0, 2.0]}, {1.0, 2.0}, frozenset({(1.0, 2.0)}), "zs", b"zs"], ids=repr
+)
+def test_zs_that_is_not_array_like_is_an_error_naming_zs(zs):
+    f = near_filter()
+    snap = filter_state(f)
+    with pytest.raises(ShapeError, match="zs"):
+        f.batch_filter(zs)
+    assert_filter_state(f, snap)
+    fl = make_cv3_fleet()
+    snap = fleet_state(fl)
+    with pytest.raises(ShapeError, match="zs"):
+        fl.batch_filter(zs)
+    assert_fleet_state(fl, snap)
+
+
+# -- 11. text measurements are errors on every batch route, before anything runs -----------------
+
+
+def text_versions(zs: np.ndarray) -> dict:
+    text = zs.astype(str)
+    mixed = zs.astype(object)
+    mixed.flat[1] = "1.0"
+    return {
+        "list of str": text.tolist(),
+        "str array": text,
+        "object array of str": text.astype(object),
+        "one str among numbers": mixed,
+        "masked str": np.ma.masked_array(text, mask=np.zeros(zs.shape, dtype=bool)),
+    }
+
+
+@pytest.mark.parametrize("what", list(text_versions(np.zeros((2, 2)))))
+def test_text_measurements_are_errors_for_one_filter(what):
+    zs = text_versions(near_measurements(3))[what]
+    f = near_filter()
+    snap = filter_state(f)
+    with pytest.raises(ShapeError, match="z"):
+        f.batch_filter(zs)
+    assert_filter_state(f, snap)
+    with pytest.raises(ShapeError, match="z"):
+        f.update(zs[0])
+    assert_filter_state(f, snap)
+
+
+@pytest.mark.parametrize("what", list(text_versions(np.zeros((2, 2)))))
+def test_text_measurements_are_errors_for_a_fleet_and_on_dask(what):
+    zs = text_versions(cv3_zs(3))[what]
+    fl = make_cv3_fleet()
+    snap = fleet_state(fl)
+    with pytest.raises(ShapeError, match="zs"):
+        fl.batch_filter(zs)
+    with pytest.raises(ShapeError, match="z"):
+        fl.update(np.asarray(zs)[:, 0])
+    assert_fleet_state(fl, snap)
+    sd = pytest.importorskip("squkf.dask")
+    with pytest.raises(ShapeError, match="zs"):  # raised by batch_filter itself: nothing scheduled
+        sd.batch_filter(make_cv3_fleet(), zs)
+    da = pytest.importorskip("dask.array")
+    if np.asarray(zs).dtype.kind in "UO":
+        with pytest.raises(ShapeError, match="zs"):
+            sd.batch_filter(make_cv3_fleet(), da.from_array(np.asarray(zs), chunks=(1, -1, -1)))

@@ -1,0 +1,547 @@
+"""Records handed out: arrays read from a filter or fleet are the caller's, and edits in place are taken.
+
+filterpy code reads arrays and keeps them (a ``Saver``, a plot's list), edits covariances in
+place, copies and pickles filters in the middle of a step. Every array read is a fresh one that
+the filter never rewrites, an edit in place of ``x``, ``P``, ``Q`` or ``R`` takes effect at the
+next call (single filter and fleet), and a 1-element covariance reads back as assigned. Each test
+compares with an untouched twin filter, a freshly built reference or filterpy.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import pickle
+import warnings
+
+import numpy as np
+import pytest
+from filterpy.common import Q_discrete_white_noise, Saver
+from models import (
+    CV_DT,
+    CV_Q,
+    CV_R,
+    CV_Z,
+    FILTER_STATE,
+    assert_filter_state,
+    assert_same_estimate,
+    ct_hx,
+    cv3_zs,
+    cv_filter,
+    cv_fx,
+    filter_state,
+    linear_pair,
+    make_cv3_fleet,
+    near_filter,
+    near_measurements,
+    one_d,
+    one_d_filterpy,
+    step,
+)
+
+from squkf import (
+    JulierWeights,
+    MerweScaledWeights,
+    SquareRootUKF,
+)
+
+# == the single filter's records ===================================================================
+
+RECORDS = (
+    "x",
+    "P",
+    "x_prior",
+    "P_prior",
+    "x_post",
+    "P_post",
+    "P1_2",
+    "P1_2_prior",
+    "P1_2_post",
+    "K",
+    "y",
+    "S",
+    "SI",
+    "sigmas_f",
+    "sigmas_h",
+)
+
+
+# -- fresh arrays -----------------------------------------------------------------------------
+
+
+def test_every_step_assigns_fresh_arrays():
+    f, twin = cv_filter(), cv_filter()
+    step(f, CV_Z[0])
+    step(twin, CV_Z[0])
+    before = {k: getattr(f, k) for k in RECORDS}
+    kept = {k: v.copy() for k, v in before.items()}
+    step(f, CV_Z[1])
+    step(twin, CV_Z[1])
+    for k in RECORDS:
+        # the step did not write into what was read before it ...
+        np.testing.assert_array_equal(before[k], kept[k], err_msg=k)
+        assert getattr(f, k) is not before[k], k
+    # ... and editing what was read before the step changes nothing now
+    for k in RECORDS:
+        before[k][...] = 123.0
+    assert_filter_state(f, filter_state(twin))
+    step(f, CV_Z[2])
+    step(twin, CV_Z[2])
+    assert_same_estimate(f, twin)
+
+
+@pytest.mark.parametrize("scheme", ["redrawn", "augmented", "propagated"])
+def test_editing_factor_records_changes_nothing(scheme):
+    f, twin = cv_filter(scheme), cv_filter(scheme)
+    step(f, CV_Z[0])
+    step(twin, CV_Z[0])
+    f.predict()
+    twin.predict()
+    for name in ("P1_2_prior", "P1_2_post", "P1_2", "x_prior", "x_post", "sigmas_f"):
+        a = getattr(f, name)
+        a *= 3.0  # in place, on what the filter handed out
+    f.update(CV_Z[1])
+    twin.update(CV_Z[1])
+    assert_same_estimate(f, twin, records=False)  # x_prior and sigmas_f are records the test edited
+    for name in ("x_post", "P1_2_post", "y", "K", "S1_2", "sigmas_h"):
+        np.testing.assert_array_equal(getattr(f, name), getattr(twin, name), err_msg=name)
+    assert f.log_likelihood == twin.log_likelihood
+
+
+@pytest.mark.parametrize("scheme", ["redrawn", "augmented", "propagated"])
+def test_arrays_of_ask_and_tell_are_not_read_back(scheme):
+    f, twin = cv_filter(scheme), cv_filter(scheme)
+    step(twin, CV_Z[0])
+    X = f.ask_predict()
+    F = [cv_fx(s, CV_DT) for s in X]
+    X[...] = 0.0  # edited between ask and tell: the filter keeps its own set
+    F = np.array(F)
+    xp, Sp = f.tell_predict(F)
+    F[...] = np.nan
+    xp[...] = np.nan
+    Sp[...] = np.nan
+    Y = f.ask_update()
+    H = np.array([ct_hx(s) for s in Y])
+    Y[...] = 1e6
+    z = CV_Z[0].copy()
+    xq, Sq = f.tell_update(H, z)
+    for a in (H, z, xq, Sq):
+        a[...] = np.nan
+    assert_same_estimate(f, twin)
+    step(f, CV_Z[1])
+    step(twin, CV_Z[1])
+    assert_same_estimate(f, twin)
+
+
+@pytest.mark.parametrize("scheme", ["redrawn", "augmented", "propagated"])
+@pytest.mark.parametrize("vectorized", [False, True])
+def test_model_functions_that_scribble_on_their_points_change_nothing(scheme, vectorized):
+    """fx and hx may overwrite the points they are given (and return them): the step is unchanged."""
+
+    def fx_scribble(X, dt):
+        out = np.stack([cv_fx(s, dt) for s in X]) if vectorized else cv_fx(X, dt)
+        X[...] = out  # the images written over the points, and the points' own array returned
+        return X
+
+    def hx_scribble(X):
+        out = np.stack([ct_hx(s) for s in X]) if vectorized else ct_hx(X)
+        X[...] = -1e9
+        return out
+
+    fxv = (lambda X, dt: np.stack([cv_fx(s, dt) for s in X])) if vectorized else cv_fx
+    hxv = (lambda X: np.stack([ct_hx(s) for s in X])) if vectorized else ct_hx
+    f = cv_filter(scheme, vectorized=vectorized)
+    twin = cv_filter(scheme, vectorized=vectorized)
+    f.fx, f.hx, twin.fx, twin.hx = fx_scribble, hx_scribble, fxv, hxv
+    for z in CV_Z[:3]:
+        step(f, z)
+        step(twin, z)
+        assert_same_estimate(f, twin)
+        for name in ("sigmas_f", "sigmas_h"):
+            np.testing.assert_array_equal(getattr(f, name), getattr(twin, name), err_msg=name)
+
+
+# -- in-place edits ---------------------------------------------------------------------------
+
+
+def test_multi_statement_symmetric_edit_equals_assignment():
+    f, twin = cv_filter(), cv_filter()
+    q = 0.003
+    f.Q[0, 1] = f.Q[1, 0] = q
+    Q = CV_Q.copy()
+    Q[0, 1] = Q[1, 0] = q
+    twin.Q = Q
+    f.R[0, 0] *= 2.0
+    R = CV_R.copy()
+    R[0, 0] *= 2.0
+    twin.R = R
+    for z in CV_Z[:3]:
+        step(f, z)
+        step(twin, z)
+        assert_same_estimate(f, twin, exact=False)
+    np.testing.assert_array_equal(f.Q, twin.Q)
+
+
+@pytest.mark.parametrize("edit", ["P *= 4", "P[0,0] = 9", "x[1] = 2"])
+def test_in_place_edits_of_state_take_effect(edit):
+    f, twin = cv_filter(), cv_filter()
+    step(f, CV_Z[0])
+    step(twin, CV_Z[0])
+    if edit == "P *= 4":
+        f.P *= 4
+        twin.P = 4 * twin.P
+    elif edit == "P[0,0] = 9":
+        f.P[0, 0] = 9.0
+        P = twin.P.copy()
+        P[0, 0] = 9.0
+        twin.P = P
+    else:
+        f.x[1] = 2.0
+        x = twin.x.copy()
+        x[1] = 2.0
+        twin.x = x
+    step(f, CV_Z[1])
+    step(twin, CV_Z[1])
+    assert_same_estimate(f, twin, exact=False)
+
+
+# -- copies and pickles -------------------------------------------------------------------------
+
+
+def _copies(f):
+    return {
+        "copy": copy.copy(f),
+        "deepcopy": copy.deepcopy(f),
+        "pickle": pickle.loads(pickle.dumps(f)),
+    }
+
+
+def _stopped_at(where):
+    """An augmented filter after one step, stopped ``where`` in the next, its twin, and the points asked."""
+    f, ref = cv_filter("augmented"), cv_filter("augmented")
+    step(f, CV_Z[0])
+    step(ref, CV_Z[0])
+    X = None
+    if where == "after ask_predict":
+        X = f.ask_predict()
+    elif where == "after tell_predict":
+        f.tell_predict([cv_fx(s, CV_DT) for s in f.ask_predict()])
+    return f, ref, X
+
+
+def _finish_step(g, where, X):
+    """Finish the step :func:`_stopped_at` stopped, with the update by ``Z[1]``."""
+    if where == "after ask_predict":
+        g.tell_predict([cv_fx(s, CV_DT) for s in X])
+    elif where == "idle":
+        g.predict()
+    g.update(CV_Z[1])
+
+
+@pytest.mark.parametrize("kind", ["copy", "deepcopy", "pickle"])
+@pytest.mark.parametrize("where", ["idle", "after ask_predict", "after tell_predict"])
+def test_editing_a_copy_in_place_does_not_touch_the_original(kind, where):
+    f, ref, X = _stopped_at(where)
+    c = _copies(f)[kind]
+    c.P *= 10.0
+    c.Q[0, 0] += 1.0
+    c.R *= 3.0
+    c.x[0] = -99.0
+    c.predict()  # and running the copy does not either
+    c.update(CV_Z[3])
+    _finish_step(f, where, X)
+    step(ref, CV_Z[1])
+    assert_same_estimate(f, ref)
+    assert not np.allclose(c.x, f.x)
+
+
+@pytest.mark.parametrize("kind", ["copy", "deepcopy", "pickle"])
+@pytest.mark.parametrize("where", ["idle", "after ask_predict", "after tell_predict"])
+def test_copy_mid_step_finishes_the_step(kind, where):
+    f, ref, X = _stopped_at(where)
+    c = _copies(f)[kind]
+    for g in (c, f):  # the copy first: it must not disturb the original
+        _finish_step(g, where, X)
+        step(g, CV_Z[2])
+    step(ref, CV_Z[1])
+    step(ref, CV_Z[2])
+    assert_same_estimate(c, ref)
+    assert_same_estimate(f, ref)
+
+
+# -- Saver -----------------------------------------------------------------------------------
+
+
+def test_saver_history_is_never_rewritten():
+    f = cv_filter()
+    s = Saver(f)
+    saved_x, saved_P = [], []
+    for z in CV_Z[:3]:
+        step(f, z)
+        s.save()
+        saved_x.append(f.x.copy())
+        saved_P.append(f.P.copy())
+        f.P *= 4.0  # edits after the save
+        f.x[0] = 5.0
+        f.Q[0, 0] *= 1.1
+    assert len(s.x) == len(s.P) == 3
+    for k in range(3):
+        np.testing.assert_array_equal(s.x[k], saved_x[k])
+        np.testing.assert_array_equal(s.P[k], saved_P[k])
+    s.to_array()
+    assert s.x.shape == (3, 4) and s.P.shape == (3, 4, 4)
+
+
+# -- schemes with a propagated set: edits between predict and update ---------------------------
+
+
+@pytest.mark.parametrize("scheme", ["augmented", "propagated"])
+@pytest.mark.parametrize("edit", ["P *= 2", "P[0,0] += 1", "x[0] += 1", "P = P", "none"])
+def test_edit_between_predict_and_update_takes_effect(scheme, edit):
+    f = cv_filter(scheme)
+    step(f, CV_Z[0])
+    f.predict()
+    if edit == "P *= 2":
+        f.P *= 2.0
+    elif edit == "P[0,0] += 1":
+        f.P[0, 0] += 1.0
+    elif edit == "x[0] += 1":
+        f.x[0] += 1.0
+    elif edit == "P = P":
+        f.P[0, 0] = f.P[0, 0]  # an edit that changes nothing
+    f.update(CV_Z[1])
+    if edit in ("P = P", "none"):
+        # no change: the propagated set is used, as by a twin that made no edit
+        t = cv_filter(scheme)
+        step(t, CV_Z[0])
+        step(t, CV_Z[1])
+        assert_same_estimate(f, t)
+        return
+    # the reference: a fresh filter set to the edited prior and updated (a set redrawn from it)
+    t = cv_filter(scheme)
+    step(t, CV_Z[0])
+    t.predict()
+    x, P = t.x.copy(), t.P.copy()
+    if edit == "P *= 2":
+        P *= 2.0
+    elif edit == "P[0,0] += 1":
+        P[0, 0] += 1.0
+    else:
+        x[0] += 1.0
+    g = cv_filter(scheme)
+    g.x, g.P = x, P
+    g.update(CV_Z[1])
+    np.testing.assert_allclose(f.x, g.x, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(f.P, g.P, rtol=1e-12, atol=1e-12)
+    t.update(CV_Z[1])  # and it is not what the unedited prior gives
+    assert not np.allclose(f.x, t.x)
+
+
+def test_replacing_points_between_ask_and_tell_uses_the_handed_out_set():
+    f, twin = cv_filter(), cv_filter()
+    step(f, CV_Z[0])
+    step(twin, CV_Z[0])
+    X = f.ask_predict()
+    f.points_fn = JulierWeights(kappa=1.0)
+    xp, Sp = f.tell_predict([cv_fx(s, CV_DT) for s in X])
+    twin.predict()
+    np.testing.assert_array_equal(xp, twin.x_prior)
+    np.testing.assert_array_equal(Sp, twin.P1_2_prior)
+    # from now on the new points are used
+    assert f.Wm.shape[0] == 9 and not np.array_equal(f.Wm, twin.Wm)
+
+
+# -- factors accepted back ------------------------------------------------------------------------
+
+
+def test_a_singular_noise_has_a_factor_accepted_back():
+    f = cv_filter()
+    f.R = np.diag([1.0, 0.0])
+    f.Q = Q_discrete_white_noise(2, dt=CV_DT, var=0.1, block_size=2)  # rank 2 of 4
+    R, Q = f.R.copy(), f.Q.copy()
+    f.R1_2 = f.R1_2
+    f.Q1_2 = f.Q1_2
+    np.testing.assert_allclose(f.R, R, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(f.Q, Q, rtol=0, atol=1e-15 * np.abs(Q).max() * 16)
+    Q1 = Q_discrete_white_noise(2, dt=CV_DT, var=0.1)  # 2x2 of rank 1 in a 2-state filter
+    g = SquareRootUKF(
+        2, 1, CV_DT, lambda x: x[:1], lambda x, dt: np.array([x[0] + dt * x[1], x[1]]), MerweScaledWeights()
+    )
+    g.Q = Q1
+    g.Q1_2 = g.Q1_2
+    np.testing.assert_allclose(g.Q, Q1, rtol=0, atol=1e-15)
+    step(f, CV_Z[0])
+    assert np.all(np.isfinite(f.P))
+
+
+def test_records_list_is_complete():
+    # the helpers compare what a failed call must keep; they read each record without error
+    f = cv_filter()
+    step(f, CV_Z[0])
+    for k in FILTER_STATE:
+        assert np.all(np.isfinite(np.asarray(getattr(f, k), dtype=float))), k
+    assert math.isfinite(f.log_likelihood)
+
+
+# == an edit of x between predict and update =======================================================
+
+
+def test_editing_x_in_place_between_predict_and_update_redraws():
+    _, a, rng = linear_pair()
+    _, b, _ = linear_pair()
+    z = rng.standard_normal(2)
+    a.predict()
+    b.predict()
+    a.x[1] += 0.5  # in place: the second set drawn at predict is stale now
+    b.x = b.x + np.array([0.0, 0.5, 0.0])
+    a.update(z)
+    b.update(z)
+    np.testing.assert_array_equal(a.sigmas_h, b.sigmas_h)  # hx saw the same, redrawn, points
+    np.testing.assert_array_equal(a.x, b.x)
+    np.testing.assert_array_equal(a.P1_2, b.P1_2)
+
+
+# == K, 1-element covariances and the fleet's edits in place (issue 20's promises) =================
+
+# -- 1. K is a fresh array on each read -------------------------------------------------------
+
+
+def test_K_is_a_fresh_array_on_each_read():
+    f = near_filter()
+    f.predict()
+    f.update(near_measurements(1)[0])
+    first = f.K
+    expected = first.copy()
+    first[:] = 123.0
+    np.testing.assert_array_equal(f.K, expected)
+    assert f.K is not f.K
+
+
+def test_a_savers_K_history_is_never_rewritten():
+    f = near_filter()
+    saver = Saver(f)
+    for z in near_measurements(4):
+        f.predict()
+        saver.save()  # K of the previous update, read twice: two entries
+        f.update(z)
+        saver.save()
+    Ks = saver["K"]
+    assert len({id(k) for k in Ks}) == len(Ks)
+    kept = [k.copy() for k in Ks]
+    Ks[1][:] = np.nan  # editing one saved entry changes no other, nor the filter's K
+    for j in (0, 2, 3):
+        np.testing.assert_array_equal(Ks[j], kept[j])
+    np.testing.assert_array_equal(f.K, kept[-1])
+    f.predict()
+    f.update(near_measurements(5)[4])
+    for j in range(2, len(Ks)):
+        np.testing.assert_array_equal(Ks[j], kept[j])
+
+
+# -- 3. a 1-element covariance reads back as assigned (filterpy stores what it is given) ----------
+
+
+@pytest.mark.parametrize("name", ["R", "Q", "P"])
+def test_a_one_element_covariance_reads_back_as_assigned(name):
+    ours, theirs = one_d(SquareRootUKF), one_d_filterpy()
+    for f in (ours, theirs):
+        setattr(f, name, np.array([0.25]))
+    assert getattr(ours, name).shape == getattr(theirs, name).shape == (1,)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "conversion of an array with ndim > 0 to a scalar"
+        value = getattr(ours, name)[0]
+        assert np.ndim(value) == 0 and value == 0.25
+        if name == "R":
+            ours.P[0, 0] = ours.R[0]  # a client program's line
+            theirs.P[0, 0] = theirs.R[0]
+    # an edit in place takes effect, as for a matrix
+    getattr(ours, name)[0] = 0.5
+    getattr(theirs, name)[0] = 0.5
+    for f in (ours, theirs):
+        f.predict()
+        f.update(np.array([1.0]))
+    np.testing.assert_allclose(ours.x, theirs.x, rtol=1e-12)
+    np.testing.assert_allclose(np.atleast_2d(ours.P), np.atleast_2d(theirs.P), rtol=1e-12)
+    # as filterpy, a step assigns P a matrix; Q and R keep what was assigned
+    assert ours.P.shape == theirs.P.shape == (1, 1)
+    if name != "P":
+        assert getattr(ours, name).shape == (1,)
+
+
+def test_a_one_element_covariance_survives_copies_and_pickles():
+    import pickle
+
+    f = one_d(SquareRootUKF)
+    f.R = np.array([0.25])
+    for g in (copy.copy(f), copy.deepcopy(f), pickle.loads(pickle.dumps(f))):
+        assert g.R.shape == (1,) and g.R[0] == 0.25
+        g.R[0] = 4.0
+        assert f.R[0] == 0.25
+        np.testing.assert_array_equal(g.R1_2, [[2.0]])
+
+
+# -- 10. an in-place edit of fleet.x, P, Q or R is never lost: taken at the next call --------------
+
+
+def edited_pair(edit):
+    """A fleet edited in place by ``edit``, and one given the same values by assignment."""
+    fl, ref = make_cv3_fleet(), make_cv3_fleet()
+    edit(fl)
+    for name in ("x", "P", "Q", "R"):
+        setattr(ref, name, np.array(getattr(fl, name)))
+    return fl, ref
+
+
+EDITS = {
+    "x": lambda fl: fl.x.__setitem__((1, 0), 5.0),
+    "P": lambda fl: fl.P.__setitem__((2, 0, 0), 4.0),
+    "P *=": lambda fl: fl.P.__imul__(2.0),
+    "Q": lambda fl: fl.Q.__setitem__((1, 1), 0.5),
+    "R": lambda fl: fl.R.__setitem__((0, 0), 2.0),
+}
+
+
+@pytest.mark.parametrize("name", list(EDITS))
+def test_an_edit_in_place_of_a_fleet_attribute_takes_effect(name):
+    plain = make_cv3_fleet()
+    fl, ref = edited_pair(EDITS[name])
+    zs = cv3_zs(3)
+    for f in (fl, ref, plain):
+        f.predict()
+        f.update(zs[:, 0])
+    np.testing.assert_array_equal(fl.x, ref.x)
+    np.testing.assert_array_equal(fl.P1_2, ref.P1_2)
+    assert not np.array_equal(fl.P1_2, plain.P1_2) or not np.array_equal(fl.x, plain.x)
+
+
+def test_several_edits_in_place_and_every_route_sees_them():
+    zs = cv3_zs(3)
+    fl = make_cv3_fleet()
+    fl.R[0, 0] = 2.0  # two statements on the same attribute: both kept
+    fl.R[1, 1] = 3.0
+    fl.x[0] += 1.0
+    assert fl.R[0, 0] == 2.0 and fl.R[1, 1] == 3.0
+    ref = make_cv3_fleet()
+    ref.R = np.diag([2.0, 3.0])
+    x = np.array(ref.x)
+    x[0] += 1.0
+    ref.x = x
+    np.testing.assert_array_equal(fl.batch_filter(zs).means, ref.batch_filter(zs).means)
+    for route in (lambda f: f.subset(slice(None)).x, lambda f: f[0].x, lambda f: copy.copy(f).x):
+        fl, ref = edited_pair(EDITS["x"])
+        np.testing.assert_array_equal(route(fl), route(ref))
+    sd = pytest.importorskip("squkf.dask")
+    fl, ref = edited_pair(EDITS["P"])
+    got = sd.compute(sd.batch_filter(fl, zs), scheduler="synchronous")
+    np.testing.assert_array_equal(got.means, ref.batch_filter(zs).means)
+
+
+def test_arrays_read_before_a_step_are_never_rewritten():
+    fl = make_cv3_fleet()
+    x, P = fl.x, fl.P
+    kept = x.copy(), P.copy()
+    fl.predict()
+    fl.update(cv3_zs(1)[:, 0])
+    np.testing.assert_array_equal(x, kept[0])
+    np.testing.assert_array_equal(P, kept[1])
+    assert fl.x is not x and not np.array_equal(fl.x, x)
