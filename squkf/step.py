@@ -322,7 +322,7 @@ def _check_rank(S_post: np.ndarray, S_prior: np.ndarray, R1_2: np.ndarray) -> No
     spread), and committing it would make the filter's covariance singular.
     (With a singular ``R``, an exactly measured direction is legitimately 0.)
     """
-    if (np.diagonal(S_post, 0, -2, -1) > 0).all():
+    if np.diagonal(S_post, 0, -2, -1).all():  # the kernels' factors have a non-negative diagonal
         return
     lost = ~(np.diagonal(S_post, 0, -2, -1) > 0).all(axis=-1)
     definite = (np.diagonal(S_prior, 0, -2, -1) > 0).all(axis=-1) & (np.diagonal(R1_2, 0, -2, -1) > 0).all(
@@ -430,9 +430,12 @@ def gated_update(
     """
     new, post, H = tell_update(state, values, z, R1_2, observed, hooks, UT, name)
     if gate is None:
-        rejected = np.zeros(post.y.shape, dtype=bool)
-    else:
-        rejected = gate.reject(post.y, post.Sy, post.nis)
+        return (
+            new,
+            GatedUpdate(post, np.zeros(post.y.shape, dtype=bool), post.x, post.S, post.log_likelihood, None),
+            H,
+        )
+    rejected = gate.reject(post.y, post.Sy, post.nis)
     if not rejected.any():
         return new, GatedUpdate(post, rejected, post.x, post.S, post.log_likelihood, None), H
     batch, n, mo = post.x.shape[:-1], post.x.shape[-1], post.y.shape[-1]

@@ -794,11 +794,11 @@ class SquareRootUKF:
         state, gated, H = steps.gated_update(state, values, z, R1_2, observed, hooks, UT, self._gate)
         post = gated.tested
         m = z.shape[0]
-        rejected = np.zeros(m, dtype=bool)
         if observed is None:
             y = post.y
-            rejected[:] = gated.rejected
+            rejected = gated.rejected  # a fresh array of the step's
         else:
+            rejected = np.zeros(m, dtype=bool)
             y = np.full(m, np.nan)
             y[observed] = post.y
             rejected[observed] = gated.rejected

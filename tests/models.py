@@ -23,6 +23,10 @@ tests/README.md lists them by kind. In the order of this file:
   :func:`linear_pair`, :func:`spd`
 - small filters (:func:`identity_filter`, :func:`decay_filter`, :func:`one_d`, ...) and polar to
   Cartesian (:func:`polar`, :func:`polar_rows`)
+- the radar with wild returns of the gating tests (``RADAR_*``, :func:`radar_track`,
+  :func:`radar_configure`), the gusty pendulum and the other models of the noise tests (``PEND_*``,
+  :func:`pendulum_fx`, :func:`pendulum_hx`, :func:`noise_linear_model`, :func:`polar_turn_fx`),
+  :func:`tanh_filter` (rank lost to rounding)
 - checks: :func:`filter_state` / :func:`assert_filter_state`, :func:`fleet_state` /
   :func:`assert_fleet_state`, :func:`assert_results_equal`, :func:`counting`, :func:`rel`
 """
@@ -30,6 +34,7 @@ tests/README.md lists them by kind. In the order of this file:
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
 
@@ -982,6 +987,115 @@ def counting(fn):
     return wrapped, calls
 
 
+# -- the radar with wild returns (the gating tests) --------------------------------------------------
+
+
+RADAR_DT = 1.0
+RADAR_R_RANGE, RADAR_R_BEARING = 0.5, 0.01
+
+
+def radar_track(T: int, seed: int, wild: float = 0.1):
+    """A target's true states and its radar returns, a fraction ``wild`` of them far off."""
+    rng = np.random.default_rng(seed)
+    x = np.array([50.0, 1.0, 40.0, -0.5])
+    truth, zs = [], []
+    for _ in range(T):
+        x = cv_fx_stacked(x, RADAR_DT) + rng.normal(scale=[0.05, 0.05, 0.05, 0.05])
+        z = range_bearing_hx(x) + rng.normal(scale=[math.sqrt(RADAR_R_RANGE), math.sqrt(RADAR_R_BEARING)])
+        if rng.random() < wild:
+            z = z + rng.choice([-1.0, 1.0], 2) * np.array([15.0, 0.4])
+        truth.append(x)
+        zs.append(z)
+    return np.array(truth), np.array(zs)
+
+
+def radar_configure(f):
+    """The radar track's prior and noise, set on a filter or a fleet (returned)."""
+    f.x = np.array([50.0, 1.0, 40.0, -0.5])
+    f.P = np.diag([4.0, 1.0, 4.0, 1.0])
+    f.Q = np.eye(4) * 0.0025
+    f.R = np.diag([RADAR_R_RANGE, RADAR_R_BEARING])
+    return f
+
+
+# -- noise entering the model (fx_noise, hx_noise) ---------------------------------------------------
+
+
+PEND_DT = 0.1
+PEND_G = 9.81
+
+
+def pendulum_fx(x, w, dt):
+    """A pendulum driven by a gust ``w`` (a torque through cos(theta): non-additive), stacked points."""
+    th, om = x[..., 0], x[..., 1]
+    om_new = om - PEND_G * np.sin(th) * dt + np.cos(th) * w[..., 0] * dt
+    return np.stack([th + om * dt + 0.5 * w[..., 1] * dt * dt, om_new], axis=-1)
+
+
+def pendulum_hx(x, v):
+    """Horizontal position of the bob with a multiplicative error ``(1 + v0)`` and an offset ``v1``."""
+    return (np.sin(x[..., 0]) * (1.0 + v[..., 0]) + v[..., 1])[..., None]
+
+
+PEND_QW = np.diag([0.25, 0.04])
+PEND_RV = np.diag([0.0025, 0.0004])
+
+
+def pendulum_simulate(T, seed):
+    """A pendulum's measurements with gusts and a multiplicative sensor error, shape (T, 1)."""
+    rng = np.random.default_rng(seed)
+    x = np.array([0.6, 0.0])
+    zs = []
+    for _ in range(T):
+        x = pendulum_fx(x, rng.normal(size=2) * [0.5, 0.2], PEND_DT)
+        zs.append(pendulum_hx(x, rng.normal(size=2) * [0.05, 0.02]))
+    return np.array(zs)
+
+
+def noise_linear_model(dw, dv):
+    """A linear model, noise entering through G (process) and D (sensor): F, G, H, D."""
+    F = np.array([[1.0, PEND_DT, 0.5 * PEND_DT * PEND_DT], [0.0, 1.0, PEND_DT], [0.0, 0.0, 0.9]])
+    G = np.array([[0.0, 0.1], [0.3, 0.0], [1.0, 0.2]])[:, :dw]
+    H = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    D = np.array([[1.0, 0.5, 0.0], [0.0, 1.0, 2.0]])[:, :dv]
+    return F, G, H, D
+
+
+def polar_turn_fx(x, dt):
+    """A nonlinear model (coordinated turn in polar form) with additive noise; stacked points."""
+    r, th, v, w = x[..., 0], x[..., 1], x[..., 2], x[..., 3]
+    return np.stack([r + v * np.cos(w) * dt, th + v * np.sin(w) * dt / np.maximum(r, 1e-3), v, w], axis=-1)
+
+
+def polar_range_hx(x):
+    """Range and sin(bearing) of a polar state [r, theta, ...]; stacked points."""
+    return np.stack([x[..., 0], np.sin(x[..., 1])], axis=-1)
+
+
+class OddPoints:
+    """A filterpy-style points object of no known kind, built for n = 2."""
+
+    n = 2
+    Wm = np.array([0.5, 0.25, 0.25])
+    Wc = Wm
+
+    def num_sigmas(self):
+        return 3
+
+    def sigma_points(self, x, P):
+        return np.vstack([x, x + 1.0, x - 1.0])
+
+
+# -- a posterior that loses rank to rounding ---------------------------------------------------------
+
+
+def tanh_filter():
+    """Q of 8e256 everywhere: the prior's small directions fall below rounding."""
+    f = SquareRootUKF(3, 2, 1.0, lambda x: np.tanh(x[:2]), lambda x, dt: x + dt, MerweScaledWeights())
+    f.x, f.P, f.Q, f.R = np.ones(3), np.eye(3), np.full((3, 3), 8.071510225007634e256), np.eye(2)
+    return f
+
+
 FILTER_STATE = (
     "x",
     "P1_2",
@@ -996,6 +1110,8 @@ FILTER_STATE = (
     "S1_2",
     "sigmas_f",
     "sigmas_h",
+    "rejected",
+    "nis",
 )
 
 
@@ -1027,6 +1143,8 @@ FLEET_STATE = (
     "y",
     "log_likelihood",
     "mahalanobis",
+    "nis",
+    "rejected",
     "failed",
     "failure",
 )

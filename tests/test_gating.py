@@ -18,69 +18,39 @@ from filterpy.common import Saver
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from models import (
+    RADAR_DT,
+    RADAR_R_BEARING,
+    RADAR_R_RANGE,
+    cv_fx_stacked,
+    radar_configure,
+    radar_track,
+    range_bearing_hx,
+)
 from scipy.stats import chi2
 
 import squkf
 from squkf import Fleet, Gate, MerweScaledWeights, ParameterError, SquareRootUKF
 from squkf.batch import BatchResult
 
-DT = 1.0
-R_RANGE, R_BEARING = 0.5, 0.01
-
-
-def cv_fx(x, dt):
-    """Constant velocity in the plane, state [px, vx, py, vy] (also on stacks of points)."""
-    x = np.asarray(x)
-    out = x.copy()
-    out[..., 0] += dt * x[..., 1]
-    out[..., 2] += dt * x[..., 3]
-    return out
-
-
-def radar_hx(x):
-    """Range and bearing from a radar at the origin (also on stacks of points)."""
-    x = np.asarray(x)
-    return np.stack([np.hypot(x[..., 0], x[..., 2]), np.arctan2(x[..., 2], x[..., 0])], axis=-1)
-
-
-def radar_track(T: int, seed: int, wild: float = 0.1):
-    """A target's true states and its radar returns, a fraction ``wild`` of them far off."""
-    rng = np.random.default_rng(seed)
-    x = np.array([50.0, 1.0, 40.0, -0.5])
-    truth, zs = [], []
-    for _ in range(T):
-        x = cv_fx(x, DT) + rng.normal(scale=[0.05, 0.05, 0.05, 0.05])
-        z = radar_hx(x) + rng.normal(scale=[math.sqrt(R_RANGE), math.sqrt(R_BEARING)])
-        if rng.random() < wild:
-            z = z + rng.choice([-1.0, 1.0], 2) * np.array([15.0, 0.4])
-        truth.append(x)
-        zs.append(z)
-    return np.array(truth), np.array(zs)
-
-
-def configure(f):
-    f.x = np.array([50.0, 1.0, 40.0, -0.5])
-    f.P = np.diag([4.0, 1.0, 4.0, 1.0])
-    f.Q = np.eye(4) * 0.0025
-    f.R = np.diag([R_RANGE, R_BEARING])
-    return f
-
 
 def filterpy_ukf():
     pts = MerweScaledSigmaPoints(4, alpha=0.5, beta=2.0, kappa=0.0)
-    return configure(UnscentedKalmanFilter(4, 2, DT, radar_hx, cv_fx, pts))
+    return radar_configure(UnscentedKalmanFilter(4, 2, RADAR_DT, range_bearing_hx, cv_fx_stacked, pts))
 
 
 def squkf_ukf(gate, **kw):
     pts = MerweScaledSigmaPoints(4, alpha=0.5, beta=2.0, kappa=0.0)
-    return configure(SquareRootUKF(4, 2, DT, radar_hx, cv_fx, pts, gate=gate, **kw))
+    return radar_configure(
+        SquareRootUKF(4, 2, RADAR_DT, range_bearing_hx, cv_fx_stacked, pts, gate=gate, **kw)
+    )
 
 
 def filterpy_gated_step(ref, z, probability, per_component):
     """One step of filterpy's UKF with a hand-rolled gate; returns the rejected mask and the NIS."""
     ref.predict()
     # filterpy's own innovation covariance and innovation for this z, before deciding
-    sigmas_h = np.array([radar_hx(s) for s in ref.sigmas_f])
+    sigmas_h = np.array([range_bearing_hx(s) for s in ref.sigmas_f])
     from filterpy.kalman import unscented_transform
 
     zp, S = unscented_transform(sigmas_h, ref.Wm, ref.Wc, ref.R)
@@ -98,7 +68,7 @@ def filterpy_gated_step(ref, z, probability, per_component):
         ref.update(z)
     elif keep.any():
         R = ref.R
-        ref.update(z[keep], R=R[np.ix_(keep, keep)], hx=lambda x: radar_hx(x)[keep])
+        ref.update(z[keep], R=R[np.ix_(keep, keep)], hx=lambda x: range_bearing_hx(x)[keep])
         ref.R = R
     else:
         ref.update(None)
@@ -174,7 +144,7 @@ def test_gate_sees_only_the_measured_components():
     """A NaN component is missing before gating: the chi-square threshold has one degree of freedom."""
     ref = squkf_ukf(None)
     ref.predict()
-    zp = radar_hx(ref.x)
+    zp = range_bearing_hx(ref.x)
     ref.update(np.array([zp[0] + 1.0, np.nan]))
     # an offset whose NIS lies between the 0.99 quantiles for one and for two degrees of freedom
     d2 = 0.5 * (chi2.ppf(0.99, 1) + chi2.ppf(0.99, 2))
@@ -189,9 +159,11 @@ def test_gate_sees_only_the_measured_components():
 
 
 def fleet_and_filters(K, gate, per_filter_R=False):
-    fleet = configure(Fleet(K, 4, 2, DT, radar_hx, cv_fx, MerweScaledWeights(alpha=0.5), gate=gate))
+    fleet = radar_configure(
+        Fleet(K, 4, 2, RADAR_DT, range_bearing_hx, cv_fx_stacked, MerweScaledWeights(alpha=0.5), gate=gate)
+    )
     if per_filter_R:
-        fleet.R = np.stack([np.diag([R_RANGE, R_BEARING]) * (1 + 0.1 * k) for k in range(K)])
+        fleet.R = np.stack([np.diag([RADAR_R_RANGE, RADAR_R_BEARING]) * (1 + 0.1 * k) for k in range(K)])
     return fleet
 
 

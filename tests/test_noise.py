@@ -20,6 +20,18 @@ import math
 import numpy as np
 import pytest
 from filterpy.kalman import KalmanFilter, MerweScaledSigmaPoints
+from models import (
+    PEND_DT,
+    PEND_QW,
+    PEND_RV,
+    OddPoints,
+    noise_linear_model,
+    pendulum_fx,
+    pendulum_hx,
+    pendulum_simulate,
+    polar_range_hx,
+    polar_turn_fx,
+)
 
 from squkf import (
     CubatureWeights,
@@ -31,35 +43,6 @@ from squkf import (
     SimplexWeights,
     SquareRootUKF,
 )
-
-DT = 0.1
-G_PEND = 9.81
-
-
-def pendulum_fx(x, w, dt):
-    """A pendulum driven by a gust ``w`` (a torque through cos(theta): non-additive), stacked points."""
-    th, om = x[..., 0], x[..., 1]
-    om_new = om - G_PEND * np.sin(th) * dt + np.cos(th) * w[..., 0] * dt
-    return np.stack([th + om * dt + 0.5 * w[..., 1] * dt * dt, om_new], axis=-1)
-
-
-def pendulum_hx(x, v):
-    """Horizontal position of the bob with a multiplicative error ``(1 + v0)`` and an offset ``v1``."""
-    return (np.sin(x[..., 0]) * (1.0 + v[..., 0]) + v[..., 1])[..., None]
-
-
-def simulate(T, seed):
-    rng = np.random.default_rng(seed)
-    x = np.array([0.6, 0.0])
-    zs = []
-    for _ in range(T):
-        x = pendulum_fx(x, rng.normal(size=2) * [0.5, 0.2], DT)
-        zs.append(pendulum_hx(x, rng.normal(size=2) * [0.05, 0.02]))
-    return np.array(zs)
-
-
-Qw = np.diag([0.25, 0.04])
-Rv = np.diag([0.0025, 0.0004])
 
 
 def merwe_weights(L, alpha, beta, kappa):
@@ -78,18 +61,20 @@ def axis_points(mean, cov, gamma):
 
 def reference_step(x, P, z, alpha, beta, kappa):
     """One step of a covariance-form augmented UKF: points over [x, w], then over [x_prior, v]."""
-    n, dw, dv = 2, Qw.shape[0], Rv.shape[0]
+    n, dw, dv = 2, PEND_QW.shape[0], PEND_RV.shape[0]
     # squkf's rule: the family at n + d keeps the state's spread, kappa lowered by d
     Wm, Wc, g = merwe_weights(n + dw, alpha, beta, kappa - dw)
     Xa = axis_points(
-        np.concatenate([x, np.zeros(dw)]), np.block([[P, np.zeros((n, dw))], [np.zeros((dw, n)), Qw]]), g
+        np.concatenate([x, np.zeros(dw)]), np.block([[P, np.zeros((n, dw))], [np.zeros((dw, n)), PEND_QW]]), g
     )
-    F = pendulum_fx(Xa[:, :n], Xa[:, n:], DT)
+    F = pendulum_fx(Xa[:, :n], Xa[:, n:], PEND_DT)
     xp = Wm @ F
     Pp = (F - xp).T @ np.diag(Wc) @ (F - xp)
     Wm, Wc, g = merwe_weights(n + dv, alpha, beta, kappa - dv)
     Xa = axis_points(
-        np.concatenate([xp, np.zeros(dv)]), np.block([[Pp, np.zeros((n, dv))], [np.zeros((dv, n)), Rv]]), g
+        np.concatenate([xp, np.zeros(dv)]),
+        np.block([[Pp, np.zeros((n, dv))], [np.zeros((dv, n)), PEND_RV]]),
+        g,
     )
     Z = pendulum_hx(Xa[:, :n], Xa[:, n:])
     zp = Wm @ Z
@@ -101,15 +86,15 @@ def reference_step(x, P, z, alpha, beta, kappa):
 
 def pendulum_filter(points, **kw):
     f = SquareRootUKF(
-        2, 1, DT, pendulum_hx, pendulum_fx, points, vectorized=True, fx_noise=2, hx_noise=2, **kw
+        2, 1, PEND_DT, pendulum_hx, pendulum_fx, points, vectorized=True, fx_noise=2, hx_noise=2, **kw
     )
-    f.x, f.P, f.Q, f.R = np.array([0.5, 0.1]), np.diag([0.04, 0.25]), Qw, Rv
+    f.x, f.P, f.Q, f.R = np.array([0.5, 0.1]), np.diag([0.04, 0.25]), PEND_QW, PEND_RV
     return f
 
 
 @pytest.mark.parametrize("alpha, beta, kappa", [(1.0, 2.0, 0.0), (0.5, 2.0, 1.0), (1.0, 0.0, 1.0)])
 def test_equals_a_covariance_form_augmented_ukf(alpha, beta, kappa):
-    zs = simulate(60, seed=1)
+    zs = pendulum_simulate(60, seed=1)
     f = pendulum_filter(MerweScaledWeights(alpha, beta, kappa))
     x, P = f.x.copy(), f.P.copy()
     for z in zs:
@@ -122,7 +107,7 @@ def test_equals_a_covariance_form_augmented_ukf(alpha, beta, kappa):
 
 def test_filterpy_points_object_works_as_points():
     """filterpy's points built for dim_x serve as their squkf equivalent at n + d."""
-    zs = simulate(30, seed=2)
+    zs = pendulum_simulate(30, seed=2)
     native = pendulum_filter(MerweScaledWeights(0.5, 2.0, 1.0))
     wrapped = pendulum_filter(MerweScaledSigmaPoints(2, alpha=0.5, beta=2.0, kappa=1.0))
     for z in zs:
@@ -133,29 +118,7 @@ def test_filterpy_points_object_works_as_points():
     np.testing.assert_array_equal(wrapped.P1_2, native.P1_2)
     # a points object for another dimension, with no squkf equivalent, is a clear error
     with pytest.raises(ParameterError, match="build it with n=4"):
-        pendulum_filter(_OddPoints())
-
-
-class _OddPoints:
-    """A filterpy-style points object of no known kind, built for n = 2."""
-
-    n = 2
-    Wm = np.array([0.5, 0.25, 0.25])
-    Wc = Wm
-
-    def num_sigmas(self):
-        return 3
-
-    def sigma_points(self, x, P):
-        return np.vstack([x, x + 1.0, x - 1.0])
-
-
-def linear_model(dw, dv):
-    F = np.array([[1.0, DT, 0.5 * DT * DT], [0.0, 1.0, DT], [0.0, 0.0, 0.9]])
-    G = np.array([[0.0, 0.1], [0.3, 0.0], [1.0, 0.2]])[:, :dw]
-    H = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
-    D = np.array([[1.0, 0.5, 0.0], [0.0, 1.0, 2.0]])[:, :dv]
-    return F, G, H, D
+        pendulum_filter(OddPoints())
 
 
 @pytest.mark.parametrize(
@@ -171,11 +134,11 @@ def linear_model(dw, dv):
 )
 @pytest.mark.parametrize("dw, dv", [(1, 3), (2, 2)])
 def test_linear_gaussian_equals_the_kalman_filter(points, dw, dv):
-    F, G, H, D = linear_model(dw, dv)
+    F, G, H, D = noise_linear_model(dw, dv)
     Qn = np.diag([0.5, 0.2][:dw])
     Rn = np.diag([0.3, 0.1, 0.05][:dv])
     f = SquareRootUKF(
-        3, 2, DT, lambda x, v: x @ H.T + v @ D.T, lambda x, w, dt: x @ F.T + w @ G.T, points,
+        3, 2, PEND_DT, lambda x, v: x @ H.T + v @ D.T, lambda x, w, dt: x @ F.T + w @ G.T, points,
         vectorized=True, fx_noise=dw, hx_noise=dv,
     )  # fmt: skip
     f.Q, f.R = Qn, Rn
@@ -194,25 +157,15 @@ def test_linear_gaussian_equals_the_kalman_filter(points, dw, dv):
         assert f.log_likelihood == pytest.approx(kf.log_likelihood, rel=1e-9, abs=1e-12)
 
 
-def ct_add_fx(x, dt):
-    """A nonlinear model (coordinated turn in polar form) with additive noise; stacked points."""
-    r, th, v, w = x[..., 0], x[..., 1], x[..., 2], x[..., 3]
-    return np.stack([r + v * np.cos(w) * dt, th + v * np.sin(w) * dt / np.maximum(r, 1e-3), v, w], axis=-1)
-
-
-def range_hx(x):
-    return np.stack([x[..., 0], np.sin(x[..., 1])], axis=-1)
-
-
 @pytest.mark.parametrize(
     "points", [MerweScaledWeights(alpha=0.5), MerweScaledWeights(1.0, 2.0, 1.0), JulierWeights(1.0)], ids=repr
 )
 def test_additive_model_in_the_noise_argument_form_equals_the_additive_filter(points):
     """Nonlinear fx: equal because the family keeps its spread at n + d (kappa lowered by d)."""
     Q, R = np.diag([0.01, 0.001, 0.02, 0.003]), np.diag([0.05, 0.002])
-    additive = SquareRootUKF(4, 2, 1.0, range_hx, ct_add_fx, points, vectorized=True)
+    additive = SquareRootUKF(4, 2, 1.0, polar_range_hx, polar_turn_fx, points, vectorized=True)
     noisy = SquareRootUKF(
-        4, 2, 1.0, lambda x, v: range_hx(x) + v, lambda x, w, dt: ct_add_fx(x, dt) + w, points,
+        4, 2, 1.0, lambda x, v: polar_range_hx(x) + v, lambda x, w, dt: polar_turn_fx(x, dt) + w, points,
         vectorized=True, fx_noise=4, hx_noise=2,
     )  # fmt: skip
     for f in (additive, noisy):
@@ -229,13 +182,13 @@ def test_additive_model_in_the_noise_argument_form_equals_the_additive_filter(po
 
 
 def test_per_point_calls_equal_vectorised():
-    zs = simulate(20, seed=5)
+    zs = pendulum_simulate(20, seed=5)
     vec = pendulum_filter(MerweScaledWeights(0.5))
     per = SquareRootUKF(
-        2, 1, DT, lambda x, v: pendulum_hx(x, v), lambda x, w, dt: pendulum_fx(x, w, dt),
+        2, 1, PEND_DT, lambda x, v: pendulum_hx(x, v), lambda x, w, dt: pendulum_fx(x, w, dt),
         MerweScaledWeights(0.5), fx_noise=2, hx_noise=2,
     )  # fmt: skip
-    per.x, per.P, per.Q, per.R = vec.x, vec.P, Qw, Rv
+    per.x, per.P, per.Q, per.R = vec.x, vec.P, PEND_QW, PEND_RV
     for z in zs:
         for f in (vec, per):
             f.predict()
@@ -245,15 +198,17 @@ def test_per_point_calls_equal_vectorised():
 
 
 def test_ask_tell_hands_out_the_augmented_points():
-    zs = simulate(5, seed=6)
+    zs = pendulum_simulate(5, seed=6)
     f, g = pendulum_filter(MerweScaledWeights(0.5)), pendulum_filter(MerweScaledWeights(0.5))
     for z in zs:
         f.predict()
         f.update(z)
         Xa = g.ask_predict()
         assert Xa.shape == (2 * (2 + 2) + 1, 4)  # [x_i, w_i]
-        np.testing.assert_allclose(Xa[:, 2:].T @ np.diag(g.Wc) @ Xa[:, 2:], Qw, rtol=1e-12)  # w's covariance
-        g.tell_predict(pendulum_fx(Xa[:, :2], Xa[:, 2:], DT))
+        np.testing.assert_allclose(
+            Xa[:, 2:].T @ np.diag(g.Wc) @ Xa[:, 2:], PEND_QW, rtol=1e-12
+        )  # w's covariance
+        g.tell_predict(pendulum_fx(Xa[:, :2], Xa[:, 2:], PEND_DT))
         Ya = g.ask_update()
         assert Ya.shape == (9, 4)  # [x_i, v_i]
         g.tell_update(pendulum_hx(Ya[:, :2], Ya[:, 2:]), z)
@@ -264,12 +219,21 @@ def test_ask_tell_hands_out_the_augmented_points():
 def test_fleet_filter_equals_its_single_filter_bit_for_bit():
     K, T = 9, 30
     fleet = Fleet(
-        K, 2, 1, DT, pendulum_hx, pendulum_fx, MerweScaledWeights(0.5), fx_noise=2, hx_noise=2, gate=0.999
+        K,
+        2,
+        1,
+        PEND_DT,
+        pendulum_hx,
+        pendulum_fx,
+        MerweScaledWeights(0.5),
+        fx_noise=2,
+        hx_noise=2,
+        gate=0.999,
     )
     fleet.x, fleet.P = np.array([0.5, 0.1]), np.diag([0.04, 0.25])
-    fleet.Q = np.stack([Qw * (1 + 0.1 * k) for k in range(K)])  # per-filter noise
-    fleet.R = Rv
-    zs = np.stack([simulate(T, seed=10 + k) for k in range(K)])
+    fleet.Q = np.stack([PEND_QW * (1 + 0.1 * k) for k in range(K)])  # per-filter noise
+    fleet.R = PEND_RV
+    zs = np.stack([pendulum_simulate(T, seed=10 + k) for k in range(K)])
     zs[3, 4] = np.nan
     zs[5, 7] = 3.0  # a wild return for the gate
     singles = [fleet[k] for k in range(K)]
@@ -285,37 +249,39 @@ def test_fleet_filter_equals_its_single_filter_bit_for_bit():
 
 
 def test_fleet_ask_tell_hands_out_the_augmented_points():
-    fleet = Fleet(4, 2, 1, DT, pendulum_hx, pendulum_fx, MerweScaledWeights(0.5), fx_noise=2, hx_noise=2)
-    fleet.Q, fleet.R = Qw, Rv
+    fleet = Fleet(4, 2, 1, PEND_DT, pendulum_hx, pendulum_fx, MerweScaledWeights(0.5), fx_noise=2, hx_noise=2)
+    fleet.Q, fleet.R = PEND_QW, PEND_RV
     other = fleet.subset(slice(None))
     z = np.full((4, 1), 0.3)
     fleet.predict()
     fleet.update(z)
     Xa = other.ask_predict()
     assert Xa.shape == (4, 9, 4)
-    other.tell_predict(pendulum_fx(Xa[..., :2], Xa[..., 2:], DT))
+    other.tell_predict(pendulum_fx(Xa[..., :2], Xa[..., 2:], PEND_DT))
     Ya = other.ask_update()
     other.tell_update(pendulum_hx(Ya[..., :2], Ya[..., 2:]), z)
     np.testing.assert_array_equal(other.x, fleet.x)
     with pytest.raises(ParameterError, match="assign fleet.R"):
         other.ask_update()
-        other.tell_update(np.zeros((4, 9, 1)), z, R=Rv)
+        other.tell_update(np.zeros((4, 9, 1)), z, R=PEND_RV)
 
 
 @pytest.mark.parametrize("value", [0, -1, 1.5, True, "2", [2]])
 @pytest.mark.parametrize("which", ["fx_noise", "hx_noise"])
 def test_bad_noise_dimension_is_a_parameter_error(which, value):
     with pytest.raises(ParameterError, match=which):
-        SquareRootUKF(2, 1, DT, pendulum_hx, pendulum_fx, MerweScaledWeights(), **{which: value})
+        SquareRootUKF(2, 1, PEND_DT, pendulum_hx, pendulum_fx, MerweScaledWeights(), **{which: value})
     with pytest.raises(ParameterError, match=which):
-        Fleet(3, 2, 1, DT, pendulum_hx, pendulum_fx, MerweScaledWeights(), **{which: value})
+        Fleet(3, 2, 1, PEND_DT, pendulum_hx, pendulum_fx, MerweScaledWeights(), **{which: value})
 
 
 def test_model_function_that_takes_no_noise_is_refused_at_construction():
     with pytest.raises(ParameterError, match=r"fx\(x, w, dt\)"):
-        SquareRootUKF(2, 1, DT, pendulum_hx, lambda x, dt: x, MerweScaledWeights(), fx_noise=2)
+        SquareRootUKF(2, 1, PEND_DT, pendulum_hx, lambda x, dt: x, MerweScaledWeights(), fx_noise=2)
     with pytest.raises(ParameterError, match=r"hx\(x, v\)"):
-        Fleet(3, 2, 1, DT, lambda x: x[..., :1], pendulum_fx, MerweScaledWeights(), fx_noise=2, hx_noise=1)
+        Fleet(
+            3, 2, 1, PEND_DT, lambda x: x[..., :1], pendulum_fx, MerweScaledWeights(), fx_noise=2, hx_noise=1
+        )
 
 
 def test_noise_of_another_dimension_than_fx_takes_is_a_clear_error_and_changes_nothing():
@@ -323,9 +289,9 @@ def test_noise_of_another_dimension_than_fx_takes_is_a_clear_error_and_changes_n
     f.predict()
     f.update(np.array([0.4]))
     bad = SquareRootUKF(
-        2, 1, DT, pendulum_hx, pendulum_fx, MerweScaledWeights(), vectorized=True, fx_noise=1, hx_noise=2
+        2, 1, PEND_DT, pendulum_hx, pendulum_fx, MerweScaledWeights(), vectorized=True, fx_noise=1, hx_noise=2
     )
-    bad.x, bad.P, bad.R = f.x, f.P, Rv
+    bad.x, bad.P, bad.R = f.x, f.P, PEND_RV
     x, P = bad.x.copy(), bad.P.copy()
     with pytest.raises(ParameterError, match="fx_noise=1") as info:
         bad.predict()  # pendulum_fx reads w[..., 1]
@@ -338,14 +304,14 @@ def test_q_and_r_are_the_noise_covariances():
     f = pendulum_filter(MerweScaledWeights())
     assert f.Q.shape == (2, 2) and f.R.shape == (2, 2)  # w's and v's, here also 2 x 2
     g = SquareRootUKF(
-        2, 1, DT, pendulum_hx, lambda x, w, dt: x + w, MerweScaledWeights(), fx_noise=2, hx_noise=2
+        2, 1, PEND_DT, pendulum_hx, lambda x, w, dt: x + w, MerweScaledWeights(), fx_noise=2, hx_noise=2
     )
     with pytest.raises(ShapeError):
         g.R = np.eye(1)  # v has dimension 2, whatever dim_z is
-    fleet = Fleet(3, 2, 1, DT, pendulum_hx, pendulum_fx, MerweScaledWeights(), fx_noise=2, hx_noise=2)
+    fleet = Fleet(3, 2, 1, PEND_DT, pendulum_hx, pendulum_fx, MerweScaledWeights(), fx_noise=2, hx_noise=2)
     with pytest.raises(ShapeError):
         fleet.R = np.eye(1)
-    fleet.R = Rv
+    fleet.R = PEND_RV
     assert fleet.R.shape == (2, 2)
 
 
@@ -361,11 +327,11 @@ def test_what_the_noise_form_cannot_take_is_refused():
         f.predict(UT=lambda *a: a)
     X = f.ask_predict()
     with pytest.raises(ParameterError, match="assign ukf.Q"):
-        f.tell_predict(pendulum_fx(X[:, :2], X[:, 2:], DT), Q=Qw)
-    f.tell_predict(pendulum_fx(X[:, :2], X[:, 2:], DT))
+        f.tell_predict(pendulum_fx(X[:, :2], X[:, 2:], PEND_DT), Q=PEND_QW)
+    f.tell_predict(pendulum_fx(X[:, :2], X[:, 2:], PEND_DT))
     Y = f.ask_update()
     with pytest.raises(ParameterError, match="assign ukf.R"):
-        f.tell_update(pendulum_hx(Y[:, :2], Y[:, 2:]), [0.1], R=Rv)
-    means, factors = f.batch_filter(simulate(3, seed=8), return_factors=True)
+        f.tell_update(pendulum_hx(Y[:, :2], Y[:, 2:]), [0.1], R=PEND_RV)
+    means, factors = f.batch_filter(pendulum_simulate(3, seed=8), return_factors=True)
     with pytest.raises(ParameterError, match="additive process noise only"):
         f.rts_smoother_factors(means, factors)

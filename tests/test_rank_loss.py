@@ -7,14 +7,9 @@ factor with a zero diagonal, which the filter committed as its ``P``.
 
 import numpy as np
 import pytest
+from models import tanh_filter
 
 from squkf import Fleet, MerweScaledWeights, PosteriorFactorError, SquareRootUKF
-
-
-def tanh_filter():
-    f = SquareRootUKF(3, 2, 1.0, lambda x: np.tanh(x[:2]), lambda x, dt: x + dt, MerweScaledWeights())
-    f.x, f.P, f.Q, f.R = np.ones(3), np.eye(3), np.full((3, 3), 8.071510225007634e256), np.eye(2)
-    return f
 
 
 def test_rank_lost_to_rounding_raises_and_changes_nothing():
