@@ -207,7 +207,7 @@ def measurement_update(
                 sigmas_h, X, z, R1_2, x, mode, rows.Wm, form.scale, form.sign, xref=xref, pair=pair
             )
             z_pred = cast(np.ndarray, u.z_pred)
-        _raise_update_status(u.status, form)
+        _raise_update_status(u.status, form, S, R1_2)
     else:
         m = z.shape[-1]
         if UT is None:
@@ -236,7 +236,7 @@ def measurement_update(
             if not (all_finite(S_gain) and all_finite(u.x)):
                 raise PosteriorFactorError("the posterior mean or factor is not finite", errno=303)
             u = u._replace(S=S_gain, status=np.zeros_like(u.status))
-        _raise_update_status(u.status, rows.mean_form)
+        _raise_update_status(u.status, rows.mean_form, S, R1_2)
     x_post = u.x
     if state_add is not None:
         x_post = _per_filter(state_add, x, u.dx, "state_add")
@@ -250,12 +250,33 @@ def _innovation(z: np.ndarray, z_pred: np.ndarray, residual_z: Callable | None) 
     return z - z_pred if residual_z is None else _per_filter(residual_z, z, z_pred, "residual_z")
 
 
-def _raise_update_status(status: np.ndarray, form: RowForm) -> None:
-    """The exception for the first failed filter of an update kernel's ``status`` (nothing if none)."""
+def _raise_update_status(status: np.ndarray, form: RowForm, S: np.ndarray, R1_2: np.ndarray) -> None:
+    """The exception for the first failed filter of an update kernel's ``status`` (nothing if none).
+
+    A kernel reports 304 for a posterior factor with a zero on its diagonal. From a positive
+    definite prior factor ``S`` and measurement noise ``R1_2`` the posterior is positive definite,
+    so the zero is rank lost to rounding: error 303. Otherwise (a singular prior, an exactly
+    measured component) it is the right answer.
+    """
     bad = status.ravel()
     bad = bad[bad != 0]
     if bad.size == 0:
         return
+    if (bad == 304).any():
+        definite = (np.diagonal(S, 0, -2, -1) != 0).all(axis=-1) & (np.diagonal(R1_2, 0, -2, -1) != 0).all(
+            axis=-1
+        )
+        status = np.where((status == 304) & ~np.broadcast_to(definite, status.shape), 0, status)
+        bad = status.ravel()
+        bad = bad[bad != 0]
+        if bad.size == 0:
+            return
+        if int(bad[0]) == 304:
+            raise PosteriorFactorError(
+                "the posterior factor lost rank to rounding (a zero on its diagonal from positive definite P"
+                " and R): the covariances' scales are too far apart for double precision",
+                errno=303,
+            )
     code = int(bad[0])
     negative = ", ".join(f"{w:.6g}" for w in form.weights[form.neg])
     if code == 301:

@@ -20,6 +20,7 @@ current estimate (a second sensor at the same time).
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -27,7 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .errors import CallSequenceError, NonFiniteError, PosteriorFactorError
+from .errors import CallSequenceError, NonFiniteError
 from .generators import SigmaSet, sigma_points_and_offsets
 from .linalg import all_finite
 from .measurement import Posterior, measurement_update, observed_noise_factor
@@ -309,31 +310,7 @@ def tell_update(
         state_add=hooks.state_add,
         UT=UT,
     )
-    _check_rank(post.S, S, Ro)
     return StepState(), post, H
-
-
-def _check_rank(S_post: np.ndarray, S_prior: np.ndarray, R1_2: np.ndarray) -> None:
-    """A posterior factor with a zero diagonal, from positive definite ``P`` and ``R``, lost rank to rounding.
-
-    Mathematically the update of a positive definite prior by a measurement
-    with positive definite noise is positive definite; a zero on the factor's
-    diagonal means the arithmetic lost it (numbers far beyond the state's
-    spread), and committing it would make the filter's covariance singular.
-    (With a singular ``R``, an exactly measured direction is legitimately 0.)
-    """
-    if np.diagonal(S_post, 0, -2, -1).all():  # the kernels' factors have a non-negative diagonal
-        return
-    lost = ~(np.diagonal(S_post, 0, -2, -1) > 0).all(axis=-1)
-    definite = (np.diagonal(S_prior, 0, -2, -1) > 0).all(axis=-1) & (np.diagonal(R1_2, 0, -2, -1) > 0).all(
-        axis=-1
-    )
-    if (lost & definite).any():
-        raise PosteriorFactorError(
-            "the posterior factor lost rank to rounding (a zero on its diagonal from positive definite P"
-            " and R): the covariances' scales are too far apart for double precision",
-            errno=303,
-        )
 
 
 class GatedUpdate(NamedTuple):
@@ -393,6 +370,14 @@ def take_filters(state: StepState, idx: np.ndarray) -> StepState:
     return StepState(UPDATING, None, None, None, sub, (rows(x, 1), rows(S, 2)))
 
 
+@functools.lru_cache(maxsize=64)
+def _none_rejected(shape: tuple[int, ...]) -> np.ndarray:
+    """All False, read-only: the record of an update without a gate (made once per shape)."""
+    a = np.zeros(shape, dtype=bool)
+    a.setflags(write=False)
+    return a
+
+
 def gated_update(
     state: StepState,
     values,
@@ -432,7 +417,7 @@ def gated_update(
     if gate is None:
         return (
             new,
-            GatedUpdate(post, np.zeros(post.y.shape, dtype=bool), post.x, post.S, post.log_likelihood, None),
+            GatedUpdate(post, _none_rejected(post.y.shape), post.x, post.S, post.log_likelihood, None),
             H,
         )
     rejected = gate.reject(post.y, post.Sy, post.nis)

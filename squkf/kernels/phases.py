@@ -873,9 +873,14 @@ def _innovation(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
 
 @kernel
 def _finish(L, i0, n, xl, dxl, st, k0, nb, dx, xpost):
-    """``xpost = x + dx``; 303 unless it and the posterior factor ``L[i0:, i0:]`` are finite."""
+    """``xpost = x + dx``; 303 unless it and the posterior factor ``L[i0:, i0:]`` are finite.
+
+    304 if they are, but the factor has a zero on its diagonal (the caller decides whether the
+    covariance may be singular: see ``squkf.measurement``).
+    """
     for b in range(nb):
         good = True
+        full = True
         dk, xk = dx[k0 + b], xpost[k0 + b]
         for l in range(n):
             d = dxl[l, b]
@@ -885,7 +890,9 @@ def _finish(L, i0, n, xl, dxl, st, k0, nb, dx, xpost):
             good = good and math.isfinite(xp)
             for j in range(l + 1):
                 good = good and math.isfinite(L[i0 + l, i0 + j, b])
-        st[b] = 303 if (not good and st[b] == 0) else st[b]
+            full = full and L[i0 + l, i0 + l, b] != 0.0
+        if st[b] == 0:
+            st[b] = 303 if not good else (304 if not full else 0)
 
 
 @kernel
