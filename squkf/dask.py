@@ -189,7 +189,9 @@ def batch_filter(
     if not np.issubdtype(Z.dtype, np.number) or np.issubdtype(Z.dtype, np.complexfloating):
         raise ShapeError(f"zs must hold real numbers, got dtype {Z.dtype}")
     fx_args, hx_args = model_kwargs(fx_args, "fx_args"), model_kwargs(hx_args, "hx_args")
-    dts = per_step(dts, T, "dts", "dt", default=fleet._dt, ref="zs")  # checked here, not in a task
+    dts = per_step(
+        dts, T, "dts", "dt", default=fleet.configuration().dt, ref="zs"
+    )  # checked here, not in a task
     if len(Z.chunks[1]) > 1 or len(Z.chunks[2]) > 1:
         Z = Z.rechunk({1: -1, 2: -1})
     Z = da.ma.filled(Z.astype(float), np.nan)  # masked chunks: missing where masked, as Fleet.batch_filter

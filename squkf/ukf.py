@@ -19,18 +19,23 @@ from typing import cast
 
 import numpy as np
 
-from . import blas
+from . import blas, smoother
 from . import step as steps
+from .batch import batch_filter
+from .boundary import inputs
+from .boundary.config import Config
+from .boundary.factors import noise_factor
+from .boundary.loop import Transaction
 from .covariance import FactorSlot
 from .errors import NonFiniteError, ParameterError, ShapeError
 from .gating import Gate, as_gate
 from .generators import as_generator, noise_family, sigma_points_from_factor
-from .linalg import all_finite, solve_lower
+from .linalg import solve_lower
 from .measurement import gain_from_factors
 from .noise import call_model, check_accepts_noise, check_noise_dim, noise_points
 from .plan import Hooks, Plan, build_plan
 from .transform import deviations
-from .validate import as_float_array, as_measurements, check_time_step, check_values
+from .validate import as_float_array, check_time_step, check_values
 from .weights import as_family
 
 __all__ = ["SquareRootUKF"]
@@ -297,10 +302,7 @@ class SquareRootUKF:
         fx_noise: int | None = None,
         hx_noise: int | None = None,
     ):
-        for name, v in (("dim_x", dim_x), ("dim_z", dim_z)):
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise ParameterError(f"{name} must be a positive integer, got {name}={v!r}")
-        n, m = int(dim_x), int(dim_z)
+        n, m = inputs.check_sizes(dim_x=dim_x, dim_z=dim_z)
         self._dim_x = n
         self._dim_z = m
         self._fx_noise = check_noise_dim(fx_noise, "fx_noise")
@@ -454,13 +456,7 @@ class SquareRootUKF:
         """An assignment to ``x``, ``P``, ``Q`` or ``R`` succeeded (hook for subclasses)."""
 
     def _as_state(self, value, name) -> np.ndarray:
-        x = as_float_array(value, name)
-        if x.shape not in ((self._dim_x,), (self._dim_x, 1)):
-            raise ShapeError(f"{name} has shape {x.shape}, expected ({self._dim_x},)")
-        x = x.reshape(self._dim_x)
-        if not np.all(np.isfinite(x)):
-            raise NonFiniteError(f"{name} contains NaN or inf: {x!r}")
-        return x
+        return inputs.as_state(value, name, self._dim_x)
 
     @property
     def P1_2(self) -> np.ndarray:
@@ -592,23 +588,7 @@ class SquareRootUKF:
 
     def _noise_factor(self, value, name: str, dim: int) -> np.ndarray | None:
         """Lower factor of ``Q`` or ``R`` (``value`` for this call, else the attribute's); None: zero."""
-        if value is None:
-            S = self.__dict__["_" + name].factor()
-            if S is not None and S.shape[0] != dim:
-                raise ShapeError(
-                    f"{name} is {S.shape[0]}x{S.shape[0]} but the {'measurement' if name == 'R' else 'state'}"
-                    f" has length {dim}; pass {name}= for a model of another size"
-                )
-            return S
-        cached = self._noise_cache.get(name)
-        if cached is not None and cached[0] is value and np.array_equal(cached[1], value):
-            return cached[2]
-        tmp = FactorSlot(name, dim, semidefinite=True, factor=None)
-        tmp.set_matrix(value)
-        S = tmp.factor()
-        if isinstance(value, np.ndarray):
-            self._noise_cache[name] = (value, value.copy(), S)
-        return S
+        return noise_factor(value, name, dim, self.__dict__["_" + name].factor, self._noise_cache)
 
     def _current(self) -> tuple[np.ndarray, np.ndarray]:
         """The current mean and factor, with in-place edits of ``x`` and ``P`` validated."""
@@ -619,18 +599,7 @@ class SquareRootUKF:
         return d["_xs"], self._P.factor()  # type: ignore[return-value]  # P is never singular
 
     def _evaluate(self, fn: Callable, sigmas: np.ndarray, args: tuple, kwargs: dict) -> object:
-        if self.vectorized:
-            return fn(sigmas, *args, **kwargs)
-        # one call per point: spelled out for the common cases, since unpacking *args and
-        # **kwargs at every call costs more than the loop itself
-        if kwargs:
-            return [fn(s, *args, **kwargs) for s in sigmas]
-        if not args:
-            return [fn(s) for s in sigmas]
-        if len(args) == 1:
-            dt = args[0]
-            return [fn(s, dt) for s in sigmas]
-        return [fn(s, *args) for s in sigmas]
+        return inputs.evaluate(fn, sigmas, args, kwargs, self.vectorized)
 
     def _commit_estimate(self, x: np.ndarray, S: np.ndarray) -> None:
         """Install a mean and factor computed by the filter (fresh user-facing arrays)."""
@@ -821,37 +790,11 @@ class SquareRootUKF:
         self._measured = True
 
     def _as_measurement(self, z, R) -> tuple[np.ndarray, np.ndarray | None] | None:
-        """``z`` checked, as ``(z, observed)``; None when it holds no measurement.
+        """``z`` checked, as ``(z, observed)`` (the mask of the measured components, or None: all)."""
+        return inputs.measurement(z, R, self._dim_z, self._R_dim, self._hx_noise)
 
-        ``observed`` is the mask of the measured components, or None when all are.
-        """
-        if z is None:
-            return None
-        arr = as_measurements(z, "z")
-        if arr.ndim != 1:
-            if arr.ndim == 0:
-                arr = arr.reshape(1)
-            elif arr.ndim == 2 and 1 in arr.shape:
-                arr = arr.reshape(-1)
-            else:
-                raise ShapeError(f"z has shape {np.shape(z)}, expected ({self._dim_z},)")
-        observed = None
-        if not all_finite(arr):
-            finite = np.isfinite(arr)
-            nan = np.isnan(arr)
-            if not (finite | nan).all():
-                raise NonFiniteError(f"z contains inf (NaN means a missing component): {arr!r}")
-            if nan.all():
-                return None
-            observed = ~nan
-        if R is None and arr.shape[0] != self._dim_z and not self._hx_noise:
-            Rdim = self._R.factor_or_zeros().shape[0]
-            if Rdim != arr.shape[0]:
-                raise ShapeError(
-                    f"z has length {arr.shape[0]} but dim_z is {self._dim_z} and R is {Rdim}x{Rdim};"
-                    " pass R= (and hx=) for a measurement of another size"
-                )
-        return arr, observed
+    def _R_dim(self) -> int:
+        return self._R.factor_or_zeros().shape[0]
 
     # -- filterpy's methods ---------------------------------------------------
 
@@ -988,8 +931,6 @@ class SquareRootUKF:
         step ``k`` says so, carries the first ``k`` results as ``exc.partial``
         and leaves the filter as it was.
         """
-        from .batch import batch_filter
-
         return batch_filter(
             self,
             zs,
@@ -1011,17 +952,13 @@ class SquareRootUKF:
         those of the prediction into step ``k`` (the lists given to
         ``batch_filter``); ``fx_args`` may be given the same way.
         """
-        from .smoother import rts_smoother
-
         self._refuse_smoother()
-        return rts_smoother(self, Xs, Ps, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
+        return smoother.rts_smoother(self, Xs, Ps, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
 
     def rts_smoother_factors(self, Xs, P1_2s, Qs=None, dts=None, UT=None, *, fx_args=None):
         """The smoother on lower factors; see :func:`squkf.smoother.rts_smoother_factors`."""
-        from .smoother import rts_smoother_factors
-
         self._refuse_smoother()
-        return rts_smoother_factors(self, Xs, P1_2s, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
+        return smoother.rts_smoother_factors(self, Xs, P1_2s, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
 
     def _refuse_smoother(self) -> None:
         if self._fx_noise:
@@ -1031,6 +968,28 @@ class SquareRootUKF:
             )
 
     # -- transactions, copies, pickling ---------------------------------------
+
+    def configuration(self) -> Config:
+        """The filter's configuration and noise factors (:class:`squkf.boundary.Config`).
+
+        What ``Fleet.from_filters`` and the smoother read; the arrays are the
+        filter's own, to be read and not written.
+        """
+        d = self.__dict__
+        rx, rz, add = d["residual_x"], d["residual_z"], d["state_add"]
+        return Config(
+            self._dim_x, self._dim_z, self._dt, self.hx, self.fx, self._points, self._family, self._generator,
+            d["x_mean"], d["z_mean"], None if rx is np.subtract else rx, None if rz is np.subtract else rz,
+            None if add is np.add else add, self._gate, self.fx_noise, self.hx_noise, self.vectorized,
+            self._plan, self._hooks(), self._Q.factor(), self._R.factor(),
+        )  # fmt: skip
+
+    def transaction(self) -> Transaction:
+        """A context manager that puts the filter back as it was on entry if anything inside raises.
+
+        What :meth:`batch_filter` runs its steps in (:class:`squkf.boundary.loop.Transaction`).
+        """
+        return Transaction(self._snapshot, self._restore)
 
     def _snapshot(self) -> dict:
         """Everything a failed multi-step call must put back.

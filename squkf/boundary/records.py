@@ -1,0 +1,112 @@
+"""What a fleet's run hands out (:class:`FleetResult`), the arrays it fills, its failing filters' error."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from ..errors import FleetStepError
+
+__all__ = ["FleetResult", "Records", "failures_error", "new_records"]
+
+
+@dataclass
+class FleetResult:
+    """What :meth:`Fleet.batch_filter` returns.
+
+    Attributes
+    ----------
+    means : ndarray, shape (K, T, n), or None
+        Posterior means (None with ``keep="final"``).
+    P1_2s : ndarray, shape (K, T, n, n), or None
+        Posterior lower factors (only with ``keep="all"``).
+    variances : ndarray, shape (K, T, n), or None
+        The diagonals of the posterior covariances (with ``keep="all"`` or ``"diagonals"``).
+    log_likelihood : ndarray, shape (K, T), or (K,) with ``keep="final"``
+        Of each step's measurement (0 where a filter had no measurement or had
+        failed); with ``keep="final"`` their sum over the run.
+    failed : ndarray of bool, shape (K,)
+        Filters flagged by the end of the run (their later entries repeat their last good state).
+    x, P1_2 : ndarray, shapes (K, n) and (K, n, n)
+        The final state.
+    rejected : ndarray, shape (K, T, m) of bool, or (K, m) of int with ``keep="final"``
+        The measurement components each filter's gate rejected at each step
+        (with ``keep="final"``: how many steps each component was rejected).
+        All False (zero) without a gate.
+    nis : ndarray, shape (K, T), or None with ``keep="final"``
+        Each step's normalised innovation squared (0 where a filter had no
+        measurement or had failed).
+    """
+
+    means: np.ndarray | None
+    P1_2s: np.ndarray | None
+    variances: np.ndarray | None
+    log_likelihood: np.ndarray
+    failed: np.ndarray
+    x: np.ndarray
+    P1_2: np.ndarray
+    rejected: np.ndarray | None = None
+    nis: np.ndarray | None = None
+
+
+class Records(NamedTuple):
+    """The arrays a fleet's batch run fills, step by step (None: not kept)."""
+
+    means: np.ndarray | None
+    factors: np.ndarray | None
+    variances: np.ndarray | None
+    loglik: np.ndarray
+    rejected: np.ndarray
+    nis: np.ndarray | None
+
+
+def new_records(keep: str, K: int, T: int, n: int, m: int) -> Records:
+    """The arrays of a run of ``T`` steps of ``K`` filters that ``keep`` asks for.
+
+    Parameters
+    ----------
+    keep : {"all", "diagonals", "means", "final"}
+    K, T, n, m : int
+        Filters, steps, state and measurement sizes.
+
+    Returns
+    -------
+    Records
+        ``means (K, T, n)``, ``factors (K, T, n, n)``, ``variances (K, T, n)``,
+        ``loglik (K, T)`` (``(K,)`` with ``"final"``), ``rejected (K, T, m)``
+        of bool (``(K, m)`` counts with ``"final"``), ``nis (K, T)``.
+    """
+    means = None if keep == "final" else np.empty((K, T, n))
+    factors = np.empty((K, T, n, n)) if keep == "all" else None
+    variances = np.empty((K, T, n)) if keep in ("all", "diagonals") else None
+    loglik = np.zeros((K, T)) if keep != "final" else np.zeros(K)
+    rejected = np.zeros((K, T, m), dtype=bool) if keep != "final" else np.zeros((K, m), dtype=np.int64)
+    nis = np.zeros((K, T)) if keep != "final" else None
+    return Records(means, factors, variances, loglik, rejected, nis)
+
+
+def failures_error(fails: dict[int, str], during: str = "") -> FleetStepError:
+    """The error of a step (or a smoothing run) in which the filters ``fails`` failed numerically.
+
+    Parameters
+    ----------
+    fails : dict
+        Filter index -> the reason it failed.
+    during : str
+        Appended to "failed numerically" (``" while smoothing"``).
+
+    Returns
+    -------
+    FleetStepError
+        Naming the first five filters; ``filters`` and ``reasons`` hold all.
+    """
+    ks = sorted(fails)
+    return FleetStepError(
+        f"{len(ks)} filter(s) failed numerically{during}: "
+        + "; ".join(f"filter {k}: {fails[k]}" for k in ks[:5])
+        + (" ..." if len(ks) > 5 else ""),
+        ks,
+        [fails[k] for k in ks],
+    )
