@@ -38,6 +38,7 @@ import numpy as np
 import pandas as pd
 
 from .batch import model_kwargs, per_step
+from .boundary.loop import KEEP
 from .errors import ParameterError, ShapeError
 from .fleet import Fleet, FleetResult
 from .validate import as_measurements
@@ -50,7 +51,7 @@ __all__ = ["batch_filter", "compute", "filter_frame", "local_cluster", "worker_e
 MMAP_THRESHOLD = 16 * 2**20
 """Bytes from which glibc's malloc maps fresh pages, in :func:`worker_environ` (16 MiB)."""
 
-_KEEP = ("all", "diagonals", "means", "final")
+_KEEP = KEEP
 _FIELDS = ("means", "P1_2s", "variances", "log_likelihood", "failed", "x", "P1_2", "rejected", "nis")
 
 

@@ -38,20 +38,24 @@ from . import step as steps
 from .batch import model_kwargs, per_step
 from .boundary import inputs
 from .boundary.config import Config, common_config, filter_kwargs
-from .boundary.factors import covariance_factors, given_noise_factors, lower_factors, noise_factors
+from .boundary.factors import (
+    covariance_factors,
+    given_noise_factors,
+    lower_factors,
+    noise_factors,
+    reset_rows,
+)
 from .boundary.loop import Transaction, check_fleet_progress, check_keep, fleet_progress
 from .boundary.records import FleetResult, Records, failures_error, new_records
-from .covariance import as_matrix
-from .errors import FleetStepError, NonFiniteError, ParameterError, ShapeError
+from .errors import FleetStepError, ParameterError
 from .gating import Gate, as_gate
-from .generators import SigmaSet, as_generator
-from .isolate import BLOCK, run_isolated
-from .linalg import factor_covariance
-from .noise import call_model, check_accepts_noise, check_noise_dim, noise_points
+from .generators import as_generator
+from .isolate import BLOCK, isolated_posterior, isolated_prior, rows_of
+from .noise import call_model, noise_points
 from .plan import Hooks, Plan, build_plan
 from .smoother import fleet_rts_smoother
 from .ukf import SquareRootUKF
-from .validate import as_float_array, check_time_step, describe_nonfinite
+from .validate import check_time_step
 from .weights import as_family
 
 __all__ = ["Fleet", "FleetResult", "FleetStepError"]
@@ -59,21 +63,6 @@ __all__ = ["Fleet", "FleetResult", "FleetStepError"]
 
 # the internal array behind each attribute handed out for editing in place
 _HANDED = {"_x": "x", "_S": "P", "_Q1_2": "Q", "_R1_2": "R"}
-
-
-def _take(sset: SigmaSet, idx: np.ndarray | slice) -> SigmaSet:
-    """The set of the filters ``idx`` (rows of every stacked field)."""
-    if isinstance(idx, slice) and idx == slice(None):
-        return sset
-    offsets = None if sset.offsets is None else sset.offsets[idx]
-    return sset._replace(sigmas=sset.sigmas[idx], offsets=offsets)
-
-
-def _rows_of(a: np.ndarray | None, idx: np.ndarray | slice, core: int) -> np.ndarray | None:
-    """``a[idx]`` when ``a`` is per filter (more than ``core`` axes), else ``a`` (shared)."""
-    if a is None or a.ndim == core:
-        return a
-    return a[idx]
 
 
 class Fleet:
@@ -174,14 +163,11 @@ class Fleet:
         K, n, m = inputs.check_sizes(n_filters=n_filters, dim_x=dim_x, dim_z=dim_z)
         if on_error not in ("flag", "raise"):
             raise ParameterError(f"on_error must be 'flag' or 'raise', got on_error={on_error!r}")
-        self._fx_noise = check_noise_dim(fx_noise, "fx_noise")
-        self._hx_noise = check_noise_dim(hx_noise, "hx_noise")
-        check_accepts_noise(fx, "fx", self._fx_noise, 3)
-        check_accepts_noise(hx, "hx", self._hx_noise, 2)
+        self._fx_noise, self._hx_noise = inputs.model_noise(fx, hx, fx_noise, hx_noise)
         self._qd, self._rd = self._fx_noise or n, self._hx_noise or m  # the dimensions of Q and R
         self._handed: dict[str, tuple[np.ndarray, bytes]] = {}  # name -> (array handed out, its bytes then)
         self._K, self._n, self._m = K, n, m
-        self._dt = self._check_dt(dt)
+        self._dt = check_time_step(dt)
         self.hx, self.fx = hx, fx
         self.points_fn = points
         self._family = as_family(points)
@@ -240,10 +226,6 @@ class Fleet:
 
     def _hooks(self) -> Hooks:
         return Hooks(self.x_mean, self.z_mean, self.residual_x, self.residual_z, self.state_add)
-
-    @staticmethod
-    def _check_dt(dt) -> float:
-        return check_time_step(dt)
 
     # -- state ------------------------------------------------------------------
 
@@ -444,50 +426,18 @@ class Fleet:
         self._take_edits()
         idx = np.flatnonzero(self._failed) if filters is None else np.arange(self._K)[filters]
         idx = np.atleast_1d(idx)
-        new_x, new_S = self._x.copy(), self._S.copy()
-        if x is not None:
-            xs = as_float_array(x, "x")
-            if xs.shape not in ((self._n,), (idx.size, self._n)):
-                raise ShapeError(f"x has shape {xs.shape}, expected ({self._n},) or ({idx.size}, {self._n})")
-            new_x[idx] = xs
-            if not np.all(np.isfinite(new_x[idx])):
-                raise NonFiniteError("x contains NaN or inf")
-        if P is not None:
-            Ps = as_float_array(P, "P")
-            shape = (self._n, self._n)
-            if Ps.shape not in (shape, (idx.size,) + shape):
-                raise ShapeError(f"P has shape {Ps.shape}, expected {shape} or {(idx.size,) + shape}")
-            Ps = np.broadcast_to(Ps, (idx.size,) + shape)
-            for j, k in enumerate(idx):
-                new_S[k] = factor_covariance(as_matrix(Ps[j], f"P[{k}]", self._n), f"P[{k}]")
-        self._x, self._S = new_x, new_S
+        self._x, self._S = reset_rows(x, P, idx, self._x, self._S)
         self._failed[idx] = False
         self._failure[idx] = ""
         self._state = steps.StepState()
 
     # -- the step ---------------------------------------------------------------
 
-    def _fail(self, fails: dict[int, str], idx: np.ndarray, reason: str) -> None:
-        for k in idx.tolist():
-            fails.setdefault(int(k), reason)
-
-    def _fail_nonfinite(self, fails: dict[int, str], idx: np.ndarray, values: np.ndarray, name: str) -> None:
-        """Flag ``idx`` for non-finite images, each described by its own rows (as one filter's error)."""
-        for k in idx.tolist():
-            fails.setdefault(int(k), f"NonFiniteError: {describe_nonfinite(values[k], name)}")
-
     def _commit_failures(self, fails: dict[int, str]) -> None:
         if not fails:
             return
         if self.on_error == "raise":
             raise failures_error(fails)
-
-    def _finite_rows(self, A: np.ndarray) -> np.ndarray:
-        return np.isfinite(A.reshape(A.shape[0], -1)).all(axis=1)
-
-    def _isolated(self, fn: Callable, idx: np.ndarray, fails: dict[int, str]):
-        """``fn`` over the filters ``idx`` with failure isolation (:func:`squkf.isolate.run_isolated`)."""
-        return run_isolated(fn, idx, self._K, fails, BLOCK)
 
     def ask_predict(self) -> np.ndarray:
         """First half of a prediction: the first sigma-point sets, shape ``(K, N, dim_x)`` (fresh)."""
@@ -512,7 +462,7 @@ class Fleet:
             Passed to ``fx``; arrays with a leading axis of length K are per
             filter and get a sigma-point axis (``u[k]`` becomes ``u[:, None]``).
         """
-        dt = self._dt if dt is None else self._check_dt(dt)
+        dt = self._dt if dt is None else check_time_step(dt)
         self._take_edits()
         state = steps.ask_predict(self._state, self._plan, self._x, self._S, self.state_add)
         X = state.sigmas
@@ -537,29 +487,17 @@ class Fleet:
                 f"tell_predict needs a pending ask_predict, but the step is {state.phase!r}"
             )
         X = state.sigmas
-        if isinstance(values, np.ndarray) and values.dtype == np.float64:
-            # validated here; copied below only if the step keeps it (memory, for large fleets)
-            F = values
-        else:
-            F = as_float_array(values, "fx values")
-        if F.shape != X.shape:
-            raise ShapeError(f"fx values have shape {F.shape}, expected {X.shape}")
         fails: dict[int, str] = {}
         active = ~self._failed
-        finite = self._finite_rows(F)
-        self._fail_nonfinite(fails, np.flatnonzero(active & ~finite), F, "fx values")
+        # validated here; copied below only if the step keeps it (memory, for large fleets)
+        F, finite = inputs.stacked_images(values, X.shape, "fx values", active, fails, copy=False)
         if not finite.all():
             F = np.where(finite[:, None, None], F, X)  # a failing filter's rows: harmless stand-ins
         idx = np.flatnonzero(active & finite)
         plan, hooks = self._plan, self._hooks()
         Q = None if plan.w_xi is not None else self._Q1_2  # noise entering fx is in the points already
 
-        def prior(ix):
-            sub = steps.StepState(steps.PREDICTING, X[ix])
-            _, x, S = steps.tell_predict(sub, plan, F[ix], _rows_of(Q, ix, 2), hooks)
-            return x, S
-
-        good, res = self._isolated(prior, idx, fails)
+        good, res = isolated_prior(plan, hooks, X, F, Q, idx, self._K, fails, BLOCK)
         self._commit_failures(fails)
         if res is not None and good.size == self._K:  # every filter, in order: the kernels' fresh arrays
             x_new, S_new = res
@@ -640,75 +578,20 @@ class Fleet:
             raise steps.CallSequenceError(
                 f"tell_update needs a pending ask_update, but the step is {state.phase!r}"
             )
-        sset = state.sset
-        K, m = self._K, self._m
-        H = as_float_array(values, "hx values")
-        if H.shape != sset.sigmas.shape[:-1] + (m,):
-            raise ShapeError(f"hx values have shape {H.shape}, expected {sset.sigmas.shape[:-1] + (m,)}")
-        x0, S0 = state.prior
-        observed = ~np.isnan(z)
-        measured = observed.any(axis=1)
-        active = ~self._failed
+        sset, m = state.sset, self._m
+        measured = ~np.isnan(z).all(axis=1)
+        active = ~self._failed & measured
         fails: dict[int, str] = {}
-        finite = self._finite_rows(H)
-        self._fail_nonfinite(fails, np.flatnonzero(active & measured & ~finite), H, "hx values")
-        todo = active & measured & finite
-        hooks = self._hooks()
+        H, finite = inputs.stacked_images(
+            values, sset.sigmas.shape[:-1] + (m,), "hx values", active, fails, True
+        )
         if self._plan.v_xi is not None:  # noise entering hx is in the points: the update adds none
             R1_2 = np.zeros((m, m))
-
-        gate = self._gate
-
-        def unchanged():
-            """The records of filters that no update reaches: the prior, no innovation, no likelihood."""
-            return (
-                x0.copy(), S0.copy(), np.full((K, m), np.nan), np.zeros(K), np.zeros(K), np.zeros(K),
-                np.zeros((K, m), dtype=bool),
-            )  # fmt: skip
-
-        # made at the first update that needs them
-        x_new: Any = None
-        S_new: Any = None
-        y: Any = None
-        loglik: Any = None
-        maha: Any = None
-        nis: Any = None
-        rejected: Any = None
-        # filters with the same missing components are updated together (one stacked update each)
-        todo_idx = np.flatnonzero(todo)
-        if observed[todo].all():  # the usual case: one group
-            patterns, which = np.ones((1, m), dtype=bool), np.zeros(todo_idx.size, dtype=int)
-        else:
-            patterns, which = np.unique(observed[todo], axis=0, return_inverse=True)
-        for p, obs in enumerate(patterns):
-            group = todo_idx[which.reshape(-1) == p]
-            mask = None if obs.all() else obs
-
-            def posterior(ix, mask=mask):
-                sub = steps.StepState(steps.UPDATING, None, None, None, _take(sset, ix), (x0[ix], S0[ix]))
-                _, g, _ = steps.gated_update(
-                    sub, H[ix], z[ix], _rows_of(R1_2, ix, 2), mask, hooks, None, gate
-                )
-                post = g.tested
-                return g.x, g.S, post.y, g.log_likelihood, np.sqrt(post.nis), post.nis, g.rejected
-
-            good, res = self._isolated(posterior, group, fails)
-            if res is not None and good.size == K and mask is None:
-                # every filter, in order, all measured: the kernels' fresh arrays as they are
-                x_new, S_new, y, loglik, maha, nis, rejected = res
-            elif res is not None:
-                if x_new is None:
-                    x_new, S_new, y, loglik, maha, nis, rejected = unchanged()
-                x_new[good], S_new[good] = res[0], res[1]
-                if obs.all():
-                    y[good], rejected[good] = res[2], res[6]
-                else:
-                    cols = np.ix_(good, np.flatnonzero(obs))
-                    y[cols], rejected[cols] = res[2], res[6]
-                loglik[good], maha[good], nis[good] = res[3], res[4], res[5]
+        records = isolated_posterior(
+            state, H, z, R1_2, active & finite, self._hooks(), self._gate, fails, BLOCK
+        )
         self._commit_failures(fails)
-        if x_new is None:
-            x_new, S_new, y, loglik, maha, nis, rejected = unchanged()
+        x_new, S_new, y, loglik, maha, nis, rejected = records
         # commit
         self._state = steps.StepState()
         self._x, self._S = x_new, S_new
@@ -782,7 +665,7 @@ class Fleet:
     def transaction(self) -> Transaction:
         """A context manager that puts the fleet back as it was on entry if anything inside raises.
 
-        What :meth:`batch_filter` runs its steps in (:class:`squkf.boundary.loop.Transaction`).
+        What :meth:`batch_filter` runs its steps in (``squkf.boundary.loop.Transaction``).
         """
         return Transaction(self._snapshot, self._restore)
 
@@ -837,7 +720,7 @@ class Fleet:
         return f
 
     def configuration(self) -> Config:
-        """The fleet's configuration and noise factors (:class:`squkf.boundary.Config`), edits taken.
+        """The fleet's configuration and noise factors (``squkf.boundary.Config``), edits taken.
 
         What ``fleet[k]``, the smoother and :mod:`squkf.dask` read; its arrays
         are the fleet's own, to be read and not written.
@@ -880,8 +763,8 @@ class Fleet:
         new = copy.copy(self)
         new._K = int(idx.size)
         new._x, new._S = self._x[idx], self._S[idx]
-        new._Q1_2 = _rows_of(self._Q1_2, idx, 2)
-        new._R1_2 = _rows_of(self._R1_2, idx, 2)  # type: ignore[assignment]
+        new._Q1_2 = rows_of(self._Q1_2, idx, 2)
+        new._R1_2 = rows_of(self._R1_2, idx, 2)  # type: ignore[assignment]
         new._failed, new._failure = self._failed[idx], self._failure[idx]
         new._state = steps.StepState()
         new.x_prior, new.x_post = self.x_prior[idx], self.x_post[idx]

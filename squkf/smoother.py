@@ -68,7 +68,7 @@ from .errors import (
     SqukfError,
 )
 from .generators import UnitSet, sigma_points_from_factor
-from .isolate import run_isolated
+from .isolate import rows_of, run_isolated
 from .linalg import chol_downdate_columns, kalman_gain, tria
 from .plan import Hooks
 from .transform import deviations, factor_rows, swap_last, transform_factor
@@ -398,11 +398,6 @@ def _smooth_step(
     return x_s, S_s, G
 
 
-def _rows(a: np.ndarray | None, ix, core: int) -> np.ndarray | None:
-    """``a[ix]`` when ``a`` is per filter (more than ``core`` axes), else ``a`` (shared)."""
-    return a if a is None or a.ndim == core else a[ix]
-
-
 def _backward(
     xs: np.ndarray,
     Ss: np.ndarray,
@@ -487,7 +482,7 @@ def _backward(
 
             def step(ix, X=X, F=F, x=x, S=S, x_next=x_next, S_next=S_next, Q1_2=Q1_2):
                 out = _smooth_step(
-                    x[ix], S[ix], X[ix], F[ix], x_next[ix], S_next[ix], _rows(Q1_2, ix, 2), unit, hooks, ut
+                    x[ix], S[ix], X[ix], F[ix], x_next[ix], S_next[ix], rows_of(Q1_2, ix, 2), unit, hooks, ut
                 )
                 if not _finite_per_filter(out).all():
                     raise NonFiniteError("the smoothed estimate is not finite")

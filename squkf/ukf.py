@@ -11,7 +11,6 @@ call.
 from __future__ import annotations
 
 import copy
-import functools
 import math
 import sys
 from collections.abc import Callable
@@ -26,13 +25,12 @@ from .boundary import inputs
 from .boundary.config import Config
 from .boundary.factors import noise_factor
 from .boundary.loop import Transaction
+from .boundary.records import embed, gain, innovation_inverse
 from .covariance import FactorSlot
 from .errors import NonFiniteError, ParameterError, ShapeError
 from .gating import Gate, as_gate
 from .generators import as_generator, noise_family, sigma_points_from_factor
-from .linalg import solve_lower
-from .measurement import gain_from_factors
-from .noise import call_model, check_accepts_noise, check_noise_dim, noise_points
+from .noise import call_model, noise_points
 from .plan import Hooks, Plan, build_plan
 from .transform import deviations
 from .validate import as_float_array, check_time_step, check_values
@@ -43,17 +41,7 @@ __all__ = ["SquareRootUKF"]
 _LOG_TINY = math.log(sys.float_info.min)
 
 
-def _one_blas_thread(method):
-    """Run ``method`` on one BLAS thread for states of ``blas.MIN_DIM`` or more (see :mod:`squkf.blas`)."""
-
-    @functools.wraps(method)
-    def run(self, *args):  # positional only: packing keywords too costs a microsecond a step
-        if blas.MIN_DIM is not None and self._dim_x >= blas.MIN_DIM:
-            with blas.one_blas_thread():
-                return method(self, *args)
-        return method(self, *args)
-
-    return run
+_one_blas_thread = blas.one_thread_method(lambda self: self._dim_x)
 
 
 class _Covariance:
@@ -305,11 +293,8 @@ class SquareRootUKF:
         n, m = inputs.check_sizes(dim_x=dim_x, dim_z=dim_z)
         self._dim_x = n
         self._dim_z = m
-        self._fx_noise = check_noise_dim(fx_noise, "fx_noise")
-        self._hx_noise = check_noise_dim(hx_noise, "hx_noise")
-        check_accepts_noise(fx, "fx", self._fx_noise, 3)
-        check_accepts_noise(hx, "hx", self._hx_noise, 2)
-        self._dt = self._check_dt(dt)
+        self._fx_noise, self._hx_noise = inputs.model_noise(fx, hx, fx_noise, hx_noise)
+        self._dt = check_time_step(dt)
         self._plan = cast(Plan, None)  # the scheme setter below sets it
         self._family = None
         self._generator = None
@@ -501,36 +486,22 @@ class SquareRootUKF:
 
     # -- the last update's records ------------------------------------------
 
-    def _embed(self, block: np.ndarray, fill: float) -> np.ndarray:
-        """A ``(dim_z, dim_z)`` record from its observed block (``fill`` elsewhere)."""
-        obs = self._observed
-        if obs is None:
-            return block.copy()
-        out = np.full((obs.shape[0], obs.shape[0]), fill)
-        out[np.ix_(obs, obs)] = block
-        return out
-
     @property
     def S1_2(self) -> np.ndarray:
         """Lower factor of the last innovation covariance (NaN where a component was missing)."""
-        return self._embed(self._Sy, np.nan)
+        return embed(self._Sy, self._observed, np.nan)
 
     @property
     def S(self) -> np.ndarray:
         """Innovation covariance of the last update, ``S1_2 @ S1_2.T`` (NaN where missing)."""
-        return self._embed(self._Sy @ self._Sy.T, np.nan)
+        return embed(self._Sy @ self._Sy.T, self._observed, np.nan)
 
     @property
     def SI(self) -> np.ndarray:
         """Inverse of ``S``, by triangular solves with ``S1_2`` (or by ``self.inv`` if replaced)."""
         if self.inv is not np.linalg.inv:
             return self.inv(self.S)
-        Sy = self._Sy
-        m = Sy.shape[0]
-        if not np.all(Sy.diagonal() != 0):
-            return self._embed(np.zeros((m, m)), np.nan)
-        W = solve_lower(Sy, np.eye(m))
-        return self._embed(W.T @ W, np.nan)
+        return innovation_inverse(self._Sy, self._observed)
 
     @property
     def K(self) -> np.ndarray:
@@ -540,13 +511,7 @@ class SquareRootUKF:
         an array read earlier (a ``Saver``'s history) is never rewritten.
         """
         if self._K is None:
-            K = gain_from_factors(self._Sy, self._L21) if self._measured else np.zeros_like(self._L21)
-            obs = self._observed
-            if obs is not None:
-                full = np.zeros((self._dim_x, obs.shape[0]))
-                full[:, obs] = K
-                K = full
-            self._K = K
+            self._K = gain(self._Sy, self._L21, self._measured, self._observed, self._dim_x)
         return self._K.copy()
 
     @K.setter
@@ -581,10 +546,6 @@ class SquareRootUKF:
         return self._rejected.copy()
 
     # -- helpers ------------------------------------------------------------
-
-    @staticmethod
-    def _check_dt(dt) -> float:
-        return check_time_step(dt)
 
     def _noise_factor(self, value, name: str, dim: int) -> np.ndarray | None:
         """Lower factor of ``Q`` or ``R`` (``value`` for this call, else the attribute's); None: zero."""
@@ -818,7 +779,7 @@ class SquareRootUKF:
         **fx_args
             Passed to ``fx``.
         """
-        dt = self._dt if dt is None else self._check_dt(dt)
+        dt = self._dt if dt is None else check_time_step(dt)
         fx = self.fx if fx is None else fx
         x, S = self._current()
         plan = self._plan
@@ -877,7 +838,7 @@ class SquareRootUKF:
 
     def compute_process_sigmas(self, dt, fx=None, **fx_args) -> None:
         """Set ``sigmas_f`` to the first set propagated through ``fx`` (state unchanged)."""
-        dt = self._check_dt(dt)
+        dt = check_time_step(dt)
         fx = self.fx if fx is None else fx
         x, S = self._current()
         plan = self._plan
@@ -970,7 +931,7 @@ class SquareRootUKF:
     # -- transactions, copies, pickling ---------------------------------------
 
     def configuration(self) -> Config:
-        """The filter's configuration and noise factors (:class:`squkf.boundary.Config`).
+        """The filter's configuration and noise factors (``squkf.boundary.Config``).
 
         What ``Fleet.from_filters`` and the smoother read; the arrays are the
         filter's own, to be read and not written.
@@ -987,7 +948,7 @@ class SquareRootUKF:
     def transaction(self) -> Transaction:
         """A context manager that puts the filter back as it was on entry if anything inside raises.
 
-        What :meth:`batch_filter` runs its steps in (:class:`squkf.boundary.loop.Transaction`).
+        What :meth:`batch_filter` runs its steps in (``squkf.boundary.loop.Transaction``).
         """
         return Transaction(self._snapshot, self._restore)
 

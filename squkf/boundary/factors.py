@@ -14,12 +14,19 @@ from collections.abc import Callable
 import numpy as np
 
 from ..covariance import FactorSlot, as_lower_factor, as_matrix
-from ..errors import ShapeError
+from ..errors import NonFiniteError, ShapeError
 from ..linalg import factor_covariance
 from ..validate import as_float_array
 from .inputs import per_filter
 
-__all__ = ["covariance_factors", "lower_factors", "noise_factor", "noise_factors", "given_noise_factors"]
+__all__ = [
+    "covariance_factors",
+    "given_noise_factors",
+    "lower_factors",
+    "noise_factor",
+    "noise_factors",
+    "reset_rows",
+]
 
 
 def noise_factor(
@@ -159,3 +166,43 @@ def lower_factors(value, name: str, n: int, K: int) -> np.ndarray:
     """
     S = per_filter(value, name, K, (n, n))
     return np.stack([as_lower_factor(S[k], f"{name}[{k}]", n, singular_ok=False) for k in range(K)])
+
+
+def reset_rows(x, P, idx: np.ndarray, x_now: np.ndarray, S_now: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A stack's states and factors with the filters ``idx`` given a new ``x`` and ``P`` (``Fleet.reset``).
+
+    Parameters
+    ----------
+    x : array_like, shape (n,) or (len(idx), n), or None
+        None: the states are kept.
+    P : array_like, shape (n, n) or (len(idx), n, n), or None
+        Factored filter by filter (messages name ``P[k]``); None: kept.
+    idx : ndarray of int
+        The filters.
+    x_now : ndarray, shape (K, n)
+    S_now : ndarray, shape (K, n, n)
+
+    Returns
+    -------
+    x : ndarray, shape (K, n)
+    S : ndarray, shape (K, n, n)
+        New arrays.
+    """
+    new_x, new_S = x_now.copy(), S_now.copy()
+    n = x_now.shape[-1]
+    if x is not None:
+        xs = as_float_array(x, "x")
+        if xs.shape not in ((n,), (idx.size, n)):
+            raise ShapeError(f"x has shape {xs.shape}, expected ({n},) or ({idx.size}, {n})")
+        new_x[idx] = xs
+        if not np.all(np.isfinite(new_x[idx])):
+            raise NonFiniteError("x contains NaN or inf")
+    if P is not None:
+        Ps = as_float_array(P, "P")
+        shape = (n, n)
+        if Ps.shape not in (shape, (idx.size,) + shape):
+            raise ShapeError(f"P has shape {Ps.shape}, expected {shape} or {(idx.size,) + shape}")
+        Ps = np.broadcast_to(Ps, (idx.size,) + shape)
+        for j, k in enumerate(idx):
+            new_S[k] = factor_covariance(as_matrix(Ps[j], f"P[{k}]", n), f"P[{k}]")
+    return new_x, new_S

@@ -14,7 +14,8 @@ import numpy as np
 from ..batch import iter_measurements
 from ..errors import NonFiniteError, ParameterError, ShapeError
 from ..linalg import all_finite
-from ..validate import as_float_array, as_measurements
+from ..noise import check_accepts_noise, check_noise_dim
+from ..validate import as_float_array, as_measurements, describe_nonfinite
 
 __all__ = [
     "as_state",
@@ -23,7 +24,9 @@ __all__ = [
     "measurement",
     "measurement_series",
     "measurements",
+    "model_noise",
     "per_filter",
+    "stacked_images",
     "with_filter_axis",
 ]
 
@@ -275,3 +278,63 @@ def evaluate(fn: Callable, sigmas: np.ndarray, args: tuple, kwargs: dict, vector
         dt = args[0]
         return [fn(s, dt) for s in sigmas]
     return [fn(s, *args) for s in sigmas]
+
+
+def stacked_images(values, shape: tuple, name: str, active, fails: dict, copy: bool) -> tuple:
+    """A stack's model-function images checked: their shape for all, finiteness per filter.
+
+    Parameters
+    ----------
+    values : array_like, shape ``shape``
+        ``fx`` or ``hx`` at the sigma points of ``K`` filters, ``(K, N, d)``.
+    shape : tuple of int
+        What ``values`` must be.
+    name : {"fx values", "hx values"}
+        For messages.
+    active : ndarray of bool, shape (K,)
+        The filters whose images count (not flagged, measured).
+    fails : dict
+        An active filter with a non-finite image is added, ``filter -> reason``,
+        described by its own rows (as one filter's error would say it).
+    copy : bool
+        Whether a float64 ndarray is copied (``hx``) or taken as it is (``fx``:
+        the step copies it only if it keeps it).
+
+    Returns
+    -------
+    images : ndarray, shape ``shape``
+    finite : ndarray of bool, shape (K,)
+        Which filters' images are finite.
+    """
+    if not copy and isinstance(values, np.ndarray) and values.dtype == np.float64:
+        A = values
+    else:
+        A = as_float_array(values, name)
+    if A.shape != shape:
+        raise ShapeError(f"{name} have shape {A.shape}, expected {shape}")
+    finite = np.isfinite(A.reshape(A.shape[0], -1)).all(axis=1)
+    for k in np.flatnonzero(active & ~finite).tolist():
+        fails.setdefault(int(k), f"NonFiniteError: {describe_nonfinite(A[k], name)}")
+    return A, finite
+
+
+def model_noise(fx: Callable, hx: Callable, fx_noise, hx_noise) -> tuple[int, int]:
+    """The dimensions of the noise entering ``fx`` and ``hx``, checked with the functions that take it.
+
+    Parameters
+    ----------
+    fx, hx : callable
+        With noise, ``fx(x, w, dt)`` and ``hx(x, v)`` must take it (:mod:`squkf.noise`).
+    fx_noise, hx_noise : int or None
+        None: additive noise.
+
+    Returns
+    -------
+    (int, int)
+        The dimensions, 0 for additive noise.
+    """
+    dw = check_noise_dim(fx_noise, "fx_noise")
+    dv = check_noise_dim(hx_noise, "hx_noise")
+    check_accepts_noise(fx, "fx", dw, 3)
+    check_accepts_noise(hx, "hx", dv, 2)
+    return dw, dv

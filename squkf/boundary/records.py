@@ -1,4 +1,7 @@
-"""What a fleet's run hands out (:class:`FleetResult`), the arrays it fills, its failing filters' error."""
+"""The records handed out: a fleet's run (:class:`FleetResult`), the last update's of one filter.
+
+Also the arrays a fleet's run fills and the error of its failing filters.
+"""
 
 from __future__ import annotations
 
@@ -8,8 +11,10 @@ from typing import NamedTuple
 import numpy as np
 
 from ..errors import FleetStepError
+from ..linalg import solve_lower
+from ..measurement import gain_from_factors
 
-__all__ = ["FleetResult", "Records", "failures_error", "new_records"]
+__all__ = ["FleetResult", "Records", "embed", "failures_error", "gain", "innovation_inverse", "new_records"]
 
 
 @dataclass
@@ -110,3 +115,73 @@ def failures_error(fails: dict[int, str], during: str = "") -> FleetStepError:
         ks,
         [fails[k] for k in ks],
     )
+
+
+def embed(block: np.ndarray, observed: np.ndarray | None, fill: float) -> np.ndarray:
+    """A one-filter ``(m, m)`` record of the last update from its observed block (``fill`` elsewhere).
+
+    Parameters
+    ----------
+    block : ndarray, shape (o, o)
+        Over the measured components.
+    observed : ndarray of bool, shape (m,), or None
+        The measured components (None: all, ``o == m``).
+    fill : float
+
+    Returns
+    -------
+    ndarray, shape (m, m)
+        A new array.
+    """
+    if observed is None:
+        return block.copy()
+    out = np.full((observed.shape[0], observed.shape[0]), fill)
+    out[np.ix_(observed, observed)] = block
+    return out
+
+
+def innovation_inverse(Sy: np.ndarray, observed: np.ndarray | None) -> np.ndarray:
+    """``S^-1`` of one filter's last update from its innovation factor, by triangular solves.
+
+    Parameters
+    ----------
+    Sy : ndarray, shape (o, o)
+        The innovation factor over the measured components.
+    observed : ndarray of bool, shape (m,), or None
+
+    Returns
+    -------
+    ndarray, shape (m, m)
+        NaN outside the measured block; all NaN-embedded zeros for a singular factor.
+    """
+    m = Sy.shape[0]
+    if not np.all(Sy.diagonal() != 0):
+        return embed(np.zeros((m, m)), observed, np.nan)
+    W = solve_lower(Sy, np.eye(m))
+    return embed(W.T @ W, observed, np.nan)
+
+
+def gain(Sy: np.ndarray, L21: np.ndarray, measured: bool, observed: np.ndarray | None, n: int) -> np.ndarray:
+    """One filter's Kalman gain of the last update, ``(n, m)``, zero columns where not measured.
+
+    Parameters
+    ----------
+    Sy : ndarray, shape (o, o)
+        The innovation factor over the measured components.
+    L21 : ndarray, shape (n, o)
+        ``K Sy`` over them.
+    measured : bool
+        Whether an update has happened (else the gain is zero).
+    observed : ndarray of bool, shape (m,), or None
+    n : int
+
+    Returns
+    -------
+    ndarray, shape (n, m)
+    """
+    K = gain_from_factors(Sy, L21) if measured else np.zeros_like(L21)
+    if observed is not None:
+        full = np.zeros((n, observed.shape[0]))
+        full[:, observed] = K
+        K = full
+    return K
