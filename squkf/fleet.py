@@ -867,9 +867,5 @@ class Fleet:
         FleetStepError
             With ``on_error="raise"``, if some filters failed numerically.
         """
-        if self._fx_noise:
-            raise ParameterError(
-                "the RTS smoother takes additive process noise only;"
-                f" this fleet has fx_noise={self._fx_noise}"
-            )
+        inputs.refuse_smoother_noise(self._fx_noise, "fleet")
         return fleet_rts_smoother(self, result, dts=dts, fx_args=fx_args)

@@ -922,11 +922,7 @@ class SquareRootUKF:
         return smoother.rts_smoother_factors(self, Xs, P1_2s, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
 
     def _refuse_smoother(self) -> None:
-        if self._fx_noise:
-            raise ParameterError(
-                "the RTS smoother takes additive process noise only;"
-                f" this filter has fx_noise={self._fx_noise}"
-            )
+        inputs.refuse_smoother_noise(self._fx_noise, "filter")
 
     # -- transactions, copies, pickling ---------------------------------------
 
@@ -979,11 +975,7 @@ class SquareRootUKF:
             if isinstance(value, np.ndarray):
                 value = value.copy()
             elif isinstance(value, FactorSlot):
-                # the factor is never changed in place, so it is shared: a pending step recognises
-                # it as the prior its second set was drawn from; the matrix handed out is copied
-                value = copy.copy(value)
-                if value._view is not None:
-                    value._view = value._view.copy()
+                value = value.detached()  # the factor shared, the matrix handed out copied
             d[key] = value
         for name in ("P", "Q", "R"):
             d[name] = d["_" + name].matrix()

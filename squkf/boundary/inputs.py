@@ -26,6 +26,7 @@ __all__ = [
     "measurements",
     "model_noise",
     "per_filter",
+    "refuse_smoother_noise",
     "stacked_images",
     "with_filter_axis",
 ]
@@ -338,3 +339,19 @@ def model_noise(fx: Callable, hx: Callable, fx_noise, hx_noise) -> tuple[int, in
     check_accepts_noise(fx, "fx", dw, 3)
     check_accepts_noise(hx, "hx", dv, 2)
     return dw, dv
+
+
+def refuse_smoother_noise(fx_noise: int, who: str) -> None:
+    """The RTS smoothers take additive process noise only: refuse a ``filter`` or ``fleet`` with ``fx_noise``.
+
+    Parameters
+    ----------
+    fx_noise : int
+        Dimension of the noise entering ``fx`` (0: additive).
+    who : {"filter", "fleet"}
+        For the message.
+    """
+    if fx_noise:
+        raise ParameterError(
+            f"the RTS smoother takes additive process noise only; this {who} has fx_noise={fx_noise}"
+        )
