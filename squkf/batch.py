@@ -518,33 +518,32 @@ def batch_filter(
     nis: list[float] = []
     loglik: list[float] = []
     bar, callback = _progress_callback(progress, T)
-    saved = ukf._snapshot()
     k = 0
     at_step = True
     try:
-        while True:
-            z = next(it, _END)
-            if z is _END:
-                break
-            ukf.predict(dt=dt_k.at(k), UT=UT, Q=Q_k.at(k), **fx_k.at(k))
-            ukf.update(z, R=R_k.at(k), UT=UT, **hx_k.at(k))
-            measured = ukf.z.dtype != object  # update(None) leaves filterpy's column of Nones
-            rejected.append(ukf.rejected)
-            nis.append(ukf.nis if measured else 0.0)
-            loglik.append(ukf.log_likelihood if measured else 0.0)
-            means.append(ukf.x)
-            S = ukf.P1_2
-            covs.append(S if return_factors else S @ S.T)
-            if saver is not None:
-                saver.save()
-            if callback is not None:
-                callback(k)
-            k += 1
-        at_step = False
-        for s in steps:
-            s.finish(k)
+        with ukf.transaction():  # put back on any error
+            while True:
+                z = next(it, _END)
+                if z is _END:
+                    break
+                ukf.predict(dt=dt_k.at(k), UT=UT, Q=Q_k.at(k), **fx_k.at(k))
+                ukf.update(z, R=R_k.at(k), UT=UT, **hx_k.at(k))
+                measured = ukf.z.dtype != object  # update(None) leaves filterpy's column of Nones
+                rejected.append(ukf.rejected)
+                nis.append(ukf.nis if measured else 0.0)
+                loglik.append(ukf.log_likelihood if measured else 0.0)
+                means.append(ukf.x)
+                S = ukf.P1_2
+                covs.append(S if return_factors else S @ S.T)
+                if saver is not None:
+                    saver.save()
+                if callback is not None:
+                    callback(k)
+                k += 1
+            at_step = False
+            for s in steps:
+                s.finish(k)
     except BaseException as exc:
-        ukf._restore(saved)
         _annotate(exc, k, (means.result()[:k], covs.result()[:k]), at_step)
         raise
     finally:

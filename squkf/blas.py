@@ -51,13 +51,14 @@ the hold a step of 65 to 100 variables still took 0.7 to 2.3 ms more.
 
 from __future__ import annotations
 
+import functools
 import threading
 import warnings
 from collections.abc import Callable
 from types import TracebackType
 from typing import Any
 
-__all__ = ["MIN_DIM", "one_blas_thread"]
+__all__ = ["MIN_DIM", "one_blas_thread", "one_thread_method"]
 
 #: States of this many variables or more run their steps on one BLAS thread
 #: (below it OpenBLAS does not thread the step's operations anyway; measured). None: never.
@@ -183,3 +184,31 @@ def one_blas_thread() -> _Hold:
         ``with one_blas_thread(): ...``; it yields None.
     """
     return _Hold()
+
+
+def one_thread_method(dim_of: Callable[[Any], int]) -> Callable[[Callable], Callable]:
+    """A decorator: the method runs on one BLAS thread when ``dim_of(self)`` is :data:`MIN_DIM` or more.
+
+    Parameters
+    ----------
+    dim_of : callable
+        ``dim_of(self) -> int``, the state dimension of the object.
+
+    Returns
+    -------
+    callable
+        The decorator; the decorated method takes positional arguments only
+        (packing keywords too costs a microsecond a step).
+    """
+
+    def decorate(method: Callable) -> Callable:
+        @functools.wraps(method)
+        def run(self, *args):
+            if MIN_DIM is not None and dim_of(self) >= MIN_DIM:
+                with one_blas_thread():
+                    return method(self, *args)
+            return method(self, *args)
+
+        return run
+
+    return decorate

@@ -11,6 +11,8 @@ matrix.
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 from .errors import NonFiniteError, NotPositiveDefiniteError, ShapeError, SqukfValueError
@@ -153,6 +155,18 @@ class FactorSlot:
         self._factor = factor
         self._view: np.ndarray | None = None  # the matrix handed out
         self._snap: bytes | None = None  # its bytes when it matched the factor
+
+    def detached(self) -> FactorSlot:
+        """A copy for an independent filter: the factor shared (never changed in place), the matrix copied.
+
+        A pending step recognises the shared factor as the prior its second
+        set was drawn from; the matrix handed out (and its pending edits) is
+        the copy's own.
+        """
+        new = copy.copy(self)
+        if new._view is not None:
+            new._view = new._view.copy()
+        return new
 
     def _size(self) -> int:
         if self._factor is not None:

@@ -38,6 +38,7 @@ import numpy as np
 import pandas as pd
 
 from .batch import model_kwargs, per_step
+from .boundary.loop import KEEP
 from .errors import ParameterError, ShapeError
 from .fleet import Fleet, FleetResult
 from .validate import as_measurements
@@ -50,7 +51,7 @@ __all__ = ["batch_filter", "compute", "filter_frame", "local_cluster", "worker_e
 MMAP_THRESHOLD = 16 * 2**20
 """Bytes from which glibc's malloc maps fresh pages, in :func:`worker_environ` (16 MiB)."""
 
-_KEEP = ("all", "diagonals", "means", "final")
+_KEEP = KEEP
 _FIELDS = ("means", "P1_2s", "variances", "log_likelihood", "failed", "x", "P1_2", "rejected", "nis")
 
 
@@ -189,7 +190,9 @@ def batch_filter(
     if not np.issubdtype(Z.dtype, np.number) or np.issubdtype(Z.dtype, np.complexfloating):
         raise ShapeError(f"zs must hold real numbers, got dtype {Z.dtype}")
     fx_args, hx_args = model_kwargs(fx_args, "fx_args"), model_kwargs(hx_args, "hx_args")
-    dts = per_step(dts, T, "dts", "dt", default=fleet._dt, ref="zs")  # checked here, not in a task
+    dts = per_step(
+        dts, T, "dts", "dt", default=fleet.configuration().dt, ref="zs"
+    )  # checked here, not in a task
     if len(Z.chunks[1]) > 1 or len(Z.chunks[2]) > 1:
         Z = Z.rechunk({1: -1, 2: -1})
     Z = da.ma.filled(Z.astype(float), np.nan)  # masked chunks: missing where masked, as Fleet.batch_filter

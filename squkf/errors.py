@@ -12,6 +12,8 @@ otherwise), so code ported from NAG can keep testing ``IFAIL`` values.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 __all__ = [
@@ -26,6 +28,7 @@ __all__ = [
     "PosteriorFactorError",
     "CallSequenceError",
     "CommunicationError",
+    "FleetStepError",
 ]
 
 
@@ -116,3 +119,19 @@ class CallSequenceError(SqukfError, RuntimeError):
 
 class CommunicationError(CallSequenceError):
     """Reverse-communication state was changed between calls (g13ej IFAIL 191/211 and friends)."""
+
+
+class FleetStepError(SqukfError, ArithmeticError):
+    """A fleet step with ``on_error="raise"`` in which some filters failed numerically.
+
+    No filter was changed. ``filters`` holds the indices of the failing
+    filters and ``reasons`` what went wrong with each.
+    """
+
+    def __init__(self, message: str, filters: Sequence[int] = (), reasons: Sequence[str] = ()):
+        super().__init__(message)
+        self.filters = tuple(int(k) for k in filters)
+        self.reasons = tuple(reasons)
+
+    def __reduce__(self):
+        return (type(self), (self.args[0], self.filters, self.reasons))

@@ -30,111 +30,39 @@ from __future__ import annotations
 import copy
 import dataclasses
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 
 from . import step as steps
-from .angles import _AngleHook
-from .batch import iter_measurements, model_kwargs, per_step
-from .covariance import as_lower_factor, as_matrix
-from .errors import NonFiniteError, ParameterError, ShapeError, SqukfError
+from .batch import model_kwargs, per_step
+from .boundary import inputs
+from .boundary.config import Config, common_config, filter_kwargs
+from .boundary.factors import (
+    covariance_factors,
+    given_noise_factors,
+    lower_factors,
+    noise_factors,
+    reset_rows,
+)
+from .boundary.loop import Transaction, check_fleet_progress, check_keep, fleet_progress
+from .boundary.records import FleetResult, Records, failures_error, new_records
+from .errors import FleetStepError, ParameterError
 from .gating import Gate, as_gate
-from .generators import SigmaSet, as_generator
-from .isolate import BLOCK, run_isolated
-from .linalg import factor_covariance
-from .noise import call_model, check_accepts_noise, check_noise_dim, noise_points
+from .generators import as_generator
+from .isolate import BLOCK, isolated_posterior, isolated_prior, rows_of
+from .noise import call_model, noise_points
 from .plan import Hooks, Plan, build_plan
-from .validate import as_float_array, as_measurements, check_time_step, describe_nonfinite
+from .smoother import fleet_rts_smoother
+from .ukf import SquareRootUKF
+from .validate import check_time_step
 from .weights import as_family
 
 __all__ = ["Fleet", "FleetResult", "FleetStepError"]
 
 
-class FleetStepError(SqukfError, ArithmeticError):
-    """A fleet step with ``on_error="raise"`` in which some filters failed numerically.
-
-    No filter was changed. ``filters`` holds the indices of the failing
-    filters and ``reasons`` what went wrong with each.
-    """
-
-    def __init__(self, message: str, filters: Sequence[int] = (), reasons: Sequence[str] = ()):
-        super().__init__(message)
-        self.filters = tuple(int(k) for k in filters)
-        self.reasons = tuple(reasons)
-
-    def __reduce__(self):
-        return (type(self), (self.args[0], self.filters, self.reasons))
-
-
-@dataclass
-class FleetResult:
-    """What :meth:`Fleet.batch_filter` returns.
-
-    Attributes
-    ----------
-    means : ndarray, shape (K, T, n), or None
-        Posterior means (None with ``keep="final"``).
-    P1_2s : ndarray, shape (K, T, n, n), or None
-        Posterior lower factors (only with ``keep="all"``).
-    variances : ndarray, shape (K, T, n), or None
-        The diagonals of the posterior covariances (with ``keep="all"`` or ``"diagonals"``).
-    log_likelihood : ndarray, shape (K, T), or (K,) with ``keep="final"``
-        Of each step's measurement (0 where a filter had no measurement or had
-        failed); with ``keep="final"`` their sum over the run.
-    failed : ndarray of bool, shape (K,)
-        Filters flagged by the end of the run (their later entries repeat their last good state).
-    x, P1_2 : ndarray, shapes (K, n) and (K, n, n)
-        The final state.
-    rejected : ndarray, shape (K, T, m) of bool, or (K, m) of int with ``keep="final"``
-        The measurement components each filter's gate rejected at each step
-        (with ``keep="final"``: how many steps each component was rejected).
-        All False (zero) without a gate.
-    nis : ndarray, shape (K, T), or None with ``keep="final"``
-        Each step's normalised innovation squared (0 where a filter had no
-        measurement or had failed).
-    """
-
-    means: np.ndarray | None
-    P1_2s: np.ndarray | None
-    variances: np.ndarray | None
-    log_likelihood: np.ndarray
-    failed: np.ndarray
-    x: np.ndarray
-    P1_2: np.ndarray
-    rejected: np.ndarray | None = None
-    nis: np.ndarray | None = None
-
-
-class _Records(NamedTuple):
-    """The arrays a fleet's batch run fills, step by step (None: not kept)."""
-
-    means: np.ndarray | None
-    factors: np.ndarray | None
-    variances: np.ndarray | None
-    loglik: np.ndarray
-    rejected: np.ndarray
-    nis: np.ndarray | None
-
-
 # the internal array behind each attribute handed out for editing in place
 _HANDED = {"_x": "x", "_S": "P", "_Q1_2": "Q", "_R1_2": "R"}
-
-
-def _take(sset: SigmaSet, idx: np.ndarray | slice) -> SigmaSet:
-    """The set of the filters ``idx`` (rows of every stacked field)."""
-    if isinstance(idx, slice) and idx == slice(None):
-        return sset
-    offsets = None if sset.offsets is None else sset.offsets[idx]
-    return sset._replace(sigmas=sset.sigmas[idx], offsets=offsets)
-
-
-def _rows_of(a: np.ndarray | None, idx: np.ndarray | slice, core: int) -> np.ndarray | None:
-    """``a[idx]`` when ``a`` is per filter (more than ``core`` axes), else ``a`` (shared)."""
-    if a is None or a.ndim == core:
-        return a
-    return a[idx]
 
 
 class Fleet:
@@ -232,20 +160,14 @@ class Fleet:
         fx_noise: int | None = None,
         hx_noise: int | None = None,
     ):
-        for name, v in (("n_filters", n_filters), ("dim_x", dim_x), ("dim_z", dim_z)):
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise ParameterError(f"{name} must be a positive integer, got {name}={v!r}")
+        K, n, m = inputs.check_sizes(n_filters=n_filters, dim_x=dim_x, dim_z=dim_z)
         if on_error not in ("flag", "raise"):
             raise ParameterError(f"on_error must be 'flag' or 'raise', got on_error={on_error!r}")
-        K, n, m = int(n_filters), int(dim_x), int(dim_z)
-        self._fx_noise = check_noise_dim(fx_noise, "fx_noise")
-        self._hx_noise = check_noise_dim(hx_noise, "hx_noise")
-        check_accepts_noise(fx, "fx", self._fx_noise, 3)
-        check_accepts_noise(hx, "hx", self._hx_noise, 2)
+        self._fx_noise, self._hx_noise = inputs.model_noise(fx, hx, fx_noise, hx_noise)
         self._qd, self._rd = self._fx_noise or n, self._hx_noise or m  # the dimensions of Q and R
         self._handed: dict[str, tuple[np.ndarray, bytes]] = {}  # name -> (array handed out, its bytes then)
         self._K, self._n, self._m = K, n, m
-        self._dt = self._check_dt(dt)
+        self._dt = check_time_step(dt)
         self.hx, self.fx = hx, fx
         self.points_fn = points
         self._family = as_family(points)
@@ -305,24 +227,11 @@ class Fleet:
     def _hooks(self) -> Hooks:
         return Hooks(self.x_mean, self.z_mean, self.residual_x, self.residual_z, self.state_add)
 
-    @staticmethod
-    def _check_dt(dt) -> float:
-        return check_time_step(dt)
-
     # -- state ------------------------------------------------------------------
 
     def _per_filter(self, value, name: str, core: int) -> np.ndarray:
         """``value`` as ``(K, *core_shape)``: one value broadcast, or one per filter, checked."""
-        a = as_float_array(value, name)
-        shape = (self._n,) if core == 1 else (self._n, self._n)
-        if a.shape == shape:
-            a = np.broadcast_to(a, (self._K,) + shape).copy()
-        if a.shape != (self._K,) + shape:
-            raise ShapeError(f"{name} has shape {a.shape}, expected {shape} or {(self._K,) + shape}")
-        if not np.all(np.isfinite(a)):
-            bad = np.flatnonzero(~np.isfinite(a.reshape(self._K, -1)).all(axis=1))
-            raise NonFiniteError(f"{name} contains NaN or inf (filters {bad[:10].tolist()})")
-        return a
+        return inputs.per_filter(value, name, self._K, (self._n,) if core == 1 else (self._n, self._n))
 
     # -- what is handed out, and edits in place -------------------------------------
 
@@ -382,10 +291,7 @@ class Fleet:
 
     @P1_2.setter
     def P1_2(self, value):
-        S = self._per_filter(value, "P1_2", 2)
-        self._S = np.stack(
-            [as_lower_factor(S[k], f"P1_2[{k}]", self._n, singular_ok=False) for k in range(self._K)]
-        )
+        self._S = lower_factors(value, "P1_2", self._n, self._K)
         self._state = steps.StepState()
 
     @property
@@ -395,36 +301,12 @@ class Fleet:
 
     @P.setter
     def P(self, value):
-        a = as_float_array(value, "P")
-        if a.shape == (self._n, self._n):  # one matrix for all: factored once
-            S = factor_covariance(as_matrix(a, "P", self._n), "P")
-            self._S = np.broadcast_to(S, (self._K, self._n, self._n)).copy()
-        else:
-            A = self._per_filter(a, "P", 2)
-            self._S = np.stack(
-                [factor_covariance(as_matrix(A[k], f"P[{k}]", self._n), f"P[{k}]") for k in range(self._K)]
-            )
+        self._S = covariance_factors(value, "P", self._n, self._K)
         self._state = steps.StepState()
 
-    def _noise(self, value, name: str, dim: int, semidefinite: bool = True) -> np.ndarray | None:
+    def _noise(self, value, name: str, dim: int) -> np.ndarray | None:
         """A shared ``(dim, dim)`` or per-filter ``(K, dim, dim)`` covariance as its lower factor."""
-        if value is None:
-            return None
-        a = as_float_array(value, name)
-        if a.ndim == 3:
-            if a.shape != (self._K, dim, dim):
-                raise ShapeError(
-                    f"{name} has shape {a.shape}, expected ({dim}, {dim}) or ({self._K}, {dim}, {dim})"
-                )
-            return np.stack([self._noise_one(a[k], f"{name}[{k}]", dim) for k in range(self._K)])
-        return self._noise_one(a, name, dim)
-
-    @staticmethod
-    def _noise_one(a, name: str, dim: int) -> np.ndarray:
-        A = as_matrix(a, name, dim)
-        if not np.any(A):
-            return np.zeros((dim, dim))
-        return factor_covariance(A, name, semidefinite=True)
+        return noise_factors(value, name, dim, self._K)
 
     @property
     def Q(self) -> np.ndarray:
@@ -476,17 +358,7 @@ class Fleet:
         self._R1_2 = np.zeros((self._rd, self._rd)) if S is None else S
 
     def _factor_noise(self, value, name: str, dim: int) -> np.ndarray | None:
-        a = as_float_array(value, name)
-        if a.ndim == 3:
-            if a.shape != (self._K, dim, dim):
-                raise ShapeError(
-                    f"{name} has shape {a.shape}, expected ({dim}, {dim}) or ({self._K}, {dim}, {dim})"
-                )
-            return np.stack(
-                [as_lower_factor(a[k], f"{name}[{k}]", dim, singular_ok=True) for k in range(self._K)]
-            )
-        S = as_lower_factor(a, name, dim, singular_ok=True)
-        return S if np.any(S) else None
+        return given_noise_factors(value, name, dim, self._K)
 
     @property
     def P_prior(self) -> np.ndarray:
@@ -554,66 +426,18 @@ class Fleet:
         self._take_edits()
         idx = np.flatnonzero(self._failed) if filters is None else np.arange(self._K)[filters]
         idx = np.atleast_1d(idx)
-        new_x, new_S = self._x.copy(), self._S.copy()
-        if x is not None:
-            xs = as_float_array(x, "x")
-            if xs.shape not in ((self._n,), (idx.size, self._n)):
-                raise ShapeError(f"x has shape {xs.shape}, expected ({self._n},) or ({idx.size}, {self._n})")
-            new_x[idx] = xs
-            if not np.all(np.isfinite(new_x[idx])):
-                raise NonFiniteError("x contains NaN or inf")
-        if P is not None:
-            Ps = as_float_array(P, "P")
-            shape = (self._n, self._n)
-            if Ps.shape not in (shape, (idx.size,) + shape):
-                raise ShapeError(f"P has shape {Ps.shape}, expected {shape} or {(idx.size,) + shape}")
-            Ps = np.broadcast_to(Ps, (idx.size,) + shape)
-            for j, k in enumerate(idx):
-                new_S[k] = factor_covariance(as_matrix(Ps[j], f"P[{k}]", self._n), f"P[{k}]")
-        self._x, self._S = new_x, new_S
+        self._x, self._S = reset_rows(x, P, idx, self._x, self._S)
         self._failed[idx] = False
         self._failure[idx] = ""
         self._state = steps.StepState()
 
     # -- the step ---------------------------------------------------------------
 
-    def _with_filter_axis(self, kwargs: dict) -> dict:
-        """Per-filter array arguments (leading axis K) get a sigma-point axis, to broadcast against X."""
-        out = {}
-        for key, v in kwargs.items():
-            if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == self._K:
-                v = v.reshape((self._K, 1) + v.shape[1:])
-            out[key] = v
-        return out
-
-    def _fail(self, fails: dict[int, str], idx: np.ndarray, reason: str) -> None:
-        for k in idx.tolist():
-            fails.setdefault(int(k), reason)
-
-    def _fail_nonfinite(self, fails: dict[int, str], idx: np.ndarray, values: np.ndarray, name: str) -> None:
-        """Flag ``idx`` for non-finite images, each described by its own rows (as one filter's error)."""
-        for k in idx.tolist():
-            fails.setdefault(int(k), f"NonFiniteError: {describe_nonfinite(values[k], name)}")
-
     def _commit_failures(self, fails: dict[int, str]) -> None:
         if not fails:
             return
         if self.on_error == "raise":
-            ks = sorted(fails)
-            raise FleetStepError(
-                f"{len(ks)} filter(s) failed numerically: "
-                + "; ".join(f"filter {k}: {fails[k]}" for k in ks[:5])
-                + (" ..." if len(ks) > 5 else ""),
-                ks,
-                [fails[k] for k in ks],
-            )
-
-    def _finite_rows(self, A: np.ndarray) -> np.ndarray:
-        return np.isfinite(A.reshape(A.shape[0], -1)).all(axis=1)
-
-    def _isolated(self, fn: Callable, idx: np.ndarray, fails: dict[int, str]):
-        """``fn`` over the filters ``idx`` with failure isolation (:func:`squkf.isolate.run_isolated`)."""
-        return run_isolated(fn, idx, self._K, fails, BLOCK)
+            raise failures_error(fails)
 
     def ask_predict(self) -> np.ndarray:
         """First half of a prediction: the first sigma-point sets, shape ``(K, N, dim_x)`` (fresh)."""
@@ -638,12 +462,12 @@ class Fleet:
             Passed to ``fx``; arrays with a leading axis of length K are per
             filter and get a sigma-point axis (``u[k]`` becomes ``u[:, None]``).
         """
-        dt = self._dt if dt is None else self._check_dt(dt)
+        dt = self._dt if dt is None else check_time_step(dt)
         self._take_edits()
         state = steps.ask_predict(self._state, self._plan, self._x, self._S, self.state_add)
         X = state.sigmas
         assert X is not None
-        kwargs = self._with_filter_axis(fx_args)
+        kwargs = inputs.with_filter_axis(fx_args, self._K)
         if self._plan.w_xi is not None:
             W = noise_points(self._plan.w_xi, self._Q1_2, (self._K,))
             F = call_model(self.fx, "fx", self._fx_noise, X, W, (dt,), kwargs, True)
@@ -663,29 +487,17 @@ class Fleet:
                 f"tell_predict needs a pending ask_predict, but the step is {state.phase!r}"
             )
         X = state.sigmas
-        if isinstance(values, np.ndarray) and values.dtype == np.float64:
-            # validated here; copied below only if the step keeps it (memory, for large fleets)
-            F = values
-        else:
-            F = as_float_array(values, "fx values")
-        if F.shape != X.shape:
-            raise ShapeError(f"fx values have shape {F.shape}, expected {X.shape}")
         fails: dict[int, str] = {}
         active = ~self._failed
-        finite = self._finite_rows(F)
-        self._fail_nonfinite(fails, np.flatnonzero(active & ~finite), F, "fx values")
+        # validated here; copied below only if the step keeps it (memory, for large fleets)
+        F, finite = inputs.stacked_images(values, X.shape, "fx values", active, fails, copy=False)
         if not finite.all():
             F = np.where(finite[:, None, None], F, X)  # a failing filter's rows: harmless stand-ins
         idx = np.flatnonzero(active & finite)
         plan, hooks = self._plan, self._hooks()
         Q = None if plan.w_xi is not None else self._Q1_2  # noise entering fx is in the points already
 
-        def prior(ix):
-            sub = steps.StepState(steps.PREDICTING, X[ix])
-            _, x, S = steps.tell_predict(sub, plan, F[ix], _rows_of(Q, ix, 2), hooks)
-            return x, S
-
-        good, res = self._isolated(prior, idx, fails)
+        good, res = isolated_prior(plan, hooks, X, F, Q, idx, self._K, fails, BLOCK)
         self._commit_failures(fails)
         if res is not None and good.size == self._K:  # every filter, in order: the kernels' fresh arrays
             x_new, S_new = res
@@ -737,7 +549,7 @@ class Fleet:
         R1_2 = self._R1_2 if R is None else self._noise(R, "R", self._rd)
         state = steps.ask_update(self._state, self._plan, self._x, self._S, self.state_add)
         assert state.sigmas is not None
-        kwargs = self._with_filter_axis(hx_args)
+        kwargs = inputs.with_filter_axis(hx_args, self._K)
         if self._plan.v_xi is not None:
             V = noise_points(self._plan.v_xi, R1_2, (self._K,))
             H = call_model(self.hx, "hx", self._hx_noise, state.sigmas.copy(), V, (), kwargs, True)
@@ -759,95 +571,27 @@ class Fleet:
 
     def _as_measurements(self, z, name: str = "z") -> np.ndarray:
         """One step's measurements ``(K, dim_z)`` checked (``name`` for messages, e.g. ``zs[3]``)."""
-        if z is None:
-            raise ShapeError(
-                f"{name} is None: a fleet's step needs a ({self._K}, {self._m}) array"
-                " (NaN rows for filters without a measurement)"
-            )
-        zz = as_measurements(z, name)
-        if zz.shape == (self._K,) and self._m == 1:
-            zz = zz[:, None]
-        if zz.shape != (self._K, self._m):
-            raise ShapeError(f"{name} has shape {zz.shape}, expected ({self._K}, {self._m})")
-        if np.isinf(zz).any():
-            k = int(np.flatnonzero(np.isinf(zz).any(axis=1))[0])
-            raise NonFiniteError(f"{name} contains inf (row {k}; NaN means a missing component)")
-        return zz
+        return inputs.measurements(z, self._K, self._m, name)
 
     def _tell_update(self, state: steps.StepState, values, z: np.ndarray, R1_2) -> None:
         if state.phase != steps.UPDATING or state.sset is None or state.prior is None:
             raise steps.CallSequenceError(
                 f"tell_update needs a pending ask_update, but the step is {state.phase!r}"
             )
-        sset = state.sset
-        K, m = self._K, self._m
-        H = as_float_array(values, "hx values")
-        if H.shape != sset.sigmas.shape[:-1] + (m,):
-            raise ShapeError(f"hx values have shape {H.shape}, expected {sset.sigmas.shape[:-1] + (m,)}")
-        x0, S0 = state.prior
-        observed = ~np.isnan(z)
-        measured = observed.any(axis=1)
-        active = ~self._failed
+        sset, m = state.sset, self._m
+        measured = ~np.isnan(z).all(axis=1)
+        active = ~self._failed & measured
         fails: dict[int, str] = {}
-        finite = self._finite_rows(H)
-        self._fail_nonfinite(fails, np.flatnonzero(active & measured & ~finite), H, "hx values")
-        todo = active & measured & finite
-        hooks = self._hooks()
+        H, finite = inputs.stacked_images(
+            values, sset.sigmas.shape[:-1] + (m,), "hx values", active, fails, True
+        )
         if self._plan.v_xi is not None:  # noise entering hx is in the points: the update adds none
             R1_2 = np.zeros((m, m))
-
-        gate = self._gate
-
-        def unchanged():
-            """The records of filters that no update reaches: the prior, no innovation, no likelihood."""
-            return (
-                x0.copy(), S0.copy(), np.full((K, m), np.nan), np.zeros(K), np.zeros(K), np.zeros(K),
-                np.zeros((K, m), dtype=bool),
-            )  # fmt: skip
-
-        # made at the first update that needs them
-        x_new: Any = None
-        S_new: Any = None
-        y: Any = None
-        loglik: Any = None
-        maha: Any = None
-        nis: Any = None
-        rejected: Any = None
-        # filters with the same missing components are updated together (one stacked update each)
-        todo_idx = np.flatnonzero(todo)
-        if observed[todo].all():  # the usual case: one group
-            patterns, which = np.ones((1, m), dtype=bool), np.zeros(todo_idx.size, dtype=int)
-        else:
-            patterns, which = np.unique(observed[todo], axis=0, return_inverse=True)
-        for p, obs in enumerate(patterns):
-            group = todo_idx[which.reshape(-1) == p]
-            mask = None if obs.all() else obs
-
-            def posterior(ix, mask=mask):
-                sub = steps.StepState(steps.UPDATING, None, None, None, _take(sset, ix), (x0[ix], S0[ix]))
-                _, g, _ = steps.gated_update(
-                    sub, H[ix], z[ix], _rows_of(R1_2, ix, 2), mask, hooks, None, gate
-                )
-                post = g.tested
-                return g.x, g.S, post.y, g.log_likelihood, np.sqrt(post.nis), post.nis, g.rejected
-
-            good, res = self._isolated(posterior, group, fails)
-            if res is not None and good.size == K and mask is None:
-                # every filter, in order, all measured: the kernels' fresh arrays as they are
-                x_new, S_new, y, loglik, maha, nis, rejected = res
-            elif res is not None:
-                if x_new is None:
-                    x_new, S_new, y, loglik, maha, nis, rejected = unchanged()
-                x_new[good], S_new[good] = res[0], res[1]
-                if obs.all():
-                    y[good], rejected[good] = res[2], res[6]
-                else:
-                    cols = np.ix_(good, np.flatnonzero(obs))
-                    y[cols], rejected[cols] = res[2], res[6]
-                loglik[good], maha[good], nis[good] = res[3], res[4], res[5]
+        records = isolated_posterior(
+            state, H, z, R1_2, active & finite, self._hooks(), self._gate, fails, BLOCK
+        )
         self._commit_failures(fails)
-        if x_new is None:
-            x_new, S_new, y, loglik, maha, nis, rejected = unchanged()
+        x_new, S_new, y, loglik, maha, nis, rejected = records
         # commit
         self._state = steps.StepState()
         self._x, self._S = x_new, S_new
@@ -895,72 +639,45 @@ class Fleet:
             The fleet itself is left after the last step, as after a loop of
             ``predict`` and ``update``; an error leaves it as it was before the call.
         """
-        if keep not in ("all", "diagonals", "means", "final"):
-            raise ParameterError(f"keep must be 'all', 'diagonals', 'means' or 'final', got keep={keep!r}")
-        if not (isinstance(progress, bool) or callable(progress)):
-            raise ParameterError(f"progress must be True, False or a callable, got {progress!r}")
-        if not isinstance(zs, (np.ndarray, list, tuple)):  # a MaskedArray is an ndarray
-            # a generator, an iterator, tqdm(...): one (K, dim_z) array per step, each checked
-            it = iter_measurements(zs)
-            steps_read = [self._as_measurements(z, f"zs[{t}]") for t, z in enumerate(it)]
-            zs = np.stack(steps_read, axis=1) if steps_read else np.zeros((self._K, 0, self._m))
-        Z = as_measurements(zs, "zs")
-        if Z.ndim == 2 and self._m == 1:
-            Z = Z[..., None]
-        if Z.ndim != 3 or Z.shape[0] != self._K or Z.shape[2] != self._m:
-            raise ShapeError(f"zs has shape {Z.shape}, expected ({self._K}, T, {self._m})")
-        if np.isinf(Z).any():
-            k, t = (int(i[0]) for i in np.nonzero(np.isinf(Z).any(axis=2)))
-            raise NonFiniteError(f"zs contains inf (filter {k}, step {t}; NaN means a missing component)")
+        check_keep(keep)
+        check_fleet_progress(progress)
+        Z = inputs.measurement_series(zs, self._K, self._m)
         T = Z.shape[1]
         dt_list = per_step(dts, T, "dts", "dt", default=self._dt, ref="zs")
         fx_args, hx_args = model_kwargs(fx_args, "fx_args"), model_kwargs(hx_args, "hx_args")
-        K, n = self._K, self._n
-        means = None if keep == "final" else np.empty((K, T, n))
-        factors = np.empty((K, T, n, n)) if keep == "all" else None
-        variances = np.empty((K, T, n)) if keep in ("all", "diagonals") else None
-        loglik = np.zeros((K, T)) if keep != "final" else np.zeros(K)
-        m = self._m
-        rejected = np.zeros((K, T, m), dtype=bool) if keep != "final" else np.zeros((K, m), dtype=np.int64)
-        nis = np.zeros((K, T)) if keep != "final" else None
-        records = _Records(means, factors, variances, loglik, rejected, nis)
+        records = new_records(keep, self._K, T, self._n, self._m)
         self._take_edits()
-        before, handed = copy.copy(self), dict(self._handed)
-        try:
-            self._run(Z, dt_list, fx_args, hx_args, records, progress)
-        except BaseException:
-            # an error at any step (a model function's, or a failure with on_error="raise")
-            # leaves the fleet as it was before the call
-            self.__dict__.update(before.__dict__)
-            self.__dict__["_handed"] = handed  # the arrays handed out stay the caller's, still current
-            raise
-        return FleetResult(
-            means,
-            factors,
-            variances,
-            loglik,
-            self._failed.copy(),
-            self._x.copy(),
-            self._S.copy(),
-            rejected,
-            nis,
-        )
-
-    def _run(self, Z, dt_list, fx_args, hx_args, records: _Records, progress) -> None:
-        bar = None
-        if progress is True:
+        # an error at any step (a model function's, or a failure with on_error="raise")
+        # leaves the fleet as it was before the call
+        with self.transaction():
+            bar, callback = fleet_progress(progress, T)
             try:
-                from tqdm.auto import tqdm
-            except ImportError:
-                raise ParameterError("progress=True needs tqdm: pip install 'squkf[progress]'") from None
-            bar = tqdm(total=len(dt_list), unit="step")
-        try:
-            self._steps(Z, dt_list, fx_args, hx_args, records, progress, bar)
-        finally:
-            if bar is not None:
-                bar.close()
+                self._steps(Z, dt_list, fx_args, hx_args, records, callback)
+            finally:
+                if bar is not None:
+                    bar.close()
+        r = records
+        return FleetResult(
+            r.means, r.factors, r.variances, r.loglik, self._failed.copy(), self._x.copy(), self._S.copy(),
+            r.rejected, r.nis,
+        )  # fmt: skip
 
-    def _steps(self, Z, dt_list, fx_args, hx_args, records: _Records, progress, bar) -> None:
+    def transaction(self) -> Transaction:
+        """A context manager that puts the fleet back as it was on entry if anything inside raises.
+
+        What :meth:`batch_filter` runs its steps in (``squkf.boundary.loop.Transaction``).
+        """
+        return Transaction(self._snapshot, self._restore)
+
+    def _snapshot(self) -> tuple[Fleet, dict]:
+        return copy.copy(self), dict(self._handed)
+
+    def _restore(self, saved: tuple[Fleet, dict]) -> None:
+        before, handed = saved
+        self.__dict__.update(before.__dict__)
+        self.__dict__["_handed"] = handed  # the arrays handed out stay the caller's, still current
+
+    def _steps(self, Z, dt_list, fx_args, hx_args, records: Records, callback) -> None:
         K, m = self._K, self._m
         means, factors, variances, loglik = records.means, records.factors, records.variances, records.loglik
         for t in range(len(dt_list)):
@@ -985,43 +702,36 @@ class Fleet:
                 factors[:, t] = self._S
             if variances is not None:
                 variances[:, t] = np.einsum("kij,kij->ki", self._S, self._S)
-            if bar is not None:
-                bar.update(1)
-            elif callable(progress) and progress is not False:
-                progress(t)
+            if callback is not None:
+                callback(t)
 
     # -- one filter and back --------------------------------------------------------
 
     def __getitem__(self, k: int):
         """Filter ``k`` as a :class:`squkf.SquareRootUKF` (vectorised, with its state and configuration)."""
-        from .ukf import SquareRootUKF
-
         k = int(np.arange(self._K)[k])
-        self._take_edits()
-        f = SquareRootUKF(
-            self._n,
-            self._m,
-            self._dt,
-            self.hx,
-            self.fx,
-            self.points_fn,
-            x_mean_fn=self.x_mean,
-            z_mean_fn=self.z_mean,
-            residual_x=self.residual_x,
-            residual_z=self.residual_z,
-            state_add=self.state_add,
-            scheme=self._generator,
-            vectorized=True,
-            gate=self._gate,
-            fx_noise=self._fx_noise or None,
-            hx_noise=self._hx_noise or None,
-        )
+        c = self.configuration()
+        f = SquareRootUKF(c.dim_x, c.dim_z, c.dt, c.hx, c.fx, c.points, vectorized=True, **filter_kwargs(c))
         f.x = self._x[k]
         f.P1_2 = self._S[k]
         Q = self._Q1_2
         f.Q1_2 = None if Q is None else (Q if Q.ndim == 2 else Q[k])
         f.R1_2 = self._R1_2 if self._R1_2.ndim == 2 else self._R1_2[k]
         return f
+
+    def configuration(self) -> Config:
+        """The fleet's configuration and noise factors (``squkf.boundary.Config``), edits taken.
+
+        What ``fleet[k]``, the smoother and :mod:`squkf.dask` read; its arrays
+        are the fleet's own, to be read and not written.
+        """
+        self._take_edits()
+        return Config(
+            self._n, self._m, self._dt, self.hx, self.fx, self.points_fn, self._family, self._generator,
+            self.x_mean, self.z_mean, self.residual_x, self.residual_z, self.state_add, self._gate,
+            self._fx_noise or None, self._hx_noise or None, True, self._plan, self._hooks(),
+            self._Q1_2, self._R1_2,
+        )  # fmt: skip
 
     def __len__(self) -> int:
         return self._K
@@ -1053,8 +763,8 @@ class Fleet:
         new = copy.copy(self)
         new._K = int(idx.size)
         new._x, new._S = self._x[idx], self._S[idx]
-        new._Q1_2 = _rows_of(self._Q1_2, idx, 2)
-        new._R1_2 = _rows_of(self._R1_2, idx, 2)  # type: ignore[assignment]
+        new._Q1_2 = rows_of(self._Q1_2, idx, 2)
+        new._R1_2 = rows_of(self._R1_2, idx, 2)  # type: ignore[assignment]
         new._failed, new._failure = self._failed[idx], self._failure[idx]
         new._state = steps.StepState()
         new.x_prior, new.x_post = self.x_prior[idx], self.x_post[idx]
@@ -1076,64 +786,9 @@ class Fleet:
             If the filters differ in configuration.
         """
         filters = list(filters)
-        if not filters:
-            raise ParameterError("from_filters needs at least one filter")
-        f0 = filters[0]
-        hook = lambda f, name, default: None if getattr(f, name) is default else getattr(f, name)  # noqa: E731
-
-        def same(h):  # squkf's angle hooks are equal when they wrap the same components
-            return (type(h), tuple(h.angle_indices)) if isinstance(h, _AngleHook) else h
-
-        def config(f):
-            return (
-                f.dim_x,
-                f.dim_z,
-                f._dt,
-                f.hx,
-                f.fx,
-                f._family,
-                type(f.scheme),
-                # a generator's parameters (Augmented(weights=...)), not only its kind
-                tuple(sorted(vars(f.scheme).items())) if hasattr(f.scheme, "__dict__") else f.scheme,
-                f.x_mean,
-                f.z_mean,
-                hook(f, "residual_x", np.subtract),
-                hook(f, "residual_z", np.subtract),
-                hook(f, "state_add", np.add),
-                f.gate,
-                f.fx_noise,
-                f.hx_noise,
-            )
-
-        def key(f):
-            return tuple(same(v) for v in config(f))
-
-        c0 = config(f0)
-        for k, f in enumerate(filters):
-            if not f.vectorized:
-                raise ParameterError(
-                    f"filters[{k}] is not vectorized: a fleet calls fx and hx with all points"
-                )
-            if key(f) != key(f0):
-                raise ParameterError(f"filters[{k}] differs in configuration from filters[0]")
+        c = common_config([f.configuration() for f in filters])
         fleet = cls(
-            len(filters),
-            f0.dim_x,
-            f0.dim_z,
-            f0._dt,
-            f0.hx,
-            f0.fx,
-            f0.points_fn,
-            scheme=f0.scheme,
-            x_mean_fn=c0[8],
-            z_mean_fn=c0[9],
-            residual_x=c0[10],
-            residual_z=c0[11],
-            state_add=c0[12],
-            on_error=on_error,
-            gate=c0[13],
-            fx_noise=c0[14],
-            hx_noise=c0[15],
+            len(filters), c.dim_x, c.dim_z, c.dt, c.hx, c.fx, c.points, on_error=on_error, **filter_kwargs(c)
         )
         fleet._x = np.stack([f.x for f in filters])
         fleet._S = np.stack([f.P1_2 for f in filters])
@@ -1212,12 +867,5 @@ class Fleet:
         FleetStepError
             With ``on_error="raise"``, if some filters failed numerically.
         """
-        if self._fx_noise:
-            raise ParameterError(
-                "the RTS smoother takes additive process noise only;"
-                f" this fleet has fx_noise={self._fx_noise}"
-            )
-        from .smoother import fleet_rts_smoother
-
-        self._take_edits()
+        inputs.refuse_smoother_noise(self._fx_noise, "fleet")
         return fleet_rts_smoother(self, result, dts=dts, fx_args=fx_args)

@@ -11,12 +11,24 @@ ones. The fleet's step and its smoother use it.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
+from . import step as steps
 from .errors import NonFiniteError, NotPositiveDefiniteError, SqukfError
+from .generators import SigmaSet
+from .plan import Hooks, Plan
 
-__all__ = ["BLOCK", "numerical", "run_isolated"]
+__all__ = [
+    "BLOCK",
+    "isolated_posterior",
+    "isolated_prior",
+    "numerical",
+    "rows_of",
+    "run_isolated",
+    "take_set",
+]
 
 #: Filters computed together in one block of the core's numerics (bounds the temporary arrays).
 BLOCK = 4096
@@ -117,3 +129,149 @@ def _block(fn: Callable, idx: np.ndarray, rows: slice | None, fails: dict[int, s
     if not good:
         return np.array([], dtype=int), None
     return np.array(good), tuple(np.concatenate([p[i] for p in parts]) for i in range(len(parts[0])))
+
+
+def rows_of(a: np.ndarray | None, idx, core: int) -> np.ndarray | None:
+    """``a[idx]`` when ``a`` is per filter (more than ``core`` axes), else ``a`` (shared).
+
+    Parameters
+    ----------
+    a : ndarray, shape (K, *core_shape) or core_shape, or None
+    idx : index array or slice of filters
+    core : int
+        Number of axes of one filter's value (2 for a factor).
+
+    Returns
+    -------
+    ndarray or None
+    """
+    return a if a is None or a.ndim == core else a[idx]
+
+
+def take_set(sset: SigmaSet, idx: np.ndarray | slice) -> SigmaSet:
+    """The sigma-point set of the filters ``idx`` (rows of every stacked field)."""
+    if isinstance(idx, slice) and idx == slice(None):
+        return sset
+    offsets = None if sset.offsets is None else sset.offsets[idx]
+    return sset._replace(sigmas=sset.sigmas[idx], offsets=offsets)
+
+
+def isolated_prior(plan: Plan, hooks: Hooks, X: np.ndarray, F: np.ndarray, Q1_2, idx, K: int, fails, block):
+    """The priors of the filters ``idx`` from their propagated points, failing filters isolated.
+
+    Parameters
+    ----------
+    plan : Plan
+    hooks : Hooks
+    X : ndarray, shape (K, N, n)
+        The first sets.
+    F : ndarray, shape (K, N, n)
+        ``fx`` at them (finite for the filters ``idx``).
+    Q1_2 : ndarray, shape (d, d) or (K, d, d), or None
+        Process noise factor, shared or per filter (None: none added).
+    idx : ndarray of int
+        The filters to step.
+    K : int
+    fails : dict
+        Filled with ``filter -> reason`` for the filters that fail.
+    block : int
+        Filters per block (:func:`run_isolated`).
+
+    Returns
+    -------
+    good : ndarray of int
+    result : (x (G, n), S (G, n, n)) or None
+        The priors of ``good``.
+    """
+
+    def prior(ix):
+        sub = steps.StepState(steps.PREDICTING, X[ix])
+        _, x, S = steps.tell_predict(sub, plan, F[ix], rows_of(Q1_2, ix, 2), hooks)
+        return x, S
+
+    return run_isolated(prior, idx, K, fails, block)
+
+
+def isolated_posterior(state: steps.StepState, H, z, R1_2, todo, hooks: Hooks, gate, fails, block):
+    """The gated updates of the filters ``todo``, grouped by their missing components, failing ones isolated.
+
+    Filters with the same missing components are updated together (one
+    stacked update each); a filter that no update reaches keeps its prior,
+    with no innovation and no likelihood.
+
+    Parameters
+    ----------
+    state : StepState
+        The pending update of ``K`` filters (its second sets and priors).
+    H : ndarray, shape (K, N2, m)
+        ``hx`` at the second sets.
+    z : ndarray, shape (K, m)
+        Measurements, NaN where missing.
+    R1_2 : ndarray, shape (m, m) or (K, m, m)
+        Measurement noise factor, shared or per filter.
+    todo : ndarray of bool, shape (K,)
+        The filters to update.
+    hooks : Hooks
+    gate : Gate or None
+    fails : dict
+        Filled with ``filter -> reason`` for the filters that fail.
+    block : int
+
+    Returns
+    -------
+    tuple
+        ``x (K, n)``, ``S (K, n, n)``, ``y (K, m)``, ``loglik (K,)``,
+        ``mahalanobis (K,)``, ``nis (K,)``, ``rejected (K, m)``: fresh arrays.
+    """
+    sset = state.sset
+    x0, S0 = state.prior  # type: ignore[misc]
+    K, m = z.shape
+    observed = ~np.isnan(z)
+
+    def unchanged():
+        """The records of filters that no update reaches: the prior, no innovation, no likelihood."""
+        return (
+            x0.copy(), S0.copy(), np.full((K, m), np.nan), np.zeros(K), np.zeros(K), np.zeros(K),
+            np.zeros((K, m), dtype=bool),
+        )  # fmt: skip
+
+    # made at the first update that needs them
+    x_new: Any = None
+    S_new: Any = None
+    y: Any = None
+    loglik: Any = None
+    maha: Any = None
+    nis: Any = None
+    rejected: Any = None
+    todo_idx = np.flatnonzero(todo)
+    if observed[todo].all():  # the usual case: one group
+        patterns, which = np.ones((1, m), dtype=bool), np.zeros(todo_idx.size, dtype=int)
+    else:
+        patterns, which = np.unique(observed[todo], axis=0, return_inverse=True)
+    for p, obs in enumerate(patterns):
+        group = todo_idx[which.reshape(-1) == p]
+        mask = None if obs.all() else obs
+
+        def posterior(ix, mask=mask):
+            sub = steps.StepState(steps.UPDATING, None, None, None, take_set(sset, ix), (x0[ix], S0[ix]))  # type: ignore[arg-type]
+            _, g, _ = steps.gated_update(sub, H[ix], z[ix], rows_of(R1_2, ix, 2), mask, hooks, None, gate)
+            post = g.tested
+            return g.x, g.S, post.y, g.log_likelihood, np.sqrt(post.nis), post.nis, g.rejected
+
+        good, res = run_isolated(posterior, group, K, fails, block)
+        if res is not None and good.size == K and mask is None:
+            # every filter, in order, all measured: the kernels' fresh arrays as they are
+            x_new, S_new, y, loglik, maha, nis, rejected = res
+        elif res is not None:
+            if x_new is None:
+                x_new, S_new, y, loglik, maha, nis, rejected = unchanged()
+            x_new[good], S_new[good] = res[0], res[1]
+            if obs.all():
+                y[good], rejected[good] = res[2], res[6]
+            else:
+                cols = np.ix_(good, np.flatnonzero(obs))
+                y[cols], rejected[cols] = res[2], res[6]
+            loglik[good], maha[good], nis[good] = res[3], res[4], res[5]
+    if x_new is None:
+        return unchanged()
+    return x_new, S_new, y, loglik, maha, nis, rejected

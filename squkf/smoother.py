@@ -56,6 +56,9 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from .batch import model_kwargs, per_step
+from .boundary.factors import noise_factor
+from .boundary.inputs import evaluate, with_filter_axis
+from .boundary.records import FleetResult, failures_error
 from .covariance import FactorSlot, as_lower_factor
 from .errors import (
     NonFiniteError,
@@ -65,7 +68,7 @@ from .errors import (
     SqukfError,
 )
 from .generators import UnitSet, sigma_points_from_factor
-from .isolate import run_isolated
+from .isolate import rows_of, run_isolated
 from .linalg import chol_downdate_columns, kalman_gain, tria
 from .plan import Hooks
 from .transform import deviations, factor_rows, swap_last, transform_factor
@@ -261,30 +264,32 @@ def rts_smoother_factors(
     >>> bool(np.all(np.triu(S_s, 1) == 0))
     True
     """
-    n = ukf.dim_x
+    c = ukf.configuration()
+    n = c.dim_x
     Xs = _as_stack(Xs, "Xs", (n,))
     T = len(Xs)
     S_in = _as_stack(P1_2s, "P1_2s", (n, n), T)
     for k in range(T):
         S_in[k] = as_lower_factor(S_in[k], f"P1_2s[{k}]", n, singular_ok=False)
     _check_UT(UT)
-    dt_list = per_step(dts, T, "dts", "dt", default=ukf._dt)
+    dt_list = per_step(dts, T, "dts", "dt", default=c.dt)
     kw_list = per_step(fx_args, T, "fx_args", "kwargs")
     Q_list = per_step(Qs, T, "Qs", "noise")
+    cache: dict = {}
 
     def fx_eval(k: int, X: np.ndarray):
-        return ukf._evaluate(ukf.fx, X, (dt_list[k + 1],), kw_list[k + 1])
+        return evaluate(c.fx, X, (dt_list[k + 1],), kw_list[k + 1], c.vectorized)
 
     def noise(k: int) -> np.ndarray | None:
-        return ukf._noise_factor(Q_list[k + 1], "Q", n)
+        return noise_factor(Q_list[k + 1], "Q", n, lambda: c.Q1_2, cache)
 
     out = _backward(
         Xs,
         S_in,
         fx_eval,
         noise,
-        UnitSet(ukf._family, n),
-        ukf._hooks(),
+        UnitSet(c.family, n),
+        c.hooks,
         ut=UT,
         label=lambda k: f"Qs[{k + 1}], dts[{k + 1}], fx_args[{k + 1}]",
     )
@@ -393,11 +398,6 @@ def _smooth_step(
     return x_s, S_s, G
 
 
-def _rows(a: np.ndarray | None, ix, core: int) -> np.ndarray | None:
-    """``a[ix]`` when ``a`` is per filter (more than ``core`` axes), else ``a`` (shared)."""
-    return a if a is None or a.ndim == core else a[ix]
-
-
 def _backward(
     xs: np.ndarray,
     Ss: np.ndarray,
@@ -482,7 +482,7 @@ def _backward(
 
             def step(ix, X=X, F=F, x=x, S=S, x_next=x_next, S_next=S_next, Q1_2=Q1_2):
                 out = _smooth_step(
-                    x[ix], S[ix], X[ix], F[ix], x_next[ix], S_next[ix], _rows(Q1_2, ix, 2), unit, hooks, ut
+                    x[ix], S[ix], X[ix], F[ix], x_next[ix], S_next[ix], rows_of(Q1_2, ix, 2), unit, hooks, ut
                 )
                 if not _finite_per_filter(out).all():
                     raise NonFiniteError("the smoothed estimate is not finite")
@@ -594,8 +594,7 @@ def fleet_rts_smoother(fleet, result, dts=None, fx_args: Mapping[str, Any] | Non
         ``(means (K, T, n), P1_2s (K, T, n, n), Gs (K, T, n, n))`` with
         ``failed`` and ``failure`` attached.
     """
-    from .fleet import FleetResult, FleetStepError
-
+    c = fleet.configuration()  # the fleet's in-place edits taken first
     if not isinstance(result, FleetResult):
         raise ParameterError(
             "result must be the FleetResult of Fleet.batch_filter(..., keep='all'),"
@@ -606,7 +605,7 @@ def fleet_rts_smoother(fleet, result, dts=None, fx_args: Mapping[str, Any] | Non
             "result holds no factors: the smoother needs every step's mean and factor, "
             "from Fleet.batch_filter(..., keep='all')"
         )
-    K, n = fleet._K, fleet._n
+    K, n = fleet.n_filters, c.dim_x
     xs = as_float_array(result.means, "result.means")
     if xs.ndim != 3 or xs.shape[0] != K or xs.shape[2] != n:
         raise ShapeError(f"result.means has shape {xs.shape}, expected ({K}, T, {n})")
@@ -630,31 +629,24 @@ def fleet_rts_smoother(fleet, result, dts=None, fx_args: Mapping[str, Any] | Non
         j, k = (int(i) for i in np.argwhere((diag == 0).any(axis=2) & ~failed[:, None])[0])
         raise NotPositiveDefiniteError(f"result.P1_2s[{j}, {k}] has a zero on its diagonal")
     Ss = Ss * np.copysign(1.0, diag)[..., None, :]  # a column's sign leaves S S^T unchanged
-    dt_list = per_step(dts, T, "dts", "dt", default=fleet._dt, ref="result")
-    kwargs = fleet._with_filter_axis(model_kwargs(fx_args, "fx_args"))
-    Q1_2 = fleet._Q1_2
+    dt_list = per_step(dts, T, "dts", "dt", default=c.dt, ref="result")
+    kwargs = with_filter_axis(model_kwargs(fx_args, "fx_args"), K)
+    Q1_2, fx = c.Q1_2, c.fx
 
     def fx_eval(k: int, X: np.ndarray):
-        return fleet.fx(X.copy(), dt_list[k + 1], **kwargs)
+        return fx(X.copy(), dt_list[k + 1], **kwargs)
 
     out = _backward(
         xs,
         Ss,
         fx_eval,
         lambda k: Q1_2,
-        fleet._plan.first,
-        fleet._hooks(),
+        c.plan.first,
+        c.hooks,
         isolate=failed.copy(),
         label=lambda k: f"dts[{k + 1}]",
     )
     new = np.flatnonzero(out.failed & ~failed)
     if fleet.on_error == "raise" and new.size:
-        ks = new.tolist()
-        raise FleetStepError(
-            f"{len(ks)} filter(s) failed numerically while smoothing: "
-            + "; ".join(f"filter {j}: {out.failure[j]}" for j in ks[:5])
-            + (" ..." if len(ks) > 5 else ""),
-            ks,
-            [out.failure[j] for j in ks],
-        )
+        raise failures_error({j: out.failure[j] for j in new.tolist()}, " while smoothing")
     return FleetSmoothed(out.xs, out.Ss, out.Gs, out.failed, out.failure)

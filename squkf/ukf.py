@@ -11,7 +11,6 @@ call.
 from __future__ import annotations
 
 import copy
-import functools
 import math
 import sys
 from collections.abc import Callable
@@ -19,18 +18,22 @@ from typing import cast
 
 import numpy as np
 
-from . import blas
+from . import blas, smoother
 from . import step as steps
+from .batch import batch_filter
+from .boundary import inputs
+from .boundary.config import Config
+from .boundary.factors import noise_factor
+from .boundary.loop import Transaction
+from .boundary.records import embed, gain, innovation_inverse
 from .covariance import FactorSlot
 from .errors import NonFiniteError, ParameterError, ShapeError
 from .gating import Gate, as_gate
 from .generators import as_generator, noise_family, sigma_points_from_factor
-from .linalg import all_finite, solve_lower
-from .measurement import gain_from_factors
-from .noise import call_model, check_accepts_noise, check_noise_dim, noise_points
+from .noise import call_model, noise_points
 from .plan import Hooks, Plan, build_plan
 from .transform import deviations
-from .validate import as_float_array, as_measurements, check_time_step, check_values
+from .validate import as_float_array, check_time_step, check_values
 from .weights import as_family
 
 __all__ = ["SquareRootUKF"]
@@ -38,17 +41,7 @@ __all__ = ["SquareRootUKF"]
 _LOG_TINY = math.log(sys.float_info.min)
 
 
-def _one_blas_thread(method):
-    """Run ``method`` on one BLAS thread for states of ``blas.MIN_DIM`` or more (see :mod:`squkf.blas`)."""
-
-    @functools.wraps(method)
-    def run(self, *args):  # positional only: packing keywords too costs a microsecond a step
-        if blas.MIN_DIM is not None and self._dim_x >= blas.MIN_DIM:
-            with blas.one_blas_thread():
-                return method(self, *args)
-        return method(self, *args)
-
-    return run
+_one_blas_thread = blas.one_thread_method(lambda self: self._dim_x)
 
 
 class _Covariance:
@@ -297,17 +290,11 @@ class SquareRootUKF:
         fx_noise: int | None = None,
         hx_noise: int | None = None,
     ):
-        for name, v in (("dim_x", dim_x), ("dim_z", dim_z)):
-            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise ParameterError(f"{name} must be a positive integer, got {name}={v!r}")
-        n, m = int(dim_x), int(dim_z)
+        n, m = inputs.check_sizes(dim_x=dim_x, dim_z=dim_z)
         self._dim_x = n
         self._dim_z = m
-        self._fx_noise = check_noise_dim(fx_noise, "fx_noise")
-        self._hx_noise = check_noise_dim(hx_noise, "hx_noise")
-        check_accepts_noise(fx, "fx", self._fx_noise, 3)
-        check_accepts_noise(hx, "hx", self._hx_noise, 2)
-        self._dt = self._check_dt(dt)
+        self._fx_noise, self._hx_noise = inputs.model_noise(fx, hx, fx_noise, hx_noise)
+        self._dt = check_time_step(dt)
         self._plan = cast(Plan, None)  # the scheme setter below sets it
         self._family = None
         self._generator = None
@@ -454,13 +441,7 @@ class SquareRootUKF:
         """An assignment to ``x``, ``P``, ``Q`` or ``R`` succeeded (hook for subclasses)."""
 
     def _as_state(self, value, name) -> np.ndarray:
-        x = as_float_array(value, name)
-        if x.shape not in ((self._dim_x,), (self._dim_x, 1)):
-            raise ShapeError(f"{name} has shape {x.shape}, expected ({self._dim_x},)")
-        x = x.reshape(self._dim_x)
-        if not np.all(np.isfinite(x)):
-            raise NonFiniteError(f"{name} contains NaN or inf: {x!r}")
-        return x
+        return inputs.as_state(value, name, self._dim_x)
 
     @property
     def P1_2(self) -> np.ndarray:
@@ -505,36 +486,22 @@ class SquareRootUKF:
 
     # -- the last update's records ------------------------------------------
 
-    def _embed(self, block: np.ndarray, fill: float) -> np.ndarray:
-        """A ``(dim_z, dim_z)`` record from its observed block (``fill`` elsewhere)."""
-        obs = self._observed
-        if obs is None:
-            return block.copy()
-        out = np.full((obs.shape[0], obs.shape[0]), fill)
-        out[np.ix_(obs, obs)] = block
-        return out
-
     @property
     def S1_2(self) -> np.ndarray:
         """Lower factor of the last innovation covariance (NaN where a component was missing)."""
-        return self._embed(self._Sy, np.nan)
+        return embed(self._Sy, self._observed, np.nan)
 
     @property
     def S(self) -> np.ndarray:
         """Innovation covariance of the last update, ``S1_2 @ S1_2.T`` (NaN where missing)."""
-        return self._embed(self._Sy @ self._Sy.T, np.nan)
+        return embed(self._Sy @ self._Sy.T, self._observed, np.nan)
 
     @property
     def SI(self) -> np.ndarray:
         """Inverse of ``S``, by triangular solves with ``S1_2`` (or by ``self.inv`` if replaced)."""
         if self.inv is not np.linalg.inv:
             return self.inv(self.S)
-        Sy = self._Sy
-        m = Sy.shape[0]
-        if not np.all(Sy.diagonal() != 0):
-            return self._embed(np.zeros((m, m)), np.nan)
-        W = solve_lower(Sy, np.eye(m))
-        return self._embed(W.T @ W, np.nan)
+        return innovation_inverse(self._Sy, self._observed)
 
     @property
     def K(self) -> np.ndarray:
@@ -544,13 +511,7 @@ class SquareRootUKF:
         an array read earlier (a ``Saver``'s history) is never rewritten.
         """
         if self._K is None:
-            K = gain_from_factors(self._Sy, self._L21) if self._measured else np.zeros_like(self._L21)
-            obs = self._observed
-            if obs is not None:
-                full = np.zeros((self._dim_x, obs.shape[0]))
-                full[:, obs] = K
-                K = full
-            self._K = K
+            self._K = gain(self._Sy, self._L21, self._measured, self._observed, self._dim_x)
         return self._K.copy()
 
     @K.setter
@@ -586,29 +547,9 @@ class SquareRootUKF:
 
     # -- helpers ------------------------------------------------------------
 
-    @staticmethod
-    def _check_dt(dt) -> float:
-        return check_time_step(dt)
-
     def _noise_factor(self, value, name: str, dim: int) -> np.ndarray | None:
         """Lower factor of ``Q`` or ``R`` (``value`` for this call, else the attribute's); None: zero."""
-        if value is None:
-            S = self.__dict__["_" + name].factor()
-            if S is not None and S.shape[0] != dim:
-                raise ShapeError(
-                    f"{name} is {S.shape[0]}x{S.shape[0]} but the {'measurement' if name == 'R' else 'state'}"
-                    f" has length {dim}; pass {name}= for a model of another size"
-                )
-            return S
-        cached = self._noise_cache.get(name)
-        if cached is not None and cached[0] is value and np.array_equal(cached[1], value):
-            return cached[2]
-        tmp = FactorSlot(name, dim, semidefinite=True, factor=None)
-        tmp.set_matrix(value)
-        S = tmp.factor()
-        if isinstance(value, np.ndarray):
-            self._noise_cache[name] = (value, value.copy(), S)
-        return S
+        return noise_factor(value, name, dim, self.__dict__["_" + name].factor, self._noise_cache)
 
     def _current(self) -> tuple[np.ndarray, np.ndarray]:
         """The current mean and factor, with in-place edits of ``x`` and ``P`` validated."""
@@ -619,18 +560,7 @@ class SquareRootUKF:
         return d["_xs"], self._P.factor()  # type: ignore[return-value]  # P is never singular
 
     def _evaluate(self, fn: Callable, sigmas: np.ndarray, args: tuple, kwargs: dict) -> object:
-        if self.vectorized:
-            return fn(sigmas, *args, **kwargs)
-        # one call per point: spelled out for the common cases, since unpacking *args and
-        # **kwargs at every call costs more than the loop itself
-        if kwargs:
-            return [fn(s, *args, **kwargs) for s in sigmas]
-        if not args:
-            return [fn(s) for s in sigmas]
-        if len(args) == 1:
-            dt = args[0]
-            return [fn(s, dt) for s in sigmas]
-        return [fn(s, *args) for s in sigmas]
+        return inputs.evaluate(fn, sigmas, args, kwargs, self.vectorized)
 
     def _commit_estimate(self, x: np.ndarray, S: np.ndarray) -> None:
         """Install a mean and factor computed by the filter (fresh user-facing arrays)."""
@@ -821,37 +751,11 @@ class SquareRootUKF:
         self._measured = True
 
     def _as_measurement(self, z, R) -> tuple[np.ndarray, np.ndarray | None] | None:
-        """``z`` checked, as ``(z, observed)``; None when it holds no measurement.
+        """``z`` checked, as ``(z, observed)`` (the mask of the measured components, or None: all)."""
+        return inputs.measurement(z, R, self._dim_z, self._R_dim, self._hx_noise)
 
-        ``observed`` is the mask of the measured components, or None when all are.
-        """
-        if z is None:
-            return None
-        arr = as_measurements(z, "z")
-        if arr.ndim != 1:
-            if arr.ndim == 0:
-                arr = arr.reshape(1)
-            elif arr.ndim == 2 and 1 in arr.shape:
-                arr = arr.reshape(-1)
-            else:
-                raise ShapeError(f"z has shape {np.shape(z)}, expected ({self._dim_z},)")
-        observed = None
-        if not all_finite(arr):
-            finite = np.isfinite(arr)
-            nan = np.isnan(arr)
-            if not (finite | nan).all():
-                raise NonFiniteError(f"z contains inf (NaN means a missing component): {arr!r}")
-            if nan.all():
-                return None
-            observed = ~nan
-        if R is None and arr.shape[0] != self._dim_z and not self._hx_noise:
-            Rdim = self._R.factor_or_zeros().shape[0]
-            if Rdim != arr.shape[0]:
-                raise ShapeError(
-                    f"z has length {arr.shape[0]} but dim_z is {self._dim_z} and R is {Rdim}x{Rdim};"
-                    " pass R= (and hx=) for a measurement of another size"
-                )
-        return arr, observed
+    def _R_dim(self) -> int:
+        return self._R.factor_or_zeros().shape[0]
 
     # -- filterpy's methods ---------------------------------------------------
 
@@ -875,7 +779,7 @@ class SquareRootUKF:
         **fx_args
             Passed to ``fx``.
         """
-        dt = self._dt if dt is None else self._check_dt(dt)
+        dt = self._dt if dt is None else check_time_step(dt)
         fx = self.fx if fx is None else fx
         x, S = self._current()
         plan = self._plan
@@ -934,7 +838,7 @@ class SquareRootUKF:
 
     def compute_process_sigmas(self, dt, fx=None, **fx_args) -> None:
         """Set ``sigmas_f`` to the first set propagated through ``fx`` (state unchanged)."""
-        dt = self._check_dt(dt)
+        dt = check_time_step(dt)
         fx = self.fx if fx is None else fx
         x, S = self._current()
         plan = self._plan
@@ -988,8 +892,6 @@ class SquareRootUKF:
         step ``k`` says so, carries the first ``k`` results as ``exc.partial``
         and leaves the filter as it was.
         """
-        from .batch import batch_filter
-
         return batch_filter(
             self,
             zs,
@@ -1011,26 +913,40 @@ class SquareRootUKF:
         those of the prediction into step ``k`` (the lists given to
         ``batch_filter``); ``fx_args`` may be given the same way.
         """
-        from .smoother import rts_smoother
-
         self._refuse_smoother()
-        return rts_smoother(self, Xs, Ps, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
+        return smoother.rts_smoother(self, Xs, Ps, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
 
     def rts_smoother_factors(self, Xs, P1_2s, Qs=None, dts=None, UT=None, *, fx_args=None):
         """The smoother on lower factors; see :func:`squkf.smoother.rts_smoother_factors`."""
-        from .smoother import rts_smoother_factors
-
         self._refuse_smoother()
-        return rts_smoother_factors(self, Xs, P1_2s, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
+        return smoother.rts_smoother_factors(self, Xs, P1_2s, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
 
     def _refuse_smoother(self) -> None:
-        if self._fx_noise:
-            raise ParameterError(
-                "the RTS smoother takes additive process noise only;"
-                f" this filter has fx_noise={self._fx_noise}"
-            )
+        inputs.refuse_smoother_noise(self._fx_noise, "filter")
 
     # -- transactions, copies, pickling ---------------------------------------
+
+    def configuration(self) -> Config:
+        """The filter's configuration and noise factors (``squkf.boundary.Config``).
+
+        What ``Fleet.from_filters`` and the smoother read; the arrays are the
+        filter's own, to be read and not written.
+        """
+        d = self.__dict__
+        rx, rz, add = d["residual_x"], d["residual_z"], d["state_add"]
+        return Config(
+            self._dim_x, self._dim_z, self._dt, self.hx, self.fx, self._points, self._family, self._generator,
+            d["x_mean"], d["z_mean"], None if rx is np.subtract else rx, None if rz is np.subtract else rz,
+            None if add is np.add else add, self._gate, self.fx_noise, self.hx_noise, self.vectorized,
+            self._plan, self._hooks(), self._Q.factor(), self._R.factor(),
+        )  # fmt: skip
+
+    def transaction(self) -> Transaction:
+        """A context manager that puts the filter back as it was on entry if anything inside raises.
+
+        What :meth:`batch_filter` runs its steps in (``squkf.boundary.loop.Transaction``).
+        """
+        return Transaction(self._snapshot, self._restore)
 
     def _snapshot(self) -> dict:
         """Everything a failed multi-step call must put back.
@@ -1059,11 +975,7 @@ class SquareRootUKF:
             if isinstance(value, np.ndarray):
                 value = value.copy()
             elif isinstance(value, FactorSlot):
-                # the factor is never changed in place, so it is shared: a pending step recognises
-                # it as the prior its second set was drawn from; the matrix handed out is copied
-                value = copy.copy(value)
-                if value._view is not None:
-                    value._view = value._view.copy()
+                value = value.detached()  # the factor shared, the matrix handed out copied
             d[key] = value
         for name in ("P", "Q", "R"):
             d[name] = d["_" + name].matrix()

@@ -1,0 +1,357 @@
+"""The checks of a call's inputs, for one filter (batch shape ``()``) and for a stack (``(K,)``).
+
+Each check is written once; the facades call it and keep its result. What a
+single value may be (an array of reals, a time step, a model function's
+images) is :mod:`squkf.validate`'s.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from ..batch import iter_measurements
+from ..errors import NonFiniteError, ParameterError, ShapeError
+from ..linalg import all_finite
+from ..noise import check_accepts_noise, check_noise_dim
+from ..validate import as_float_array, as_measurements, describe_nonfinite
+
+__all__ = [
+    "as_state",
+    "check_sizes",
+    "evaluate",
+    "measurement",
+    "measurement_series",
+    "measurements",
+    "model_noise",
+    "per_filter",
+    "refuse_smoother_noise",
+    "stacked_images",
+    "with_filter_axis",
+]
+
+
+def check_sizes(**sizes) -> tuple[int, ...]:
+    """The sizes given (``dim_x``, ``dim_z``, ``n_filters``), each a positive integer.
+
+    Parameters
+    ----------
+    **sizes : int
+        Name and value, in the order they are checked.
+
+    Returns
+    -------
+    tuple of int
+        The values as Python integers, in the order given.
+
+    Raises
+    ------
+    ParameterError
+        A value is not an integer (a bool is not), or is below 1.
+    """
+    for name, v in sizes.items():
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ParameterError(f"{name} must be a positive integer, got {name}={v!r}")
+    return tuple(int(v) for v in sizes.values())
+
+
+def as_state(value, name: str, dim: int) -> np.ndarray:
+    """One filter's state, shape ``(dim,)`` (a column ``(dim, 1)`` is taken too), finite.
+
+    Parameters
+    ----------
+    value : array_like, shape (dim,) or (dim, 1)
+    name : str
+        For messages.
+    dim : int
+
+    Returns
+    -------
+    x : ndarray, shape (dim,)
+    """
+    x = as_float_array(value, name)
+    if x.shape not in ((dim,), (dim, 1)):
+        raise ShapeError(f"{name} has shape {x.shape}, expected ({dim},)")
+    x = x.reshape(dim)
+    if not np.all(np.isfinite(x)):
+        raise NonFiniteError(f"{name} contains NaN or inf: {x!r}")
+    return x
+
+
+def per_filter(value, name: str, K: int, shape: tuple[int, ...]) -> np.ndarray:
+    """``value`` as ``(K, *shape)``: one value broadcast to every filter, or one per filter; finite.
+
+    Parameters
+    ----------
+    value : array_like, shape ``shape`` or ``(K, *shape)``
+    name : str
+        For messages.
+    K : int
+        Number of filters.
+    shape : tuple of int
+        One filter's shape, ``(n,)`` for a state, ``(n, n)`` for a factor.
+
+    Returns
+    -------
+    ndarray, shape (K, *shape)
+        A new array.
+    """
+    a = as_float_array(value, name)
+    if a.shape == shape:
+        a = np.broadcast_to(a, (K,) + shape).copy()
+    if a.shape != (K,) + shape:
+        raise ShapeError(f"{name} has shape {a.shape}, expected {shape} or {(K,) + shape}")
+    if not np.all(np.isfinite(a)):
+        bad = np.flatnonzero(~np.isfinite(a.reshape(K, -1)).all(axis=1))
+        raise NonFiniteError(f"{name} contains NaN or inf (filters {bad[:10].tolist()})")
+    return a
+
+
+def measurement(
+    z, R, dim_z: int, R_dim: Callable[[], int], hx_noise: int
+) -> tuple[np.ndarray, np.ndarray | None] | None:
+    """One filter's measurement ``z`` checked, as ``(z, observed)``; None when it holds none.
+
+    Parameters
+    ----------
+    z : array_like, shape (m,), (1, m), (m, 1) or scalar, or None
+        NaN (or masked) components are missing; inf is an error.
+    R : object or None
+        This call's measurement noise (only whether it is given is read).
+    dim_z : int
+        The filter's measurement size.
+    R_dim : callable
+        The size of the filter's own ``R``, asked only for a ``z`` of another
+        length given without ``R``.
+    hx_noise : int
+        Dimension of the noise entering ``hx`` (0: additive).
+
+    Returns
+    -------
+    (z, observed) or None
+        ``z`` of shape ``(m,)``; ``observed`` the mask of the measured
+        components, or None when all are.
+    """
+    if z is None:
+        return None
+    arr = as_measurements(z, "z")
+    if arr.ndim != 1:
+        if arr.ndim == 0:
+            arr = arr.reshape(1)
+        elif arr.ndim == 2 and 1 in arr.shape:
+            arr = arr.reshape(-1)
+        else:
+            raise ShapeError(f"z has shape {np.shape(z)}, expected ({dim_z},)")
+    observed = None
+    if not all_finite(arr):
+        finite = np.isfinite(arr)
+        nan = np.isnan(arr)
+        if not (finite | nan).all():
+            raise NonFiniteError(f"z contains inf (NaN means a missing component): {arr!r}")
+        if nan.all():
+            return None
+        observed = ~nan
+    if R is None and arr.shape[0] != dim_z and not hx_noise:
+        Rdim = R_dim()
+        if Rdim != arr.shape[0]:
+            raise ShapeError(
+                f"z has length {arr.shape[0]} but dim_z is {dim_z} and R is {Rdim}x{Rdim};"
+                " pass R= (and hx=) for a measurement of another size"
+            )
+    return arr, observed
+
+
+def measurements(z, K: int, m: int, name: str = "z") -> np.ndarray:
+    """One step's measurements of ``K`` filters, ``(K, m)`` (``(K,)`` too when ``m`` is 1).
+
+    Parameters
+    ----------
+    z : array_like, shape (K, m)
+        NaN rows: no measurement for that filter; NaN (or masked) entries
+        are missing components; inf is an error.
+    K, m : int
+        Number of filters and measurement size.
+    name : str
+        For messages (``zs[3]`` for a step of a run).
+
+    Returns
+    -------
+    ndarray, shape (K, m)
+    """
+    if z is None:
+        raise ShapeError(
+            f"{name} is None: a fleet's step needs a ({K}, {m}) array"
+            " (NaN rows for filters without a measurement)"
+        )
+    zz = as_measurements(z, name)
+    if zz.shape == (K,) and m == 1:
+        zz = zz[:, None]
+    if zz.shape != (K, m):
+        raise ShapeError(f"{name} has shape {zz.shape}, expected ({K}, {m})")
+    if np.isinf(zz).any():
+        k = int(np.flatnonzero(np.isinf(zz).any(axis=1))[0])
+        raise NonFiniteError(f"{name} contains inf (row {k}; NaN means a missing component)")
+    return zz
+
+
+def measurement_series(zs, K: int, m: int) -> np.ndarray:
+    """A run's measurements of ``K`` filters, ``(K, T, m)``.
+
+    Parameters
+    ----------
+    zs : array_like, shape (K, T, m) or (K, T) when ``m`` is 1, or an iterable of (K, m) arrays
+        Lists and tuples are read as the array; any other iterable yields one
+        step at a time, each checked by :func:`measurements` (naming it ``zs[t]``).
+    K, m : int
+        Number of filters and measurement size.
+
+    Returns
+    -------
+    Z : ndarray, shape (K, T, m)
+    """
+    if not isinstance(zs, (np.ndarray, list, tuple)):  # a MaskedArray is an ndarray
+        # a generator, an iterator, tqdm(...): one (K, dim_z) array per step, each checked
+        it = iter_measurements(zs)
+        steps_read = [measurements(z, K, m, f"zs[{t}]") for t, z in enumerate(it)]
+        zs = np.stack(steps_read, axis=1) if steps_read else np.zeros((K, 0, m))
+    Z = as_measurements(zs, "zs")
+    if Z.ndim == 2 and m == 1:
+        Z = Z[..., None]
+    if Z.ndim != 3 or Z.shape[0] != K or Z.shape[2] != m:
+        raise ShapeError(f"zs has shape {Z.shape}, expected ({K}, T, {m})")
+    if np.isinf(Z).any():
+        k, t = (int(i[0]) for i in np.nonzero(np.isinf(Z).any(axis=2)))
+        raise NonFiniteError(f"zs contains inf (filter {k}, step {t}; NaN means a missing component)")
+    return Z
+
+
+def with_filter_axis(kwargs: dict, K: int) -> dict:
+    """Per-filter array arguments (leading axis ``K``) get a sigma-point axis, to broadcast against X.
+
+    Parameters
+    ----------
+    kwargs : dict
+        Keyword arguments of a model function; an ndarray of shape
+        ``(K, ...)`` becomes ``(K, 1, ...)``.
+    K : int
+
+    Returns
+    -------
+    dict
+        A new dict.
+    """
+    out = {}
+    for key, v in kwargs.items():
+        if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == K:
+            v = v.reshape((K, 1) + v.shape[1:])
+        out[key] = v
+    return out
+
+
+def evaluate(fn: Callable, sigmas: np.ndarray, args: tuple, kwargs: dict, vectorized: bool) -> object:
+    """A model function at sigma points ``(N, n)``: once with all of them, or once per point.
+
+    Parameters
+    ----------
+    fn : callable
+        ``fn(sigmas, *args, **kwargs)`` when ``vectorized``, else ``fn(sigma, *args, **kwargs)``.
+    sigmas : ndarray, shape (N, n)
+    args : tuple
+        ``(dt,)`` for ``fx``, ``()`` for ``hx``.
+    kwargs : dict
+    vectorized : bool
+
+    Returns
+    -------
+    object
+        What ``fn`` returned (vectorised), or the list of its ``N`` results.
+    """
+    if vectorized:
+        return fn(sigmas, *args, **kwargs)
+    # one call per point: spelled out for the common cases, since unpacking *args and
+    # **kwargs at every call costs more than the loop itself
+    if kwargs:
+        return [fn(s, *args, **kwargs) for s in sigmas]
+    if not args:
+        return [fn(s) for s in sigmas]
+    if len(args) == 1:
+        dt = args[0]
+        return [fn(s, dt) for s in sigmas]
+    return [fn(s, *args) for s in sigmas]
+
+
+def stacked_images(values, shape: tuple, name: str, active, fails: dict, copy: bool) -> tuple:
+    """A stack's model-function images checked: their shape for all, finiteness per filter.
+
+    Parameters
+    ----------
+    values : array_like, shape ``shape``
+        ``fx`` or ``hx`` at the sigma points of ``K`` filters, ``(K, N, d)``.
+    shape : tuple of int
+        What ``values`` must be.
+    name : {"fx values", "hx values"}
+        For messages.
+    active : ndarray of bool, shape (K,)
+        The filters whose images count (not flagged, measured).
+    fails : dict
+        An active filter with a non-finite image is added, ``filter -> reason``,
+        described by its own rows (as one filter's error would say it).
+    copy : bool
+        Whether a float64 ndarray is copied (``hx``) or taken as it is (``fx``:
+        the step copies it only if it keeps it).
+
+    Returns
+    -------
+    images : ndarray, shape ``shape``
+    finite : ndarray of bool, shape (K,)
+        Which filters' images are finite.
+    """
+    if not copy and isinstance(values, np.ndarray) and values.dtype == np.float64:
+        A = values
+    else:
+        A = as_float_array(values, name)
+    if A.shape != shape:
+        raise ShapeError(f"{name} have shape {A.shape}, expected {shape}")
+    finite = np.isfinite(A.reshape(A.shape[0], -1)).all(axis=1)
+    for k in np.flatnonzero(active & ~finite).tolist():
+        fails.setdefault(int(k), f"NonFiniteError: {describe_nonfinite(A[k], name)}")
+    return A, finite
+
+
+def model_noise(fx: Callable, hx: Callable, fx_noise, hx_noise) -> tuple[int, int]:
+    """The dimensions of the noise entering ``fx`` and ``hx``, checked with the functions that take it.
+
+    Parameters
+    ----------
+    fx, hx : callable
+        With noise, ``fx(x, w, dt)`` and ``hx(x, v)`` must take it (:mod:`squkf.noise`).
+    fx_noise, hx_noise : int or None
+        None: additive noise.
+
+    Returns
+    -------
+    (int, int)
+        The dimensions, 0 for additive noise.
+    """
+    dw = check_noise_dim(fx_noise, "fx_noise")
+    dv = check_noise_dim(hx_noise, "hx_noise")
+    check_accepts_noise(fx, "fx", dw, 3)
+    check_accepts_noise(hx, "hx", dv, 2)
+    return dw, dv
+
+
+def refuse_smoother_noise(fx_noise: int, who: str) -> None:
+    """The RTS smoothers take additive process noise only: refuse a ``filter`` or ``fleet`` with ``fx_noise``.
+
+    Parameters
+    ----------
+    fx_noise : int
+        Dimension of the noise entering ``fx`` (0: additive).
+    who : {"filter", "fleet"}
+        For the message.
+    """
+    if fx_noise:
+        raise ParameterError(
+            f"the RTS smoother takes additive process noise only; this {who} has fx_noise={fx_noise}"
+        )

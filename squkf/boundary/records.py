@@ -1,0 +1,187 @@
+"""The records handed out: a fleet's run (:class:`FleetResult`), the last update's of one filter.
+
+Also the arrays a fleet's run fills and the error of its failing filters.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from ..errors import FleetStepError
+from ..linalg import solve_lower
+from ..measurement import gain_from_factors
+
+__all__ = ["FleetResult", "Records", "embed", "failures_error", "gain", "innovation_inverse", "new_records"]
+
+
+@dataclass
+class FleetResult:
+    """What :meth:`Fleet.batch_filter` returns.
+
+    Attributes
+    ----------
+    means : ndarray, shape (K, T, n), or None
+        Posterior means (None with ``keep="final"``).
+    P1_2s : ndarray, shape (K, T, n, n), or None
+        Posterior lower factors (only with ``keep="all"``).
+    variances : ndarray, shape (K, T, n), or None
+        The diagonals of the posterior covariances (with ``keep="all"`` or ``"diagonals"``).
+    log_likelihood : ndarray, shape (K, T), or (K,) with ``keep="final"``
+        Of each step's measurement (0 where a filter had no measurement or had
+        failed); with ``keep="final"`` their sum over the run.
+    failed : ndarray of bool, shape (K,)
+        Filters flagged by the end of the run (their later entries repeat their last good state).
+    x, P1_2 : ndarray, shapes (K, n) and (K, n, n)
+        The final state.
+    rejected : ndarray, shape (K, T, m) of bool, or (K, m) of int with ``keep="final"``
+        The measurement components each filter's gate rejected at each step
+        (with ``keep="final"``: how many steps each component was rejected).
+        All False (zero) without a gate.
+    nis : ndarray, shape (K, T), or None with ``keep="final"``
+        Each step's normalised innovation squared (0 where a filter had no
+        measurement or had failed).
+    """
+
+    means: np.ndarray | None
+    P1_2s: np.ndarray | None
+    variances: np.ndarray | None
+    log_likelihood: np.ndarray
+    failed: np.ndarray
+    x: np.ndarray
+    P1_2: np.ndarray
+    rejected: np.ndarray | None = None
+    nis: np.ndarray | None = None
+
+
+class Records(NamedTuple):
+    """The arrays a fleet's batch run fills, step by step (None: not kept)."""
+
+    means: np.ndarray | None
+    factors: np.ndarray | None
+    variances: np.ndarray | None
+    loglik: np.ndarray
+    rejected: np.ndarray
+    nis: np.ndarray | None
+
+
+def new_records(keep: str, K: int, T: int, n: int, m: int) -> Records:
+    """The arrays of a run of ``T`` steps of ``K`` filters that ``keep`` asks for.
+
+    Parameters
+    ----------
+    keep : {"all", "diagonals", "means", "final"}
+    K, T, n, m : int
+        Filters, steps, state and measurement sizes.
+
+    Returns
+    -------
+    Records
+        ``means (K, T, n)``, ``factors (K, T, n, n)``, ``variances (K, T, n)``,
+        ``loglik (K, T)`` (``(K,)`` with ``"final"``), ``rejected (K, T, m)``
+        of bool (``(K, m)`` counts with ``"final"``), ``nis (K, T)``.
+    """
+    means = None if keep == "final" else np.empty((K, T, n))
+    factors = np.empty((K, T, n, n)) if keep == "all" else None
+    variances = np.empty((K, T, n)) if keep in ("all", "diagonals") else None
+    loglik = np.zeros((K, T)) if keep != "final" else np.zeros(K)
+    rejected = np.zeros((K, T, m), dtype=bool) if keep != "final" else np.zeros((K, m), dtype=np.int64)
+    nis = np.zeros((K, T)) if keep != "final" else None
+    return Records(means, factors, variances, loglik, rejected, nis)
+
+
+def failures_error(fails: dict[int, str], during: str = "") -> FleetStepError:
+    """The error of a step (or a smoothing run) in which the filters ``fails`` failed numerically.
+
+    Parameters
+    ----------
+    fails : dict
+        Filter index -> the reason it failed.
+    during : str
+        Appended to "failed numerically" (``" while smoothing"``).
+
+    Returns
+    -------
+    FleetStepError
+        Naming the first five filters; ``filters`` and ``reasons`` hold all.
+    """
+    ks = sorted(fails)
+    return FleetStepError(
+        f"{len(ks)} filter(s) failed numerically{during}: "
+        + "; ".join(f"filter {k}: {fails[k]}" for k in ks[:5])
+        + (" ..." if len(ks) > 5 else ""),
+        ks,
+        [fails[k] for k in ks],
+    )
+
+
+def embed(block: np.ndarray, observed: np.ndarray | None, fill: float) -> np.ndarray:
+    """A one-filter ``(m, m)`` record of the last update from its observed block (``fill`` elsewhere).
+
+    Parameters
+    ----------
+    block : ndarray, shape (o, o)
+        Over the measured components.
+    observed : ndarray of bool, shape (m,), or None
+        The measured components (None: all, ``o == m``).
+    fill : float
+
+    Returns
+    -------
+    ndarray, shape (m, m)
+        A new array.
+    """
+    if observed is None:
+        return block.copy()
+    out = np.full((observed.shape[0], observed.shape[0]), fill)
+    out[np.ix_(observed, observed)] = block
+    return out
+
+
+def innovation_inverse(Sy: np.ndarray, observed: np.ndarray | None) -> np.ndarray:
+    """``S^-1`` of one filter's last update from its innovation factor, by triangular solves.
+
+    Parameters
+    ----------
+    Sy : ndarray, shape (o, o)
+        The innovation factor over the measured components.
+    observed : ndarray of bool, shape (m,), or None
+
+    Returns
+    -------
+    ndarray, shape (m, m)
+        NaN outside the measured block; all NaN-embedded zeros for a singular factor.
+    """
+    m = Sy.shape[0]
+    if not np.all(Sy.diagonal() != 0):
+        return embed(np.zeros((m, m)), observed, np.nan)
+    W = solve_lower(Sy, np.eye(m))
+    return embed(W.T @ W, observed, np.nan)
+
+
+def gain(Sy: np.ndarray, L21: np.ndarray, measured: bool, observed: np.ndarray | None, n: int) -> np.ndarray:
+    """One filter's Kalman gain of the last update, ``(n, m)``, zero columns where not measured.
+
+    Parameters
+    ----------
+    Sy : ndarray, shape (o, o)
+        The innovation factor over the measured components.
+    L21 : ndarray, shape (n, o)
+        ``K Sy`` over them.
+    measured : bool
+        Whether an update has happened (else the gain is zero).
+    observed : ndarray of bool, shape (m,), or None
+    n : int
+
+    Returns
+    -------
+    ndarray, shape (n, m)
+    """
+    K = gain_from_factors(Sy, L21) if measured else np.zeros_like(L21)
+    if observed is not None:
+        full = np.zeros((n, observed.shape[0]))
+        full[:, observed] = K
+        K = full
+    return K

@@ -1,0 +1,184 @@
+"""``squkf.boundary``: each check written once serves one filter (batch shape ``()``) and a fleet (``(K,)``).
+
+The checks say the same of the same input whichever front end is given it;
+a transaction puts a filter back on any error; a filter's configuration is
+one record the other front ends read; and no module reaches into another's
+private members, nor do the modules import each other in a cycle.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import numpy as np
+import pytest
+from models import CV3_K, CV3_NZ, assert_fleet_state, fleet_state, make_cv3_fleet
+
+import squkf
+from squkf.boundary import config, factors, inputs, loop, records
+from squkf.errors import FleetStepError, NonFiniteError, ParameterError, ShapeError
+
+PACKAGE = Path(squkf.__file__).resolve().parent
+
+
+def test_sizes_are_positive_integers_with_one_message():
+    assert inputs.check_sizes(dim_x=np.int64(3), dim_z=1) == (3, 1)
+    for bad in (0, True, 2.0, "2"):
+        with pytest.raises(ParameterError, match=r"dim_z must be a positive integer, got dim_z="):
+            inputs.check_sizes(dim_x=2, dim_z=bad)
+
+
+def test_one_filters_measurement_and_a_stacks_read_the_same_components():
+    z = np.array([1.0, np.nan, 3.0])
+    one = inputs.measurement(z, None, 3, lambda: 3, 0)
+    assert one is not None
+    arr, observed = one
+    np.testing.assert_array_equal(observed, [True, False, True])
+    stacked = inputs.measurements(np.stack([z, z]), 2, 3)
+    np.testing.assert_array_equal(~np.isnan(stacked[0]), observed)
+    assert inputs.measurement(np.full(3, np.nan), None, 3, lambda: 3, 0) is None
+    with pytest.raises(NonFiniteError, match="inf"):
+        inputs.measurement(np.array([1.0, np.inf, 0.0]), None, 3, lambda: 3, 0)
+    with pytest.raises(NonFiniteError, match=r"row 1"):
+        inputs.measurements(np.array([[1.0, 0.0, 0.0], [np.inf, 0.0, 0.0]]), 2, 3)
+    with pytest.raises(ShapeError, match=r"z is None"):
+        inputs.measurements(None, 2, 3)
+
+
+def test_a_series_of_steps_is_read_as_the_array():
+    zs = np.arange(12.0).reshape(2, 3, 2)
+    from_steps = inputs.measurement_series(iter([zs[:, t] for t in range(3)]), 2, 2)
+    np.testing.assert_array_equal(from_steps, inputs.measurement_series(zs, 2, 2))
+    with pytest.raises(ShapeError, match=r"zs\[1\]"):
+        inputs.measurement_series(iter([zs[:, 0], zs[:, 1, :1]]), 2, 2)
+
+
+def test_a_given_covariance_is_factored_once_shared_or_per_filter():
+    A = np.array([[4.0, 2.0], [2.0, 3.0]])
+    S = factors.noise_factors(A, "R", 2, 3)
+    np.testing.assert_allclose(S @ S.T, A)
+    per = factors.noise_factors(np.stack([A, 2 * A, 3 * A]), "R", 2, 3)
+    np.testing.assert_array_equal(per[0], S)
+    np.testing.assert_allclose(per[2] @ per[2].T, 3 * A)
+    with pytest.raises(ShapeError, match=r"expected \(2, 2\) or \(3, 2, 2\)"):
+        factors.noise_factors(np.zeros((2, 2, 2)), "R", 2, 3)
+    cache: dict = {}
+    one = factors.noise_factor(A, "R", 2, lambda: None, cache)
+    np.testing.assert_array_equal(one, np.linalg.cholesky(A))
+    assert factors.noise_factor(A, "R", 2, lambda: None, cache) is one  # the same array: not factored again
+    Ps = factors.covariance_factors(A, "P", 2, 3)
+    assert Ps.shape == (3, 2, 2) and np.array_equal(Ps[1], Ps[0])
+
+
+def test_a_transaction_puts_back_what_was_taken_on_any_error():
+    state = {"x": 1}
+    taken = loop.Transaction(lambda: dict(state), lambda s: (state.clear(), state.update(s)))
+    with pytest.raises(KeyboardInterrupt), taken:
+        state["x"] = 2
+        raise KeyboardInterrupt
+    assert state == {"x": 1}
+    with taken:
+        state["x"] = 3
+    assert state == {"x": 3}
+
+
+def test_a_fleet_run_that_fails_leaves_the_fleet_as_it_was():
+    fleet = make_cv3_fleet()
+    before = fleet_state(fleet)
+
+    def failing_hx(X):
+        raise RuntimeError("broken sensor")
+
+    fleet.hx = failing_hx
+    with pytest.raises(RuntimeError, match="broken sensor"):
+        fleet.batch_filter(np.zeros((CV3_K, 4, CV3_NZ)))
+    assert_fleet_state(fleet, before)
+
+
+def test_the_fleets_failures_error_names_the_filters():
+    exc = records.failures_error({4: "b", 1: "a"}, " while smoothing")
+    assert isinstance(exc, FleetStepError)
+    assert exc.filters == (1, 4) and exc.reasons == ("a", "b")
+    assert str(exc).startswith("2 filter(s) failed numerically while smoothing: filter 1: a")
+    assert squkf.FleetStepError is FleetStepError and squkf.FleetResult is records.FleetResult
+
+
+def test_a_configuration_goes_from_a_fleet_to_a_filter_and_back():
+    fleet = make_cv3_fleet()
+    c = fleet.configuration()
+    one = fleet[1]
+    back = one.configuration()
+    assert config.common_config([back, back]) is back
+    assert (back.dim_x, back.dim_z, back.dt, back.fx, back.hx) == (c.dim_x, c.dim_z, c.dt, c.fx, c.hx)
+    np.testing.assert_array_equal(back.R1_2, c.R1_2)
+    assert config.filter_kwargs(back)["scheme"] is c.scheme
+    with pytest.raises(ParameterError, match="differs in configuration"):
+        config.common_config([back, back._replace(dt=2.0)])
+
+
+def _imports(path: Path) -> set[str]:
+    """The squkf modules a module imports, at its top or inside functions."""
+    tree = ast.parse(path.read_text())
+    rel = path.relative_to(PACKAGE.parent).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    package = parts if path.name == "__init__.py" else parts[:-1]
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.level:
+            base = package[: len(package) - node.level + 1]
+            mod = ".".join(base + ([node.module] if node.module else []))
+            names = [mod] if node.module else [f"{mod}.{a.name}" for a in node.names]
+            out.update(names)
+        elif isinstance(node, ast.Import):
+            out.update(a.name for a in node.names if a.name.startswith("squkf"))
+    return out
+
+
+def _modules() -> dict[str, set[str]]:
+    graph = {}
+    for path in PACKAGE.rglob("*.py"):
+        if "kernels" in path.parts or "examples" in path.parts:
+            continue
+        rel = path.relative_to(PACKAGE.parent).with_suffix("")
+        name = ".".join(rel.parts[:-1] if rel.name == "__init__" else rel.parts)
+        graph[name] = _imports(path)
+    return graph
+
+
+def test_the_front_ends_and_the_smoother_import_each_other_in_no_cycle():
+    graph = _modules()
+    known = {m: {d for d in deps if d in graph and d != m} for m, deps in graph.items()}
+    seen: dict[str, int] = {}
+
+    def visit(m, path):
+        if seen.get(m) == 1:
+            raise AssertionError(f"import cycle: {' -> '.join(path + [m])}")
+        if seen.get(m) == 2:
+            return
+        seen[m] = 1
+        for d in sorted(known[m]):
+            if d != "squkf":  # the package's __init__ imports every front end, as it should
+                visit(d, path + [m])
+        seen[m] = 2
+
+    for m in sorted(known):
+        if m != "squkf":
+            visit(m, [])
+
+
+@pytest.mark.parametrize("module", ["smoother", "batch", "dask", "boundary/config", "boundary/loop"])
+def test_no_module_reads_a_front_ends_private_members(module):
+    tree = ast.parse((PACKAGE / f"{module}.py").read_text())
+    reads = [
+        f"{node.value.id}.{node.attr}"
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Attribute)
+        and node.attr.startswith("_")
+        and not node.attr.startswith("__")
+        and isinstance(node.value, ast.Name)
+        and node.value.id in ("ukf", "fleet", "f", "f0", "filters")
+    ]
+    assert not reads, reads
