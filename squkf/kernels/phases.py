@@ -77,6 +77,11 @@ _TINY = float(np.finfo(np.float64).tiny)
 _LOG_2PI = math.log(2.0 * math.pi)
 #: The decorator of every kernel and helper: compiled on first call, cached on disk, releases the GIL.
 kernel = njit(cache=True, nogil=True, error_model="numpy")
+#: The decorator of a lane helper's body, inlined (numba IR) into its dispatcher, which calls it twice:
+#: with ``nb`` the constant 1 when the block has one lane, so that LLVM folds every lane loop away (one
+#: filter: long scalar loops instead of vectoriser checks on loops of trip count one), and with the run-time
+#: ``nb`` otherwise. The same source, so the same operations in the same order on every lane.
+_inline = njit(cache=True, nogil=True, error_model="numpy", inline="always")
 _LANES = 64
 _SCRATCH = 32768  # entries of the largest lane scratch array (keeps a block's arrays in cache)
 
@@ -105,8 +110,8 @@ def _tria_lapack(At, c, r, nb):
                 At[l, j, b] = s * F[j + l * r]
 
 
-@kernel
-def tria_lanes(At, c, r, nb, V):
+@_inline
+def _tria_lanes_nb(At, c, r, nb, V):
     """Householder QR of ``nb`` row matrices ``A`` (``r x c``) held transposed.
 
     On return the lower triangle of ``At[:c, :min(c, r), b]`` is ``L`` with
@@ -178,7 +183,16 @@ def tria_lanes(At, c, r, nb, V):
 
 
 @kernel
-def solve_lower_lanes(L, y, n, nb, trans):
+def tria_lanes(At, c, r, nb, V):
+    """:func:`_tria_lanes_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _tria_lanes_nb(At, c, r, 1, V)
+    else:
+        _tria_lanes_nb(At, c, r, nb, V)
+
+
+@_inline
+def _solve_lower_lanes_nb(L, y, n, nb, trans):
     """Solve ``L w = y`` (or ``L.T w = y``) in place for lower-triangular ``L``, on lanes.
 
     Parameters
@@ -208,7 +222,16 @@ def solve_lower_lanes(L, y, n, nb, trans):
 
 
 @kernel
-def chol_update_lanes(L, v, n, nb, sign, fail, V):
+def solve_lower_lanes(L, y, n, nb, trans):
+    """:func:`_solve_lower_lanes_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _solve_lower_lanes_nb(L, y, n, 1, trans)
+    else:
+        _solve_lower_lanes_nb(L, y, n, nb, trans)
+
+
+@_inline
+def _chol_update_lanes_nb(L, v, n, nb, sign, fail, V):
     """Rank-1 update (``sign > 0``) or downdate of lower factors in place, in O(n^2), on lanes.
 
     ``L1 @ L1.T == L @ L.T + sign * outer(v, v)`` by one rotation per
@@ -256,6 +279,15 @@ def chol_update_lanes(L, v, n, nb, sign, fail, V):
 
 
 @kernel
+def chol_update_lanes(L, v, n, nb, sign, fail, V):
+    """:func:`_chol_update_lanes_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _chol_update_lanes_nb(L, v, n, 1, sign, fail, V)
+    else:
+        _chol_update_lanes_nb(L, v, n, nb, sign, fail, V)
+
+
+@kernel
 def _lanes(size, B):
     """Lanes per block for a scratch matrix of ``size`` entries per filter: 64 at most, and no
     more than the ``B`` filters there are (one filter's scratch is then contiguous)."""
@@ -275,8 +307,8 @@ def _source(mode, r, N):
 # sets stay a loop per filter (contiguous rows: faster there, measured).
 
 
-@kernel
-def _load_points(P, k0, nb, Pl):
+@_inline
+def _load_points_nb(P, k0, nb, Pl):
     """``Pl[l, i, b] = P[k0 + b, i, l]``."""
     N, d = P.shape[1], P.shape[2]
     Q = P[k0 : k0 + nb]
@@ -287,7 +319,16 @@ def _load_points(P, k0, nb, Pl):
 
 
 @kernel
-def _load_vector(a, k0, nb, al):
+def _load_points(P, k0, nb, Pl):
+    """:func:`_load_points_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _load_points_nb(P, k0, 1, Pl)
+    else:
+        _load_points_nb(P, k0, nb, Pl)
+
+
+@_inline
+def _load_vector_nb(a, k0, nb, al):
     """``al[l, b] = a[k0 + b, l]``, or ``a[0, l]`` for a shared ``a``."""
     if a.shape[0] == 1:
         for l in range(a.shape[1]):
@@ -302,7 +343,16 @@ def _load_vector(a, k0, nb, al):
 
 
 @kernel
-def _load_matrix(a, k0, nb, al):
+def _load_vector(a, k0, nb, al):
+    """:func:`_load_vector_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _load_vector_nb(a, k0, 1, al)
+    else:
+        _load_vector_nb(a, k0, nb, al)
+
+
+@_inline
+def _load_matrix_nb(a, k0, nb, al):
     """``al[i, j, b] = a[k0 + b, i, j]``, or ``a[0, i, j]`` for a shared ``a``."""
     if a.shape[0] == 1:
         for i in range(a.shape[1]):
@@ -319,7 +369,16 @@ def _load_matrix(a, k0, nb, al):
 
 
 @kernel
-def _store_lower(L, i0, j0, n, k0, nb, out):
+def _load_matrix(a, k0, nb, al):
+    """:func:`_load_matrix_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _load_matrix_nb(a, k0, 1, al)
+    else:
+        _load_matrix_nb(a, k0, nb, al)
+
+
+@_inline
+def _store_lower_nb(L, i0, j0, n, k0, nb, out):
     """``out[k0 + b] = tril(L[i0:i0 + n, j0:j0 + n, b])``."""
     Q = out[k0 : k0 + nb]
     for i in range(n):
@@ -333,7 +392,16 @@ def _store_lower(L, i0, j0, n, k0, nb, out):
 
 
 @kernel
-def _deviations(Pl, N, d, nb, mode, wm, mean):
+def _store_lower(L, i0, j0, n, k0, nb, out):
+    """:func:`_store_lower_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _store_lower_nb(L, i0, j0, n, k0, 1, out)
+    else:
+        _store_lower_nb(L, i0, j0, n, k0, nb, out)
+
+
+@_inline
+def _deviations_nb(Pl, N, d, nb, mode, wm, mean):
     """The rows of a form in place in ``Pl`` (``d x N x nb``) and the mean in ``mean`` (``d x nb``).
 
     Mode 2 changes nothing: the rows are given and ``mean`` already holds the reference.
@@ -364,7 +432,16 @@ def _deviations(Pl, N, d, nb, mode, wm, mean):
 
 
 @kernel
-def _state_rows(Xl, N, n, nb, mode, wm, xref):
+def _deviations(Pl, N, d, nb, mode, wm, mean):
+    """:func:`_deviations_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _deviations_nb(Pl, N, d, 1, mode, wm, mean)
+    else:
+        _deviations_nb(Pl, N, d, nb, mode, wm, mean)
+
+
+@_inline
+def _state_rows_nb(Xl, N, n, nb, mode, wm, xref):
     """State rows in place in ``Xl``: central (mode 0), ``X - xref`` (1), as given (2)."""
     if mode == 0:
         for l in range(n):
@@ -386,7 +463,16 @@ def _state_rows(Xl, N, n, nb, mode, wm, xref):
 
 
 @kernel
-def _factor_lanes(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, fl, st):
+def _state_rows(Xl, N, n, nb, mode, wm, xref):
+    """:func:`_state_rows_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _state_rows_nb(Xl, N, n, 1, mode, wm, xref)
+    else:
+        _state_rows_nb(Xl, N, n, nb, mode, wm, xref)
+
+
+@_inline
+def _factor_lanes_nb(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, fl, st):
     """Factor weighted rows and a noise factor in place in ``At`` (``L = At`` below its diagonal).
 
     Each row is ``[D1[:, r], D2[:, r]]`` (``d1 + d2`` entries, row ``r`` of form ``mode`` in the
@@ -452,6 +538,15 @@ def _factor_lanes(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, 
             for b in range(nb):
                 code = r + 1 if split == 0 else (301 if fl[b] < split else 303)
                 st[b] = code if (fl[b] >= 0 and st[b] == 0) else st[b]
+
+
+@kernel
+def _factor_lanes(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, fl, st):
+    """:func:`_factor_lanes_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _factor_lanes_nb(D1, D2, N, 1, mode, scale, sign, noise, k0, split, At, V, v, fl, st)
+    else:
+        _factor_lanes_nb(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, fl, st)
 
 
 @kernel
@@ -554,6 +649,46 @@ def chol_update_kernel(L, v, sign, out, fail):
         _store_lower(Ll, 0, 0, n, k0, nb, out)
 
 
+@_inline
+def _offsets_nb(Sl, xi, gamma, N, n, nb, Dl):
+    """The offsets ``Dl[i, l, b] = (xi[i] @ S_b.T)[l]`` of :func:`points_kernel` (``S_b = Sl[:, :, b]``).
+
+    For axis points, ``[0; gamma I; -gamma I]`` (``N = 2n + 1``) or ``[gamma I; -gamma I]`` (``N = 2n``),
+    they are ``+/- gamma`` times the columns of ``S_b``. Point-major, so that one filter's offsets are
+    its output's rows.
+    """
+    if gamma != 0.0:
+        o = N - 2 * n  # 1 with the central point, else 0
+        if o == 1:
+            for l in range(n):
+                for b in range(nb):
+                    Dl[0, l, b] = 0.0
+        for j in range(n):
+            for l in range(n):
+                for b in range(nb):
+                    s = gamma * Sl[l, j, b] if j <= l else 0.0
+                    Dl[o + j, l, b] = s
+                    Dl[o + n + j, l, b] = -s
+    else:
+        for i in range(N):
+            for l in range(n):
+                for b in range(nb):
+                    Dl[i, l, b] = 0.0
+                for j in range(l + 1):
+                    c = xi[i, j]
+                    for b in range(nb):
+                        Dl[i, l, b] += c * Sl[l, j, b]
+
+
+@kernel
+def _offsets(Sl, xi, gamma, N, n, nb, Dl):
+    """:func:`_offsets_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _offsets_nb(Sl, xi, gamma, N, n, 1, Dl)
+    else:
+        _offsets_nb(Sl, xi, gamma, N, n, nb, Dl)
+
+
 @kernel
 def points_kernel(x, S, xi, gamma, X, dX):
     """Sigma points ``X[k, i] = x[k] + dX[k, i]`` with offsets ``dX[k, i] = xi[i] @ S[k].T``.
@@ -566,9 +701,9 @@ def points_kernel(x, S, xi, gamma, X, dX):
     xi : ndarray, shape (N, n)
         Unit points.
     gamma : float
-        Non-zero when ``xi`` is ``[0; gamma I; -gamma I]``: the offsets are
-        then ``+/- gamma`` times the columns of ``S`` (the same numbers as the
-        product, in O(n^2)).
+        Non-zero when ``xi`` is ``[0; gamma I; -gamma I]`` or ``[gamma I; -gamma I]``:
+        the offsets are then ``+/- gamma`` times the columns of ``S`` (the same
+        numbers as the product, in O(n^2)).
     X, dX : ndarray, shape (B, N, n)
         Outputs.
     """
@@ -576,35 +711,18 @@ def points_kernel(x, S, xi, gamma, X, dX):
     nl = _lanes(N * n, B)
     Sl = np.empty((n, n, nl))
     xl = np.empty((n, nl))
-    Dl = np.empty((n, N, nl))
+    Dl = np.empty((N, n, nl))
     for k0 in range(0, B, nl):
         nb = min(nl, B - k0)
         _load_matrix(S, k0, nb, Sl)
         _load_vector(x, k0, nb, xl)
-        if gamma != 0.0:
-            for l in range(n):
-                for b in range(nb):
-                    Dl[l, 0, b] = 0.0
-                for j in range(n):
-                    for b in range(nb):
-                        s = gamma * Sl[l, j, b] if j <= l else 0.0
-                        Dl[l, 1 + j, b] = s
-                        Dl[l, 1 + n + j, b] = -s
-        else:
-            for i in range(N):
-                for l in range(n):
-                    for b in range(nb):
-                        Dl[l, i, b] = 0.0
-                    for j in range(l + 1):
-                        c = xi[i, j]
-                        for b in range(nb):
-                            Dl[l, i, b] += c * Sl[l, j, b]
+        _offsets(Sl, xi, gamma, N, n, nb, Dl)
         for b in range(nb):
             Xk = X[k0 + b]
             Dk = dX[k0 + b]
             for i in range(N):
                 for l in range(n):
-                    d = Dl[l, i, b]
+                    d = Dl[i, l, b]
                     Dk[i, l] = d
                     Xk[i, l] = xl[l, b] + d
 
@@ -663,8 +781,8 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status):
         _store_lower(At, 0, 0, d, k0, nb, S)
 
 
-@kernel
-def _paired_rows(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V):
+@_inline
+def _paired_rows_nb(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V):
     """The rotated joint rows of axis points (``joint_update_kernel``'s ``pair``) into ``At``.
 
     ``Hl``, ``Xl`` hold the central form's deviations (``mu`` in slot 0); pair ``j`` is points
@@ -698,6 +816,15 @@ def _paired_rows(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V):
         for i in range(m):
             for b in range(nb):
                 At[m + l, h + i, b] = 0.0
+
+
+@kernel
+def _paired_rows(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V):
+    """:func:`_paired_rows_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _paired_rows_nb(Hl, Xl, R1_2, k0, 1, N, m, n, c, mus, Zt, At, V)
+    else:
+        _paired_rows_nb(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V)
 
 
 @kernel
@@ -849,8 +976,8 @@ def _likelihood(Sy, w, m, k0, nb, ll, ww):
         ll[k0 + b] = -0.5 * (m * _LOG_2PI + 2.0 * logdet + s)
 
 
-@kernel
-def _innovation(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
+@_inline
+def _innovation_nb(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
     """From the innovation factor: g13ej's 302 unless ``Sy`` is regular, ``w = Sy^-1 y``, the
     likelihood, and ``dx = L21 w`` with ``L21`` the rows ``r0 .. r0 + n`` of its buffer."""
     for b in range(nb):
@@ -869,6 +996,15 @@ def _innovation(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
         for j in range(m):
             for b in range(nb):
                 dxl[l, b] += L21[r0 + l, j, b] * wl[j, b]
+
+
+@kernel
+def _innovation(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
+    """:func:`_innovation_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _innovation_nb(Sy, L21, r0, yl, wl, dxl, m, n, k0, 1, st, ll, ww)
+    else:
+        _innovation_nb(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww)
 
 
 @kernel
