@@ -309,13 +309,13 @@ def _source(mode, r, N):
 
 @_inline
 def _load_points_nb(P, k0, nb, Pl):
-    """``Pl[l, i, b] = P[k0 + b, i, l]``."""
+    """``Pl[i, l, b] = P[k0 + b, i, l]`` (point-major: one filter's points are copied as they are)."""
     N, d = P.shape[1], P.shape[2]
     Q = P[k0 : k0 + nb]
     for i in range(N):
         for l in range(d):
             for b in range(nb):
-                Pl[l, i, b] = Q[b, i, l]
+                Pl[i, l, b] = Q[b, i, l]
 
 
 @kernel
@@ -402,33 +402,43 @@ def _store_lower(L, i0, j0, n, k0, nb, out):
 
 @_inline
 def _deviations_nb(Pl, N, d, nb, mode, wm, mean):
-    """The rows of a form in place in ``Pl`` (``d x N x nb``) and the mean in ``mean`` (``d x nb``).
+    """The rows of a form in place in ``Pl`` (``N x d x nb``) and the mean in ``mean`` (``d x nb``).
 
-    Mode 2 changes nothing: the rows are given and ``mean`` already holds the reference.
+    Point by point, each over every component and lane, so that one filter's loops are long too; each
+    component's sum still runs over the points in order. Mode 2 changes nothing: the rows are given and
+    ``mean`` already holds the reference.
     """
     if mode == 2:
         return
     for l in range(d):
         for b in range(nb):
             mean[l, b] = 0.0
-        for i in range(1, N):
-            w = wm[i]
-            for b in range(nb):
-                mean[l, b] += w * (Pl[l, i, b] - Pl[l, 0, b])
+    for i in range(1, N):
+        w = wm[i]
         if mode == 0:
-            for i in range(1, N):
+            for l in range(d):
                 for b in range(nb):
-                    Pl[l, i, b] -= Pl[l, 0, b]
+                    e = Pl[i, l, b] - Pl[0, l, b]
+                    mean[l, b] += w * e
+                    Pl[i, l, b] = e
+        else:
+            for l in range(d):
+                for b in range(nb):
+                    mean[l, b] += w * (Pl[i, l, b] - Pl[0, l, b])
+    if mode == 0:
+        for l in range(d):
             for b in range(nb):
                 mu = mean[l, b]
-                mean[l, b] = Pl[l, 0, b] + mu
-                Pl[l, 0, b] = mu
-        else:
+                mean[l, b] = Pl[0, l, b] + mu
+                Pl[0, l, b] = mu
+    else:
+        for l in range(d):
             for b in range(nb):
-                mean[l, b] += Pl[l, 0, b]
-            for i in range(N):
+                mean[l, b] += Pl[0, l, b]
+        for i in range(N):
+            for l in range(d):
                 for b in range(nb):
-                    Pl[l, i, b] -= mean[l, b]
+                    Pl[i, l, b] -= mean[l, b]
 
 
 @kernel
@@ -442,24 +452,26 @@ def _deviations(Pl, N, d, nb, mode, wm, mean):
 
 @_inline
 def _state_rows_nb(Xl, N, n, nb, mode, wm, xref):
-    """State rows in place in ``Xl``: central (mode 0), ``X - xref`` (1), as given (2)."""
+    """State rows in place in ``Xl`` (``N x n x nb``): central (mode 0), ``X - xref`` (1), as given (2)."""
     if mode == 0:
         for l in range(n):
             for b in range(nb):
                 xref[l, b] = 0.0
-            for i in range(1, N):
-                w = wm[i]
+        for i in range(1, N):
+            w = wm[i]
+            for l in range(n):
                 for b in range(nb):
-                    e = Xl[l, i, b] - Xl[l, 0, b]
-                    Xl[l, i, b] = e
+                    e = Xl[i, l, b] - Xl[0, l, b]
+                    Xl[i, l, b] = e
                     xref[l, b] += w * e
-            for b in range(nb):
-                Xl[l, 0, b] = xref[l, b]
-    elif mode == 1:
         for l in range(n):
-            for i in range(N):
+            for b in range(nb):
+                Xl[0, l, b] = xref[l, b]
+    elif mode == 1:
+        for i in range(N):
+            for l in range(n):
                 for b in range(nb):
-                    Xl[l, i, b] -= xref[l, b]
+                    Xl[i, l, b] -= xref[l, b]
 
 
 @kernel
@@ -475,8 +487,8 @@ def _state_rows(Xl, N, n, nb, mode, wm, xref):
 def _factor_lanes_nb(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, fl, st):
     """Factor weighted rows and a noise factor in place in ``At`` (``L = At`` below its diagonal).
 
-    Each row is ``[D1[:, r], D2[:, r]]`` (``d1 + d2`` entries, row ``r`` of form ``mode`` in the
-    deviation buffers ``D1``, ``D2``, ``(d, N, nb)`` each), entering with weight
+    Each row is ``[D1[r], D2[r]]`` (``d1 + d2`` entries, row ``r`` of form ``mode`` in the
+    deviation buffers ``D1``, ``D2``, ``(N, d, nb)`` each), entering with weight
     ``sign[r] * scale[r]**2``: the positive rows and the noise's columns (padded with zeros to
     ``d1 + d2`` entries) go into one QR, then each negative row is downdated. ``st[b]`` is set to 0, or
     for a failed downdate to the row ``r + 1`` (``split == 0``) or to g13ej's 301 when it failed in
@@ -484,7 +496,7 @@ def _factor_lanes_nb(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, 
 
     Parameters
     ----------
-    D1, D2 : ndarray, shape (d1, N, >= nb), (d2, N, >= nb)
+    D1, D2 : ndarray, shape (N, d1, >= nb), (N, d2, >= nb)
     N, nb, mode : int
     scale, sign : ndarray, shape (N,)
     noise : ndarray, shape (B or 1, dn, q)
@@ -493,7 +505,7 @@ def _factor_lanes_nb(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, 
     At : ndarray, shape (d1 + d2, >= max(rows, d1 + d2), >= nb)
     V, v, fl, st : scratch, shape (>= 6, nb), (>= d1 + d2, nb), (nb,), (nb,)
     """
-    d1, d2 = D1.shape[0], D2.shape[0]
+    d1, d2 = D1.shape[1], D2.shape[1]
     d = d1 + d2
     dn, q = noise.shape[1], noise.shape[2]
     shared = noise.shape[0] == 1
@@ -504,10 +516,10 @@ def _factor_lanes_nb(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, 
             c = scale[r]
             for l in range(d1):
                 for b in range(nb):
-                    At[l, npos, b] = c * D1[l, src, b]
+                    At[l, npos, b] = c * D1[src, l, b]
             for l in range(d2):
                 for b in range(nb):
-                    At[d1 + l, npos, b] = c * D2[l, src, b]
+                    At[d1 + l, npos, b] = c * D2[src, l, b]
             npos += 1
     rows = npos + q
     for b in range(nb):
@@ -530,10 +542,10 @@ def _factor_lanes_nb(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, 
                 fl[b] = -1
             for l in range(d1):
                 for b in range(nb):
-                    v[l, b] = c * D1[l, src, b]
+                    v[l, b] = c * D1[src, l, b]
             for l in range(d2):
                 for b in range(nb):
-                    v[d1 + l, b] = c * D2[l, src, b]
+                    v[d1 + l, b] = c * D2[src, l, b]
             chol_update_lanes(At, v, d, nb, -1.0, fl, V)
             for b in range(nb):
                 code = r + 1 if split == 0 else (301 if fl[b] < split else 303)
@@ -758,8 +770,8 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status):
             npos += 1
     rows = npos + noise.shape[2]
     nl = _lanes(d * max(rows, N), B)
-    Pl = np.empty((d, N, nl))
-    none = np.empty((0, N, nl))
+    Pl = np.empty((N, d, nl))
+    none = np.empty((N, 0, nl))
     At = np.empty((d, max(rows, d, 1), nl))  # the rows, then their factor in place
     ml = np.empty((d, nl))
     v = np.empty((d, nl))
@@ -790,29 +802,31 @@ def _paired_rows_nb(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V):
     """
     h = (N - 1) // 2
     shared = R1_2.shape[0] == 1
-    for l in range(m):
-        for j in range(h):
+    for j in range(h):
+        for l in range(m):
             for b in range(nb):
-                Zt[l, j, b] = c * (Hl[l, 1 + j, b] + Hl[l, 1 + h + j, b])
+                Zt[l, j, b] = c * (Hl[1 + j, l, b] + Hl[1 + h + j, l, b])
+    for l in range(m):
         for b in range(nb):
-            Zt[l, h, b] = mus * Hl[l, 0, b]
+            Zt[l, h, b] = mus * Hl[0, l, b]
     for b in range(nb):
         Rk = R1_2[0] if shared else R1_2[k0 + b]
         for l in range(m):
             for q in range(m):
                 Zt[l, h + 1 + q, b] = Rk[l, q]
     tria_lanes(Zt, m, h + 1 + m, nb, V)  # T, lower: Zt[l, i] for i <= l
-    for l in range(m):
-        for j in range(h):
+    for j in range(h):
+        for l in range(m):
             for b in range(nb):
-                At[l, j, b] = c * (Hl[l, 1 + j, b] - Hl[l, 1 + h + j, b])
+                At[l, j, b] = c * (Hl[1 + j, l, b] - Hl[1 + h + j, l, b])
+        for l in range(n):
+            for b in range(nb):
+                At[m + l, j, b] = c * (Xl[1 + j, l, b] - Xl[1 + h + j, l, b])
+    for l in range(m):
         for i in range(m):
             for b in range(nb):
                 At[l, h + i, b] = Zt[l, i, b] if i <= l else 0.0
     for l in range(n):
-        for j in range(h):
-            for b in range(nb):
-                At[m + l, j, b] = c * (Xl[l, 1 + j, b] - Xl[l, 1 + h + j, b])
         for i in range(m):
             for b in range(nb):
                 At[m + l, h + i, b] = 0.0
@@ -905,8 +919,8 @@ def joint_update_kernel(
             npos += 1
     rows = npos + m
     nl = _lanes(c * max(rows, N), B)
-    Hl = np.empty((m, N, nl))
-    Xl = np.empty((n, N, nl))
+    Hl = np.empty((N, m, nl))
+    Xl = np.empty((N, n, nl))
     At = np.empty((c, max(rows, c), nl))  # the joint rows, then their factor in place (below)
     L = At
     zl = np.empty((m, nl))
@@ -1057,8 +1071,8 @@ def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpos
     B, N, m = H.shape
     n = X.shape[2]
     nl = _lanes(max(n, m) * max(N, n, m), B)
-    Hl = np.empty((m, N, nl))
-    Xl = np.empty((n, N, nl))
+    Hl = np.empty((N, m, nl))
+    Xl = np.empty((N, n, nl))
     Syl = np.empty((m, m, nl))
     Sl = np.empty((n, n, nl))
     Ll = np.empty((n, m, nl))
@@ -1088,7 +1102,7 @@ def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpos
                 for i in range(N):
                     c = wc[i]
                     for b in range(nb):
-                        t[j, b] += c * (Xl[l, i, b] - xr[l, b]) * (Hl[j, i, b] - zr[j, b])
+                        t[j, b] += c * (Xl[i, l, b] - xr[l, b]) * (Hl[i, j, b] - zr[j, b])
             solve_lower_lanes(Syl, t, m, nb, False)
             for j in range(m):
                 for b in range(nb):
