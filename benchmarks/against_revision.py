@@ -2,6 +2,7 @@
 
     python benchmarks/against_revision.py                 # against 6e83c62 (before the one-step core)
     python benchmarks/against_revision.py --ref REV --reps 15
+    python benchmarks/against_revision.py --ref REV --scheme augmented --only 40 100
 
 The earlier revision's ``squkf`` package is taken from git (``git archive``),
 renamed ``squkf_ref`` in a temporary folder and imported beside this one (its
@@ -52,6 +53,8 @@ def main(argv=None) -> int:
     ap.add_argument("--ref", default="6e83c62")
     ap.add_argument("--reps", type=int, default=11)
     ap.add_argument("--steps", type=int, default=100)
+    ap.add_argument("--scheme", default="redrawn", choices=("redrawn", "augmented"), help="the second set")
+    ap.add_argument("--only", type=int, nargs="+", metavar="N", help="only these state dimensions")
     args = ap.parse_args(argv)
 
     import numpy as np
@@ -70,7 +73,9 @@ def main(argv=None) -> int:
             else:
                 fx, hx = (sc.fx_vec, sc.hx_vec) if vectorized else (sc.fx, sc.hx)
                 pts = lib.MerweScaledWeights(sc.alpha, sc.beta, sc.kappa)
-                f = lib.SquareRootUKF(sc.dim_x, sc.dim_z, sc.dt, hx, fx, pts, vectorized=vectorized)
+                f = lib.SquareRootUKF(
+                    sc.dim_x, sc.dim_z, sc.dt, hx, fx, pts, scheme=args.scheme, vectorized=vectorized
+                )
             f.x, f.P, f.Q, f.R = sc.x0.copy(), sc.P0.copy(), sc.Q.copy(), sc.R.copy()
             return f
 
@@ -88,6 +93,8 @@ def main(argv=None) -> int:
             (f"{args.ref} vectorised", ref, True),
         ]
         scenarios = [Robot(), CoordinatedTurn(), Lorenz96(40), Lorenz96(100)]
+        if args.only:
+            scenarios = [sc for sc in scenarios if sc.dim_x in args.only]
         heads = [name for name, _, _ in impls] + ["now / earlier, per point", "now / earlier, vectorised"]
         print(f"| scenario | {' | '.join(heads)} | filterpy µs/step |")
         print("|---|" + "---|" * (len(heads) + 1))

@@ -123,9 +123,9 @@ def sigma_points_and_offsets(
         Called once per point (and filter) when given (angles, manifolds);
         what it returns is checked.
     gamma : float, optional
-        ``xi`` is ``[0; gamma I; -gamma I]`` (see :func:`axis_gamma`): the
-        offsets are ``+/- gamma S^T``, formed in O(n^2) (the same numbers as
-        the product).
+        ``xi`` is ``[0; gamma I; -gamma I]`` (see :func:`axis_gamma`) or
+        ``[gamma I; -gamma I]``: the offsets are ``+/- gamma S^T``, formed in
+        O(n^2) (the same numbers as the product).
 
     Returns
     -------
@@ -145,9 +145,11 @@ def sigma_points_and_offsets(
     return out, dx
 
 
-def sigma_points_from_factor(x: np.ndarray, S: np.ndarray, xi: np.ndarray, state_add=None) -> np.ndarray:
+def sigma_points_from_factor(
+    x: np.ndarray, S: np.ndarray, xi: np.ndarray, state_add=None, gamma: float | None = None
+) -> np.ndarray:
     """The sigma points of :func:`sigma_points_and_offsets` alone, shape ``(..., N, n)``."""
-    return sigma_points_and_offsets(x, S, xi, state_add)[0]
+    return sigma_points_and_offsets(x, S, xi, state_add, gamma)[0]
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:
@@ -370,6 +372,10 @@ class _AugmentedSet:
         self.rows = rows
         self.exact = exact
         self.noise_xi = noise_xi
+        n = noise_xi.shape[1]
+        g = float(noise_xi[0, 0]) if n else 0.0
+        axes = g != 0.0 and np.array_equal(noise_xi, np.vstack([g * np.eye(n), -g * np.eye(n)]))
+        self.noise_gamma = g if axes else None  # [g I; -g I]: the extra points in O(n^2)
 
     def draw(self, x, S, propagated, Q1_2, state_add) -> SigmaSet:
         if propagated is None:
@@ -378,7 +384,7 @@ class _AugmentedSet:
             r = self.first.rows
             return SigmaSet(propagated, r.Wm, r.Wc, True, None, r)
         centre = propagated[..., 0, :]
-        extra = sigma_points_from_factor(centre, Q1_2, self.noise_xi, state_add)
+        extra = sigma_points_from_factor(centre, Q1_2, self.noise_xi, state_add, self.noise_gamma)
         batch = np.broadcast_shapes(propagated.shape[:-2], extra.shape[:-2])
         sigmas = np.concatenate(
             [

@@ -265,7 +265,7 @@ def sigma_points(x: np.ndarray, S: np.ndarray, xi: np.ndarray, gamma: float = 0.
     xi : ndarray, shape (N, n)
         Unit points.
     gamma : float
-        Non-zero when ``xi`` is ``[0; gamma I; -gamma I]`` (offsets in O(n^2)).
+        Non-zero when ``xi`` is ``[0; gamma I; -gamma I]`` or ``[gamma I; -gamma I]`` (offsets in O(n^2)).
 
     Returns
     -------

@@ -77,6 +77,11 @@ _TINY = float(np.finfo(np.float64).tiny)
 _LOG_2PI = math.log(2.0 * math.pi)
 #: The decorator of every kernel and helper: compiled on first call, cached on disk, releases the GIL.
 kernel = njit(cache=True, nogil=True, error_model="numpy")
+#: The decorator of a lane helper's body, inlined (numba IR) into its dispatcher, which calls it twice:
+#: with ``nb`` the constant 1 when the block has one lane, so that LLVM folds every lane loop away (one
+#: filter: long scalar loops instead of vectoriser checks on loops of trip count one), and with the run-time
+#: ``nb`` otherwise. The same source, so the same operations in the same order on every lane.
+_inline = njit(cache=True, nogil=True, error_model="numpy", inline="always")
 _LANES = 64
 _SCRATCH = 32768  # entries of the largest lane scratch array (keeps a block's arrays in cache)
 
@@ -105,8 +110,8 @@ def _tria_lapack(At, c, r, nb):
                 At[l, j, b] = s * F[j + l * r]
 
 
-@kernel
-def tria_lanes(At, c, r, nb, V):
+@_inline
+def _tria_lanes_nb(At, c, r, nb, V):
     """Householder QR of ``nb`` row matrices ``A`` (``r x c``) held transposed.
 
     On return the lower triangle of ``At[:c, :min(c, r), b]`` is ``L`` with
@@ -178,7 +183,16 @@ def tria_lanes(At, c, r, nb, V):
 
 
 @kernel
-def solve_lower_lanes(L, y, n, nb, trans):
+def tria_lanes(At, c, r, nb, V):
+    """:func:`_tria_lanes_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _tria_lanes_nb(At, c, r, 1, V)
+    else:
+        _tria_lanes_nb(At, c, r, nb, V)
+
+
+@_inline
+def _solve_lower_lanes_nb(L, y, n, nb, trans):
     """Solve ``L w = y`` (or ``L.T w = y``) in place for lower-triangular ``L``, on lanes.
 
     Parameters
@@ -208,7 +222,16 @@ def solve_lower_lanes(L, y, n, nb, trans):
 
 
 @kernel
-def chol_update_lanes(L, v, n, nb, sign, fail, V):
+def solve_lower_lanes(L, y, n, nb, trans):
+    """:func:`_solve_lower_lanes_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _solve_lower_lanes_nb(L, y, n, 1, trans)
+    else:
+        _solve_lower_lanes_nb(L, y, n, nb, trans)
+
+
+@_inline
+def _chol_update_lanes_nb(L, v, n, nb, sign, fail, V):
     """Rank-1 update (``sign > 0``) or downdate of lower factors in place, in O(n^2), on lanes.
 
     ``L1 @ L1.T == L @ L.T + sign * outer(v, v)`` by one rotation per
@@ -256,6 +279,15 @@ def chol_update_lanes(L, v, n, nb, sign, fail, V):
 
 
 @kernel
+def chol_update_lanes(L, v, n, nb, sign, fail, V):
+    """:func:`_chol_update_lanes_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _chol_update_lanes_nb(L, v, n, 1, sign, fail, V)
+    else:
+        _chol_update_lanes_nb(L, v, n, nb, sign, fail, V)
+
+
+@kernel
 def _lanes(size, B):
     """Lanes per block for a scratch matrix of ``size`` entries per filter: 64 at most, and no
     more than the ``B`` filters there are (one filter's scratch is then contiguous)."""
@@ -275,19 +307,28 @@ def _source(mode, r, N):
 # sets stay a loop per filter (contiguous rows: faster there, measured).
 
 
-@kernel
-def _load_points(P, k0, nb, Pl):
-    """``Pl[l, i, b] = P[k0 + b, i, l]``."""
+@_inline
+def _load_points_nb(P, k0, nb, Pl):
+    """``Pl[i, l, b] = P[k0 + b, i, l]`` (point-major: one filter's points are copied as they are)."""
     N, d = P.shape[1], P.shape[2]
     Q = P[k0 : k0 + nb]
     for i in range(N):
         for l in range(d):
             for b in range(nb):
-                Pl[l, i, b] = Q[b, i, l]
+                Pl[i, l, b] = Q[b, i, l]
 
 
 @kernel
-def _load_vector(a, k0, nb, al):
+def _load_points(P, k0, nb, Pl):
+    """:func:`_load_points_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _load_points_nb(P, k0, 1, Pl)
+    else:
+        _load_points_nb(P, k0, nb, Pl)
+
+
+@_inline
+def _load_vector_nb(a, k0, nb, al):
     """``al[l, b] = a[k0 + b, l]``, or ``a[0, l]`` for a shared ``a``."""
     if a.shape[0] == 1:
         for l in range(a.shape[1]):
@@ -302,7 +343,16 @@ def _load_vector(a, k0, nb, al):
 
 
 @kernel
-def _load_matrix(a, k0, nb, al):
+def _load_vector(a, k0, nb, al):
+    """:func:`_load_vector_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _load_vector_nb(a, k0, 1, al)
+    else:
+        _load_vector_nb(a, k0, nb, al)
+
+
+@_inline
+def _load_matrix_nb(a, k0, nb, al):
     """``al[i, j, b] = a[k0 + b, i, j]``, or ``a[0, i, j]`` for a shared ``a``."""
     if a.shape[0] == 1:
         for i in range(a.shape[1]):
@@ -319,7 +369,16 @@ def _load_matrix(a, k0, nb, al):
 
 
 @kernel
-def _store_lower(L, i0, j0, n, k0, nb, out):
+def _load_matrix(a, k0, nb, al):
+    """:func:`_load_matrix_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _load_matrix_nb(a, k0, 1, al)
+    else:
+        _load_matrix_nb(a, k0, nb, al)
+
+
+@_inline
+def _store_lower_nb(L, i0, j0, n, k0, nb, out):
     """``out[k0 + b] = tril(L[i0:i0 + n, j0:j0 + n, b])``."""
     Q = out[k0 : k0 + nb]
     for i in range(n):
@@ -333,64 +392,103 @@ def _store_lower(L, i0, j0, n, k0, nb, out):
 
 
 @kernel
-def _deviations(Pl, N, d, nb, mode, wm, mean):
-    """The rows of a form in place in ``Pl`` (``d x N x nb``) and the mean in ``mean`` (``d x nb``).
+def _store_lower(L, i0, j0, n, k0, nb, out):
+    """:func:`_store_lower_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _store_lower_nb(L, i0, j0, n, k0, 1, out)
+    else:
+        _store_lower_nb(L, i0, j0, n, k0, nb, out)
 
-    Mode 2 changes nothing: the rows are given and ``mean`` already holds the reference.
+
+@_inline
+def _deviations_nb(Pl, N, d, nb, mode, wm, mean):
+    """The rows of a form in place in ``Pl`` (``N x d x nb``) and the mean in ``mean`` (``d x nb``).
+
+    Point by point, each over every component and lane, so that one filter's loops are long too; each
+    component's sum still runs over the points in order. Mode 2 changes nothing: the rows are given and
+    ``mean`` already holds the reference.
     """
     if mode == 2:
         return
     for l in range(d):
         for b in range(nb):
             mean[l, b] = 0.0
-        for i in range(1, N):
-            w = wm[i]
-            for b in range(nb):
-                mean[l, b] += w * (Pl[l, i, b] - Pl[l, 0, b])
+    for i in range(1, N):
+        w = wm[i]
         if mode == 0:
-            for i in range(1, N):
+            for l in range(d):
                 for b in range(nb):
-                    Pl[l, i, b] -= Pl[l, 0, b]
+                    e = Pl[i, l, b] - Pl[0, l, b]
+                    mean[l, b] += w * e
+                    Pl[i, l, b] = e
+        else:
+            for l in range(d):
+                for b in range(nb):
+                    mean[l, b] += w * (Pl[i, l, b] - Pl[0, l, b])
+    if mode == 0:
+        for l in range(d):
             for b in range(nb):
                 mu = mean[l, b]
-                mean[l, b] = Pl[l, 0, b] + mu
-                Pl[l, 0, b] = mu
-        else:
+                mean[l, b] = Pl[0, l, b] + mu
+                Pl[0, l, b] = mu
+    else:
+        for l in range(d):
             for b in range(nb):
-                mean[l, b] += Pl[l, 0, b]
-            for i in range(N):
+                mean[l, b] += Pl[0, l, b]
+        for i in range(N):
+            for l in range(d):
                 for b in range(nb):
-                    Pl[l, i, b] -= mean[l, b]
+                    Pl[i, l, b] -= mean[l, b]
 
 
 @kernel
-def _state_rows(Xl, N, n, nb, mode, wm, xref):
-    """State rows in place in ``Xl``: central (mode 0), ``X - xref`` (1), as given (2)."""
+def _deviations(Pl, N, d, nb, mode, wm, mean):
+    """:func:`_deviations_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _deviations_nb(Pl, N, d, 1, mode, wm, mean)
+    else:
+        _deviations_nb(Pl, N, d, nb, mode, wm, mean)
+
+
+@_inline
+def _state_rows_nb(Xl, N, n, nb, mode, wm, xref):
+    """State rows in place in ``Xl`` (``N x n x nb``): central (mode 0), ``X - xref`` (1), as given (2)."""
     if mode == 0:
         for l in range(n):
             for b in range(nb):
                 xref[l, b] = 0.0
-            for i in range(1, N):
-                w = wm[i]
+        for i in range(1, N):
+            w = wm[i]
+            for l in range(n):
                 for b in range(nb):
-                    e = Xl[l, i, b] - Xl[l, 0, b]
-                    Xl[l, i, b] = e
+                    e = Xl[i, l, b] - Xl[0, l, b]
+                    Xl[i, l, b] = e
                     xref[l, b] += w * e
-            for b in range(nb):
-                Xl[l, 0, b] = xref[l, b]
-    elif mode == 1:
         for l in range(n):
-            for i in range(N):
+            for b in range(nb):
+                Xl[0, l, b] = xref[l, b]
+    elif mode == 1:
+        for i in range(N):
+            for l in range(n):
                 for b in range(nb):
-                    Xl[l, i, b] -= xref[l, b]
+                    Xl[i, l, b] -= xref[l, b]
 
 
 @kernel
-def _factor_lanes(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, fl, st):
+def _state_rows(Xl, N, n, nb, mode, wm, xref):
+    """:func:`_state_rows_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _state_rows_nb(Xl, N, n, 1, mode, wm, xref)
+    else:
+        _state_rows_nb(Xl, N, n, nb, mode, wm, xref)
+
+
+@_inline
+def _factor_lanes_nb(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, fl, st):
     """Factor weighted rows and a noise factor in place in ``At`` (``L = At`` below its diagonal).
 
-    Each row is ``[D1[:, r], D2[:, r]]`` (``d1 + d2`` entries, row ``r`` of form ``mode`` in the
-    deviation buffers ``D1``, ``D2``, ``(d, N, nb)`` each), entering with weight
+    Each row is ``[D1[r], D2[r]]`` (``d1 + d2`` entries, row ``r`` of form ``mode`` in the
+    deviation buffers ``D1``, ``D2``, ``(N, d, nb)`` each), entering with weight
     ``sign[r] * scale[r]**2``: the positive rows and the noise's columns (padded with zeros to
     ``d1 + d2`` entries) go into one QR, then each negative row is downdated. ``st[b]`` is set to 0, or
     for a failed downdate to the row ``r + 1`` (``split == 0``) or to g13ej's 301 when it failed in
@@ -398,7 +496,7 @@ def _factor_lanes(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, 
 
     Parameters
     ----------
-    D1, D2 : ndarray, shape (d1, N, >= nb), (d2, N, >= nb)
+    D1, D2 : ndarray, shape (N, d1, >= nb), (N, d2, >= nb)
     N, nb, mode : int
     scale, sign : ndarray, shape (N,)
     noise : ndarray, shape (B or 1, dn, q)
@@ -407,7 +505,7 @@ def _factor_lanes(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, 
     At : ndarray, shape (d1 + d2, >= max(rows, d1 + d2), >= nb)
     V, v, fl, st : scratch, shape (>= 6, nb), (>= d1 + d2, nb), (nb,), (nb,)
     """
-    d1, d2 = D1.shape[0], D2.shape[0]
+    d1, d2 = D1.shape[1], D2.shape[1]
     d = d1 + d2
     dn, q = noise.shape[1], noise.shape[2]
     shared = noise.shape[0] == 1
@@ -418,10 +516,10 @@ def _factor_lanes(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, 
             c = scale[r]
             for l in range(d1):
                 for b in range(nb):
-                    At[l, npos, b] = c * D1[l, src, b]
+                    At[l, npos, b] = c * D1[src, l, b]
             for l in range(d2):
                 for b in range(nb):
-                    At[d1 + l, npos, b] = c * D2[l, src, b]
+                    At[d1 + l, npos, b] = c * D2[src, l, b]
             npos += 1
     rows = npos + q
     for b in range(nb):
@@ -444,14 +542,23 @@ def _factor_lanes(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, 
                 fl[b] = -1
             for l in range(d1):
                 for b in range(nb):
-                    v[l, b] = c * D1[l, src, b]
+                    v[l, b] = c * D1[src, l, b]
             for l in range(d2):
                 for b in range(nb):
-                    v[d1 + l, b] = c * D2[l, src, b]
+                    v[d1 + l, b] = c * D2[src, l, b]
             chol_update_lanes(At, v, d, nb, -1.0, fl, V)
             for b in range(nb):
                 code = r + 1 if split == 0 else (301 if fl[b] < split else 303)
                 st[b] = code if (fl[b] >= 0 and st[b] == 0) else st[b]
+
+
+@kernel
+def _factor_lanes(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, fl, st):
+    """:func:`_factor_lanes_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _factor_lanes_nb(D1, D2, N, 1, mode, scale, sign, noise, k0, split, At, V, v, fl, st)
+    else:
+        _factor_lanes_nb(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, fl, st)
 
 
 @kernel
@@ -554,6 +661,46 @@ def chol_update_kernel(L, v, sign, out, fail):
         _store_lower(Ll, 0, 0, n, k0, nb, out)
 
 
+@_inline
+def _offsets_nb(Sl, xi, gamma, N, n, nb, Dl):
+    """The offsets ``Dl[i, l, b] = (xi[i] @ S_b.T)[l]`` of :func:`points_kernel` (``S_b = Sl[:, :, b]``).
+
+    For axis points, ``[0; gamma I; -gamma I]`` (``N = 2n + 1``) or ``[gamma I; -gamma I]`` (``N = 2n``),
+    they are ``+/- gamma`` times the columns of ``S_b``. Point-major, so that one filter's offsets are
+    its output's rows.
+    """
+    if gamma != 0.0:
+        o = N - 2 * n  # 1 with the central point, else 0
+        if o == 1:
+            for l in range(n):
+                for b in range(nb):
+                    Dl[0, l, b] = 0.0
+        for j in range(n):
+            for l in range(n):
+                for b in range(nb):
+                    s = gamma * Sl[l, j, b] if j <= l else 0.0
+                    Dl[o + j, l, b] = s
+                    Dl[o + n + j, l, b] = -s
+    else:
+        for i in range(N):
+            for l in range(n):
+                for b in range(nb):
+                    Dl[i, l, b] = 0.0
+                for j in range(l + 1):
+                    c = xi[i, j]
+                    for b in range(nb):
+                        Dl[i, l, b] += c * Sl[l, j, b]
+
+
+@kernel
+def _offsets(Sl, xi, gamma, N, n, nb, Dl):
+    """:func:`_offsets_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _offsets_nb(Sl, xi, gamma, N, n, 1, Dl)
+    else:
+        _offsets_nb(Sl, xi, gamma, N, n, nb, Dl)
+
+
 @kernel
 def points_kernel(x, S, xi, gamma, X, dX):
     """Sigma points ``X[k, i] = x[k] + dX[k, i]`` with offsets ``dX[k, i] = xi[i] @ S[k].T``.
@@ -566,9 +713,9 @@ def points_kernel(x, S, xi, gamma, X, dX):
     xi : ndarray, shape (N, n)
         Unit points.
     gamma : float
-        Non-zero when ``xi`` is ``[0; gamma I; -gamma I]``: the offsets are
-        then ``+/- gamma`` times the columns of ``S`` (the same numbers as the
-        product, in O(n^2)).
+        Non-zero when ``xi`` is ``[0; gamma I; -gamma I]`` or ``[gamma I; -gamma I]``:
+        the offsets are then ``+/- gamma`` times the columns of ``S`` (the same
+        numbers as the product, in O(n^2)).
     X, dX : ndarray, shape (B, N, n)
         Outputs.
     """
@@ -576,35 +723,18 @@ def points_kernel(x, S, xi, gamma, X, dX):
     nl = _lanes(N * n, B)
     Sl = np.empty((n, n, nl))
     xl = np.empty((n, nl))
-    Dl = np.empty((n, N, nl))
+    Dl = np.empty((N, n, nl))
     for k0 in range(0, B, nl):
         nb = min(nl, B - k0)
         _load_matrix(S, k0, nb, Sl)
         _load_vector(x, k0, nb, xl)
-        if gamma != 0.0:
-            for l in range(n):
-                for b in range(nb):
-                    Dl[l, 0, b] = 0.0
-                for j in range(n):
-                    for b in range(nb):
-                        s = gamma * Sl[l, j, b] if j <= l else 0.0
-                        Dl[l, 1 + j, b] = s
-                        Dl[l, 1 + n + j, b] = -s
-        else:
-            for i in range(N):
-                for l in range(n):
-                    for b in range(nb):
-                        Dl[l, i, b] = 0.0
-                    for j in range(l + 1):
-                        c = xi[i, j]
-                        for b in range(nb):
-                            Dl[l, i, b] += c * Sl[l, j, b]
+        _offsets(Sl, xi, gamma, N, n, nb, Dl)
         for b in range(nb):
             Xk = X[k0 + b]
             Dk = dX[k0 + b]
             for i in range(N):
                 for l in range(n):
-                    d = Dl[l, i, b]
+                    d = Dl[i, l, b]
                     Dk[i, l] = d
                     Xk[i, l] = xl[l, b] + d
 
@@ -640,8 +770,8 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status):
             npos += 1
     rows = npos + noise.shape[2]
     nl = _lanes(d * max(rows, N), B)
-    Pl = np.empty((d, N, nl))
-    none = np.empty((0, N, nl))
+    Pl = np.empty((N, d, nl))
+    none = np.empty((N, 0, nl))
     At = np.empty((d, max(rows, d, 1), nl))  # the rows, then their factor in place
     ml = np.empty((d, nl))
     v = np.empty((d, nl))
@@ -663,8 +793,8 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status):
         _store_lower(At, 0, 0, d, k0, nb, S)
 
 
-@kernel
-def _paired_rows(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V):
+@_inline
+def _paired_rows_nb(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V):
     """The rotated joint rows of axis points (``joint_update_kernel``'s ``pair``) into ``At``.
 
     ``Hl``, ``Xl`` hold the central form's deviations (``mu`` in slot 0); pair ``j`` is points
@@ -672,32 +802,43 @@ def _paired_rows(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V):
     """
     h = (N - 1) // 2
     shared = R1_2.shape[0] == 1
-    for l in range(m):
-        for j in range(h):
+    for j in range(h):
+        for l in range(m):
             for b in range(nb):
-                Zt[l, j, b] = c * (Hl[l, 1 + j, b] + Hl[l, 1 + h + j, b])
+                Zt[l, j, b] = c * (Hl[1 + j, l, b] + Hl[1 + h + j, l, b])
+    for l in range(m):
         for b in range(nb):
-            Zt[l, h, b] = mus * Hl[l, 0, b]
+            Zt[l, h, b] = mus * Hl[0, l, b]
     for b in range(nb):
         Rk = R1_2[0] if shared else R1_2[k0 + b]
         for l in range(m):
             for q in range(m):
                 Zt[l, h + 1 + q, b] = Rk[l, q]
     tria_lanes(Zt, m, h + 1 + m, nb, V)  # T, lower: Zt[l, i] for i <= l
-    for l in range(m):
-        for j in range(h):
+    for j in range(h):
+        for l in range(m):
             for b in range(nb):
-                At[l, j, b] = c * (Hl[l, 1 + j, b] - Hl[l, 1 + h + j, b])
+                At[l, j, b] = c * (Hl[1 + j, l, b] - Hl[1 + h + j, l, b])
+        for l in range(n):
+            for b in range(nb):
+                At[m + l, j, b] = c * (Xl[1 + j, l, b] - Xl[1 + h + j, l, b])
+    for l in range(m):
         for i in range(m):
             for b in range(nb):
                 At[l, h + i, b] = Zt[l, i, b] if i <= l else 0.0
     for l in range(n):
-        for j in range(h):
-            for b in range(nb):
-                At[m + l, j, b] = c * (Xl[l, 1 + j, b] - Xl[l, 1 + h + j, b])
         for i in range(m):
             for b in range(nb):
                 At[m + l, h + i, b] = 0.0
+
+
+@kernel
+def _paired_rows(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V):
+    """:func:`_paired_rows_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _paired_rows_nb(Hl, Xl, R1_2, k0, 1, N, m, n, c, mus, Zt, At, V)
+    else:
+        _paired_rows_nb(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V)
 
 
 @kernel
@@ -778,8 +919,8 @@ def joint_update_kernel(
             npos += 1
     rows = npos + m
     nl = _lanes(c * max(rows, N), B)
-    Hl = np.empty((m, N, nl))
-    Xl = np.empty((n, N, nl))
+    Hl = np.empty((N, m, nl))
+    Xl = np.empty((N, n, nl))
     At = np.empty((c, max(rows, c), nl))  # the joint rows, then their factor in place (below)
     L = At
     zl = np.empty((m, nl))
@@ -849,8 +990,8 @@ def _likelihood(Sy, w, m, k0, nb, ll, ww):
         ll[k0 + b] = -0.5 * (m * _LOG_2PI + 2.0 * logdet + s)
 
 
-@kernel
-def _innovation(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
+@_inline
+def _innovation_nb(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
     """From the innovation factor: g13ej's 302 unless ``Sy`` is regular, ``w = Sy^-1 y``, the
     likelihood, and ``dx = L21 w`` with ``L21`` the rows ``r0 .. r0 + n`` of its buffer."""
     for b in range(nb):
@@ -869,6 +1010,15 @@ def _innovation(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
         for j in range(m):
             for b in range(nb):
                 dxl[l, b] += L21[r0 + l, j, b] * wl[j, b]
+
+
+@kernel
+def _innovation(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
+    """:func:`_innovation_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
+    if nb == 1:
+        _innovation_nb(Sy, L21, r0, yl, wl, dxl, m, n, k0, 1, st, ll, ww)
+    else:
+        _innovation_nb(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww)
 
 
 @kernel
@@ -928,8 +1078,8 @@ def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpos
     B, N, m = H.shape
     n = X.shape[2]
     nl = _lanes(max(n, m) * max(N, n, m), B)
-    Hl = np.empty((m, N, nl))
-    Xl = np.empty((n, N, nl))
+    Hl = np.empty((N, m, nl))
+    Xl = np.empty((N, n, nl))
     Syl = np.empty((m, m, nl))
     Sl = np.empty((n, n, nl))
     Ll = np.empty((n, m, nl))
@@ -959,7 +1109,7 @@ def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpos
                 for i in range(N):
                     c = wc[i]
                     for b in range(nb):
-                        t[j, b] += c * (Xl[l, i, b] - xr[l, b]) * (Hl[j, i, b] - zr[j, b])
+                        t[j, b] += c * (Xl[i, l, b] - xr[l, b]) * (Hl[i, j, b] - zr[j, b])
             solve_lower_lanes(Syl, t, m, nb, False)
             for j in range(m):
                 for b in range(nb):
