@@ -48,6 +48,19 @@ time (a constant one is unrolled into scalar code), and no index arithmetic
 on global arrays inside a lane loop. No ``fastmath``: reassociation or FMA
 contraction would make a lane's rounding depend on the vector width.
 
+One filter is a block of one lane, and there every lane loop has trip count
+one: each would pay the vectoriser's run-time checks for one element. So each
+lane helper whose loops grow with the points (loads, stores, deviations, the
+rows of a QR; not the small Householder QR or the rank-1 modifications, whose
+second copy would cost more compile time than it saves) is a dispatcher over
+an inlined body (``_inline``), called with
+``nb`` the constant 1 for a block of one lane, where LLVM folds the lane loops
+away, and with the run-time ``nb`` otherwise: the same source, so the same
+operations in the same order. The deviation buffers are point-major
+(``Pl[i, l, b]``, point ``i``, component ``l``): a filter's points load as
+they are, and a sum over the points runs over every component at once (each
+component's sum still in the order of the points).
+
 Every compiled function lives in this one module on purpose: numba's disk
 cache is keyed on the source file of the kernel called, not on the files of
 the functions it calls, so a helper in another module could be edited and
@@ -110,8 +123,8 @@ def _tria_lapack(At, c, r, nb):
                 At[l, j, b] = s * F[j + l * r]
 
 
-@_inline
-def _tria_lanes_nb(At, c, r, nb, V):
+@kernel
+def tria_lanes(At, c, r, nb, V):
     """Householder QR of ``nb`` row matrices ``A`` (``r x c``) held transposed.
 
     On return the lower triangle of ``At[:c, :min(c, r), b]`` is ``L`` with
@@ -182,15 +195,6 @@ def _tria_lanes_nb(At, c, r, nb, V):
             At[j, j, b] = V[5, b]
 
 
-@kernel
-def tria_lanes(At, c, r, nb, V):
-    """:func:`_tria_lanes_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
-    if nb == 1:
-        _tria_lanes_nb(At, c, r, 1, V)
-    else:
-        _tria_lanes_nb(At, c, r, nb, V)
-
-
 @_inline
 def _solve_lower_lanes_nb(L, y, n, nb, trans):
     """Solve ``L w = y`` (or ``L.T w = y``) in place for lower-triangular ``L``, on lanes.
@@ -230,8 +234,8 @@ def solve_lower_lanes(L, y, n, nb, trans):
         _solve_lower_lanes_nb(L, y, n, nb, trans)
 
 
-@_inline
-def _chol_update_lanes_nb(L, v, n, nb, sign, fail, V):
+@kernel
+def chol_update_lanes(L, v, n, nb, sign, fail, V):
     """Rank-1 update (``sign > 0``) or downdate of lower factors in place, in O(n^2), on lanes.
 
     ``L1 @ L1.T == L @ L.T + sign * outer(v, v)`` by one rotation per
@@ -276,15 +280,6 @@ def _chol_update_lanes_nb(L, v, n, nb, sign, fail, V):
                 Lik = (L[i, k, b] + V[2, b] * v[i, b]) / V[0, b]
                 L[i, k, b] = Lik
                 v[i, b] = V[0, b] * v[i, b] - V[1, b] * Lik
-
-
-@kernel
-def chol_update_lanes(L, v, n, nb, sign, fail, V):
-    """:func:`_chol_update_lanes_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
-    if nb == 1:
-        _chol_update_lanes_nb(L, v, n, 1, sign, fail, V)
-    else:
-        _chol_update_lanes_nb(L, v, n, nb, sign, fail, V)
 
 
 @kernel
@@ -675,8 +670,8 @@ def _offsets_nb(Sl, xi, gamma, N, n, nb, Dl):
             for l in range(n):
                 for b in range(nb):
                     Dl[0, l, b] = 0.0
-        for j in range(n):
-            for l in range(n):
+        for l in range(n):
+            for j in range(n):
                 for b in range(nb):
                     s = gamma * Sl[l, j, b] if j <= l else 0.0
                     Dl[o + j, l, b] = s
