@@ -46,6 +46,7 @@ from .boundary.factors import (
     reset_rows,
 )
 from .boundary.loop import Transaction, check_fleet_progress, check_keep, fleet_progress
+from .boundary.model_form import ModelForm
 from .boundary.records import FleetResult, Records, failures_error, new_records
 from .errors import FleetStepError, ParameterError
 from .gating import Gate, as_gate
@@ -65,7 +66,7 @@ __all__ = ["Fleet", "FleetResult", "FleetStepError"]
 _HANDED = {"_x": "x", "_S": "P", "_Q1_2": "Q", "_R1_2": "R"}
 
 
-class Fleet:
+class Fleet(ModelForm):
     """K independent square-root UKFs with one model and one configuration.
 
     Parameters
@@ -213,16 +214,6 @@ class Fleet:
     def scheme(self):
         """The second-set generator."""
         return self._generator
-
-    @property
-    def fx_noise(self) -> int | None:
-        """Dimension of the noise ``fx`` takes as its second argument (None: additive noise)."""
-        return self._fx_noise or None
-
-    @property
-    def hx_noise(self) -> int | None:
-        """Dimension of the noise ``hx`` takes as its second argument (None: additive noise)."""
-        return self._hx_noise or None
 
     def _hooks(self) -> Hooks:
         return Hooks(self.x_mean, self.z_mean, self.residual_x, self.residual_z, self.state_add)
@@ -404,15 +395,6 @@ class Fleet:
     def rejected(self) -> np.ndarray:
         """The components the gate rejected in the last update, shape ``(K, dim_z)`` (a copy)."""
         return self._rejected.copy()
-
-    @property
-    def gate(self) -> Gate | None:
-        """The outlier gate (None: every measurement is used); assign a probability or a Gate."""
-        return self._gate
-
-    @gate.setter
-    def gate(self, value):
-        self._gate = as_gate(value)
 
     def reset(self, filters=None, x=None, P=None) -> None:
         """Clear the flag of ``filters`` (default: every flagged one), optionally setting their state.

@@ -25,10 +25,11 @@ from .boundary import inputs
 from .boundary.config import Config
 from .boundary.factors import noise_factor
 from .boundary.loop import Transaction
+from .boundary.model_form import ModelForm
 from .boundary.records import embed, gain, innovation_inverse
 from .covariance import FactorSlot
 from .errors import NonFiniteError, ParameterError, ShapeError
-from .gating import Gate, as_gate
+from .gating import Gate
 from .generators import as_generator, noise_family, sigma_points_from_factor
 from .noise import call_model, noise_points
 from .plan import Hooks, Plan, build_plan
@@ -127,7 +128,7 @@ class _Hook(_InDict):
         d["_hooks_cache"] = None
 
 
-class SquareRootUKF:
+class SquareRootUKF(ModelForm):
     """Square-root Unscented Kalman Filter with filterpy's interface.
 
     The model is ``x[k+1] = fx(x[k], dt) + v``, ``z[k] = hx(x[k]) + w`` with
@@ -381,25 +382,6 @@ class SquareRootUKF:
 
     def _build_plan(self, family, generator) -> Plan:
         return build_plan(family, generator, self._dim_x, self._fx_noise, self._hx_noise)
-
-    @property
-    def fx_noise(self) -> int | None:
-        """Dimension of the noise ``fx`` takes as its second argument (None: additive noise)."""
-        return self._fx_noise or None
-
-    @property
-    def hx_noise(self) -> int | None:
-        """Dimension of the noise ``hx`` takes as its second argument (None: additive noise)."""
-        return self._hx_noise or None
-
-    @property
-    def gate(self) -> Gate | None:
-        """The outlier gate (None: every measurement is used); assign a probability or a Gate."""
-        return self._gate
-
-    @gate.setter
-    def gate(self, value):
-        self._gate = as_gate(value)
 
     @property
     def dim_x(self) -> int:

@@ -11,6 +11,8 @@ One layer between the callers and the step (:mod:`squkf.step`), used by
 - :mod:`squkf.boundary.config`: a filter's configuration as one record
   (:class:`Config`), what ``Fleet.from_filters``, ``fleet[k]``, the smoothers and
   :mod:`squkf.dask` read instead of a facade's private members;
+- :mod:`squkf.boundary.model_form`: ``fx_noise``, ``hx_noise`` and ``gate``, the
+  model's form as both faces show it;
 - :mod:`squkf.boundary.records`: what a fleet's run hands out
   (:class:`FleetResult`) and the error of its failing filters;
 - :mod:`squkf.boundary.loop`: the batch loop's option checks, its progress
