@@ -24,7 +24,8 @@ from typing import Any, cast
 
 import numpy as np
 
-from .errors import ParameterError, ShapeError, SqukfError
+from .boundary.loop import annotate_step, progress_callback
+from .errors import ParameterError, ShapeError
 from .validate import check_time_step
 
 __all__ = ["batch_filter", "iter_measurements", "model_kwargs", "per_step"]
@@ -281,42 +282,6 @@ def _known_length(zs) -> int | None:
     return n if isinstance(n, int) else None
 
 
-def _progress_callback(progress, total: int | None):
-    """``(bar, callback)`` for the ``progress`` option (``bar`` is None unless we made one)."""
-    if progress is None or progress is False or (isinstance(progress, np.bool_) and not progress):
-        return None, None
-    if progress is True or isinstance(progress, np.bool_):
-        try:
-            from tqdm.auto import tqdm
-        except ImportError as exc:
-            raise ParameterError(
-                "progress=True needs tqdm, which is not installed: pip install 'squkf[progress]'"
-                " (or pass progress=callable, called with each step's index)"
-            ) from exc
-        bar = tqdm(total=total, desc="batch_filter", unit="step")
-        return bar, lambda k: bar.update(1)
-    if callable(progress):
-        return None, progress
-    raise ParameterError(
-        f"progress must be True, False or a callable taking the step index, got {progress!r}"
-    )
-
-
-def _annotate(exc: BaseException, k: int, partial: tuple, at_step: bool) -> None:
-    """Say where ``exc`` happened and attach the results so far (``exc.partial``, ``exc.step``)."""
-    if at_step:
-        if isinstance(exc, SqukfError):
-            msg = exc.args[0] if exc.args else ""
-            exc.args = (f"at step {k}: {msg}", *exc.args[1:])
-        elif hasattr(exc, "add_note"):  # Python 3.11+; other exceptions keep their message
-            exc.add_note(f"raised at step {k} of batch_filter")
-    try:
-        exc.partial = partial  # type: ignore[attr-defined]
-        exc.step = k if at_step else None  # type: ignore[attr-defined]
-    except AttributeError:  # an exception type that takes no attributes
-        pass
-
-
 class BatchResult(tuple):
     """``(means, covariances)``, as filterpy's ``batch_filter`` returns them, with the gate's record.
 
@@ -517,7 +482,7 @@ def batch_filter(
     rejected: list[np.ndarray] = []
     nis: list[float] = []
     loglik: list[float] = []
-    bar, callback = _progress_callback(progress, T)
+    bar, callback = progress_callback(progress, T)
     k = 0
     at_step = True
     try:
@@ -544,7 +509,7 @@ def batch_filter(
             for s in steps:
                 s.finish(k)
     except BaseException as exc:
-        _annotate(exc, k, (means.result()[:k], covs.result()[:k]), at_step)
+        annotate_step(exc, k, (means.result()[:k], covs.result()[:k]), at_step)
         raise
     finally:
         if bar is not None:

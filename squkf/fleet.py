@@ -45,13 +45,14 @@ from .boundary.factors import (
     noise_factors,
     reset_rows,
 )
-from .boundary.loop import Transaction, check_fleet_progress, check_keep, fleet_progress
+from .boundary.loop import Transaction, annotate_step, check_keep, check_progress, progress_callback
 from .boundary.model_form import ModelForm
 from .boundary.records import FleetResult, Records, failures_error, new_records
+from .chunks import CHUNK, kwargs_rows, stacked_posterior, stacked_prior
 from .errors import FleetStepError, ParameterError
 from .gating import Gate, as_gate
 from .generators import as_generator
-from .isolate import BLOCK, isolated_posterior, isolated_prior, rows_of
+from .isolate import rows_of
 from .noise import call_model, noise_points
 from .plan import Hooks, Plan, build_plan
 from .smoother import fleet_rts_smoother
@@ -97,6 +98,13 @@ class Fleet(ModelForm):
         ``fx(X, W, dt, **fx_args)`` with ``W`` ``(K, N, dim_w)`` and
         ``hx(X, V, **hx_args)`` with ``V`` ``(K, N2, dim_v)``; ``Q`` and ``R``
         are then w's and v's covariances (shared or per filter).
+    chunk : int
+        Filters per call of ``fx`` and ``hx``: a step runs a chunk of
+        filters at a time (:mod:`squkf.chunks`), so its temporary arrays stay
+        in cache and its memory does not grow with K; the model functions
+        get ``(k, N, d)`` points with ``k <= chunk``, and per-filter
+        ``fx_args``/``hx_args`` cut to the same filters. The numbers do not
+        depend on it.
 
     Attributes
     ----------
@@ -112,7 +120,7 @@ class Fleet(ModelForm):
     Q, R, Q1_2, R1_2 : ndarray
         Shared ``(d, d)`` or per filter ``(K, d, d)``.
     x_prior, x_post, P1_2_prior, P1_2_post : ndarray
-        Records of the last prediction and update.
+        Records of the last prediction and update (fresh on each read).
     y : ndarray, shape (K, dim_z)
         Innovations of the last update (NaN where a component was missing).
     log_likelihood, likelihood, mahalanobis : ndarray, shape (K,)
@@ -160,6 +168,7 @@ class Fleet(ModelForm):
         gate: float | Gate | None = None,
         fx_noise: int | None = None,
         hx_noise: int | None = None,
+        chunk: int = CHUNK,
     ):
         K, n, m = inputs.check_sizes(n_filters=n_filters, dim_x=dim_x, dim_z=dim_z)
         if on_error not in ("flag", "raise"):
@@ -185,8 +194,8 @@ class Fleet(ModelForm):
         self._state = steps.StepState()
         self._failed = np.zeros(K, dtype=bool)
         self._failure = np.full(K, "", dtype=object)
-        self.x_prior, self.x_post = self._x.copy(), self._x.copy()
-        self.P1_2_prior, self.P1_2_post = self._S.copy(), self._S.copy()
+        self.chunk = chunk
+        self._x_prior, self._x_post, self._S_prior, self._S_post = self._x, self._x, self._S, self._S
         self.y = np.zeros((K, m))
         self._loglik = np.zeros(K)
         self._maha = np.zeros(K)
@@ -351,15 +360,46 @@ class Fleet(ModelForm):
     def _factor_noise(self, value, name: str, dim: int) -> np.ndarray | None:
         return given_noise_factors(value, name, dim, self._K)
 
+    # -- records of the last step (the arrays behind them are never written in place) ------
+
+    @property
+    def x_prior(self) -> np.ndarray:
+        """States after the last prediction, shape ``(K, dim_x)`` (fresh)."""
+        return self._x_prior.copy()
+
+    @property
+    def P1_2_prior(self) -> np.ndarray:
+        """Lower factors after the last prediction, shape ``(K, dim_x, dim_x)`` (fresh)."""
+        return self._S_prior.copy()
+
     @property
     def P_prior(self) -> np.ndarray:
         """Covariances after the last prediction (fresh)."""
-        return self.P1_2_prior @ np.swapaxes(self.P1_2_prior, -1, -2)
+        return self._S_prior @ np.swapaxes(self._S_prior, -1, -2)
+
+    @property
+    def x_post(self) -> np.ndarray:
+        """States after the last update, shape ``(K, dim_x)`` (fresh)."""
+        return self._x_post.copy()
+
+    @property
+    def P1_2_post(self) -> np.ndarray:
+        """Lower factors after the last update, shape ``(K, dim_x, dim_x)`` (fresh)."""
+        return self._S_post.copy()
 
     @property
     def P_post(self) -> np.ndarray:
         """Covariances after the last update (fresh)."""
-        return self.P1_2_post @ np.swapaxes(self.P1_2_post, -1, -2)
+        return self._S_post @ np.swapaxes(self._S_post, -1, -2)
+
+    @property
+    def chunk(self) -> int:
+        """Filters per call of ``fx`` and ``hx`` in a step (:mod:`squkf.chunks`); assign to change."""
+        return self._chunk
+
+    @chunk.setter
+    def chunk(self, value) -> None:
+        (self._chunk,) = inputs.check_sizes(chunk=value)
 
     @property
     def failed(self) -> np.ndarray:
@@ -434,6 +474,9 @@ class Fleet(ModelForm):
     def predict(self, dt=None, **fx_args) -> None:
         """Predict every filter one step ahead (flagged filters stay as they are).
 
+        ``fx`` is called once per chunk of :attr:`chunk` filters, with their
+        points ``(k, N, dim_x)`` (one call when ``K <= chunk``).
+
         Parameters
         ----------
         dt : float, optional
@@ -442,61 +485,46 @@ class Fleet(ModelForm):
             a string is an error.
         **fx_args
             Passed to ``fx``; arrays with a leading axis of length K are per
-            filter and get a sigma-point axis (``u[k]`` becomes ``u[:, None]``).
+            filter and get a sigma-point axis (``u[k]`` becomes ``u[:, None]``),
+            cut to the filters of each call.
         """
         dt = self._dt if dt is None else check_time_step(dt)
         self._take_edits()
-        state = steps.ask_predict(self._state, self._plan, self._x, self._S, self.state_add)
-        X = state.sigmas
-        assert X is not None
-        kwargs = inputs.with_filter_axis(fx_args, self._K)
-        if self._plan.w_xi is not None:
-            W = noise_points(self._plan.w_xi, self._Q1_2, (self._K,))
-            F = call_model(self.fx, "fx", self._fx_noise, X, W, (dt,), kwargs, True)
-        else:
-            # the points themselves (no copy, for memory): the step reads only their shape afterwards
-            F = self.fx(X, dt, **kwargs)
-        self._tell_predict(state, F)
+        kwargs, K, plan, Q = inputs.with_filter_axis(fx_args, self._K), self._K, self._plan, self._Q1_2
+
+        def images(rows: slice, X: np.ndarray):
+            kw = kwargs_rows(kwargs, rows, K)
+            if plan.w_xi is None:  # the points themselves: the step reads only their shape afterwards
+                return self.fx(X, dt, **kw)
+            W = noise_points(plan.w_xi, rows_of(Q, rows, 2), (X.shape[0],))
+            return call_model(self.fx, "fx", self._fx_noise, X, W, (dt,), kw, True)
+
+        self._predict(images, None)
 
     def tell_predict(self, sigmas_f) -> None:
         """Second half of a prediction: ``fx`` at the points from :meth:`ask_predict`, ``(K, N, dim_x)``."""
         self._take_edits()
-        self._tell_predict(self._state, sigmas_f)
-
-    def _tell_predict(self, state: steps.StepState, values) -> None:
+        state = self._state
         if state.phase != steps.PREDICTING or state.sigmas is None:
             raise steps.CallSequenceError(
                 f"tell_predict needs a pending ask_predict, but the step is {state.phase!r}"
             )
         X = state.sigmas
-        fails: dict[int, str] = {}
-        active = ~self._failed
-        # validated here; copied below only if the step keeps it (memory, for large fleets)
-        F, finite = inputs.stacked_images(values, X.shape, "fx values", active, fails, copy=False)
-        if not finite.all():
-            F = np.where(finite[:, None, None], F, X)  # a failing filter's rows: harmless stand-ins
-        idx = np.flatnonzero(active & finite)
-        plan, hooks = self._plan, self._hooks()
-        Q = None if plan.w_xi is not None else self._Q1_2  # noise entering fx is in the points already
+        F = inputs.stacked_shape(sigmas_f, X.shape, "fx values", copy=False)
+        self._predict(lambda rows, X: F[rows], X)
 
-        good, res = isolated_prior(plan, hooks, X, F, Q, idx, self._K, fails, BLOCK)
+    def _predict(self, images: Callable, first: np.ndarray | None) -> None:
+        plan, fails = self._plan, dict[int, str]()
+        Q = None if plan.w_xi is not None else self._Q1_2  # noise entering fx is in the points already
+        prior = stacked_prior(
+            plan, self._hooks(), self._x, self._S, Q, ~self._failed, images, fails, first, self.chunk
+        )
         self._commit_failures(fails)
-        if res is not None and good.size == self._K:  # every filter, in order: the kernels' fresh arrays
-            x_new, S_new = res
-        else:
-            x_new, S_new = self._x.copy(), self._S.copy()
-            if res is not None:
-                x_new[good], S_new[good] = res
-        Qall = None if Q is None else (Q if Q.ndim == 2 else Q)
-        if F is values and plan.keeps_propagated:
-            F = F.copy()  # kept for the second set: the step's own copy
-        new = steps.StepState(steps.PRIOR, None, F, Qall)
-        new = steps.draw_second_set(new, plan, x_new, S_new, self.state_add)
-        # commit
-        self._state = new
-        self._x, self._S = x_new, S_new
+        # commit; the second set is drawn by the update, a chunk at a time (memory)
+        self._state = steps.StepState(steps.PRIOR, None, prior.propagated, Q, None, (prior.x, prior.S))
+        self._x, self._S = prior.x, prior.S
         self._flag(fails)
-        self.x_prior, self.P1_2_prior = x_new.copy(), S_new.copy()
+        self._x_prior, self._S_prior = prior.x, prior.S  # never written in place: copied when read
 
     def _flag(self, fails: dict[int, str]) -> None:
         for k, why in fails.items():
@@ -516,6 +544,8 @@ class Fleet(ModelForm):
     def update(self, z, R=None, **hx_args) -> None:
         """Update every filter with its measurement.
 
+        ``hx`` is called once per chunk of :attr:`chunk` filters, as ``fx`` is by :meth:`predict`.
+
         Parameters
         ----------
         z : array_like, shape (K, dim_z)
@@ -529,15 +559,17 @@ class Fleet(ModelForm):
         zz = self._as_measurements(z)
         self._take_edits()
         R1_2 = self._R1_2 if R is None else self._noise(R, "R", self._rd)
-        state = steps.ask_update(self._state, self._plan, self._x, self._S, self.state_add)
-        assert state.sigmas is not None
-        kwargs = inputs.with_filter_axis(hx_args, self._K)
-        if self._plan.v_xi is not None:
-            V = noise_points(self._plan.v_xi, R1_2, (self._K,))
-            H = call_model(self.hx, "hx", self._hx_noise, state.sigmas.copy(), V, (), kwargs, True)
-        else:
-            H = self.hx(state.sigmas.copy(), **kwargs)
-        self._tell_update(state, H, zz, R1_2)
+        pending = steps.pending_update(self._state, self._x, self._S)
+        kwargs, K, plan = inputs.with_filter_axis(hx_args, self._K), self._K, self._plan
+
+        def images(rows: slice, sset):
+            kw = kwargs_rows(kwargs, rows, K)
+            if plan.v_xi is None:
+                return self.hx(sset.sigmas.copy(), **kw)
+            V = noise_points(plan.v_xi, rows_of(R1_2, rows, 2), (sset.sigmas.shape[0],))
+            return call_model(self.hx, "hx", self._hx_noise, sset.sigmas.copy(), V, (), kw, True)
+
+        self._update(pending, images, zz, R1_2)
 
     def tell_update(self, sigmas_h, z, R=None) -> None:
         """Second half of an update: ``hx`` at the points from :meth:`ask_update`, and ``z`` (K, dim_z)."""
@@ -549,38 +581,43 @@ class Fleet(ModelForm):
                 f" before asking, not R={R!r:.60} here"
             )
         R1_2 = self._R1_2 if R is None else self._noise(R, "R", self._rd)
-        self._tell_update(self._state, sigmas_h, zz, R1_2)
+        state = self._state
+        if state.phase != steps.UPDATING or state.sset is None or state.prior is None:
+            raise steps.CallSequenceError(
+                f"tell_update needs a pending ask_update, but the step is {state.phase!r}"
+            )
+        shape = state.sset.sigmas.shape[:-1] + (self._m,)
+        H = inputs.stacked_shape(sigmas_h, shape, "hx values", copy=True)
+        self._update(state, lambda rows, sset: H[rows], zz, R1_2)
 
     def _as_measurements(self, z, name: str = "z") -> np.ndarray:
         """One step's measurements ``(K, dim_z)`` checked (``name`` for messages, e.g. ``zs[3]``)."""
         return inputs.measurements(z, self._K, self._m, name)
 
-    def _tell_update(self, state: steps.StepState, values, z: np.ndarray, R1_2) -> None:
-        if state.phase != steps.UPDATING or state.sset is None or state.prior is None:
-            raise steps.CallSequenceError(
-                f"tell_update needs a pending ask_update, but the step is {state.phase!r}"
-            )
-        sset, m = state.sset, self._m
-        measured = ~np.isnan(z).all(axis=1)
-        active = ~self._failed & measured
-        fails: dict[int, str] = {}
-        H, finite = inputs.stacked_images(
-            values, sset.sigmas.shape[:-1] + (m,), "hx values", active, fails, True
-        )
+    def _update(self, pending: steps.StepState, images: Callable, z: np.ndarray, R1_2) -> None:
+        m, fails = self._m, dict[int, str]()
+        active = ~self._failed & ~np.isnan(z).all(axis=1)
         if self._plan.v_xi is not None:  # noise entering hx is in the points: the update adds none
             R1_2 = np.zeros((m, m))
-        records = isolated_posterior(
-            state, H, z, R1_2, active & finite, self._hooks(), self._gate, fails, BLOCK
+        post = stacked_posterior(
+            self._plan, self._hooks(), self._gate, pending, z, R1_2, active, images, fails, self.chunk
         )
         self._commit_failures(fails)
-        x_new, S_new, y, loglik, maha, nis, rejected = records
         # commit
         self._state = steps.StepState()
-        self._x, self._S = x_new, S_new
+        self._x, self._S = post.x, post.S
         self._flag(fails)
-        self.x_post, self.P1_2_post = x_new.copy(), S_new.copy()
-        self.y, self._loglik, self._maha = y, loglik, maha
-        self._nis, self._rejected = nis, rejected
+        self._x_post, self._S_post = post.x, post.S  # never written in place: copied when read
+        self.y, self._loglik, self._maha = post.y, post.log_likelihood, post.mahalanobis
+        self._nis, self._rejected = post.nis, post.rejected
+
+    def _no_update(self) -> None:
+        """The records of a step in which no filter had a measurement, as :meth:`update` would leave them."""
+        K, m = self._K, self._m
+        self._state = steps.StepState()
+        self._x_post, self._S_post = self._x, self._S
+        self.y, self._loglik, self._maha = np.full((K, m), np.nan), np.zeros(K), np.zeros(K)
+        self._nis, self._rejected = np.zeros(K), np.zeros((K, m), dtype=bool)
 
     # -- many steps ---------------------------------------------------------------
 
@@ -622,22 +659,27 @@ class Fleet(ModelForm):
             ``predict`` and ``update``; an error leaves it as it was before the call.
         """
         check_keep(keep)
-        check_fleet_progress(progress)
+        check_progress(progress)
         Z = inputs.measurement_series(zs, self._K, self._m)
         T = Z.shape[1]
         dt_list = per_step(dts, T, "dts", "dt", default=self._dt, ref="zs")
         fx_args, hx_args = model_kwargs(fx_args, "fx_args"), model_kwargs(hx_args, "hx_args")
         records = new_records(keep, self._K, T, self._n, self._m)
         self._take_edits()
-        # an error at any step (a model function's, or a failure with on_error="raise")
-        # leaves the fleet as it was before the call
-        with self.transaction():
-            bar, callback = fleet_progress(progress, T)
-            try:
-                self._steps(Z, dt_list, fx_args, hx_args, records, callback)
-            finally:
-                if bar is not None:
-                    bar.close()
+        bar, callback = progress_callback(progress, T)
+        t = 0
+        try:
+            with self.transaction():  # an error at any step leaves the fleet as it was before the call
+                for t in range(T):
+                    self._step(t, Z[:, t], dt_list[t], fx_args, hx_args, records)
+                    if callback is not None:
+                        callback(t)
+        except BaseException as exc:
+            annotate_step(exc, t, records.so_far(t), True)
+            raise
+        finally:
+            if bar is not None:
+                bar.close()
         r = records
         return FleetResult(
             r.means, r.factors, r.variances, r.loglik, self._failed.copy(), self._x.copy(), self._S.copy(),
@@ -659,33 +701,14 @@ class Fleet(ModelForm):
         self.__dict__.update(before.__dict__)
         self.__dict__["_handed"] = handed  # the arrays handed out stay the caller's, still current
 
-    def _steps(self, Z, dt_list, fx_args, hx_args, records: Records, callback) -> None:
-        K, m = self._K, self._m
-        means, factors, variances, loglik = records.means, records.factors, records.variances, records.loglik
-        for t in range(len(dt_list)):
-            self.predict(dt_list[t], **fx_args)
-            if np.isnan(Z[:, t]).all():  # no measurement at all: as update() would leave it
-                self._state = steps.StepState()
-                self.x_post, self.P1_2_post = self._x.copy(), self._S.copy()
-                self.y, self._loglik, self._maha = np.full((K, m), np.nan), np.zeros(K), np.zeros(K)
-                self._nis, self._rejected = np.zeros(K), np.zeros((K, m), dtype=bool)
-            else:
-                self.update(Z[:, t], **hx_args)
-                if loglik.ndim == 1:  # keep="final": the run's totals
-                    loglik += self._loglik
-                    records.rejected[...] += self._rejected
-                else:
-                    loglik[:, t] = self._loglik
-                    records.rejected[:, t] = self._rejected
-                    records.nis[:, t] = self._nis  # type: ignore[index]  # kept unless keep="final"
-            if means is not None:
-                means[:, t] = self._x
-            if factors is not None:
-                factors[:, t] = self._S
-            if variances is not None:
-                variances[:, t] = np.einsum("kij,kij->ki", self._S, self._S)
-            if callback is not None:
-                callback(t)
+    def _step(self, t: int, z: np.ndarray, dt: float, fx_args: dict, hx_args: dict, records: Records) -> None:
+        """Step ``t`` of :meth:`batch_filter`, its records kept."""
+        self.predict(dt, **fx_args)
+        if np.isnan(z).all():  # no measurement at all: as update() would leave it
+            self._no_update()
+        else:
+            self.update(z, **hx_args)
+        records.keep(t, self._x, self._S, self._loglik, self._rejected, self._nis)
 
     # -- one filter and back --------------------------------------------------------
 
@@ -749,8 +772,8 @@ class Fleet(ModelForm):
         new._R1_2 = rows_of(self._R1_2, idx, 2)  # type: ignore[assignment]
         new._failed, new._failure = self._failed[idx], self._failure[idx]
         new._state = steps.StepState()
-        new.x_prior, new.x_post = self.x_prior[idx], self.x_post[idx]
-        new.P1_2_prior, new.P1_2_post = self.P1_2_prior[idx], self.P1_2_post[idx]
+        new._x_prior, new._x_post = self._x_prior[idx], self._x_post[idx]
+        new._S_prior, new._S_post = self._S_prior[idx], self._S_post[idx]
         new.y, new._loglik, new._maha = self.y[idx], self._loglik[idx], self._maha[idx]
         new._nis, new._rejected = self._nis[idx], self._rejected[idx]
         return new

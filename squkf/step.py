@@ -45,6 +45,7 @@ __all__ = [
     "ask_predict",
     "tell_predict",
     "draw_second_set",
+    "pending_update",
     "ask_update",
     "tell_update",
     "GatedUpdate",
@@ -81,9 +82,10 @@ class StepState:
     Q1_2 : ndarray or None
         The process-noise factor of that prediction.
     sset : SigmaSet or None
-        The second set drawn for the pending update.
+        The second set drawn for the pending update (None with a ``prior``:
+        not drawn yet; :func:`ask_update` draws it).
     prior : tuple (x, S) or None
-        The mean and factor ``sset`` was drawn from.
+        The mean and factor ``sset`` was, or is to be, drawn from.
     """
 
     phase: str = IDLE
@@ -207,6 +209,41 @@ def draw_second_set(
     return StepState(state.phase, state.sigmas, propagated, state.Q1_2, sset, (x, S))
 
 
+def pending_update(state: StepState, x: np.ndarray, S: np.ndarray) -> StepState:
+    """The update pending for the estimate ``(x, S)``, its second set drawn or not yet.
+
+    Parameters
+    ----------
+    state : StepState
+        Not ``"predicting"``.
+    x : ndarray, shape (..., n)
+    S : ndarray, shape (..., n, n)
+        The prior (after a prediction) or the current estimate.
+
+    Returns
+    -------
+    StepState
+        Phase ``"updating"``, ``sigmas`` None. When ``(x, S)`` is the prior
+        that ``state``'s set was (or is to be) drawn from, ``state``'s
+        propagated set, noise factor and second set (None: not drawn yet);
+        otherwise (the caller changed the estimate) nothing of ``state``: a
+        set to draw from ``(x, S)`` alone.
+    """
+    if state.phase == PREDICTING:
+        raise CallSequenceError(
+            "ask_update called while a prediction is pending: tell_predict the fx values first"
+        )
+    drawn = state.prior
+    if (
+        state.phase in (PRIOR, UPDATING)
+        and drawn is not None
+        and drawn[1] is S
+        and (drawn[0] is x or (drawn[0].shape == x.shape and np.array_equal(drawn[0], x)))
+    ):
+        return StepState(UPDATING, None, state.propagated, state.Q1_2, state.sset, drawn)
+    return StepState(UPDATING, None, None, None, None, (x, S))
+
+
 def ask_update(
     state: StepState, plan: Plan, x: np.ndarray, S: np.ndarray, state_add: Callable | None = None
 ) -> StepState:
@@ -221,7 +258,8 @@ def ask_update(
     S : ndarray, shape (..., n, n)
         The prior (after a prediction) or the current estimate. When they
         are not what the pending set was drawn from (the caller changed
-        them), the set is redrawn from them, without the propagated set.
+        them), the set is redrawn from them, without the propagated set
+        (:func:`pending_update`).
     state_add : callable, optional
 
     Returns
@@ -229,20 +267,10 @@ def ask_update(
     StepState
         Phase ``"updating"``.
     """
-    if state.phase == PREDICTING:
-        raise CallSequenceError(
-            "ask_update called while a prediction is pending: tell_predict the fx values first"
-        )
-    drawn = state.prior
-    if not (
-        state.phase in (PRIOR, UPDATING)
-        and drawn is not None
-        and drawn[1] is S
-        and (drawn[0] is x or (drawn[0].shape == x.shape and np.array_equal(drawn[0], x)))
-    ):
-        # the estimate is not the one the pending set belongs to: draw afresh from it
-        state = draw_second_set(StepState(), plan, x, S, state_add)
-    sset: SigmaSet = state.sset  # type: ignore[assignment]  # drawn with the prior
+    state = pending_update(state, x, S)
+    if state.sset is None:
+        state = draw_second_set(state, plan, x, S, state_add)
+    sset: SigmaSet = state.sset  # type: ignore[assignment]  # drawn just now or with the prior
     return StepState(UPDATING, sset.sigmas, state.propagated, state.Q1_2, sset, state.prior)
 
 

@@ -43,6 +43,7 @@ from models import (
     xy_radar_hx_stacked,
 )
 
+import squkf.chunks
 import squkf.fleet
 from squkf import (
     Augmented,
@@ -404,6 +405,63 @@ def test_nan_fx_isolated_and_frozen(K, data_, scheme):
     assert_rows_equal(big, small, keep, "after the reset")
     assert_close(big.x[k], one.x, "x after reset")
     assert_close(big.P1_2[k], one.P1_2, "P1_2 after reset")
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_chunks_call_the_model_per_chunk_and_a_failure_in_one_is_that_filters_alone(scheme):
+    """``chunk=2`` over 5 filters: fx and hx see the chunks' points and per-filter arguments cut to them.
+
+    Filter 3 (in the second chunk) fails; the others are the fleet of 4 without it, bit for bit.
+    """
+    K, k = 5, 3
+    big, small, keep, zs = fleet_with_and_without(K, k, scheme)
+    big.chunk = 2
+    fx, hx, seen = big.fx, big.hx, []
+
+    def fx_seen(X, dt, bad=None):
+        seen.append(("fx", X.shape[0], np.shape(bad)))
+        return fx(X, dt, bad=bad)
+
+    def hx_seen(X, **kw):
+        seen.append(("hx", X.shape[0]))
+        return hx(X, **kw)
+
+    big.fx, big.hx = fx_seen, hx_seen
+    good, bad = np.zeros(K, dtype=bool), np.zeros(K, dtype=bool)
+    bad[k] = True
+    for t, flags in enumerate((good, bad, good)):
+        big.predict(bad=flags)
+        big.update(zs[:, t])
+        small.predict()
+        small.update(zs[keep, t])
+    assert big.failed.tolist() == [j == k for j in range(K)]
+    assert "fx" in big.failure[k]
+    assert_rows_equal(big, small, keep, "after the failure")
+    assert seen[:6] == [
+        ("fx", 2, (2, 1)),
+        ("fx", 2, (2, 1)),
+        ("fx", 1, (1, 1)),
+        ("hx", 2),
+        ("hx", 2),
+        ("hx", 1),
+    ]
+
+
+def test_a_chunks_wrong_fx_shape_names_its_filters_and_changes_nothing():
+    fleet = cv_fleet(5, MerweScaledWeights())
+    fleet.chunk = 2
+    before = fleet_state(fleet)
+    fx = fleet.fx
+    fleet.fx = lambda X, dt: fx(X, dt)[:, :-1] if X.shape[0] == 1 else fx(X, dt)
+    with pytest.raises(ShapeError, match="filters 4 to 4"):
+        fleet.predict()
+    assert_fleet_state(fleet, before)
+
+
+@pytest.mark.parametrize("bad", [0, -2, 1.5, "8", True, None])
+def test_chunk_must_be_a_positive_integer(bad):
+    with pytest.raises(ParameterError, match="chunk"):
+        cv_fleet(3, MerweScaledWeights(), chunk=bad)
 
 
 @pytest.mark.parametrize("scheme", SCHEMES)
@@ -929,12 +987,14 @@ def test_ask_tell_values_may_be_edited_by_the_caller():
 
 @pytest.mark.parametrize("block", [2, 3, 5])
 @pytest.mark.parametrize("scheme", SCHEMES)
-def test_blocks_of_the_core_change_no_bit(monkeypatch, block, scheme):
-    """The core runs a block of filters at a time (squkf.fleet.BLOCK): any block size, same numbers."""
+def test_chunks_and_blocks_of_the_core_change_no_bit(monkeypatch, block, scheme):
+    """A step runs a chunk of filters at a time (``chunk``), its core a block (chunks.BLOCK): same bits."""
     fleet, _, zs = fleet_batch_setup(K=11, T=6, scheme=scheme)
     whole = copy.deepcopy(fleet).batch_filter(zs)
-    monkeypatch.setattr(squkf.fleet, "BLOCK", block)
-    blocked = copy.deepcopy(fleet).batch_filter(zs)
+    monkeypatch.setattr(squkf.chunks, "BLOCK", block)
+    cut = copy.deepcopy(fleet)
+    cut.chunk = block + 1
+    blocked = cut.batch_filter(zs)
     for field in ("means", "P1_2s", "log_likelihood", "x", "P1_2"):
         assert np.array_equal(getattr(blocked, field), getattr(whole, field)), field
 

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from models import plain_fx, plain_hx, plain_scenario
 
-import squkf.fleet
+import squkf.chunks
 from squkf import Fleet, JulierWeights, MerweScaledWeights, SquareRootUKF, kernels
 from squkf.kernels import phases
 from squkf.linalg import chol_update
@@ -33,8 +33,8 @@ CONFIGS = {
 }
 
 
-def run_fleet(K, config, x0, P0, Q, R, zs):
-    fleet = Fleet(K, 4, 2, 0.1, plain_hx, plain_fx, **config)
+def run_fleet(K, config, x0, P0, Q, R, zs, chunk=squkf.chunks.CHUNK):
+    fleet = Fleet(K, 4, 2, 0.1, plain_hx, plain_fx, chunk=chunk, **config)
     fleet.x, fleet.P, fleet.Q, fleet.R = x0, P0, Q, R
     out = []
     for z in zs:
@@ -65,23 +65,26 @@ def test_a_fleet_filter_equals_its_single_filter_bit_for_bit(name):
                 assert f.log_likelihood == ll[k], f"filter {k}, step {t}"
 
 
-def test_results_do_not_depend_on_block_size_or_thread_count(monkeypatch):
+@pytest.mark.parametrize("name", ["merwe", "merwe-propagated"])
+def test_results_do_not_depend_on_chunk_block_size_or_thread_count(monkeypatch, name):
+    """Chunks of the fleet's step (squkf.chunks), blocks of the isolation, threads: the same bits."""
     K = 300
     x0, P0, Q, R, zs = plain_scenario(K, T=4, seed=1)
-    config = CONFIGS["merwe"]
+    config = CONFIGS[name]
     reference = run_fleet(K, config, x0, P0, Q, R, zs)
     monkeypatch.setattr(kernels, "MIN_FILTERS_PER_THREAD", 7)  # cut small stacks too
-    for block, threads in ((64, 1), (37, 2), (300, 2), (5, 3)):
-        monkeypatch.setattr(squkf.fleet, "BLOCK", block)
+    for block, chunk, threads in ((64, 1024, 1), (37, 50, 2), (300, 7, 2), (5, 300, 3), (16, 1, 2)):
+        monkeypatch.setattr(squkf.chunks, "BLOCK", block)
         kernels.set_num_threads(threads)
         try:
-            again = run_fleet(K, config, x0, P0, Q, R, zs)
+            again = run_fleet(K, config, x0, P0, Q, R, zs, chunk=chunk)
         finally:
             kernels.set_num_threads(1)
+        say = f"block {block}, chunk {chunk}, {threads} threads"
         for (x, P, ll), (x1, P1, ll1) in zip(reference, again):
-            np.testing.assert_array_equal(x, x1, err_msg=f"block {block}, {threads} threads")
-            np.testing.assert_array_equal(P, P1, err_msg=f"block {block}, {threads} threads")
-            np.testing.assert_array_equal(ll, ll1)
+            np.testing.assert_array_equal(x, x1, err_msg=say)
+            np.testing.assert_array_equal(P, P1, err_msg=say)
+            np.testing.assert_array_equal(ll, ll1, err_msg=say)
 
 
 @pytest.mark.parametrize("bad", [0, -1, 1.5, "2", True, None])

@@ -21,6 +21,7 @@ __all__ = [
     "as_state",
     "check_sizes",
     "evaluate",
+    "finite_images",
     "measurement",
     "measurement_series",
     "measurements",
@@ -28,6 +29,7 @@ __all__ = [
     "per_filter",
     "refuse_smoother_noise",
     "stacked_images",
+    "stacked_shape",
     "with_filter_axis",
 ]
 
@@ -295,11 +297,9 @@ def stacked_images(values, shape: tuple, name: str, active, fails: dict, copy: b
     active : ndarray of bool, shape (K,)
         The filters whose images count (not flagged, measured).
     fails : dict
-        An active filter with a non-finite image is added, ``filter -> reason``,
-        described by its own rows (as one filter's error would say it).
+        An active filter with a non-finite image is added (:func:`finite_images`).
     copy : bool
-        Whether a float64 ndarray is copied (``hx``) or taken as it is (``fx``:
-        the step copies it only if it keeps it).
+        As for :func:`stacked_shape`.
 
     Returns
     -------
@@ -307,16 +307,63 @@ def stacked_images(values, shape: tuple, name: str, active, fails: dict, copy: b
     finite : ndarray of bool, shape (K,)
         Which filters' images are finite.
     """
+    A = stacked_shape(values, shape, name, copy)
+    return A, finite_images(A, name, active, fails)
+
+
+def stacked_shape(values, shape: tuple, name: str, copy: bool) -> np.ndarray:
+    """A stack's model-function images as a float64 array of the expected shape.
+
+    Parameters
+    ----------
+    values : array_like
+    shape : tuple of int
+        What ``values`` must be.
+    name : str
+        For messages.
+    copy : bool
+        Whether a float64 ndarray is copied (``hx``) or taken as it is (``fx``:
+        the step copies it only if it keeps it).
+
+    Returns
+    -------
+    ndarray, shape ``shape``
+
+    Raises
+    ------
+    ShapeError, ParameterError
+        The wrong shape; not numbers.
+    """
     if not copy and isinstance(values, np.ndarray) and values.dtype == np.float64:
         A = values
     else:
         A = as_float_array(values, name)
     if A.shape != shape:
         raise ShapeError(f"{name} have shape {A.shape}, expected {shape}")
+    return A
+
+
+def finite_images(A: np.ndarray, name: str, active, fails: dict) -> np.ndarray:
+    """Which filters' images ``A`` ``(K, N, d)`` are finite; an active filter's that are not is a failure.
+
+    Parameters
+    ----------
+    A : ndarray, shape (K, N, d)
+    name : {"fx values", "hx values"}
+    active : ndarray of bool, shape (K,)
+        The filters whose images count (not flagged, measured).
+    fails : dict
+        An active filter with a non-finite image is added, ``filter -> reason``,
+        described by its own rows (as one filter's error would say it).
+
+    Returns
+    -------
+    ndarray of bool, shape (K,)
+    """
     finite = np.isfinite(A.reshape(A.shape[0], -1)).all(axis=1)
     for k in np.flatnonzero(active & ~finite).tolist():
         fails.setdefault(int(k), f"NonFiniteError: {describe_nonfinite(A[k], name)}")
-    return A, finite
+    return finite
 
 
 def model_noise(fx: Callable, hx: Callable, fx_noise, hx_noise) -> tuple[int, int]:

@@ -13,9 +13,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
-from ..errors import ParameterError
+import numpy as np
 
-__all__ = ["KEEP", "Transaction", "check_fleet_progress", "check_keep", "fleet_progress"]
+from ..errors import ParameterError, SqukfError
+
+__all__ = ["KEEP", "Transaction", "annotate_step", "check_keep", "check_progress", "progress_callback"]
 
 KEEP = ("all", "diagonals", "means", "final")
 
@@ -63,34 +65,82 @@ def check_keep(keep) -> str:
     return keep
 
 
-def check_fleet_progress(progress) -> None:
-    """A fleet's ``progress``: True, False or a callable (checked before the run, with the other options)."""
-    if not (isinstance(progress, bool) or callable(progress)):
-        raise ParameterError(f"progress must be True, False or a callable, got {progress!r}")
+def check_progress(progress) -> None:
+    """The ``progress`` option of a batch run: True, False (or None), or a callable taking the step index.
+
+    Raises
+    ------
+    ParameterError
+        Anything else.
+    """
+    if progress is None or isinstance(progress, (bool, np.bool_)) or callable(progress):
+        return
+    raise ParameterError(
+        f"progress must be True, False or a callable taking the step index, got {progress!r}"
+    )
 
 
-def fleet_progress(progress, total: int):
-    """``(bar, callback)`` for a fleet's ``progress`` option: a tqdm bar of ``total`` steps, or the callable.
+def progress_callback(progress, total: int | None) -> tuple[Any, Callable[[int], object] | None]:
+    """``(bar, callback)`` for a batch run's ``progress`` option (checked by :func:`check_progress`).
 
     Parameters
     ----------
-    progress : bool or callable
-        Checked by :func:`check_fleet_progress`.
-    total : int
+    progress : bool, None or callable
+    total : int or None
+        The number of steps, when known.
 
     Returns
     -------
     (bar, callback)
-        ``bar`` a tqdm bar (None unless ``progress`` is True), to close;
-        ``callback(t)`` called after step ``t`` (None for no progress).
+        ``bar`` a tqdm bar on stderr when ``progress`` is True (to close),
+        else None; ``callback(k)``, called after step ``k`` (None: no progress).
+
+    Raises
+    ------
+    ParameterError
+        ``progress`` is not an option, or is True and tqdm is not installed.
     """
-    if progress is True:
+    check_progress(progress)
+    if progress is None or not progress:
+        return None, None
+    if progress is True or isinstance(progress, np.bool_):
         try:
             from tqdm.auto import tqdm
-        except ImportError:
-            raise ParameterError("progress=True needs tqdm: pip install 'squkf[progress]'") from None
-        bar = tqdm(total=total, unit="step")
-        return bar, lambda t: bar.update(1)
-    if progress is False:
-        return None, None
+        except ImportError as exc:
+            raise ParameterError(
+                "progress=True needs tqdm, which is not installed: pip install 'squkf[progress]'"
+                " (or pass progress=callable, called with each step's index)"
+            ) from exc
+        bar = tqdm(total=total, desc="batch_filter", unit="step")
+        return bar, lambda k: bar.update(1)
     return None, progress
+
+
+def annotate_step(exc: BaseException, k: int, partial: Any, at_step: bool) -> None:
+    """Say where ``exc`` happened in a batch run and attach the results so far.
+
+    A squkf error's message gets the prefix ``"at step k: "``; another
+    exception a note (Python 3.11+). ``exc.partial`` is set to ``partial``
+    and ``exc.step`` to ``k`` (None when the run failed after its steps).
+
+    Parameters
+    ----------
+    exc : BaseException
+    k : int
+        The step (0-based) that raised.
+    partial : object
+        The results of the steps before ``k``.
+    at_step : bool
+        False when the error came after the last step (a check of the whole run).
+    """
+    if at_step:
+        if isinstance(exc, SqukfError):
+            msg = exc.args[0] if exc.args else ""
+            exc.args = (f"at step {k}: {msg}", *exc.args[1:])
+        elif hasattr(exc, "add_note"):  # Python 3.11+; other exceptions keep their message
+            exc.add_note(f"raised at step {k} of batch_filter")
+    try:
+        exc.partial = partial  # type: ignore[attr-defined]
+        exc.step = k if at_step else None  # type: ignore[attr-defined]
+    except AttributeError:  # an exception type that takes no attributes
+        pass

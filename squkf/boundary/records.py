@@ -66,6 +66,30 @@ class Records(NamedTuple):
     rejected: np.ndarray
     nis: np.ndarray | None
 
+    def keep(self, t: int, x: np.ndarray, S: np.ndarray, loglik, rejected, nis) -> None:
+        """Keep step ``t``'s estimates ``x (K, n)``, ``S (K, n, n)`` and its update's records.
+
+        With ``keep="final"`` (no ``nis``), the log-likelihoods and rejections are summed over the run.
+        """
+        if self.nis is None:
+            self.loglik[...] += loglik
+            self.rejected[...] += rejected
+        else:
+            self.loglik[:, t], self.rejected[:, t], self.nis[:, t] = loglik, rejected, nis
+        if self.means is not None:
+            self.means[:, t] = x
+        if self.factors is not None:
+            self.factors[:, t] = S
+        if self.variances is not None:
+            self.variances[:, t] = np.einsum("kij,kij->ki", S, S)
+
+    def so_far(self, t: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """The means ``(K, t, n)`` and factors ``(K, t, n, n)`` before step ``t`` (copies, or None)."""
+        return (
+            None if self.means is None else self.means[:, :t].copy(),
+            None if self.factors is None else self.factors[:, :t].copy(),
+        )
+
 
 def new_records(keep: str, K: int, T: int, n: int, m: int) -> Records:
     """The arrays of a run of ``T`` steps of ``K`` filters that ``keep`` asks for.

@@ -22,8 +22,10 @@ exceptions (:mod:`squkf.linalg`, :mod:`squkf.transform`,
 from __future__ import annotations
 
 import os
+import threading
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, TypeVar
 
 import numpy as np
 
@@ -43,6 +45,7 @@ __all__ = [
     "GIVEN",
     "set_num_threads",
     "get_num_threads",
+    "thread_map",
 ]
 
 #: Row forms (:mod:`squkf.kernels.phases`).
@@ -53,6 +56,7 @@ MIN_FILTERS_PER_THREAD = 2048
 
 _threads = 1
 _pool: ThreadPoolExecutor | None = None
+_worker = threading.local()  # .busy: this thread runs a job of the pool (no nested hand-off)
 
 
 def set_num_threads(n: int) -> None:
@@ -82,6 +86,56 @@ def get_num_threads() -> int:
     return _threads
 
 
+def _get_pool() -> ThreadPoolExecutor:
+    global _pool
+    if _pool is None:
+        _pool = ThreadPoolExecutor(_threads, thread_name_prefix="squkf-kernel")
+    return _pool
+
+
+def _in_pool(fn: Callable, *args):
+    _worker.busy = True
+    try:
+        return fn(*args)
+    finally:
+        _worker.busy = False
+
+
+T = TypeVar("T")
+
+
+def thread_map(fn: Callable[[Any], T], items: Sequence) -> list[T]:
+    """``[fn(item) for item in items]``, on the threads of :func:`set_num_threads`.
+
+    With one thread, or one item, or when called from a job of the pool
+    itself, the items are run in order on the calling thread. Otherwise
+    they are handed to the pool; every job is waited for, and the first
+    item's exception (in the order of ``items``) is raised, so no job still
+    runs when this returns.
+
+    Parameters
+    ----------
+    fn : callable
+        Of one item; it must be safe to run on several threads at once (the
+        compiled kernels and numpy's array functions are).
+    items : sequence
+
+    Returns
+    -------
+    list
+        ``fn``'s results, in the order of ``items``.
+    """
+    if _threads == 1 or len(items) < 2 or getattr(_worker, "busy", False):
+        return [fn(item) for item in items]
+    pool = _get_pool()
+    jobs = [pool.submit(_in_pool, fn, item) for item in items]
+    errors = [job.exception() for job in jobs]  # waits for every job
+    for exc in errors:
+        if exc is not None:
+            raise exc
+    return [job.result() for job in jobs]
+
+
 def _run(kernel: Any, B: int, args: tuple, per_filter: tuple[bool, ...]) -> None:
     """Call ``kernel(*args)``, cut over ``B`` filters between the threads when that pays.
 
@@ -92,12 +146,10 @@ def _run(kernel: Any, B: int, args: tuple, per_filter: tuple[bool, ...]) -> None
     if parts <= 1:
         kernel(*args)
         return
-    global _pool
-    if _pool is None:
-        _pool = ThreadPoolExecutor(_threads, thread_name_prefix="squkf-kernel")
+    pool = _get_pool()
     cuts = [B * i // parts for i in range(parts + 1)]
     jobs = [
-        _pool.submit(kernel, *(a[lo:hi] if cut else a for a, cut in zip(args, per_filter)))
+        pool.submit(kernel, *(a[lo:hi] if cut else a for a, cut in zip(args, per_filter)))
         for lo, hi in zip(cuts[:-1], cuts[1:])
     ]
     for job in jobs:
@@ -109,7 +161,7 @@ def _call(kernel: Any, B: int, *args, plan: tuple[int, ...] = ()) -> None:
 
     Every other array with ``B`` rows is one row per filter; a shared array has one row.
     """
-    if _threads == 1 or B < 2 * MIN_FILTERS_PER_THREAD:
+    if _threads == 1 or B < 2 * MIN_FILTERS_PER_THREAD or getattr(_worker, "busy", False):
         kernel(*args)
         return
     cut = tuple(

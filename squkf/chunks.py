@@ -1,0 +1,259 @@
+"""The fleet's step a chunk of filters at a time.
+
+A step of K filters runs chunk by chunk, :data:`CHUNK` filters each: a
+chunk's first set is drawn, the model function is called with the chunk's
+points, and the chunk's prior is computed (a prediction); or its second set
+is drawn, the model called, and its posterior computed (an update). The
+step's temporary arrays (points, images, the kernels' scratch and results)
+are then the size of a chunk, not of the fleet: they stay in the processor's
+cache, the step's memory does not grow with K beyond its results, and the
+chunks can run on the threads of :func:`squkf.set_num_threads`. Each
+filter's arithmetic is its own, so its numbers are the same, bit for bit,
+whatever chunk or thread it is in (``tests/test_kernels.py``). Within a
+chunk, a numerical failure is isolated per filter (:mod:`squkf.isolate`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
+
+from . import kernels
+from . import step as steps
+from .boundary.inputs import finite_images, stacked_shape
+from .generators import SigmaSet
+from .isolate import BLOCK, isolated_posterior, isolated_prior, rows_of, take_set
+from .plan import Hooks, Plan
+
+__all__ = ["CHUNK", "chunks", "kwargs_rows", "stacked_prior", "stacked_posterior", "Prior", "Posteriors"]
+
+#: Filters per chunk of a fleet's step (their arrays stay in cache; see the module docstring).
+CHUNK = 1024
+
+
+def chunks(K: int, size: int = CHUNK) -> list[slice]:
+    """The chunks of ``K`` filters, ``size`` each (the last one shorter), as slices."""
+    return [slice(lo, min(lo + size, K)) for lo in range(0, K, size)]
+
+
+def kwargs_rows(kwargs: dict, rows: slice, K: int) -> dict:
+    """A model function's keyword arguments for the filters ``rows``: per-filter arrays cut.
+
+    Parameters
+    ----------
+    kwargs : dict
+        After :func:`squkf.boundary.inputs.with_filter_axis`: an ndarray with a
+        leading axis of length ``K`` is per filter.
+    rows : slice
+    K : int
+
+    Returns
+    -------
+    dict
+        ``kwargs`` itself when ``rows`` is every filter, else a new dict.
+    """
+    if rows.start == 0 and rows.stop == K:
+        return kwargs
+    return {
+        key: v[rows] if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == K else v
+        for key, v in kwargs.items()
+    }
+
+
+def _label(name: str, rows: slice, K: int) -> str:
+    """``name`` as said in a shape error: with the chunk's filters when it is not the whole fleet."""
+    if rows.start == 0 and rows.stop == K:
+        return name
+    return f"{name} of filters {rows.start} to {rows.stop - 1} (one call of {rows.stop - rows.start})"
+
+
+def _gather(parts: list[dict[int, str]], fails: dict[int, str]) -> None:
+    for part in parts:
+        fails.update(part)
+
+
+class Prior(NamedTuple):
+    """The priors of a fleet's prediction (fresh arrays).
+
+    Attributes
+    ----------
+    x : ndarray, shape (K, n)
+    S : ndarray, shape (K, n, n)
+        A failing or inactive filter keeps its estimate.
+    propagated : ndarray, shape (K, N, n), or None
+        The first sets' images, when the plan's second set reads them.
+    """
+
+    x: np.ndarray
+    S: np.ndarray
+    propagated: np.ndarray | None
+
+
+def stacked_prior(
+    plan: Plan,
+    hooks: Hooks,
+    x: np.ndarray,
+    S: np.ndarray,
+    Q1_2: np.ndarray | None,
+    active: np.ndarray,
+    images: Callable[[slice, np.ndarray], object],
+    fails: dict[int, str],
+    first: np.ndarray | None = None,
+    size: int = CHUNK,
+) -> Prior:
+    """The prediction of a stack of filters, a chunk at a time, failing filters isolated.
+
+    Parameters
+    ----------
+    plan : Plan
+    hooks : Hooks
+    x : ndarray, shape (K, n)
+    S : ndarray, shape (K, n, n)
+    Q1_2 : ndarray, shape (d, d) or (K, d, d), or None
+        Additive process noise factor, shared or per filter (None: none added).
+    active : ndarray of bool, shape (K,)
+        The filters to step (the others keep their estimate).
+    images : callable
+        ``images(rows, X)``: the model at the first sets ``X`` ``(k, N, n)`` of
+        the filters ``rows`` (a slice), shape ``(k, N, n)``.
+    fails : dict
+        Filled with ``filter -> reason`` for the filters that fail.
+    first : ndarray, shape (K, N, n), optional
+        The first sets already handed out (``ask_predict``); default: drawn per chunk.
+    size : int
+        Filters per chunk.
+
+    Returns
+    -------
+    Prior
+    """
+    K = x.shape[0]
+    x_new, S_new = np.empty_like(x), np.empty_like(S)
+    propagated = np.empty((K,) + plan.first.xi.shape) if plan.keeps_propagated else None
+
+    def one(rows: slice) -> dict[int, str]:
+        found: dict[int, str] = {}
+        xs, Ss = x[rows], S[rows]
+        if first is None:
+            X = steps.ask_predict(steps.StepState(), plan, xs, Ss, hooks.state_add).sigmas
+        else:
+            X = first[rows]
+        assert X is not None
+        k = X.shape[0]
+        F = stacked_shape(images(rows, X), X.shape, _label("fx values", rows, K), copy=False)
+        on = active[rows]
+        finite = finite_images(F, "fx values", on, found)
+        if not finite.all():
+            F = np.where(finite[:, None, None], F, X)  # a failing filter's rows: harmless stand-ins
+        good, res = isolated_prior(
+            plan, hooks, X, F, rows_of(Q1_2, rows, 2), np.flatnonzero(on & finite), k, found, BLOCK
+        )
+        xo, So = x_new[rows], S_new[rows]
+        if res is not None and good.size == k:
+            xo[...], So[...] = res
+        else:
+            xo[...], So[...] = xs, Ss
+            if res is not None:
+                xo[good], So[good] = res
+        if propagated is not None:
+            propagated[rows] = F
+        return {rows.start + i: why for i, why in found.items()}
+
+    _gather(kernels.thread_map(one, chunks(K, size)), fails)
+    return Prior(x_new, S_new, propagated)
+
+
+class Posteriors(NamedTuple):
+    """The records of a fleet's update (fresh arrays; a filter not updated keeps its prior).
+
+    Attributes
+    ----------
+    x : ndarray, shape (K, n)
+    S : ndarray, shape (K, n, n)
+    y : ndarray, shape (K, m)
+        Innovations (NaN where a component was missing or the filter not updated).
+    log_likelihood, mahalanobis, nis : ndarray, shape (K,)
+    rejected : ndarray of bool, shape (K, m)
+    """
+
+    x: np.ndarray
+    S: np.ndarray
+    y: np.ndarray
+    log_likelihood: np.ndarray
+    mahalanobis: np.ndarray
+    nis: np.ndarray
+    rejected: np.ndarray
+
+
+def stacked_posterior(
+    plan: Plan,
+    hooks: Hooks,
+    gate,
+    pending: steps.StepState,
+    z: np.ndarray,
+    R1_2: np.ndarray,
+    active: np.ndarray,
+    images: Callable[[slice, SigmaSet], object],
+    fails: dict[int, str],
+    size: int = CHUNK,
+) -> Posteriors:
+    """The update of a stack of filters, a chunk at a time, failing filters isolated.
+
+    Parameters
+    ----------
+    plan : Plan
+    hooks : Hooks
+    gate : Gate or None
+    pending : StepState
+        From :func:`squkf.step.pending_update`: the priors ``(K, ...)`` and
+        their second sets, or None to draw them here a chunk at a time.
+    z : ndarray, shape (K, m)
+        Measurements, NaN where missing.
+    R1_2 : ndarray, shape (m, m) or (K, m, m)
+        Measurement noise factor, shared or per filter.
+    active : ndarray of bool, shape (K,)
+        The filters to update (the others keep their prior, with no innovation).
+    images : callable
+        ``images(rows, sset)``: the model at the second sets ``sset`` of the
+        filters ``rows`` (a slice), shape ``(k, N2, m)``.
+    fails : dict
+        Filled with ``filter -> reason`` for the filters that fail.
+    size : int
+        Filters per chunk.
+
+    Returns
+    -------
+    Posteriors
+    """
+    x, S = pending.prior  # type: ignore[misc]
+    K, m = z.shape
+    out = Posteriors(
+        np.empty_like(x), np.empty_like(S), np.empty((K, m)), np.empty(K), np.empty(K), np.empty(K),
+        np.empty((K, m), dtype=bool),
+    )  # fmt: skip
+    sset, propagated, Q1_2 = pending.sset, pending.propagated, pending.Q1_2
+
+    def one(rows: slice) -> dict[int, str]:
+        found: dict[int, str] = {}
+        xs, Ss = x[rows], S[rows]
+        if sset is not None:
+            s = take_set(sset, rows)
+        else:
+            prop = None if propagated is None else propagated[rows]
+            s = plan.second.draw(xs, Ss, prop, rows_of(Q1_2, rows, 2), hooks.state_add)
+        shape = s.sigmas.shape[:-1] + (m,)
+        H = stacked_shape(images(rows, s), shape, _label("hx values", rows, K), copy=True)
+        on = active[rows]
+        finite = finite_images(H, "hx values", on, found)
+        sub = steps.StepState(steps.UPDATING, None, None, None, s, (xs, Ss))
+        records = isolated_posterior(
+            sub, H, z[rows], rows_of(R1_2, rows, 2), on & finite, hooks, gate, found, BLOCK
+        )
+        for whole, part in zip(out, records):
+            whole[rows] = part
+        return {rows.start + i: why for i, why in found.items()}
+
+    _gather(kernels.thread_map(one, chunks(K, size)), fails)
+    return out
