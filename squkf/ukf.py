@@ -10,7 +10,6 @@ call.
 
 from __future__ import annotations
 
-import copy
 import math
 import sys
 from collections.abc import Callable
@@ -21,12 +20,13 @@ import numpy as np
 from . import blas, smoother
 from . import step as steps
 from .batch import batch_filter
-from .boundary import inputs
+from .boundary import attributes, inputs
+from .boundary.attributes import Covariance, Hook, State, commit_estimate, current_state, hooks_of
 from .boundary.config import Config
 from .boundary.factors import noise_factor
 from .boundary.loop import Transaction
 from .boundary.model_form import ModelForm
-from .boundary.records import embed, gain, innovation_inverse
+from .boundary.records import embed, gain, innovation_inverse, update_records
 from .covariance import FactorSlot
 from .errors import NonFiniteError, ParameterError, ShapeError
 from .gating import Gate
@@ -43,89 +43,6 @@ _LOG_TINY = math.log(sys.float_info.min)
 
 
 _one_blas_thread = blas.one_thread_method(lambda self: self._dim_x)
-
-
-class _Covariance:
-    """``P``, ``Q`` or ``R``: a matrix kept in the instance's ``__dict__``, backed by a factor slot.
-
-    Not a ``property``, on purpose: filterpy's ``Saver`` deep-copies the
-    instance's ``__dict__`` (so a saved matrix is a copy, as for filterpy's
-    own filters) but would keep a property's value by reference.
-    """
-
-    def __set_name__(self, owner, name: str):
-        self.name = name
-        self.slot = "_" + name
-
-    def __get__(self, obj, owner=None):
-        if obj is None:
-            return self
-        value = obj.__dict__[self.name]
-        if isinstance(value, _Unformed):
-            value = obj.__dict__[self.name] = value.slot.matrix()
-        return value
-
-    def __set__(self, obj, value):
-        slot = obj.__dict__[self.slot]
-        slot.set_matrix(value)
-        obj.__dict__[self.name] = slot.matrix()
-        obj._covariance_assigned(self.name)
-
-
-class _Unformed:
-    """Stands in the ``__dict__`` for a matrix nobody has read since the step changed its factor.
-
-    Reading the attribute forms the matrix (:class:`_Covariance`); a deep copy
-    of the ``__dict__`` (what filterpy's ``Saver`` takes) gets the matrix
-    itself, so a saved history holds arrays, formed only when saved.
-    """
-
-    __slots__ = ("slot",)
-
-    def __init__(self, slot: FactorSlot):
-        self.slot = slot
-
-    def __deepcopy__(self, memo):
-        return self.slot.matrix().copy()
-
-    def __copy__(self):
-        return self.slot.matrix().copy()
-
-
-class _InDict:
-    """A data descriptor over the instance's ``__dict__`` entry of its own name; subclasses set it."""
-
-    def __set_name__(self, owner, name: str):
-        self.name = name
-
-    def __get__(self, obj, owner=None):
-        if obj is None:
-            return self
-        return obj.__dict__[self.name]
-
-
-class _State(_InDict):
-    """``x``: the state vector kept in the instance's ``__dict__`` (see :class:`_Covariance`)."""
-
-    def __set__(self, obj, value):
-        x = obj._as_state(value, "x")
-        obj.__dict__["_xs"] = x
-        obj.__dict__[self.name] = x.copy()
-        obj._covariance_assigned("x")
-
-
-class _Hook(_InDict):
-    """A hook (``residual_x``, ``state_add``, ...) kept in the instance's ``__dict__``, as filterpy's.
-
-    Setting one drops the :class:`~squkf.plan.Hooks` tuple the filter built
-    from them, so that a step reads that tuple (twice a step) without
-    gathering the five attributes again.
-    """
-
-    def __set__(self, obj, value):
-        d = obj.__dict__
-        d[self.name] = value
-        d["_hooks_cache"] = None
 
 
 class SquareRootUKF(ModelForm):
@@ -256,15 +173,15 @@ class SquareRootUKF(ModelForm):
     [6.0168 0.9937]
     """
 
-    x = _State()
-    P = _Covariance()
-    Q = _Covariance()
-    R = _Covariance()
-    x_mean = _Hook()
-    z_mean = _Hook()
-    residual_x = _Hook()
-    residual_z = _Hook()
-    state_add = _Hook()
+    x = State()
+    P = Covariance()
+    Q = Covariance()
+    R = Covariance()
+    x_mean = Hook()
+    z_mean = Hook()
+    residual_x = Hook()
+    residual_z = Hook()
+    state_add = Hook()
     # the slots behind P, Q, R (set through __dict__ in __init__)
     _P: FactorSlot
     _Q: FactorSlot
@@ -320,8 +237,7 @@ class SquareRootUKF(ModelForm):
         d["_R"] = FactorSlot("R", r, semidefinite=True, factor=np.eye(r))
         for name in ("P", "Q", "R"):
             d[name] = d["_" + name].matrix()
-        d["_xs"] = np.zeros(n)
-        d["x"] = np.zeros(n)
+        attributes.set_state(d, np.zeros(n))
         self._state = steps.StepState()
         self._step_plan = self._plan
         self._noise_cache: dict = {}
@@ -404,26 +320,12 @@ class SquareRootUKF(ModelForm):
         return self._plan.first.rows.Wc.copy()
 
     def _hooks(self) -> Hooks:
-        d = self.__dict__
-        hooks = d["_hooks_cache"]
-        if hooks is None:  # a hook was set since the last step
-            rx, rz, add = d["residual_x"], d["residual_z"], d["state_add"]
-            hooks = d["_hooks_cache"] = Hooks(
-                d["x_mean"],
-                d["z_mean"],
-                None if rx is np.subtract else rx,
-                None if rz is np.subtract else rz,
-                None if add is np.add else add,
-            )
-        return hooks
+        return hooks_of(self.__dict__)
 
     # -- state and covariances ---------------------------------------------
 
     def _covariance_assigned(self, name: str) -> None:
         """An assignment to ``x``, ``P``, ``Q`` or ``R`` succeeded (hook for subclasses)."""
-
-    def _as_state(self, value, name) -> np.ndarray:
-        return inputs.as_state(value, name, self._dim_x)
 
     @property
     def P1_2(self) -> np.ndarray:
@@ -535,23 +437,18 @@ class SquareRootUKF(ModelForm):
 
     def _current(self) -> tuple[np.ndarray, np.ndarray]:
         """The current mean and factor, with in-place edits of ``x`` and ``P`` validated."""
-        d = self.__dict__
-        xu, xs = d["x"], d["_xs"]
-        if xu.shape != xs.shape or xu.dtype != xs.dtype or xu.tobytes() != xs.tobytes():
-            d["_xs"] = self._as_state(xu, "x")  # edited in place since last checked
-        return d["_xs"], self._P.factor()  # type: ignore[return-value]  # P is never singular
+        return current_state(self.__dict__, self._dim_x)
 
-    def _evaluate(self, fn: Callable, sigmas: np.ndarray, args: tuple, kwargs: dict) -> object:
-        return inputs.evaluate(fn, sigmas, args, kwargs, self.vectorized)
-
-    def _commit_estimate(self, x: np.ndarray, S: np.ndarray) -> None:
-        """Install a mean and factor computed by the filter (fresh user-facing arrays)."""
-        d = self.__dict__
-        d["_xs"] = x
-        d["x"] = x.copy()
-        slot = d["_P"]
-        slot.set_trusted_factor(S)
-        d["P"] = _Unformed(slot)  # formed when read: most steps nobody reads P
+    def _images(self, fn: Callable, which: str, X, args: tuple, kwargs: dict, noise=None, UT=None):
+        """``fn`` (``"fx"`` or ``"hx"``) at the points ``X``, with noise points if the noise enters it."""
+        plan = self._plan
+        fx = which == "fx"
+        xi, name, dim = (plan.w_xi, "Q", self._fx_noise) if fx else (plan.v_xi, "R", self._hx_noise)
+        if xi is None:
+            return inputs.evaluate(fn, X, args, kwargs, self.vectorized)
+        inputs.refuse_noise_args(xi, name, None, UT)
+        W = self._noise_points(xi, noise, name)
+        return call_model(fn, which, dim, X, W, args, kwargs, self.vectorized)
 
     # -- ask/tell: the step in halves ----------------------------------------
 
@@ -612,22 +509,9 @@ class SquareRootUKF(ModelForm):
         P1_2_prior : ndarray, shape (dim_x, dim_x)
             Fresh arrays.
         """
-        self._refuse_with_noise(self._step_plan.w_xi, "Q", Q, UT)
+        inputs.refuse_noise_args(self._step_plan.w_xi, "Q", Q, UT)
         self._tell_predict(self._state, self._step_plan, sigmas_f, Q, UT, self._hooks())
         return self.x_prior.copy(), self.P1_2_prior.copy()
-
-    def _refuse_with_noise(self, noise_xi, name: str, value, UT) -> None:
-        """With noise entering the model, ``Q``/``R`` are in the points: refuse them here (and a ``UT``)."""
-        if noise_xi is None:
-            return
-        which = "fx_noise" if name == "Q" else "hx_noise"
-        if value is not None:
-            raise ParameterError(
-                f"with {which} the noise is in the sigma points handed out by ask_*: assign ukf.{name}"
-                f" before asking, not {name}={value!r} here"
-            )
-        if UT is not None:
-            raise ParameterError(f"UT cannot be given with {which}: the transform has no noise to add")
 
     def _noise_points(self, xi: np.ndarray, value, name: str) -> np.ndarray:
         """The noise part of an augmented set from ``Q``/``R`` (this call's ``value``, else the attribute)."""
@@ -643,7 +527,7 @@ class SquareRootUKF(ModelForm):
         state = steps.draw_second_set(state, plan, x, S, hooks.state_add)
         # commit
         self._state, self._step_plan = state, plan
-        self._commit_estimate(x, S)
+        commit_estimate(self.__dict__, x, S)
         self.x_prior = x.copy()
         self.P1_2_prior = S.copy()
         self.sigmas_f = state.sset.sigmas.copy()  # filterpy shows the second set once the prediction is done
@@ -687,7 +571,7 @@ class SquareRootUKF(ModelForm):
         P1_2_post : ndarray, shape (dim_x, dim_x)
             Fresh arrays.
         """
-        self._refuse_with_noise(self._plan.v_xi, "R", R, UT)
+        inputs.refuse_noise_args(self._plan.v_xi, "R", R, UT)
         meas = self._as_measurement(z, R)
         if meas is None:
             raise NonFiniteError(
@@ -705,22 +589,10 @@ class SquareRootUKF(ModelForm):
             R1_2 = np.zeros((z.shape[0], z.shape[0]))
         state, gated, H = steps.gated_update(state, values, z, R1_2, observed, hooks, UT, self._gate)
         post = gated.tested
-        m = z.shape[0]
-        if observed is None:
-            y = post.y
-            rejected = gated.rejected  # a fresh array of the step's
-        else:
-            rejected = np.zeros(m, dtype=bool)
-            y = np.full(m, np.nan)
-            y[observed] = post.y
-            rejected[observed] = gated.rejected
-        K = None
-        if gated.K is not None:  # the gate rejected something: the gain applied, not the tested one
-            K = np.zeros((self._dim_x, m))
-            K[:, slice(None) if observed is None else observed] = gated.K
+        y, rejected, K = update_records(gated, observed, self._dim_x, z.shape[0])
         # commit
         self._state = state
-        self._commit_estimate(gated.x, gated.S)
+        commit_estimate(self.__dict__, gated.x, gated.S)
         self.x_post = gated.x.copy()
         self.P1_2_post = gated.S.copy()
         self.y = y
@@ -767,13 +639,8 @@ class SquareRootUKF(ModelForm):
         plan = self._plan
         hooks = self._hooks()
         state = steps.ask_predict(self._state, plan, x, S, hooks.state_add)
-        if plan.w_xi is not None:
-            self._refuse_with_noise(plan.w_xi, "Q", None, UT)
-            W = self._noise_points(plan.w_xi, Q, "Q")
-            values = call_model(fx, "fx", self._fx_noise, state.sigmas, W, (dt,), fx_args, self.vectorized)  # type: ignore[arg-type]
-        else:
-            # not copied: these points are never read again (the step keeps only their shape)
-            values = self._evaluate(fx, state.sigmas, (dt,), fx_args)  # type: ignore[arg-type]  # set by ask_*
+        # the points not copied: they are never read again (the step keeps only their shape)
+        values = self._images(fx, "fx", state.sigmas, (dt,), fx_args, Q, UT)  # type: ignore[arg-type]  # set by ask_*
         self._tell_predict(state, plan, values, Q, UT, hooks)
 
     def update(self, z, R=None, UT=None, hx=None, **hx_args) -> None:
@@ -810,12 +677,7 @@ class SquareRootUKF(ModelForm):
         plan = self._plan
         state = steps.ask_update(self._state, plan, x, S, hooks.state_add)
         X = state.sigmas.copy()  # type: ignore[union-attr]  # set by ask_*
-        if plan.v_xi is not None:
-            self._refuse_with_noise(plan.v_xi, "R", None, UT)
-            V = self._noise_points(plan.v_xi, R, "R")
-            values = call_model(hx, "hx", self._hx_noise, X, V, (), hx_args, self.vectorized)
-        else:
-            values = self._evaluate(hx, X, (), hx_args)
+        values = self._images(hx, "hx", X, (), hx_args, R, UT)
         self._tell_update(state, values, meas[0], meas[1], R, UT, hooks)
 
     def compute_process_sigmas(self, dt, fx=None, **fx_args) -> None:
@@ -825,11 +687,7 @@ class SquareRootUKF(ModelForm):
         x, S = self._current()
         plan = self._plan
         sigmas = sigma_points_from_factor(x, S, plan.first.xi, self._hooks().state_add)
-        if plan.w_xi is not None:
-            W = self._noise_points(plan.w_xi, None, "Q")
-            values = call_model(fx, "fx", self._fx_noise, sigmas, W, (dt,), fx_args, self.vectorized)
-        else:
-            values = self._evaluate(fx, sigmas, (dt,), fx_args)
+        values = self._images(fx, "fx", sigmas, (dt,), fx_args)
         self.sigmas_f = check_values(values, sigmas.shape, "fx values")
 
     def cross_variance(self, x, z, sigmas_f, sigmas_h) -> np.ndarray:
@@ -931,18 +789,7 @@ class SquareRootUKF(ModelForm):
         return Transaction(self._snapshot, self._restore)
 
     def _snapshot(self) -> dict:
-        """Everything a failed multi-step call must put back.
-
-        The filter's own arrays are replaced by each step, never changed in
-        place; only the matrices and vector the caller may edit in place are
-        copied.
-        """
-        state = dict(self.__dict__)
-        for name in ("P", "Q", "R"):
-            slot = state["_" + name] = copy.copy(state["_" + name])
-            if isinstance(state[name], _Unformed):
-                state[name] = _Unformed(slot)
-        return state
+        return attributes.snapshot(self.__dict__)
 
     def _restore(self, state: dict) -> None:
         self.__dict__.clear()
@@ -952,75 +799,33 @@ class SquareRootUKF(ModelForm):
         # an independent filter: arrays and covariance slots are copied, functions and
         # configuration objects are shared (as copy.copy of a filterpy filter shares them)
         new = type(self).__new__(type(self))
-        d = {}
-        for key, value in self.__dict__.items():
-            if isinstance(value, np.ndarray):
-                value = value.copy()
-            elif isinstance(value, FactorSlot):
-                value = value.detached()  # the factor shared, the matrix handed out copied
-            d[key] = value
-        for name in ("P", "Q", "R"):
-            d[name] = d["_" + name].matrix()
-        new.__dict__.update(d)
+        new.__dict__.update(attributes.copied(self.__dict__))
         return new
 
     def __deepcopy__(self, memo):
         new = type(self).__new__(type(self))
         memo[id(self)] = new
-        d = copy.deepcopy(self.__dict__, memo)
-        for name in ("P", "Q", "R"):
-            if isinstance(self.__dict__[name], _Unformed):  # the copy's matrix is its slot's
-                d[name] = d["_" + name].matrix()
-        new.__dict__.update(d)
+        new.__dict__.update(attributes.deep_copied(self.__dict__, memo))
         return new
 
     def __getstate__(self):
-        state = self.__dict__.copy()
-        state["_noise_cache"] = {}
-        for name in ("P", "Q", "R"):
-            if isinstance(state[name], _Unformed):
-                del state[name]  # formed again from the slot when unpickled
-        return state
+        return attributes.pickled(self.__dict__)
 
     def __setstate__(self, state):
-        self.__dict__.update(state)
-        for name in ("P", "Q", "R"):
-            self.__dict__[name] = self.__dict__["_" + name].matrix()
+        attributes.unpickled(self.__dict__, state)
 
     def __repr__(self) -> str:
         from filterpy.common import pretty_str
 
-        return "\n".join(
-            [
-                "SquareRootUKF object",
-                pretty_str("x", self.x),
-                pretty_str("P1_2", self._P.factor()),
-                pretty_str("x_prior", self.x_prior),
-                pretty_str("P1_2_prior", self.P1_2_prior),
-                pretty_str("Q1_2", self._Q.factor()),
-                pretty_str("R1_2", self._R.factor()),
-                pretty_str("S1_2", self.S1_2),
-                pretty_str("K", self.K),
-                pretty_str("y", self.y),
-                pretty_str("log-likelihood", self.log_likelihood),
-                pretty_str("likelihood", self.likelihood),
-                pretty_str("mahalanobis", self.mahalanobis),
-                pretty_str("sigmas_f", self.sigmas_f),
-                pretty_str("sigmas_h", self.sigmas_h),
-                pretty_str("Wm", self.Wm),
-                pretty_str("Wc", self.Wc),
-                pretty_str("points_fn", self.points_fn),
-                pretty_str("scheme", self.scheme),
-                pretty_str("vectorized", self.vectorized),
-                pretty_str("gate", self.gate),
-                pretty_str("fx_noise", self.fx_noise),
-                pretty_str("hx_noise", self.hx_noise),
-                pretty_str("residual_x", self.residual_x),
-                pretty_str("residual_z", self.residual_z),
-                pretty_str("state_add", self.state_add),
-                pretty_str("hx", self.hx),
-                pretty_str("fx", self.fx),
-                pretty_str("x_mean", self.x_mean),
-                pretty_str("z_mean", self.z_mean),
-            ]
-        )
+        factors = {"P1_2": self._P.factor(), "Q1_2": self._Q.factor(), "R1_2": self._R.factor()}
+        rows = [(_LABELS.get(a, a), factors[a] if a in factors else getattr(self, a)) for a in _SHOWN]
+        return "\n".join(["SquareRootUKF object"] + [pretty_str(label, v) for label, v in rows])
+
+
+# what repr shows, in order
+_SHOWN = (
+    "x P1_2 x_prior P1_2_prior Q1_2 R1_2 S1_2 K y log_likelihood likelihood mahalanobis sigmas_f sigmas_h"
+    " Wm Wc points_fn scheme vectorized gate fx_noise hx_noise residual_x residual_z state_add hx fx"
+    " x_mean z_mean"
+).split()
+_LABELS = {"log_likelihood": "log-likelihood"}

@@ -26,6 +26,7 @@ __all__ = [
     "measurements",
     "model_noise",
     "per_filter",
+    "refuse_noise_args",
     "refuse_smoother_noise",
     "stacked_images",
     "with_filter_axis",
@@ -355,3 +356,27 @@ def refuse_smoother_noise(fx_noise: int, who: str) -> None:
         raise ParameterError(
             f"the RTS smoother takes additive process noise only; this {who} has fx_noise={fx_noise}"
         )
+
+
+def refuse_noise_args(noise_xi, name: str, value, UT) -> None:
+    """With noise entering the model, ``Q``/``R`` are in the points: refuse them in a call (and a ``UT``).
+
+    Parameters
+    ----------
+    noise_xi : ndarray or None
+        The plan's noise part of the unit points (None: additive noise, nothing refused).
+    name : {"Q", "R"}
+    value : object
+        The call's ``Q`` or ``R`` (None: not given).
+    UT : callable or None
+    """
+    if noise_xi is None:
+        return
+    which = "fx_noise" if name == "Q" else "hx_noise"
+    if value is not None:
+        raise ParameterError(
+            f"with {which} the noise is in the sigma points handed out by ask_*: assign ukf.{name}"
+            f" before asking, not {name}={value!r} here"
+        )
+    if UT is not None:
+        raise ParameterError(f"UT cannot be given with {which}: the transform has no noise to add")

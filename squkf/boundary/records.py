@@ -14,7 +14,16 @@ from ..errors import FleetStepError
 from ..linalg import solve_lower
 from ..measurement import gain_from_factors
 
-__all__ = ["FleetResult", "Records", "embed", "failures_error", "gain", "innovation_inverse", "new_records"]
+__all__ = [
+    "FleetResult",
+    "Records",
+    "embed",
+    "failures_error",
+    "gain",
+    "innovation_inverse",
+    "new_records",
+    "update_records",
+]
 
 
 @dataclass
@@ -185,3 +194,41 @@ def gain(Sy: np.ndarray, L21: np.ndarray, measured: bool, observed: np.ndarray |
         full[:, observed] = K
         K = full
     return K
+
+
+def update_records(gated, observed: np.ndarray | None, n: int, m: int):
+    """One filter's records of a (gated) update: ``(y, rejected, K)`` over all ``m`` components.
+
+    Parameters
+    ----------
+    gated : squkf.step.GatedUpdate
+        The update through the gate (its tested posterior, rejections, gain applied).
+    observed : ndarray of bool, shape (m,), or None
+        The measured components (None: all).
+    n, m : int
+        State and measurement dimensions.
+
+    Returns
+    -------
+    y : ndarray, shape (m,)
+        The innovation, NaN where not measured.
+    rejected : ndarray of bool, shape (m,)
+    K : ndarray, shape (n, m), or None
+        The gain applied when the gate rejected something (zero columns for
+        rejected or missing components); None: the gain is formed when read
+        (:func:`gain`).
+    """
+    post = gated.tested
+    if observed is None:
+        y = post.y
+        rejected = gated.rejected  # a fresh array of the step's
+    else:
+        rejected = np.zeros(m, dtype=bool)
+        y = np.full(m, np.nan)
+        y[observed] = post.y
+        rejected[observed] = gated.rejected
+    K = None
+    if gated.K is not None:  # the gate rejected something: the gain applied, not the tested one
+        K = np.zeros((n, m))
+        K[:, slice(None) if observed is None else observed] = gated.K
+    return y, rejected, K
