@@ -38,6 +38,7 @@ from . import step as steps
 from .batch import model_kwargs, per_step
 from .boundary import inputs
 from .boundary.config import Config, common_config, filter_kwargs
+from .boundary.edits import HandOut
 from .boundary.factors import (
     covariance_factors,
     given_noise_factors,
@@ -166,7 +167,7 @@ class Fleet(ModelForm):
             raise ParameterError(f"on_error must be 'flag' or 'raise', got on_error={on_error!r}")
         self._fx_noise, self._hx_noise = inputs.model_noise(fx, hx, fx_noise, hx_noise)
         self._qd, self._rd = self._fx_noise or n, self._hx_noise or m  # the dimensions of Q and R
-        self._handed: dict[str, tuple[np.ndarray, bytes]] = {}  # name -> (array handed out, its bytes then)
+        self._handed = HandOut()  # x, P, Q, R: the arrays handed out, for edits in place
         self._K, self._n, self._m = K, n, m
         self._dt = check_time_step(dt)
         self.hx, self.fx = hx, fx
@@ -229,40 +230,17 @@ class Fleet(ModelForm):
     def __setattr__(self, name: str, value) -> None:
         object.__setattr__(self, name, value)
         handed = _HANDED.get(name)
-        if handed is not None:  # the value behind an attribute changed: the array handed out is history
-            self.__dict__.get("_handed", {}).pop(handed, None)
+        if handed is not None and "_handed" in self.__dict__:  # the value behind it changed
+            self._handed.drop(handed)  # the array handed out is history
 
     def _hand_out(self, name: str, form: Callable[[], np.ndarray]) -> np.ndarray:
-        """The array of ``x``, ``P``, ``Q`` or ``R``: formed once, then the same until the value changes.
-
-        Edits in place of the array handed out are taken by the next call
-        (:meth:`_take_edits`), as ``SquareRootUKF`` takes those of its ``x``,
-        ``P``, ``Q`` and ``R``.
-        """
-        held = self._handed.get(name)
-        if held is not None:
-            return held[0]
-        a = form()
-        self._handed[name] = (a, a.tobytes())
-        return a
+        """The array of ``x``, ``P``, ``Q`` or ``R`` (:class:`squkf.boundary.edits.HandOut`)."""
+        return self._handed.array(name, form)
 
     def _take_edits(self) -> None:
-        """Validate and take the edits in place of the arrays handed out, as assignments.
-
-        An invalid edit raises as the assignment would, changes nothing and
-        stays pending (assigning the attribute replaces it). The array stays
-        handed out, so that further edits in place are taken too.
-        """
-        handed = self._handed
-        if not handed:
-            return
-        for name in ("x", "P", "Q", "R"):
-            held = handed.get(name)
-            if held is None or held[0].tobytes() == held[1]:
-                continue
-            a = held[0]
-            setattr(self, name, a)  # validated (and copied) by the setter
-            handed[name] = (a, a.tobytes())
+        """Take the edits in place of ``x``, ``P``, ``Q``, ``R`` through their setters (which may raise)."""
+        if self._handed:
+            self._handed.take(_HANDED.values(), lambda name, a: setattr(self, name, a))
 
     @property
     def x(self) -> np.ndarray:
@@ -651,10 +629,10 @@ class Fleet(ModelForm):
         """
         return Transaction(self._snapshot, self._restore)
 
-    def _snapshot(self) -> tuple[Fleet, dict]:
-        return copy.copy(self), dict(self._handed)
+    def _snapshot(self) -> tuple[Fleet, HandOut]:
+        return copy.copy(self), self._handed.copy()
 
-    def _restore(self, saved: tuple[Fleet, dict]) -> None:
+    def _restore(self, saved: tuple[Fleet, HandOut]) -> None:
         before, handed = saved
         self.__dict__.update(before.__dict__)
         self.__dict__["_handed"] = handed  # the arrays handed out stay the caller's, still current
@@ -790,7 +768,7 @@ class Fleet(ModelForm):
                 v = copies.setdefault(id(v), v.copy())
             d[key] = v
         # the copy's own arrays handed out, pending edits included
-        d["_handed"] = {name: (a.copy(), snap) for name, (a, snap) in self._handed.items()}
+        d["_handed"] = self._handed.detached()
         state = self._state
         if state.prior is not None:
             # ask_update knows the pending second set by the identity of the estimate it was
