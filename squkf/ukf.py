@@ -17,22 +17,20 @@ from typing import cast
 
 import numpy as np
 
-from . import blas, smoother
+from . import smoother
 from . import step as steps
 from .batch import batch_filter
 from .boundary import attributes, inputs
-from .boundary.attributes import Covariance, Hook, State, commit_estimate, current_state, hooks_of
+from .boundary.attributes import Covariance, Hook, State
 from .boundary.config import Config
-from .boundary.factors import noise_factor
 from .boundary.loop import Transaction
-from .boundary.model_form import ModelForm
-from .boundary.records import embed, gain, innovation_inverse, update_records
+from .boundary.one_filter import OneFilter
+from .boundary.records import LastUpdate, embed, innovation_inverse
 from .covariance import FactorSlot
 from .errors import NonFiniteError, ParameterError, ShapeError
 from .gating import Gate
 from .generators import as_generator, noise_family, sigma_points_from_factor
-from .noise import call_model, noise_points
-from .plan import Hooks, Plan, build_plan
+from .plan import Plan
 from .transform import deviations
 from .validate import as_float_array, check_time_step, check_values
 from .weights import as_family
@@ -42,10 +40,7 @@ __all__ = ["SquareRootUKF"]
 _LOG_TINY = math.log(sys.float_info.min)
 
 
-_one_blas_thread = blas.one_thread_method(lambda self: self._dim_x)
-
-
-class SquareRootUKF(ModelForm):
+class SquareRootUKF(OneFilter):
     """Square-root Unscented Kalman Filter with filterpy's interface.
 
     The model is ``x[k+1] = fx(x[k], dt) + v``, ``z[k] = hx(x[k]) + w`` with
@@ -250,14 +245,7 @@ class SquareRootUKF(ModelForm):
         self.sigmas_h = np.zeros((self._num_sigmas, m))
         self.y = np.zeros(m)
         self.z = np.array([[None] * m]).T
-        self._K: np.ndarray | None = None
-        self._L21 = np.zeros((n, m))  # K @ S1_2 of the last update, observed columns
-        self._Sy = np.zeros((m, m))  # innovation factor of the last update, observed block
-        self._ll = 0.0  # the last update's log-likelihood and NIS w.w (w = Sy^-1 y), from the kernel
-        self._nis = 0.0
-        self._observed = None  # mask of the measured components, None: all
-        self._measured = False  # whether an update has happened
-        self._rejected = np.zeros(m, dtype=bool)  # the gate's decision in the last update
+        self._last = LastUpdate.none(n, m)
 
     # -- configuration -----------------------------------------------------
 
@@ -296,9 +284,6 @@ class SquareRootUKF(ModelForm):
         self._generator = gen
         self._plan = plan
 
-    def _build_plan(self, family, generator) -> Plan:
-        return build_plan(family, generator, self._dim_x, self._fx_noise, self._hx_noise)
-
     @property
     def dim_x(self) -> int:
         """Number of state variables."""
@@ -318,9 +303,6 @@ class SquareRootUKF(ModelForm):
     def Wc(self) -> np.ndarray:
         """Covariance weights of the first sigma-point set, shape ``(N,)`` (a copy)."""
         return self._plan.first.rows.Wc.copy()
-
-    def _hooks(self) -> Hooks:
-        return hooks_of(self.__dict__)
 
     # -- state and covariances ---------------------------------------------
 
@@ -373,19 +355,20 @@ class SquareRootUKF(ModelForm):
     @property
     def S1_2(self) -> np.ndarray:
         """Lower factor of the last innovation covariance (NaN where a component was missing)."""
-        return embed(self._Sy, self._observed, np.nan)
+        return embed(self._last.Sy, self._last.observed, np.nan)
 
     @property
     def S(self) -> np.ndarray:
         """Innovation covariance of the last update, ``S1_2 @ S1_2.T`` (NaN where missing)."""
-        return embed(self._Sy @ self._Sy.T, self._observed, np.nan)
+        last = self._last
+        return embed(last.Sy @ last.Sy.T, last.observed, np.nan)
 
     @property
     def SI(self) -> np.ndarray:
         """Inverse of ``S``, by triangular solves with ``S1_2`` (or by ``self.inv`` if replaced)."""
         if self.inv is not np.linalg.inv:
             return self.inv(self.S)
-        return innovation_inverse(self._Sy, self._observed)
+        return innovation_inverse(self._last.Sy, self._last.observed)
 
     @property
     def K(self) -> np.ndarray:
@@ -394,20 +377,18 @@ class SquareRootUKF(ModelForm):
         Formed once per update and handed out as a fresh copy on each read, so
         an array read earlier (a ``Saver``'s history) is never rewritten.
         """
-        if self._K is None:
-            self._K = gain(self._Sy, self._L21, self._measured, self._observed, self._dim_x)
-        return self._K.copy()
+        if self._last.K is None:
+            self._last = self._last.with_gain(self._dim_x)
+        return self._last.K.copy()  # type: ignore[union-attr]  # formed above
 
     @K.setter
     def K(self, value):
-        self._K = as_float_array(value, "K")  # a private copy: K reads as a fresh one
+        self._last = self._last.replace(K=as_float_array(value, "K"))  # a private copy: read as fresh ones
 
     @property
     def log_likelihood(self) -> float:
         """Log-likelihood of the last measurement (its measured components), from the innovation factor."""
-        if not self._measured:
-            return _LOG_TINY
-        return self._ll
+        return self._last.log_likelihood if self._last.measured else _LOG_TINY
 
     @property
     def likelihood(self) -> float:
@@ -417,38 +398,17 @@ class SquareRootUKF(ModelForm):
     @property
     def mahalanobis(self) -> float:
         """Mahalanobis distance of the last innovation, ``||S1_2^-1 y||`` (measured components)."""
-        return math.sqrt(self._nis) if self._measured else 0.0
+        return math.sqrt(self._last.nis) if self._last.measured else 0.0
 
     @property
     def nis(self) -> float:
         """Normalised innovation squared of the last update, ``y^T S^-1 y`` (measured components)."""
-        return self._nis if self._measured else 0.0
+        return self._last.nis if self._last.measured else 0.0
 
     @property
     def rejected(self) -> np.ndarray:
         """Which components of the last measurement the gate rejected, shape ``(dim_z,)`` (a fresh array)."""
-        return self._rejected.copy()
-
-    # -- helpers ------------------------------------------------------------
-
-    def _noise_factor(self, value, name: str, dim: int) -> np.ndarray | None:
-        """Lower factor of ``Q`` or ``R`` (``value`` for this call, else the attribute's); None: zero."""
-        return noise_factor(value, name, dim, self.__dict__["_" + name].factor, self._noise_cache)
-
-    def _current(self) -> tuple[np.ndarray, np.ndarray]:
-        """The current mean and factor, with in-place edits of ``x`` and ``P`` validated."""
-        return current_state(self.__dict__, self._dim_x)
-
-    def _images(self, fn: Callable, which: str, X, args: tuple, kwargs: dict, noise=None, UT=None):
-        """``fn`` (``"fx"`` or ``"hx"``) at the points ``X``, with noise points if the noise enters it."""
-        plan = self._plan
-        fx = which == "fx"
-        xi, name, dim = (plan.w_xi, "Q", self._fx_noise) if fx else (plan.v_xi, "R", self._hx_noise)
-        if xi is None:
-            return inputs.evaluate(fn, X, args, kwargs, self.vectorized)
-        inputs.refuse_noise_args(xi, name, None, UT)
-        W = self._noise_points(xi, noise, name)
-        return call_model(fn, which, dim, X, W, args, kwargs, self.vectorized)
+        return self._last.rejected.copy()
 
     # -- ask/tell: the step in halves ----------------------------------------
 
@@ -484,9 +444,7 @@ class SquareRootUKF(ModelForm):
         plan = self._plan
         state = steps.ask_predict(self._state, plan, x, S, self._hooks().state_add)
         self._state, self._step_plan = state, plan
-        if plan.w_xi is not None:  # the augmented points [x_i, w_i]
-            return np.concatenate([state.sigmas, self._noise_points(plan.w_xi, None, "Q")], axis=-1)  # type: ignore[list-item]
-        return state.sigmas.copy()  # type: ignore[union-attr]  # set by ask_*
+        return self._handed_points(state, plan.w_xi, "Q")
 
     def tell_predict(self, sigmas_f, Q=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of a prediction: the propagated points give the prior.
@@ -513,25 +471,6 @@ class SquareRootUKF(ModelForm):
         self._tell_predict(self._state, self._step_plan, sigmas_f, Q, UT, self._hooks())
         return self.x_prior.copy(), self.P1_2_prior.copy()
 
-    def _noise_points(self, xi: np.ndarray, value, name: str) -> np.ndarray:
-        """The noise part of an augmented set from ``Q``/``R`` (this call's ``value``, else the attribute)."""
-        dim = xi.shape[1]
-        return noise_points(xi, self._noise_factor(value, name, dim), ())
-
-    @_one_blas_thread
-    def _tell_predict(self, state, plan: Plan, values, Q, UT, hooks: Hooks) -> None:
-        """Finish a prediction and commit it (nothing is changed if anything fails)."""
-        # noise entering fx is in the points: no noise is added to the prior
-        Q1_2 = None if plan.w_xi is not None else self._noise_factor(Q, "Q", self._dim_x)
-        state, x, S = steps.tell_predict(state, plan, values, Q1_2, hooks, UT)
-        state = steps.draw_second_set(state, plan, x, S, hooks.state_add)
-        # commit
-        self._state, self._step_plan = state, plan
-        commit_estimate(self.__dict__, x, S)
-        self.x_prior = x.copy()
-        self.P1_2_prior = S.copy()
-        self.sigmas_f = state.sset.sigmas.copy()  # filterpy shows the second set once the prediction is done
-
     def ask_update(self) -> np.ndarray:
         """First half of an update: the sigma points to pass through the measurement function.
 
@@ -546,9 +485,7 @@ class SquareRootUKF(ModelForm):
         plan = self._plan
         state = steps.ask_update(self._state, plan, x, S, self._hooks().state_add)
         self._state = state
-        if plan.v_xi is not None:  # the augmented points [x_i, v_i]
-            return np.concatenate([state.sigmas, self._noise_points(plan.v_xi, None, "R")], axis=-1)  # type: ignore[list-item]
-        return state.sigmas.copy()  # type: ignore[union-attr]  # set by ask_*
+        return self._handed_points(state, plan.v_xi, "R")
 
     def tell_update(self, sigmas_h, z, R=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of an update: measurement-function values and ``z`` give the posterior.
@@ -579,37 +516,6 @@ class SquareRootUKF(ModelForm):
             )
         self._tell_update(self._state, sigmas_h, meas[0], meas[1], R, UT, self._hooks())
         return self.x_post.copy(), self.P1_2_post.copy()
-
-    @_one_blas_thread
-    def _tell_update(self, state, values, z: np.ndarray, observed, R, UT, hooks: Hooks) -> None:
-        """Finish an update and commit it (nothing is changed if anything fails)."""
-        # noise entering hx is in the points: the update adds none
-        R1_2 = None if self._plan.v_xi is not None else self._noise_factor(R, "R", z.shape[0])
-        if R1_2 is None:
-            R1_2 = np.zeros((z.shape[0], z.shape[0]))
-        state, gated, H = steps.gated_update(state, values, z, R1_2, observed, hooks, UT, self._gate)
-        post = gated.tested
-        y, rejected, K = update_records(gated, observed, self._dim_x, z.shape[0])
-        # commit
-        self._state = state
-        commit_estimate(self.__dict__, gated.x, gated.S)
-        self.x_post = gated.x.copy()
-        self.P1_2_post = gated.S.copy()
-        self.y = y
-        self.z = z
-        self.sigmas_h = H
-        self._Sy, self._L21, self._observed = post.Sy, post.L21, observed
-        self._ll, self._nis = float(gated.log_likelihood), float(post.nis)
-        self._K = K
-        self._rejected = rejected
-        self._measured = True
-
-    def _as_measurement(self, z, R) -> tuple[np.ndarray, np.ndarray | None] | None:
-        """``z`` checked, as ``(z, observed)`` (the mask of the measured components, or None: all)."""
-        return inputs.measurement(z, R, self._dim_z, self._R_dim, self._hx_noise)
-
-    def _R_dim(self) -> int:
-        return self._R.factor_or_zeros().shape[0]
 
     # -- filterpy's methods ---------------------------------------------------
 
@@ -663,13 +569,7 @@ class SquareRootUKF(ModelForm):
         """
         meas = self._as_measurement(z, R)
         if meas is None:
-            state = steps.skip_update(self._state)
-            x, S = self._current()
-            self._state = state
-            self.z = np.array([[None] * self._dim_z]).T
-            self._rejected = np.zeros(self._dim_z, dtype=bool)
-            self.x_post = x.copy()
-            self.P1_2_post = S.copy()
+            self._skip_update()
             return
         hx = self.hx if hx is None else hx
         x, S = self._current()
