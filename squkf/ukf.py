@@ -27,13 +27,12 @@ from .boundary.loop import Transaction
 from .boundary.one_filter import OneFilter
 from .boundary.records import LastUpdate, embed, innovation_inverse
 from .covariance import FactorSlot
-from .errors import NonFiniteError, ParameterError, ShapeError
+from .errors import NonFiniteError
 from .gating import Gate
-from .generators import as_generator, noise_family, sigma_points_from_factor
+from .generators import sigma_points_from_factor
 from .plan import Plan
-from .transform import deviations
+from .transform import cross_covariance
 from .validate import as_float_array, check_time_step, check_values
-from .weights import as_family
 
 __all__ = ["SquareRootUKF"]
 
@@ -107,31 +106,14 @@ class SquareRootUKF(OneFilter):
         arrays to ``x`` and ``P``, so arrays read earlier (a ``Saver``'s
         history) are never rewritten.
     R : ndarray, shape (dim_z, dim_z)
-    P1_2, Q1_2, R1_2 : ndarray
-        The lower factors (each read gives a fresh copy; assign to change).
-    x_prior, P_prior, P1_2_prior, x_post, P_post, P1_2_post
+    x_prior, P1_2_prior, x_post, P1_2_post : ndarray
         Records of the last prediction and update: fresh arrays each step,
-        never the filter's own state.
-    K : ndarray, shape (dim_x, dim_z)
+        never the filter's own state (also ``P_prior``, ``P_post`` and the
+        last update's records below).
     y : ndarray, shape (dim_z,)
         Innovation; NaN in components that were not measured.
     z : ndarray
-    S, SI : ndarray, shape (dim_z, dim_z)
-        Innovation covariance and its inverse (formed on request, SI by
-        triangular solves); ``S1_2`` is the innovation factor.
     sigmas_f, sigmas_h : ndarray
-    Wm, Wc : ndarray
-        Weights of the first sigma-point set.
-    log_likelihood, likelihood : float
-        Of the components the last update used (0 and 1 when a gate rejected
-        them all).
-    mahalanobis, nis : float
-        ``||S1_2^-1 y||`` and its square, the normalised innovation squared
-        of the last update's measured components (what a gate tests).
-    rejected : ndarray of bool, shape (dim_z,)
-        The components of the last measurement that the gate rejected; after
-        a gated update ``y``, ``S``, ``S1_2`` are the tested innovation's,
-        ``K`` the gain applied (zero columns for rejected components).
 
     Examples
     --------
@@ -225,26 +207,11 @@ class SquareRootUKF(OneFilter):
         self.gate = gate
         self.inv = np.linalg.inv
 
-        d = self.__dict__
-        d["_P"] = FactorSlot("P", n, semidefinite=False, factor=np.eye(n))
-        q, r = self._fx_noise or n, self._hx_noise or m  # the noise's own dimensions when it enters fx, hx
-        d["_Q"] = FactorSlot("Q", q, semidefinite=True, factor=np.eye(q))
-        d["_R"] = FactorSlot("R", r, semidefinite=True, factor=np.eye(r))
-        for name in ("P", "Q", "R"):
-            d[name] = d["_" + name].matrix()
-        attributes.set_state(d, np.zeros(n))
+        # x, P, Q (the noise's own dimension when it enters fx), R; the records of no step yet
+        attributes.initial(self.__dict__, n, m, self._fx_noise or n, self._hx_noise or m, self._num_sigmas)
         self._state = steps.StepState()
         self._step_plan = self._plan
-        self._noise_cache: dict = {}
-
-        self.x_prior = np.zeros(n)
-        self.P1_2_prior = np.eye(n)
-        self.x_post = np.zeros(n)
-        self.P1_2_post = np.eye(n)
-        self.sigmas_f = np.zeros((self._num_sigmas, n))
-        self.sigmas_h = np.zeros((self._num_sigmas, m))
-        self.y = np.zeros(m)
-        self.z = np.array([[None] * m]).T
+        self._noise_cache = {}
         self._last = LastUpdate.none(n, m)
 
     # -- configuration -----------------------------------------------------
@@ -256,14 +223,7 @@ class SquareRootUKF(OneFilter):
 
     @points_fn.setter
     def points_fn(self, points):
-        family = as_family(points)
-        n, dw = self._dim_x, self._fx_noise
-        try:
-            num = (noise_family(family, n, dw) if dw else family).num_sigmas(n + dw)
-        except ParameterError:
-            raise
-        except Exception as exc:  # a user's family that cannot serve this dimension
-            raise ParameterError(f"points cannot give sigma points for dim_x={n}: {exc}") from exc
+        family, num = inputs.sigma_family(points, self._dim_x, self._fx_noise)
         plan = self._build_plan(family, self._generator) if self._generator is not None else None
         self._points = points
         self._family = family
@@ -277,9 +237,7 @@ class SquareRootUKF(OneFilter):
 
     @scheme.setter
     def scheme(self, value):
-        gen = as_generator(value)
-        if hasattr(gen, "num_sigmas") and not self._hx_noise:
-            gen.num_sigmas(self._dim_x, self._family)  # fails now, not at the first update
+        gen = inputs.second_set(value, self._dim_x, self._family, self._hx_noise)
         plan = self._build_plan(self._family, gen)
         self._generator = gen
         self._plan = plan
@@ -316,9 +274,7 @@ class SquareRootUKF(OneFilter):
 
     @P1_2.setter
     def P1_2(self, value):
-        slot = self._P
-        slot.set_factor(value)
-        self.__dict__["P"] = slot.matrix()
+        attributes.set_factor(self.__dict__, "P", value)
 
     @property
     def Q1_2(self) -> np.ndarray:
@@ -327,8 +283,7 @@ class SquareRootUKF(OneFilter):
 
     @Q1_2.setter
     def Q1_2(self, value):
-        self._Q.set_factor(value)
-        self.__dict__["Q"] = self._Q.matrix()
+        attributes.set_factor(self.__dict__, "Q", value)
 
     @property
     def R1_2(self) -> np.ndarray:
@@ -337,8 +292,7 @@ class SquareRootUKF(OneFilter):
 
     @R1_2.setter
     def R1_2(self, value):
-        self._R.set_factor(value)
-        self.__dict__["R"] = self._R.matrix()
+        attributes.set_factor(self.__dict__, "R", value)
 
     @property
     def P_prior(self) -> np.ndarray:
@@ -387,7 +341,10 @@ class SquareRootUKF(OneFilter):
 
     @property
     def log_likelihood(self) -> float:
-        """Log-likelihood of the last measurement (its measured components), from the innovation factor."""
+        """Log-likelihood of the last measurement (the components it used), from the innovation factor.
+
+        0 when a gate rejected them all (``likelihood`` 1).
+        """
         return self._last.log_likelihood if self._last.measured else _LOG_TINY
 
     @property
@@ -402,12 +359,19 @@ class SquareRootUKF(OneFilter):
 
     @property
     def nis(self) -> float:
-        """Normalised innovation squared of the last update, ``y^T S^-1 y`` (measured components)."""
+        """Normalised innovation squared of the last update, ``y^T S^-1 y`` (measured components).
+
+        What a gate tests.
+        """
         return self._last.nis if self._last.measured else 0.0
 
     @property
     def rejected(self) -> np.ndarray:
-        """Which components of the last measurement the gate rejected, shape ``(dim_z,)`` (a fresh array)."""
+        """Which components of the last measurement the gate rejected, shape ``(dim_z,)`` (a fresh array).
+
+        After a gated update ``y``, ``S``, ``S1_2`` are the tested innovation's,
+        ``K`` the gain applied (zero columns for rejected components).
+        """
         return self._last.rejected.copy()
 
     # -- ask/tell: the step in halves ----------------------------------------
@@ -598,17 +562,9 @@ class SquareRootUKF(OneFilter):
         """
         sigmas_f = as_float_array(sigmas_f, "sigmas_f")
         sigmas_h = np.atleast_2d(as_float_array(sigmas_h, "sigmas_h"))
-        N = sigmas_f.shape[0]
-        Wc = self._plan.first.rows.Wc
         sset = self._state.sset
-        if Wc.shape[0] != N and sset is not None:
-            Wc = sset.Wc
-        if Wc.shape[0] != N:
-            raise ShapeError(f"sigmas_f has {N} points but the sigma-point sets have {Wc.shape[0]}")
-        hooks = self._hooks()
-        dx = deviations(sigmas_f, as_float_array(x, "x"), hooks.residual_x, "residual_x")
-        dz = deviations(sigmas_h, as_float_array(z, "z"), hooks.residual_z, "residual_z")
-        return (dx.T * Wc) @ dz
+        Wcs = (self._plan.first.rows.Wc, None if sset is None else sset.Wc)
+        return cross_covariance(sigmas_f, sigmas_h, x, z, Wcs, self._hooks())
 
     def batch_filter(
         self,
@@ -633,18 +589,9 @@ class SquareRootUKF(OneFilter):
         and leaves the filter as it was.
         """
         return batch_filter(
-            self,
-            zs,
-            Rs,
-            dts,
-            UT,
-            saver,
-            Qs=Qs,
-            fx_args=fx_args,
-            hx_args=hx_args,
-            return_factors=return_factors,
-            progress=progress,
-        )
+            self, zs, Rs, dts, UT, saver, Qs=Qs, fx_args=fx_args, hx_args=hx_args,
+            return_factors=return_factors, progress=progress,
+        )  # fmt: skip
 
     def rts_smoother(self, Xs, Ps, Qs=None, dts=None, UT=None, *, fx_args=None):
         """Square-root unscented RTS smoother; see :func:`squkf.smoother.rts_smoother`.
@@ -664,7 +611,7 @@ class SquareRootUKF(OneFilter):
     def _refuse_smoother(self) -> None:
         inputs.refuse_smoother_noise(self._fx_noise, "filter")
 
-    # -- transactions, copies, pickling ---------------------------------------
+    # -- configuration and transactions (copies and pickles: InDictCopies) ------
 
     def configuration(self) -> Config:
         """The filter's configuration and noise factors (``squkf.boundary.Config``).
@@ -687,32 +634,6 @@ class SquareRootUKF(OneFilter):
         What :meth:`batch_filter` runs its steps in (``squkf.boundary.loop.Transaction``).
         """
         return Transaction(self._snapshot, self._restore)
-
-    def _snapshot(self) -> dict:
-        return attributes.snapshot(self.__dict__)
-
-    def _restore(self, state: dict) -> None:
-        self.__dict__.clear()
-        self.__dict__.update(state)
-
-    def __copy__(self):
-        # an independent filter: arrays and covariance slots are copied, functions and
-        # configuration objects are shared (as copy.copy of a filterpy filter shares them)
-        new = type(self).__new__(type(self))
-        new.__dict__.update(attributes.copied(self.__dict__))
-        return new
-
-    def __deepcopy__(self, memo):
-        new = type(self).__new__(type(self))
-        memo[id(self)] = new
-        new.__dict__.update(attributes.deep_copied(self.__dict__, memo))
-        return new
-
-    def __getstate__(self):
-        return attributes.pickled(self.__dict__)
-
-    def __setstate__(self, state):
-        attributes.unpickled(self.__dict__, state)
 
     def __repr__(self) -> str:
         from filterpy.common import pretty_str

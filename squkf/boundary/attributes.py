@@ -9,9 +9,7 @@ behind ``x`` is the validated state ``_xs``, with the array handed out and its
 record in ``_x`` (:class:`~squkf.boundary.edits.Handed`): an edit in place is
 taken at the next call (:func:`current_state`).
 
-The functions at the end copy, snapshot and pickle such a ``__dict__``
-(:class:`squkf.SquareRootUKF`'s ``__copy__``, ``__deepcopy__``,
-``__getstate__``, ``__setstate__`` and transaction).
+:class:`InDictCopies` copies, snapshots and pickles such a ``__dict__``.
 """
 
 from __future__ import annotations
@@ -29,16 +27,15 @@ __all__ = [
     "COVARIANCES",
     "Covariance",
     "Hook",
+    "InDictCopies",
     "State",
     "Unformed",
     "commit_estimate",
-    "copied",
     "current_state",
-    "deep_copied",
     "hooks_of",
-    "pickled",
-    "snapshot",
-    "unpickled",
+    "initial",
+    "set_factor",
+    "set_state",
 ]
 
 COVARIANCES = ("P", "Q", "R")
@@ -125,6 +122,38 @@ class Hook(InDict):
         d["_hooks_cache"] = None
 
 
+def initial(d: dict, n: int, m: int, q: int, r: int, N: int) -> None:
+    """Fill a new filter's ``__dict__``: ``x = 0``, ``P``, ``Q``, ``R`` identities, the records of no step.
+
+    Parameters
+    ----------
+    d : dict
+    n, m : int
+        State and measurement dimensions.
+    q, r : int
+        The dimensions of ``Q`` and ``R`` (the noise's own when it enters ``fx``, ``hx``).
+    N : int
+        Number of sigma points of the first set (``sigmas_f``, ``sigmas_h``).
+    """
+    d["_P"] = FactorSlot("P", n, semidefinite=False, factor=np.eye(n))
+    d["_Q"] = FactorSlot("Q", q, semidefinite=True, factor=np.eye(q))
+    d["_R"] = FactorSlot("R", r, semidefinite=True, factor=np.eye(r))
+    for name in COVARIANCES:
+        d[name] = d["_" + name].matrix()
+    set_state(d, np.zeros(n))
+    d["x_prior"], d["P1_2_prior"] = np.zeros(n), np.eye(n)
+    d["x_post"], d["P1_2_post"] = np.zeros(n), np.eye(n)
+    d["sigmas_f"], d["sigmas_h"] = np.zeros((N, n)), np.zeros((N, m))
+    d["y"], d["z"] = np.zeros(m), np.array([[None] * m]).T
+
+
+def set_factor(d: dict, name: str, value) -> None:
+    """Assign ``P1_2``, ``Q1_2`` or ``R1_2`` (``name``: ``"P"``, ``"Q"``, ``"R"``), validated."""
+    slot = d["_" + name]
+    slot.set_factor(value)
+    d[name] = slot.matrix()
+
+
 def hooks_of(d: dict) -> Hooks:
     """The filter's :class:`~squkf.plan.Hooks` from its ``__dict__`` (built once after a hook was set)."""
     hooks = d["_hooks_cache"]
@@ -174,63 +203,68 @@ def commit_estimate(d: dict, x: np.ndarray, S: np.ndarray) -> None:
     d["P"] = Unformed(slot)  # formed when read: most steps nobody reads P
 
 
-def snapshot(d: dict) -> dict:
-    """Everything a failed multi-step call must put back (restored by replacing the ``__dict__``).
+class InDictCopies:
+    """Copies, snapshots and pickles of a filter whose attributes live in its ``__dict__`` as laid out here.
 
-    The filter's own arrays are replaced by each step, never changed in
-    place; only the covariance slots, whose matrices the caller may edit in
-    place, are copied.
+    A base of :class:`squkf.SquareRootUKF`: ``copy.copy`` gives an independent
+    filter (arrays and covariance slots copied, functions and configuration
+    objects shared, as ``copy.copy`` of a filterpy filter shares them; an
+    edit in place pending here is pending in the copy), ``copy.deepcopy`` a
+    deep copy whose matrices are its own slots', a pickle leaves the caches
+    and the matrices nobody formed out. ``_snapshot``/``_restore`` are what a
+    transaction (:class:`squkf.boundary.loop.Transaction`) puts back.
     """
-    state = dict(d)
-    for name in COVARIANCES:
-        slot = state["_" + name] = copy.copy(state["_" + name])
-        if isinstance(state[name], Unformed):
-            state[name] = Unformed(slot)
-    return state
 
+    def _snapshot(self) -> dict:
+        # the filter's own arrays are replaced by each step, never changed in place; only
+        # the covariance slots, whose matrices the caller may edit in place, are copied
+        state = dict(self.__dict__)
+        for name in COVARIANCES:
+            slot = state["_" + name] = copy.copy(state["_" + name])
+            if isinstance(state[name], Unformed):
+                state[name] = Unformed(slot)
+        return state
 
-def copied(d: dict) -> dict:
-    """An independent filter's ``__dict__``: arrays and slots copied, functions and configuration shared.
+    def _restore(self, state: dict) -> None:
+        self.__dict__.clear()
+        self.__dict__.update(state)
 
-    As ``copy.copy`` of a filterpy filter shares its functions. A pending
-    edit in place is pending in the copy too.
-    """
-    new = {}
-    for key, value in d.items():
-        if isinstance(value, np.ndarray):
-            value = value.copy()
-        elif isinstance(value, FactorSlot):
-            value = value.detached()  # the factor shared, the matrix handed out copied
-        elif isinstance(value, Handed):
-            value = value.copy()
-        new[key] = value
-    new["x"] = new["_x"].array
-    for name in COVARIANCES:
-        new[name] = new["_" + name].matrix()
-    return new
+    def __copy__(self):
+        d = {}
+        for key, value in self.__dict__.items():
+            if isinstance(value, np.ndarray):
+                value = value.copy()
+            elif isinstance(value, FactorSlot):
+                value = value.detached()  # the factor shared, the matrix handed out copied
+            elif isinstance(value, Handed):
+                value = value.copy()
+            d[key] = value
+        d["x"] = d["_x"].array
+        for name in COVARIANCES:
+            d[name] = d["_" + name].matrix()
+        new = type(self).__new__(type(self))
+        new.__dict__.update(d)
+        return new
 
+    def __deepcopy__(self, memo):
+        new = type(self).__new__(type(self))
+        memo[id(self)] = new
+        d = copy.deepcopy(self.__dict__, memo)
+        for name in COVARIANCES:
+            if isinstance(self.__dict__[name], Unformed):  # the copy's matrix is its slot's
+                d[name] = d["_" + name].matrix()
+        new.__dict__.update(d)
+        return new
 
-def deep_copied(d: dict, memo: dict) -> dict:
-    """A deep copy of the ``__dict__`` whose matrices are its own slots'."""
-    new = copy.deepcopy(d, memo)
-    for name in COVARIANCES:
-        if isinstance(d[name], Unformed):
-            new[name] = new["_" + name].matrix()
-    return new
+    def __getstate__(self):
+        state = self.__dict__.copy()
+        state["_noise_cache"] = {}
+        for name in COVARIANCES:
+            if isinstance(state[name], Unformed):
+                del state[name]  # formed again from the slot when unpickled
+        return state
 
-
-def pickled(d: dict) -> dict:
-    """The ``__dict__`` to pickle: caches emptied, unformed matrices left out (formed when unpickled)."""
-    state = d.copy()
-    state["_noise_cache"] = {}
-    for name in COVARIANCES:
-        if isinstance(state[name], Unformed):
-            del state[name]
-    return state
-
-
-def unpickled(d: dict, state: dict) -> None:
-    """Fill the ``__dict__`` ``d`` from a pickled ``state`` (:func:`pickled`)."""
-    d.update(state)
-    for name in COVARIANCES:
-        d[name] = d["_" + name].matrix()
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        for name in COVARIANCES:
+            self.__dict__[name] = self.__dict__["_" + name].matrix()

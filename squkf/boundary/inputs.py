@@ -13,9 +13,11 @@ import numpy as np
 
 from ..batch import iter_measurements
 from ..errors import NonFiniteError, ParameterError, ShapeError
+from ..generators import as_generator, noise_family
 from ..linalg import all_finite
 from ..noise import check_accepts_noise, check_noise_dim
 from ..validate import as_float_array, as_measurements, describe_nonfinite
+from ..weights import as_family
 
 __all__ = [
     "as_state",
@@ -28,6 +30,8 @@ __all__ = [
     "per_filter",
     "refuse_noise_args",
     "refuse_smoother_noise",
+    "second_set",
+    "sigma_family",
     "stacked_images",
     "with_filter_axis",
 ]
@@ -380,3 +384,51 @@ def refuse_noise_args(noise_xi, name: str, value, UT) -> None:
         )
     if UT is not None:
         raise ParameterError(f"UT cannot be given with {which}: the transform has no noise to add")
+
+
+def sigma_family(points, n: int, fx_noise: int) -> tuple[object, int]:
+    """``points`` as a sigma-point family, checked to serve dimension ``n``, and its number of points.
+
+    Parameters
+    ----------
+    points : sigma-point family or filterpy points object
+    n : int
+        State dimension.
+    fx_noise : int
+        Dimension of the noise entering ``fx`` (0: additive); the first set is then augmented.
+
+    Returns
+    -------
+    family : squkf.weights.SigmaPointFamily
+    num : int
+        Number of points of the first set.
+    """
+    family = as_family(points)
+    try:
+        num = (noise_family(family, n, fx_noise) if fx_noise else family).num_sigmas(n + fx_noise)
+    except ParameterError:
+        raise
+    except Exception as exc:  # a user's family that cannot serve this dimension
+        raise ParameterError(f"points cannot give sigma points for dim_x={n}: {exc}") from exc
+    return family, num
+
+
+def second_set(scheme, n: int, family, hx_noise: int):
+    """The second-set generator of ``scheme``, checked against the family at dimension ``n`` now.
+
+    Parameters
+    ----------
+    scheme : {"redrawn", "augmented", "propagated"} or generator
+    n : int
+    family : squkf.weights.SigmaPointFamily
+    hx_noise : int
+        Dimension of the noise entering ``hx`` (0: additive).
+
+    Returns
+    -------
+    generator
+    """
+    gen = as_generator(scheme)
+    if hasattr(gen, "num_sigmas") and not hx_noise:
+        gen.num_sigmas(n, family)  # fails now, not at the first update
+    return gen

@@ -21,7 +21,7 @@ from ..gating import Gate
 from ..noise import call_model, noise_points
 from ..plan import Hooks, Plan, build_plan
 from . import inputs
-from .attributes import commit_estimate, current_state, hooks_of
+from .attributes import InDictCopies, commit_estimate, current_state, hooks_of
 from .factors import noise_factor
 from .model_form import ModelForm
 from .records import LastUpdate, update_records
@@ -31,7 +31,7 @@ __all__ = ["OneFilter"]
 _one_blas_thread = blas.one_thread_method(lambda self: self._dim_x)
 
 
-class OneFilter(ModelForm):
+class OneFilter(ModelForm, InDictCopies):
     """The single filter's step internals; :class:`squkf.SquareRootUKF` is the face on top."""
 
     _dim_x: int
