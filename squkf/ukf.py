@@ -27,12 +27,9 @@ from .boundary.loop import Transaction
 from .boundary.one_filter import OneFilter
 from .boundary.records import LastUpdate, embed, innovation_inverse
 from .covariance import FactorSlot
-from .errors import NonFiniteError
 from .gating import Gate
-from .generators import sigma_points_from_factor
 from .plan import Plan
-from .transform import cross_covariance
-from .validate import as_float_array, check_time_step, check_values
+from .validate import as_float_array, check_time_step
 
 __all__ = ["SquareRootUKF"]
 
@@ -404,11 +401,7 @@ class SquareRootUKF(OneFilter):
         [[2. 0.]
          [0. 2.]]
         """
-        x, S = self._current()
-        plan = self._plan
-        state = steps.ask_predict(self._state, plan, x, S, self._hooks().state_add)
-        self._state, self._step_plan = state, plan
-        return self._handed_points(state, plan.w_xi, "Q")
+        return self._ask_predict()
 
     def tell_predict(self, sigmas_f, Q=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of a prediction: the propagated points give the prior.
@@ -445,11 +438,7 @@ class SquareRootUKF(OneFilter):
             array); evaluate ``hx`` at each and pass the results to
             :meth:`tell_update`.
         """
-        x, S = self._current()
-        plan = self._plan
-        state = steps.ask_update(self._state, plan, x, S, self._hooks().state_add)
-        self._state = state
-        return self._handed_points(state, plan.v_xi, "R")
+        return self._ask_update()
 
     def tell_update(self, sigmas_h, z, R=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of an update: measurement-function values and ``z`` give the posterior.
@@ -472,13 +461,7 @@ class SquareRootUKF(OneFilter):
         P1_2_post : ndarray, shape (dim_x, dim_x)
             Fresh arrays.
         """
-        inputs.refuse_noise_args(self._plan.v_xi, "R", R, UT)
-        meas = self._as_measurement(z, R)
-        if meas is None:
-            raise NonFiniteError(
-                "tell_update needs a measurement, but z holds none (all NaN, masked or None)"
-            )
-        self._tell_update(self._state, sigmas_h, meas[0], meas[1], R, UT, self._hooks())
+        self._told_update(sigmas_h, z, R, UT)
         return self.x_post.copy(), self.P1_2_post.copy()
 
     # -- filterpy's methods ---------------------------------------------------
@@ -503,15 +486,7 @@ class SquareRootUKF(OneFilter):
         **fx_args
             Passed to ``fx``.
         """
-        dt = self._dt if dt is None else check_time_step(dt)
-        fx = self.fx if fx is None else fx
-        x, S = self._current()
-        plan = self._plan
-        hooks = self._hooks()
-        state = steps.ask_predict(self._state, plan, x, S, hooks.state_add)
-        # the points not copied: they are never read again (the step keeps only their shape)
-        values = self._images(fx, "fx", state.sigmas, (dt,), fx_args, Q, UT)  # type: ignore[arg-type]  # set by ask_*
-        self._tell_predict(state, plan, values, Q, UT, hooks)
+        self._predict(dt, UT, fx, Q, fx_args)
 
     def update(self, z, R=None, UT=None, hx=None, **hx_args) -> None:
         """Update the estimate with measurement ``z``: ``x``, ``P`` become the posterior.
@@ -531,28 +506,11 @@ class SquareRootUKF(OneFilter):
         **hx_args
             Passed to ``hx``.
         """
-        meas = self._as_measurement(z, R)
-        if meas is None:
-            self._skip_update()
-            return
-        hx = self.hx if hx is None else hx
-        x, S = self._current()
-        hooks = self._hooks()
-        plan = self._plan
-        state = steps.ask_update(self._state, plan, x, S, hooks.state_add)
-        X = state.sigmas.copy()  # type: ignore[union-attr]  # set by ask_*
-        values = self._images(hx, "hx", X, (), hx_args, R, UT)
-        self._tell_update(state, values, meas[0], meas[1], R, UT, hooks)
+        self._update(z, R, UT, hx, hx_args)
 
     def compute_process_sigmas(self, dt, fx=None, **fx_args) -> None:
         """Set ``sigmas_f`` to the first set propagated through ``fx`` (state unchanged)."""
-        dt = check_time_step(dt)
-        fx = self.fx if fx is None else fx
-        x, S = self._current()
-        plan = self._plan
-        sigmas = sigma_points_from_factor(x, S, plan.first.xi, self._hooks().state_add)
-        values = self._images(fx, "fx", sigmas, (dt,), fx_args)
-        self.sigmas_f = check_values(values, sigmas.shape, "fx values")
+        self._process_sigmas(dt, fx, fx_args)
 
     def cross_variance(self, x, z, sigmas_f, sigmas_h) -> np.ndarray:
         """Cross-covariance ``sum Wc[i] (sigmas_f[i] - x)(sigmas_h[i] - z)^T``.
@@ -560,11 +518,7 @@ class SquareRootUKF(OneFilter):
         The weights are those of the set with as many points as ``sigmas_f``
         (the second set after a prediction, else the first).
         """
-        sigmas_f = as_float_array(sigmas_f, "sigmas_f")
-        sigmas_h = np.atleast_2d(as_float_array(sigmas_h, "sigmas_h"))
-        sset = self._state.sset
-        Wcs = (self._plan.first.rows.Wc, None if sset is None else sset.Wc)
-        return cross_covariance(sigmas_f, sigmas_h, x, z, Wcs, self._hooks())
+        return self._cross_variance(x, z, sigmas_f, sigmas_h)
 
     def batch_filter(
         self,

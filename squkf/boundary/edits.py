@@ -17,6 +17,7 @@ filter), by :class:`squkf.SquareRootUKF`'s ``x`` and, through
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Iterable
 
 import numpy as np
@@ -108,7 +109,7 @@ class HandOut:
         for name in names:
             h = held.get(name)
             if h is not None:
-                held[name] = h.take(lambda a, name=name: assign(name, a))
+                held[name] = h.take(functools.partial(assign, name))
 
     def copy(self) -> HandOut:
         """The records as they are now (the arrays the same): what a transaction puts back."""

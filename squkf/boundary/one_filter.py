@@ -17,9 +17,13 @@ import numpy as np
 from .. import blas
 from .. import step as steps
 from ..covariance import FactorSlot
+from ..errors import NonFiniteError
 from ..gating import Gate
+from ..generators import sigma_points_from_factor
 from ..noise import call_model, noise_points
 from ..plan import Hooks, Plan, build_plan
+from ..transform import cross_covariance
+from ..validate import as_float_array, check_time_step, check_values
 from . import inputs
 from .attributes import InDictCopies, commit_estimate, current_state, hooks_of
 from .factors import noise_factor
@@ -36,6 +40,9 @@ class OneFilter(ModelForm, InDictCopies):
 
     _dim_x: int
     _dim_z: int
+    _dt: float
+    fx: Callable
+    hx: Callable
     _plan: Plan
     _step_plan: Plan  # the plan of the pending step (the one its points were drawn with)
     _state: steps.StepState
@@ -88,6 +95,74 @@ class OneFilter(ModelForm, InDictCopies):
         if xi is not None:  # the augmented points [x_i, w_i] or [x_i, v_i]
             return np.concatenate([state.sigmas, self._noise_points(xi, None, name)], axis=-1)  # type: ignore[list-item]
         return state.sigmas.copy()  # type: ignore[union-attr]  # set by ask_*
+
+    def _ask_predict(self) -> np.ndarray:
+        x, S = self._current()
+        plan = self._plan
+        state = steps.ask_predict(self._state, plan, x, S, self._hooks().state_add)
+        self._state, self._step_plan = state, plan
+        return self._handed_points(state, plan.w_xi, "Q")
+
+    def _ask_update(self) -> np.ndarray:
+        x, S = self._current()
+        plan = self._plan
+        state = steps.ask_update(self._state, plan, x, S, self._hooks().state_add)
+        self._state = state
+        return self._handed_points(state, plan.v_xi, "R")
+
+    def _predict(self, dt, UT, fx: Callable | None, Q, fx_args: dict) -> None:
+        """A whole prediction: ``dt`` checked, the points, ``fx`` at them, the prior committed."""
+        dt = self._dt if dt is None else check_time_step(dt)
+        fx = self.fx if fx is None else fx
+        x, S = self._current()
+        plan = self._plan
+        hooks = self._hooks()
+        state = steps.ask_predict(self._state, plan, x, S, hooks.state_add)
+        # the points not copied: they are never read again (the step keeps only their shape)
+        values = self._images(fx, "fx", state.sigmas, (dt,), fx_args, Q, UT)  # type: ignore[arg-type]  # set by ask_*
+        self._tell_predict(state, plan, values, Q, UT, hooks)
+
+    def _update(self, z, R, UT, hx: Callable | None, hx_args: dict) -> None:
+        """A whole update: ``z`` checked, the points, ``hx`` at them, the posterior committed."""
+        meas = self._as_measurement(z, R)
+        if meas is None:
+            self._skip_update()
+            return
+        hx = self.hx if hx is None else hx
+        x, S = self._current()
+        hooks = self._hooks()
+        plan = self._plan
+        state = steps.ask_update(self._state, plan, x, S, hooks.state_add)
+        X = state.sigmas.copy()  # type: ignore[union-attr]  # set by ask_*
+        values = self._images(hx, "hx", X, (), hx_args, R, UT)
+        self._tell_update(state, values, meas[0], meas[1], R, UT, hooks)
+
+    def _told_update(self, values, z, R, UT) -> None:
+        """``tell_update``: the arguments checked, the update finished and committed."""
+        inputs.refuse_noise_args(self._plan.v_xi, "R", R, UT)
+        meas = self._as_measurement(z, R)
+        if meas is None:
+            raise NonFiniteError(
+                "tell_update needs a measurement, but z holds none (all NaN, masked or None)"
+            )
+        self._tell_update(self._state, values, meas[0], meas[1], R, UT, self._hooks())
+
+    def _process_sigmas(self, dt, fx: Callable | None, fx_args: dict) -> None:
+        """``compute_process_sigmas``: ``sigmas_f``, the first set through ``fx`` (the state unchanged)."""
+        dt = check_time_step(dt)
+        fx = self.fx if fx is None else fx
+        x, S = self._current()
+        sigmas = sigma_points_from_factor(x, S, self._plan.first.xi, self._hooks().state_add)
+        values = self._images(fx, "fx", sigmas, (dt,), fx_args)
+        self.sigmas_f = check_values(values, sigmas.shape, "fx values")
+
+    def _cross_variance(self, x, z, sigmas_f, sigmas_h) -> np.ndarray:
+        """``cross_variance``, with the weights of the set that has as many points as ``sigmas_f``."""
+        sigmas_f = as_float_array(sigmas_f, "sigmas_f")
+        sigmas_h = np.atleast_2d(as_float_array(sigmas_h, "sigmas_h"))
+        sset = self._state.sset
+        Wcs = (self._plan.first.rows.Wc, None if sset is None else sset.Wc)
+        return cross_covariance(sigmas_f, sigmas_h, x, z, Wcs, self._hooks())
 
     def _as_measurement(self, z, R) -> tuple[np.ndarray, np.ndarray | None] | None:
         """``z`` checked, as ``(z, observed)`` (the mask of the measured components, or None: all)."""
