@@ -26,7 +26,6 @@ from .boundary.config import Config
 from .boundary.loop import Transaction
 from .boundary.one_filter import OneFilter
 from .boundary.records import LastUpdate, embed, innovation_inverse
-from .covariance import FactorSlot
 from .gating import Gate
 from .plan import Plan
 from .validate import as_float_array, check_time_step
@@ -156,10 +155,6 @@ class SquareRootUKF(OneFilter):
     residual_x = Hook()
     residual_z = Hook()
     state_add = Hook()
-    # the slots behind P, Q, R (set through __dict__ in __init__)
-    _P: FactorSlot
-    _Q: FactorSlot
-    _R: FactorSlot
 
     def __init__(
         self,
@@ -220,12 +215,7 @@ class SquareRootUKF(OneFilter):
 
     @points_fn.setter
     def points_fn(self, points):
-        family, num = inputs.sigma_family(points, self._dim_x, self._fx_noise)
-        plan = self._build_plan(family, self._generator) if self._generator is not None else None
-        self._points = points
-        self._family = family
-        self._num_sigmas = num
-        self._plan = cast(Plan, plan)  # None only while __init__ has not set the scheme yet
+        self._set_points(points)
 
     @property
     def scheme(self):
@@ -234,10 +224,7 @@ class SquareRootUKF(OneFilter):
 
     @scheme.setter
     def scheme(self, value):
-        gen = inputs.second_set(value, self._dim_x, self._family, self._hx_noise)
-        plan = self._build_plan(self._family, gen)
-        self._generator = gen
-        self._plan = plan
+        self._set_scheme(value)
 
     @property
     def dim_x(self) -> int:
@@ -260,9 +247,6 @@ class SquareRootUKF(OneFilter):
         return self._plan.first.rows.Wc.copy()
 
     # -- state and covariances ---------------------------------------------
-
-    def _covariance_assigned(self, name: str) -> None:
-        """An assignment to ``x``, ``P``, ``Q`` or ``R`` succeeded (hook for subclasses)."""
 
     @property
     def P1_2(self) -> np.ndarray:
@@ -534,36 +518,21 @@ class SquareRootUKF(OneFilter):
         return_factors: bool = False,
         progress=False,
     ):
-        """Filter a whole sequence of measurements; see :func:`squkf.batch.batch_filter`.
-
-        Returns ``(means, covariances)`` as filterpy does (the factors instead
-        with ``return_factors``). ``zs`` may be any iterable (a list, an array,
-        a generator, ``tqdm(zs)``); ``progress=True`` shows a bar. An error at
-        step ``k`` says so, carries the first ``k`` results as ``exc.partial``
-        and leaves the filter as it was.
-        """
+        """Filter a whole sequence of measurements: :func:`squkf.batch.batch_filter` on this filter."""
         return batch_filter(
             self, zs, Rs, dts, UT, saver, Qs=Qs, fx_args=fx_args, hx_args=hx_args,
             return_factors=return_factors, progress=progress,
         )  # fmt: skip
 
     def rts_smoother(self, Xs, Ps, Qs=None, dts=None, UT=None, *, fx_args=None):
-        """Square-root unscented RTS smoother; see :func:`squkf.smoother.rts_smoother`.
-
-        Returns ``(xs, Ps, Ks)`` as filterpy does. ``Qs[k]`` and ``dts[k]`` are
-        those of the prediction into step ``k`` (the lists given to
-        ``batch_filter``); ``fx_args`` may be given the same way.
-        """
+        """Square-root unscented RTS smoother: :func:`squkf.smoother.rts_smoother` on this filter."""
         self._refuse_smoother()
         return smoother.rts_smoother(self, Xs, Ps, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
 
     def rts_smoother_factors(self, Xs, P1_2s, Qs=None, dts=None, UT=None, *, fx_args=None):
-        """The smoother on lower factors; see :func:`squkf.smoother.rts_smoother_factors`."""
+        """The smoother on lower factors: :func:`squkf.smoother.rts_smoother_factors` on this filter."""
         self._refuse_smoother()
         return smoother.rts_smoother_factors(self, Xs, P1_2s, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
-
-    def _refuse_smoother(self) -> None:
-        inputs.refuse_smoother_noise(self._fx_noise, "filter")
 
     # -- configuration and transactions (copies and pickles: InDictCopies) ------
 
@@ -573,14 +542,7 @@ class SquareRootUKF(OneFilter):
         What ``Fleet.from_filters`` and the smoother read; the arrays are the
         filter's own, to be read and not written.
         """
-        d = self.__dict__
-        rx, rz, add = d["residual_x"], d["residual_z"], d["state_add"]
-        return Config(
-            self._dim_x, self._dim_z, self._dt, self.hx, self.fx, self._points, self._family, self._generator,
-            d["x_mean"], d["z_mean"], None if rx is np.subtract else rx, None if rz is np.subtract else rz,
-            None if add is np.add else add, self._gate, self.fx_noise, self.hx_noise, self.vectorized,
-            self._plan, self._hooks(), self._Q.factor(), self._R.factor(),
-        )  # fmt: skip
+        return self._configuration()
 
     def transaction(self) -> Transaction:
         """A context manager that puts the filter back as it was on entry if anything inside raises.
@@ -590,17 +552,4 @@ class SquareRootUKF(OneFilter):
         return Transaction(self._snapshot, self._restore)
 
     def __repr__(self) -> str:
-        from filterpy.common import pretty_str
-
-        factors = {"P1_2": self._P.factor(), "Q1_2": self._Q.factor(), "R1_2": self._R.factor()}
-        rows = [(_LABELS.get(a, a), factors[a] if a in factors else getattr(self, a)) for a in _SHOWN]
-        return "\n".join(["SquareRootUKF object"] + [pretty_str(label, v) for label, v in rows])
-
-
-# what repr shows, in order
-_SHOWN = (
-    "x P1_2 x_prior P1_2_prior Q1_2 R1_2 S1_2 K y log_likelihood likelihood mahalanobis sigmas_f sigmas_h"
-    " Wm Wc points_fn scheme vectorized gate fx_noise hx_noise residual_x residual_z state_add hx fx"
-    " x_mean z_mean"
-).split()
-_LABELS = {"log_likelihood": "log-likelihood"}
+        return self._describe("SquareRootUKF object")

@@ -11,6 +11,7 @@ a call that fails changes nothing. The attributes live in the instance
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import cast
 
 import numpy as np
 
@@ -26,6 +27,7 @@ from ..transform import cross_covariance
 from ..validate import as_float_array, check_time_step, check_values
 from . import inputs
 from .attributes import InDictCopies, commit_estimate, current_state, hooks_of
+from .config import Config
 from .factors import noise_factor
 from .model_form import ModelForm
 from .records import LastUpdate, update_records
@@ -33,6 +35,14 @@ from .records import LastUpdate, update_records
 __all__ = ["OneFilter"]
 
 _one_blas_thread = blas.one_thread_method(lambda self: self._dim_x)
+
+# what repr shows, in order
+_SHOWN = (
+    "x P1_2 x_prior P1_2_prior Q1_2 R1_2 S1_2 K y log_likelihood likelihood mahalanobis sigmas_f sigmas_h"
+    " Wm Wc points_fn scheme vectorized gate fx_noise hx_noise residual_x residual_z state_add hx fx"
+    " x_mean z_mean"
+).split()
+_LABELS = {"log_likelihood": "log-likelihood"}
 
 
 class OneFilter(ModelForm, InDictCopies):
@@ -49,7 +59,13 @@ class OneFilter(ModelForm, InDictCopies):
     _gate: Gate | None
     _noise_cache: dict
     _last: LastUpdate
+    _P: FactorSlot
+    _Q: FactorSlot
     _R: FactorSlot
+    _points: object
+    _family: object
+    _generator: object
+    _num_sigmas: int
     vectorized: bool
     # the records of the last prediction and update (plain attributes, as filterpy's)
     x_prior: np.ndarray
@@ -61,8 +77,45 @@ class OneFilter(ModelForm, InDictCopies):
     y: np.ndarray
     z: np.ndarray
 
+    def _covariance_assigned(self, name: str) -> None:
+        """An assignment to ``x``, ``P``, ``Q`` or ``R`` succeeded (hook for subclasses)."""
+
     def _build_plan(self, family, generator) -> Plan:
         return build_plan(family, generator, self._dim_x, self._fx_noise, self._hx_noise)
+
+    def _set_points(self, points) -> None:
+        """``points_fn = points``: checked, and the plan built again (once the scheme is set)."""
+        family, num = inputs.sigma_family(points, self._dim_x, self._fx_noise)
+        plan = self._build_plan(family, self._generator) if self._generator is not None else None
+        self._points = points
+        self._family = family
+        self._num_sigmas = num
+        self._plan = cast(Plan, plan)  # None only while __init__ has not set the scheme yet
+
+    def _set_scheme(self, value) -> None:
+        """``scheme = value``: the second-set generator checked, and the plan built again."""
+        gen = inputs.second_set(value, self._dim_x, self._family, self._hx_noise)
+        plan = self._build_plan(self._family, gen)
+        self._generator = gen
+        self._plan = plan
+
+    def _configuration(self) -> Config:
+        d = self.__dict__
+        rx, rz, add = d["residual_x"], d["residual_z"], d["state_add"]
+        return Config(
+            self._dim_x, self._dim_z, self._dt, self.hx, self.fx, self._points, self._family, self._generator,
+            d["x_mean"], d["z_mean"], None if rx is np.subtract else rx, None if rz is np.subtract else rz,
+            None if add is np.add else add, self._gate, self.fx_noise, self.hx_noise, self.vectorized,
+            self._plan, self._hooks(), self._Q.factor(), self._R.factor(),
+        )  # fmt: skip
+
+    def _describe(self, title: str) -> str:
+        """The ``repr``: filterpy's layout of the attributes (``pretty_str``)."""
+        from filterpy.common import pretty_str
+
+        factors = {"P1_2": self._P.factor(), "Q1_2": self._Q.factor(), "R1_2": self._R.factor()}
+        rows = [(_LABELS.get(a, a), factors[a] if a in factors else getattr(self, a)) for a in _SHOWN]
+        return "\n".join([title] + [pretty_str(label, v) for label, v in rows])
 
     def _hooks(self) -> Hooks:
         return hooks_of(self.__dict__)
@@ -163,6 +216,9 @@ class OneFilter(ModelForm, InDictCopies):
         sset = self._state.sset
         Wcs = (self._plan.first.rows.Wc, None if sset is None else sset.Wc)
         return cross_covariance(sigmas_f, sigmas_h, x, z, Wcs, self._hooks())
+
+    def _refuse_smoother(self) -> None:
+        inputs.refuse_smoother_noise(self._fx_noise, "filter")
 
     def _as_measurement(self, z, R) -> tuple[np.ndarray, np.ndarray | None] | None:
         """``z`` checked, as ``(z, observed)`` (the mask of the measured components, or None: all)."""
