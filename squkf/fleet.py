@@ -37,7 +37,7 @@ import numpy as np
 from . import step as steps
 from .batch import model_kwargs, per_step
 from .boundary import inputs
-from .boundary.config import Config, common_config, filter_kwargs
+from .boundary.config import Config, filter_kwargs
 from .boundary.edits import HandOut
 from .boundary.factors import (
     covariance_factors,
@@ -49,6 +49,7 @@ from .boundary.factors import (
 from .boundary.loop import Transaction, check_fleet_progress, check_keep, fleet_progress
 from .boundary.model_form import ModelForm
 from .boundary.records import FleetResult, Records, failures_error, new_records
+from .boundary.stacking import filter_of, stacked
 from .errors import FleetStepError, ParameterError
 from .gating import Gate, as_gate
 from .generators import as_generator
@@ -56,7 +57,6 @@ from .isolate import BLOCK, isolated_posterior, isolated_prior, rows_of
 from .noise import call_model, noise_points
 from .plan import Hooks, Plan, build_plan
 from .smoother import fleet_rts_smoother
-from .ukf import SquareRootUKF
 from .validate import check_time_step
 from .weights import as_family
 
@@ -670,14 +670,7 @@ class Fleet(ModelForm):
     def __getitem__(self, k: int):
         """Filter ``k`` as a :class:`squkf.SquareRootUKF` (vectorised, with its state and configuration)."""
         k = int(np.arange(self._K)[k])
-        c = self.configuration()
-        f = SquareRootUKF(c.dim_x, c.dim_z, c.dt, c.hx, c.fx, c.points, vectorized=True, **filter_kwargs(c))
-        f.x = self._x[k]
-        f.P1_2 = self._S[k]
-        Q = self._Q1_2
-        f.Q1_2 = None if Q is None else (Q if Q.ndim == 2 else Q[k])
-        f.R1_2 = self._R1_2 if self._R1_2.ndim == 2 else self._R1_2[k]
-        return f
+        return filter_of(self.configuration(), k, self._x, self._S, self._state.phase)
 
     def configuration(self) -> Config:
         """The fleet's configuration and noise factors (``squkf.boundary.Config``), edits taken.
@@ -745,18 +738,11 @@ class Fleet(ModelForm):
         ParameterError
             If the filters differ in configuration.
         """
-        filters = list(filters)
-        c = common_config([f.configuration() for f in filters])
+        c, x, P1_2, Q1_2, R1_2 = stacked(list(filters))
         fleet = cls(
-            len(filters), c.dim_x, c.dim_z, c.dt, c.hx, c.fx, c.points, on_error=on_error, **filter_kwargs(c)
+            len(x), c.dim_x, c.dim_z, c.dt, c.hx, c.fx, c.points, on_error=on_error, **filter_kwargs(c)
         )
-        fleet._x = np.stack([f.x for f in filters])
-        fleet._S = np.stack([f.P1_2 for f in filters])
-        Qs = [f.Q1_2 for f in filters]
-        Rs = [f.R1_2 for f in filters]
-        Q = Qs[0] if all(np.array_equal(q, Qs[0]) for q in Qs) else np.stack(Qs)
-        fleet._Q1_2 = Q if np.any(Q) else None
-        fleet._R1_2 = Rs[0] if all(np.array_equal(r, Rs[0]) for r in Rs) else np.stack(Rs)
+        fleet.x, fleet.P1_2, fleet.Q1_2, fleet.R1_2 = x, P1_2, Q1_2, R1_2  # validated by the setters
         return fleet
 
     def __copy__(self) -> Fleet:

@@ -21,8 +21,11 @@ from ..weights import as_family
 
 __all__ = [
     "as_state",
+    "check_chunk_args",
     "check_sizes",
+    "chunk_args",
     "evaluate",
+    "is_per_filter",
     "measurement",
     "measurement_series",
     "measurements",
@@ -206,8 +209,10 @@ def measurement_series(zs, K: int, m: int) -> np.ndarray:
     Parameters
     ----------
     zs : array_like, shape (K, T, m) or (K, T) when ``m`` is 1, or an iterable of (K, m) arrays
-        Lists and tuples are read as the array; any other iterable yields one
-        step at a time, each checked by :func:`measurements` (naming it ``zs[t]``).
+        Lists, tuples and any object numpy reads as an array (``__array__``:
+        a dask or xarray array, ...) are read as the array; any other
+        iterable yields one step at a time, each checked by
+        :func:`measurements` (naming it ``zs[t]``).
     K, m : int
         Number of filters and measurement size.
 
@@ -215,7 +220,7 @@ def measurement_series(zs, K: int, m: int) -> np.ndarray:
     -------
     Z : ndarray, shape (K, T, m)
     """
-    if not isinstance(zs, (np.ndarray, list, tuple)):  # a MaskedArray is an ndarray
+    if not isinstance(zs, (np.ndarray, list, tuple)) and not hasattr(zs, "__array__"):  # MaskedArray: ndarray
         # a generator, an iterator, tqdm(...): one (K, dim_z) array per step, each checked
         it = iter_measurements(zs)
         steps_read = [measurements(z, K, m, f"zs[{t}]") for t, z in enumerate(it)]
@@ -248,10 +253,54 @@ def with_filter_axis(kwargs: dict, K: int) -> dict:
     """
     out = {}
     for key, v in kwargs.items():
-        if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == K:
+        if is_per_filter(v, K):
             v = v.reshape((K, 1) + v.shape[1:])
         out[key] = v
     return out
+
+
+def is_per_filter(v, K: int) -> bool:
+    """Whether a model function's argument is per filter in a fleet of ``K`` (an ndarray, leading axis K)."""
+    return isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == K
+
+
+def chunk_args(kwargs: dict, K: int, rows: slice) -> dict:
+    """The model functions' arguments of a chunk of a fleet of ``K``: per-filter arrays cut to ``rows``.
+
+    Parameters
+    ----------
+    kwargs : dict
+    K : int
+    rows : slice
+        The chunk's filters.
+
+    Returns
+    -------
+    dict
+        A new dict (the arrays cut are views).
+    """
+    return {key: v[rows] if is_per_filter(v, K) else v for key, v in kwargs.items()}
+
+
+def check_chunk_args(kwargs: dict, name: str, K: int, sizes) -> None:
+    """Refuse a shared array argument as long as a chunk: that chunk's fleet would read it per filter.
+
+    Parameters
+    ----------
+    kwargs : dict
+    name : str
+        ``"fx_args"`` or ``"hx_args"``, for the message.
+    K : int
+        Number of filters.
+    sizes : sequence of int
+        The chunks' sizes.
+    """
+    for key, v in kwargs.items():
+        if isinstance(v, np.ndarray) and v.ndim >= 1 and not is_per_filter(v, K) and v.shape[0] in sizes:
+            raise ParameterError(
+                f"{name}[{key!r}] has a leading axis of {v.shape[0]}, the size of a chunk of filters but "
+                f"not their number ({K}): a chunk's fleet would read it per filter; rechunk zs"
+            )
 
 
 def evaluate(fn: Callable, sigmas: np.ndarray, args: tuple, kwargs: dict, vectorized: bool) -> object:

@@ -106,7 +106,7 @@ class OneFilter(ModelForm, InDictCopies):
             self._dim_x, self._dim_z, self._dt, self.hx, self.fx, self._points, self._family, self._generator,
             d["x_mean"], d["z_mean"], None if rx is np.subtract else rx, None if rz is np.subtract else rz,
             None if add is np.add else add, self._gate, self.fx_noise, self.hx_noise, self.vectorized,
-            self._plan, self._hooks(), self._Q.factor(), self._R.factor(),
+            self._plan, self._hooks(), self._Q.factor(), self._R.factor(), self._state.phase,
         )  # fmt: skip
 
     def _describe(self, title: str) -> str:
