@@ -587,7 +587,7 @@ def nan_for_big_line_fx(X, dt):
 
 
 def pushed_line_fx(X, dt, push):
-    """``line_fx`` with the velocity changed by ``push`` (a fleet's per-filter ``push`` arrives as ``(K, 1)``)."""
+    """``line_fx`` with the velocity changed by ``push`` (per filter: ``(K, 1)`` in a fleet)."""
     out = line_fx(X, dt)
     out[..., 1] += push
     return out
