@@ -219,23 +219,13 @@ class Fleet(ModelForm):
     def _hooks(self) -> Hooks:
         return Hooks(self.x_mean, self.z_mean, self.residual_x, self.residual_z, self.state_add)
 
-    # -- state ------------------------------------------------------------------
-
-    def _per_filter(self, value, name: str, core: int) -> np.ndarray:
-        """``value`` as ``(K, *core_shape)``: one value broadcast, or one per filter, checked."""
-        return inputs.per_filter(value, name, self._K, (self._n,) if core == 1 else (self._n, self._n))
-
-    # -- what is handed out, and edits in place -------------------------------------
+    # -- state and noise: handed out (edits in place taken by boundary.edits.HandOut) -------
 
     def __setattr__(self, name: str, value) -> None:
         object.__setattr__(self, name, value)
         handed = _HANDED.get(name)
         if handed is not None and "_handed" in self.__dict__:  # the value behind it changed
             self._handed.drop(handed)  # the array handed out is history
-
-    def _hand_out(self, name: str, form: Callable[[], np.ndarray]) -> np.ndarray:
-        """The array of ``x``, ``P``, ``Q`` or ``R`` (:class:`squkf.boundary.edits.HandOut`)."""
-        return self._handed.array(name, form)
 
     def _take_edits(self) -> None:
         """Take the edits in place of ``x``, ``P``, ``Q``, ``R`` through their setters (which may raise)."""
@@ -244,12 +234,12 @@ class Fleet(ModelForm):
 
     @property
     def x(self) -> np.ndarray:
-        """States, shape ``(K, dim_x)``; edits in place are taken at the next call (or assign)."""
-        return self._hand_out("x", self._x.copy)
+        """States, shape ``(K, dim_x)``."""
+        return self._handed.array("x", self._x.copy)
 
     @x.setter
     def x(self, value):
-        self._x = self._per_filter(value, "x", 1)
+        self._x = inputs.per_filter(value, "x", self._K, (self._n,))
         self._state = steps.StepState()
 
     @property
@@ -265,8 +255,8 @@ class Fleet(ModelForm):
 
     @property
     def P(self) -> np.ndarray:
-        """Covariances, shape ``(K, dim_x, dim_x)``; edits in place are taken at the next call."""
-        return self._hand_out("P", lambda: self._S @ np.swapaxes(self._S, -1, -2))
+        """Covariances, shape ``(K, dim_x, dim_x)``."""
+        return self._handed.array("P", lambda: self._S @ np.swapaxes(self._S, -1, -2))
 
     @P.setter
     def P(self, value):
@@ -279,16 +269,12 @@ class Fleet(ModelForm):
 
     @property
     def Q(self) -> np.ndarray:
-        """Process noise, shared ``(d, d)`` or per filter ``(K, d, d)``; edits in place count (next call).
+        """Process noise, shared ``(d, d)`` or per filter ``(K, d, d)``.
 
         ``d`` is ``dim_x``, or ``fx_noise`` when the noise enters ``fx`` (then ``Q`` is w's covariance).
         """
-
-        def form() -> np.ndarray:
-            S = self._Q1_2
-            return np.zeros((self._qd, self._qd)) if S is None else S @ np.swapaxes(S, -1, -2)
-
-        return self._hand_out("Q", form)
+        S, d = self._Q1_2, self._qd
+        return self._handed.array("Q", lambda: np.zeros((d, d)) if S is None else S @ np.swapaxes(S, -1, -2))
 
     @Q.setter
     def Q(self, value):
@@ -303,12 +289,12 @@ class Fleet(ModelForm):
 
     @Q1_2.setter
     def Q1_2(self, value):
-        self._Q1_2 = self._factor_noise(value, "Q1_2", self._qd)
+        self._Q1_2 = given_noise_factors(value, "Q1_2", self._qd, self._K)
 
     @property
     def R(self) -> np.ndarray:
-        """Measurement noise, shared ``(m, m)`` or per filter ``(K, m, m)``; edits in place count."""
-        return self._hand_out("R", lambda: self._R1_2 @ np.swapaxes(self._R1_2, -1, -2))
+        """Measurement noise, shared ``(m, m)`` or per filter ``(K, m, m)``."""
+        return self._handed.array("R", lambda: self._R1_2 @ np.swapaxes(self._R1_2, -1, -2))
 
     @R.setter
     def R(self, value):
@@ -323,11 +309,8 @@ class Fleet(ModelForm):
 
     @R1_2.setter
     def R1_2(self, value):
-        S = self._factor_noise(value, "R1_2", self._rd)
+        S = given_noise_factors(value, "R1_2", self._rd, self._K)
         self._R1_2 = np.zeros((self._rd, self._rd)) if S is None else S
-
-    def _factor_noise(self, value, name: str, dim: int) -> np.ndarray | None:
-        return given_noise_factors(value, name, dim, self._K)
 
     @property
     def P_prior(self) -> np.ndarray:
