@@ -96,16 +96,12 @@ class SquareRootUKF(OneFilter):
     ----------
     x : ndarray, shape (dim_x,)
     P, Q : ndarray, shape (dim_x, dim_x)
-        Read as matrices, stored as factors. An assignment is validated at
-        once (and, if it fails, changes nothing); edits in place take effect
-        at the next call, where they are validated. Every step assigns fresh
-        arrays to ``x`` and ``P``, so arrays read earlier (a ``Saver``'s
-        history) are never rewritten.
+        Read as matrices, stored as factors; assignments and edits in place as
+        :ref:`promise-edits` says, fresh arrays as :ref:`promise-records`.
     R : ndarray, shape (dim_z, dim_z)
     x_prior, P1_2_prior, x_post, P1_2_post : ndarray
-        Records of the last prediction and update: fresh arrays each step,
-        never the filter's own state (also ``P_prior``, ``P_post`` and the
-        last update's records below).
+        Records of the last prediction and update (also ``P_prior``,
+        ``P_post`` and the last update's records below).
     y : ndarray, shape (dim_z,)
         Innovation; NaN in components that were not measured.
     z : ndarray
@@ -309,8 +305,7 @@ class SquareRootUKF(OneFilter):
     def K(self) -> np.ndarray:
         """Kalman gain of the last update, shape ``(dim_x, dim_z)`` (zero columns where missing).
 
-        Formed once per update and handed out as a fresh copy on each read, so
-        an array read earlier (a ``Saver``'s history) is never rewritten.
+        Formed once per update; a fresh copy on each read (:ref:`promise-records`).
         """
         if self._last.K is None:
             self._last = self._last.with_gain(self._dim_x)
@@ -432,7 +427,7 @@ class SquareRootUKF(OneFilter):
         sigmas_h : array_like, shape (N2, dim_z)
             The measurement function at each point from :meth:`ask_update`.
         z : array_like, shape (dim_z,)
-            The measurement; NaN (or masked) components are missing. Its
+            The measurement (missing components: :ref:`promise-missing`); its
             length may differ from ``dim_z`` if ``R`` has the matching size.
         R : ndarray, optional
             Measurement noise for this update only (default ``self.R``); a
@@ -456,11 +451,8 @@ class SquareRootUKF(OneFilter):
         Parameters
         ----------
         dt : float, optional
-            Time step for this prediction (default: the constructor's ``dt``):
-            any finite real number, ``0`` (``fx(x, 0)``) and negative steps
-            included, as filterpy; every route (``batch_filter``, the smoothers,
-            the fleet) takes the same rule, :func:`squkf.validate.check_time_step`.
-            A string (``"0.1"`` too) is a :class:`~squkf.errors.ParameterError`.
+            Time step for this prediction (default: the constructor's ``dt``),
+            as :ref:`promise-dt` says.
         UT : callable, optional
             Square-root transform, signature of :func:`squkf.sqrt_unscented_transform`.
         fx : callable, optional
@@ -478,9 +470,8 @@ class SquareRootUKF(OneFilter):
         Parameters
         ----------
         z : array_like, shape (dim_z,), or None
-            ``None``, a NaN scalar, an all-NaN or a fully masked ``z`` mean no
-            measurement: the prior is kept as the posterior. NaN (or masked)
-            components are missing: the update uses the measured ones only.
+            The measurement; ``None`` and missing components as
+            :ref:`promise-missing` says.
         R : ndarray or float, optional
             Measurement noise for this update (default ``self.R``). With a
             ``z`` of another length (a second sensor), give ``R`` and ``hx``.
