@@ -57,6 +57,7 @@ from .isolate import BLOCK, isolated_posterior, isolated_prior, rows_of
 from .noise import call_model, noise_points
 from .plan import Hooks, Plan, build_plan
 from .smoother import fleet_rts_smoother
+from .ukf import SquareRootUKF
 from .validate import check_time_step
 from .weights import as_family
 
@@ -653,7 +654,7 @@ class Fleet(ModelForm):
     def __getitem__(self, k: int):
         """Filter ``k`` as a :class:`squkf.SquareRootUKF` (vectorised, with its state and configuration)."""
         k = int(np.arange(self._K)[k])
-        return filter_of(self.configuration(), k, self._x, self._S, self._state.phase)
+        return filter_of(SquareRootUKF, self.configuration(), k, self._x, self._S, self._state.phase)
 
     def configuration(self) -> Config:
         """The fleet's configuration and noise factors (``squkf.boundary.Config``), edits taken.

@@ -9,14 +9,13 @@ way, and refused otherwise (:func:`check_pending`).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
 from ..plan import Plan
 from ..step import IDLE, PRIOR, CallSequenceError
-from ..ukf import SquareRootUKF
 from .config import Config, common_config, filter_kwargs
 
 __all__ = ["check_pending", "filter_of", "stacked"]
@@ -54,11 +53,13 @@ def check_pending(phase: str, plan: Plan, who: str) -> None:
     )
 
 
-def filter_of(c: Config, k: int, x: np.ndarray, S: np.ndarray, phase: str) -> SquareRootUKF:
+def filter_of(make: Callable[..., Any], c: Config, k: int, x: np.ndarray, S: np.ndarray, phase: str):
     """Filter ``k`` of a fleet as a :class:`squkf.SquareRootUKF` (vectorised).
 
     Parameters
     ----------
+    make : type
+        :class:`squkf.SquareRootUKF` (given by the fleet: the boundary imports no front end).
     c : Config
         The fleet's configuration and noise factors (shared or per filter).
     k : int
@@ -75,7 +76,7 @@ def filter_of(c: Config, k: int, x: np.ndarray, S: np.ndarray, phase: str) -> Sq
         With its own copies of filter ``k``'s state and noise.
     """
     check_pending(phase, c.plan, f"fleet[{k}]")
-    f = SquareRootUKF(c.dim_x, c.dim_z, c.dt, c.hx, c.fx, c.points, vectorized=True, **filter_kwargs(c))
+    f = make(c.dim_x, c.dim_z, c.dt, c.hx, c.fx, c.points, vectorized=True, **filter_kwargs(c))
     f.x = x[k]
     f.P1_2 = S[k]
     Q, R = c.Q1_2, c.R1_2
