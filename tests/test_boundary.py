@@ -169,7 +169,9 @@ def test_the_front_ends_and_the_smoother_import_each_other_in_no_cycle():
             visit(m, [])
 
 
-@pytest.mark.parametrize("module", ["smoother", "batch", "dask", "boundary/config", "boundary/loop"])
+@pytest.mark.parametrize(
+    "module", ["smoother", "batch", "dask", "boundary/config", "boundary/loop", "boundary/stacking"]
+)
 def test_no_module_reads_a_front_ends_private_members(module):
     tree = ast.parse((PACKAGE / f"{module}.py").read_text())
     reads = [

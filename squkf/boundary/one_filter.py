@@ -100,13 +100,11 @@ class OneFilter(ModelForm, InDictCopies):
         self._plan = plan
 
     def _configuration(self) -> Config:
-        d = self.__dict__
-        rx, rz, add = d["residual_x"], d["residual_z"], d["state_add"]
+        hooks = self._hooks()  # the hooks as given, None where filterpy's default is meant
         return Config(
             self._dim_x, self._dim_z, self._dt, self.hx, self.fx, self._points, self._family, self._generator,
-            d["x_mean"], d["z_mean"], None if rx is np.subtract else rx, None if rz is np.subtract else rz,
-            None if add is np.add else add, self._gate, self.fx_noise, self.hx_noise, self.vectorized,
-            self._plan, self._hooks(), self._Q.factor(), self._R.factor(), self._state.phase,
+            *hooks, self._gate, self.fx_noise, self.hx_noise, self.vectorized,
+            self._plan, hooks, self._Q.factor(), self._R.factor(), self._state.phase,
         )  # fmt: skip
 
     def _describe(self, title: str) -> str:
