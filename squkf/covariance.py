@@ -3,9 +3,9 @@
 filterpy code reads and writes covariances as matrices, in place as often as
 not (``ukf.Q[2:4, 2:4] = ...``, ``ukf.P *= 10``). A :class:`FactorSlot` keeps
 the factor as the truth and hands out the matrix on demand; the matrix it
-handed out is remembered with a snapshot, and if the caller has changed it in
-place by the next time the factor is needed, the changed matrix is validated
-and factored (once). Nothing is formed or compared while nobody reads the
+handed out is remembered (:class:`squkf.boundary.edits.Handed`), and if the
+caller has changed it in place by the next time the factor is needed, the
+changed matrix is validated and factored (once). Nothing is formed or compared while nobody reads the
 matrix.
 """
 
@@ -15,6 +15,7 @@ import copy
 
 import numpy as np
 
+from .boundary.edits import Handed
 from .errors import NonFiniteError, NotPositiveDefiniteError, ShapeError, SqukfValueError
 from .linalg import factor_covariance
 from .validate import as_float_array
@@ -153,8 +154,7 @@ class FactorSlot:
         self.dim = dim
         self.semidefinite = semidefinite
         self._factor = factor
-        self._view: np.ndarray | None = None  # the matrix handed out
-        self._snap: bytes | None = None  # its bytes when it matched the factor
+        self._view: Handed | None = None  # the matrix handed out, and its record when it matched the factor
 
     def detached(self) -> FactorSlot:
         """A copy for an independent filter: the factor shared (never changed in place), the matrix copied.
@@ -165,7 +165,7 @@ class FactorSlot:
         """
         new = copy.copy(self)
         if new._view is not None:
-            new._view = new._view.copy()
+            new._view = new._view.copy()  # pending edits stay pending in the copy
         return new
 
     def _size(self) -> int:
@@ -175,7 +175,7 @@ class FactorSlot:
 
     def pending(self) -> bool:
         """Whether the matrix handed out was edited in place since it matched the factor."""
-        return self._view is not None and self._view.tobytes() != self._snap
+        return self._view is not None and self._view.edited()
 
     def factor(self) -> np.ndarray | None:
         """The current lower factor (None: zero covariance), after validating in-place edits.
@@ -188,11 +188,12 @@ class FactorSlot:
         SqukfValueError, NotPositiveDefiniteError
             The edited matrix is not a valid covariance; the edit stays pending.
         """
-        if self._view is not None and self.pending():
-            S = self._factor_of(as_matrix(self._view, self.name, self.dim))
-            self._factor = S
-            self._snap = self._view.tobytes()
+        if self._view is not None:
+            self._view = self._view.take(self._take_matrix)
         return self._factor
+
+    def _take_matrix(self, A: np.ndarray) -> None:
+        self._factor = self._factor_of(as_matrix(A, self.name, self.dim))
 
     def _factor_of(self, A: np.ndarray) -> np.ndarray | None:
         if self.semidefinite and not np.any(A):
@@ -207,9 +208,8 @@ class FactorSlot:
         if self._view is None:
             S = self._factor
             n = self._size()
-            self._view = S @ S.T if S is not None else np.zeros((n, n))
-            self._snap = self._view.tobytes()
-        return self._view
+            self._view = Handed(S @ S.T if S is not None else np.zeros((n, n)))
+        return self._view.array
 
     def set_matrix(self, value) -> None:
         """Assign from a covariance matrix (validated, factored once; a copy is kept).
@@ -223,29 +223,29 @@ class FactorSlot:
         if value is None:
             if not self.semidefinite:
                 raise SqukfValueError(f"{self.name} cannot be None")
-            self._factor, self._view, self._snap = None, None, None
+            self._factor, self._view = None, None
             return
         A = as_matrix(value, self.name, self.dim)
         S = self._factor_of(A)
         if np.ndim(value) == 1:  # a 1-element vector (dimension 1): handed out as assigned, as filterpy
             A = A.reshape(1)  # does, so that ``R[0]`` is a number; edits in place still reach it
-        self._factor, self._view, self._snap = S, A, A.tobytes()
+        self._factor, self._view = S, Handed(A)
 
     def set_factor(self, value) -> None:
         """Assign from a lower-triangular factor (validated; a copy is kept)."""
         if value is None and self.semidefinite:
-            self._factor, self._view, self._snap = None, None, None
+            self._factor, self._view = None, None
             return
         S: np.ndarray | None = as_lower_factor(
             value, f"{self.name}1_2", self.dim, singular_ok=self.semidefinite
         )
         if self.semidefinite and not np.any(S):
             S = None
-        self._factor, self._view, self._snap = S, None, None
+        self._factor, self._view = S, None
 
     def set_trusted_factor(self, S: np.ndarray) -> None:
         """Install a factor computed by the filter itself (no validation; not copied)."""
-        self._factor, self._view, self._snap = S, None, None
+        self._factor, self._view = S, None
 
     def factor_or_zeros(self) -> np.ndarray:
         """The factor, with an absent (zero) covariance shown as zeros."""

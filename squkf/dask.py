@@ -38,6 +38,7 @@ import numpy as np
 import pandas as pd
 
 from .batch import model_kwargs, per_step
+from .boundary import inputs
 from .boundary.loop import KEEP
 from .errors import ParameterError, ShapeError
 from .fleet import Fleet, FleetResult
@@ -155,7 +156,9 @@ def batch_filter(
         What to store, as for :meth:`squkf.Fleet.batch_filter` (``"means"`` or
         ``"final"`` for runs too large to keep every factor).
     dts, fx_args, hx_args
-        As for :meth:`squkf.Fleet.batch_filter`.
+        As for :meth:`squkf.Fleet.batch_filter`; a per-filter array (leading
+        axis ``K``) is cut into the chunks' rows, so that each filter gets its
+        own, as in one process.
 
     Returns
     -------
@@ -170,7 +173,9 @@ def batch_filter(
     ShapeError, ParameterError
         Before anything is scheduled: ``zs`` not 3-D, its K or dim_z not the
         template's, an unknown ``keep``, a ``dts`` entry that is not a finite
-        number (the rule of :meth:`squkf.Fleet.predict`: any finite real number).
+        number (the rule of :meth:`squkf.Fleet.predict`: any finite real number),
+        a shared array argument as long as a chunk (a chunk's fleet would read
+        it as per filter).
     """
     if not isinstance(fleet, Fleet):
         raise ParameterError(f"fleet must be a squkf.Fleet, got {type(fleet).__name__}")
@@ -196,7 +201,8 @@ def batch_filter(
     if len(Z.chunks[1]) > 1 or len(Z.chunks[2]) > 1:
         Z = Z.rechunk({1: -1, 2: -1})
     Z = da.ma.filled(Z.astype(float), np.nan)  # masked chunks: missing where masked, as Fleet.batch_filter
-    options = {"keep": keep, "dts": dts, "fx_args": fx_args, "hx_args": hx_args}
+    for name, args in (("fx_args", fx_args), ("hx_args", hx_args)):
+        inputs.check_chunk_args(args, name, K, Z.chunks[0])
     n = fleet.dim_x
     blocks = Z.to_delayed().reshape(-1)
     fields: dict[str, list] = {f: [] for f in _FIELDS}
@@ -204,6 +210,9 @@ def batch_filter(
     for block, size in zip(blocks, Z.chunks[0]):
         # each task carries only its chunk's filters (not the whole template): a worker holds a few chunks
         chunk = fleet.subset(slice(lo, lo + size))
+        rows = slice(lo, lo + size)
+        fx_rows, hx_rows = inputs.chunk_args(fx_args, K, rows), inputs.chunk_args(hx_args, K, rows)
+        options = {"keep": keep, "dts": dts, "fx_args": fx_rows, "hx_args": hx_rows}
         part = dask.delayed(_run_chunk, pure=True)(chunk, block, options)
         shapes = {
             "means": (size, T, n),
@@ -300,8 +309,10 @@ def filter_frame(
     Returns
     -------
     dask.dataframe.DataFrame
-        With the input's index and row order per partition, the state columns
-        and their standard deviations.
+        With the input's index and row order per partition, the state columns,
+        their standard deviations and ``failed``: whether the series' filter
+        failed numerically (its estimates from then on repeat its last good
+        state, as in :class:`squkf.FleetResult`).
 
     Raises
     ------
@@ -332,7 +343,11 @@ def filter_frame(
     if isinstance(x0, pd.DataFrame) and x0.shape[1] != fleet.dim_x:
         raise ShapeError(f"x0 has {x0.shape[1]} columns but dim_x is {fleet.dim_x}")
     meta = pd.DataFrame(
-        {**{c: pd.Series(dtype=float) for c in names}, **{f"std_{c}": pd.Series(dtype=float) for c in names}}
+        {
+            **{c: pd.Series(dtype=float) for c in names},
+            **{f"std_{c}": pd.Series(dtype=float) for c in names},
+            "failed": pd.Series(dtype=bool),
+        }
     )
     meta.index = frame._meta.index
     template = fleet.subset([0])
@@ -363,6 +378,7 @@ def _filter_partition(
     names: list[str],
 ) -> pd.DataFrame:
     out = pd.DataFrame(np.nan, index=part.index, columns=names + [f"std_{c}" for c in names])
+    out["failed"] = False
     if len(part) == 0:
         return out
     keys = part.index.to_numpy()
@@ -384,4 +400,5 @@ def _filter_partition(
     assert res.means is not None and res.variances is not None
     out[names] = res.means[inverse, pos]
     out[[f"std_{c}" for c in names]] = np.sqrt(res.variances[inverse, pos])
+    out["failed"] = res.failed[inverse]
     return out

@@ -37,7 +37,8 @@ import numpy as np
 from . import step as steps
 from .batch import model_kwargs, per_step
 from .boundary import inputs
-from .boundary.config import Config, common_config, filter_kwargs
+from .boundary.config import Config, filter_kwargs
+from .boundary.edits import HandOut
 from .boundary.factors import (
     covariance_factors,
     given_noise_factors,
@@ -48,6 +49,7 @@ from .boundary.factors import (
 from .boundary.loop import Transaction, annotate_step, check_keep, check_progress, progress_callback
 from .boundary.model_form import ModelForm
 from .boundary.records import FleetResult, Records, failures_error, new_records
+from .boundary.stacking import filter_of, stacked
 from .chunks import CHUNK, kwargs_rows, stacked_posterior, stacked_prior
 from .errors import FleetStepError, ParameterError
 from .gating import Gate, as_gate
@@ -175,7 +177,7 @@ class Fleet(ModelForm):
             raise ParameterError(f"on_error must be 'flag' or 'raise', got on_error={on_error!r}")
         self._fx_noise, self._hx_noise = inputs.model_noise(fx, hx, fx_noise, hx_noise)
         self._qd, self._rd = self._fx_noise or n, self._hx_noise or m  # the dimensions of Q and R
-        self._handed: dict[str, tuple[np.ndarray, bytes]] = {}  # name -> (array handed out, its bytes then)
+        self._handed = HandOut()  # x, P, Q, R: the arrays handed out, for edits in place
         self._K, self._n, self._m = K, n, m
         self._dt = check_time_step(dt)
         self.hx, self.fx = hx, fx
@@ -227,60 +229,27 @@ class Fleet(ModelForm):
     def _hooks(self) -> Hooks:
         return Hooks(self.x_mean, self.z_mean, self.residual_x, self.residual_z, self.state_add)
 
-    # -- state ------------------------------------------------------------------
-
-    def _per_filter(self, value, name: str, core: int) -> np.ndarray:
-        """``value`` as ``(K, *core_shape)``: one value broadcast, or one per filter, checked."""
-        return inputs.per_filter(value, name, self._K, (self._n,) if core == 1 else (self._n, self._n))
-
-    # -- what is handed out, and edits in place -------------------------------------
+    # -- state and noise: handed out (edits in place taken by boundary.edits.HandOut) -------
 
     def __setattr__(self, name: str, value) -> None:
         object.__setattr__(self, name, value)
         handed = _HANDED.get(name)
-        if handed is not None:  # the value behind an attribute changed: the array handed out is history
-            self.__dict__.get("_handed", {}).pop(handed, None)
-
-    def _hand_out(self, name: str, form: Callable[[], np.ndarray]) -> np.ndarray:
-        """The array of ``x``, ``P``, ``Q`` or ``R``: formed once, then the same until the value changes.
-
-        Edits in place of the array handed out are taken by the next call
-        (:meth:`_take_edits`), as ``SquareRootUKF`` takes those of its ``x``,
-        ``P``, ``Q`` and ``R``.
-        """
-        held = self._handed.get(name)
-        if held is not None:
-            return held[0]
-        a = form()
-        self._handed[name] = (a, a.tobytes())
-        return a
+        if handed is not None and "_handed" in self.__dict__:  # the value behind it changed
+            self._handed.drop(handed)  # the array handed out is history
 
     def _take_edits(self) -> None:
-        """Validate and take the edits in place of the arrays handed out, as assignments.
-
-        An invalid edit raises as the assignment would, changes nothing and
-        stays pending (assigning the attribute replaces it). The array stays
-        handed out, so that further edits in place are taken too.
-        """
-        handed = self._handed
-        if not handed:
-            return
-        for name in ("x", "P", "Q", "R"):
-            held = handed.get(name)
-            if held is None or held[0].tobytes() == held[1]:
-                continue
-            a = held[0]
-            setattr(self, name, a)  # validated (and copied) by the setter
-            handed[name] = (a, a.tobytes())
+        """Take the edits in place of ``x``, ``P``, ``Q``, ``R`` through their setters (which may raise)."""
+        if self._handed:
+            self._handed.take(_HANDED.values(), lambda name, a: setattr(self, name, a))
 
     @property
     def x(self) -> np.ndarray:
-        """States, shape ``(K, dim_x)``; edits in place are taken at the next call (or assign)."""
-        return self._hand_out("x", self._x.copy)
+        """States, shape ``(K, dim_x)``."""
+        return self._handed.array("x", self._x.copy)
 
     @x.setter
     def x(self, value):
-        self._x = self._per_filter(value, "x", 1)
+        self._x = inputs.per_filter(value, "x", self._K, (self._n,))
         self._state = steps.StepState()
 
     @property
@@ -296,8 +265,8 @@ class Fleet(ModelForm):
 
     @property
     def P(self) -> np.ndarray:
-        """Covariances, shape ``(K, dim_x, dim_x)``; edits in place are taken at the next call."""
-        return self._hand_out("P", lambda: self._S @ np.swapaxes(self._S, -1, -2))
+        """Covariances, shape ``(K, dim_x, dim_x)``."""
+        return self._handed.array("P", lambda: self._S @ np.swapaxes(self._S, -1, -2))
 
     @P.setter
     def P(self, value):
@@ -310,16 +279,12 @@ class Fleet(ModelForm):
 
     @property
     def Q(self) -> np.ndarray:
-        """Process noise, shared ``(d, d)`` or per filter ``(K, d, d)``; edits in place count (next call).
+        """Process noise, shared ``(d, d)`` or per filter ``(K, d, d)``.
 
         ``d`` is ``dim_x``, or ``fx_noise`` when the noise enters ``fx`` (then ``Q`` is w's covariance).
         """
-
-        def form() -> np.ndarray:
-            S = self._Q1_2
-            return np.zeros((self._qd, self._qd)) if S is None else S @ np.swapaxes(S, -1, -2)
-
-        return self._hand_out("Q", form)
+        S, d = self._Q1_2, self._qd
+        return self._handed.array("Q", lambda: np.zeros((d, d)) if S is None else S @ np.swapaxes(S, -1, -2))
 
     @Q.setter
     def Q(self, value):
@@ -334,12 +299,12 @@ class Fleet(ModelForm):
 
     @Q1_2.setter
     def Q1_2(self, value):
-        self._Q1_2 = self._factor_noise(value, "Q1_2", self._qd)
+        self._Q1_2 = given_noise_factors(value, "Q1_2", self._qd, self._K)
 
     @property
     def R(self) -> np.ndarray:
-        """Measurement noise, shared ``(m, m)`` or per filter ``(K, m, m)``; edits in place count."""
-        return self._hand_out("R", lambda: self._R1_2 @ np.swapaxes(self._R1_2, -1, -2))
+        """Measurement noise, shared ``(m, m)`` or per filter ``(K, m, m)``."""
+        return self._handed.array("R", lambda: self._R1_2 @ np.swapaxes(self._R1_2, -1, -2))
 
     @R.setter
     def R(self, value):
@@ -354,11 +319,8 @@ class Fleet(ModelForm):
 
     @R1_2.setter
     def R1_2(self, value):
-        S = self._factor_noise(value, "R1_2", self._rd)
+        S = given_noise_factors(value, "R1_2", self._rd, self._K)
         self._R1_2 = np.zeros((self._rd, self._rd)) if S is None else S
-
-    def _factor_noise(self, value, name: str, dim: int) -> np.ndarray | None:
-        return given_noise_factors(value, name, dim, self._K)
 
     # -- records of the last step (the arrays behind them are never written in place) ------
 
@@ -693,10 +655,10 @@ class Fleet(ModelForm):
         """
         return Transaction(self._snapshot, self._restore)
 
-    def _snapshot(self) -> tuple[Fleet, dict]:
-        return copy.copy(self), dict(self._handed)
+    def _snapshot(self) -> tuple[Fleet, HandOut]:
+        return copy.copy(self), self._handed.copy()
 
-    def _restore(self, saved: tuple[Fleet, dict]) -> None:
+    def _restore(self, saved: tuple[Fleet, HandOut]) -> None:
         before, handed = saved
         self.__dict__.update(before.__dict__)
         self.__dict__["_handed"] = handed  # the arrays handed out stay the caller's, still current
@@ -715,14 +677,7 @@ class Fleet(ModelForm):
     def __getitem__(self, k: int):
         """Filter ``k`` as a :class:`squkf.SquareRootUKF` (vectorised, with its state and configuration)."""
         k = int(np.arange(self._K)[k])
-        c = self.configuration()
-        f = SquareRootUKF(c.dim_x, c.dim_z, c.dt, c.hx, c.fx, c.points, vectorized=True, **filter_kwargs(c))
-        f.x = self._x[k]
-        f.P1_2 = self._S[k]
-        Q = self._Q1_2
-        f.Q1_2 = None if Q is None else (Q if Q.ndim == 2 else Q[k])
-        f.R1_2 = self._R1_2 if self._R1_2.ndim == 2 else self._R1_2[k]
-        return f
+        return filter_of(SquareRootUKF, self.configuration(), k, self._x, self._S, self._state.phase)
 
     def configuration(self) -> Config:
         """The fleet's configuration and noise factors (``squkf.boundary.Config``), edits taken.
@@ -790,18 +745,11 @@ class Fleet(ModelForm):
         ParameterError
             If the filters differ in configuration.
         """
-        filters = list(filters)
-        c = common_config([f.configuration() for f in filters])
+        c, x, P1_2, Q1_2, R1_2 = stacked(list(filters))
         fleet = cls(
-            len(filters), c.dim_x, c.dim_z, c.dt, c.hx, c.fx, c.points, on_error=on_error, **filter_kwargs(c)
+            len(x), c.dim_x, c.dim_z, c.dt, c.hx, c.fx, c.points, on_error=on_error, **filter_kwargs(c)
         )
-        fleet._x = np.stack([f.x for f in filters])
-        fleet._S = np.stack([f.P1_2 for f in filters])
-        Qs = [f.Q1_2 for f in filters]
-        Rs = [f.R1_2 for f in filters]
-        Q = Qs[0] if all(np.array_equal(q, Qs[0]) for q in Qs) else np.stack(Qs)
-        fleet._Q1_2 = Q if np.any(Q) else None
-        fleet._R1_2 = Rs[0] if all(np.array_equal(r, Rs[0]) for r in Rs) else np.stack(Rs)
+        fleet.x, fleet.P1_2, fleet.Q1_2, fleet.R1_2 = x, P1_2, Q1_2, R1_2  # validated by the setters
         return fleet
 
     def __copy__(self) -> Fleet:
@@ -813,7 +761,7 @@ class Fleet(ModelForm):
                 v = copies.setdefault(id(v), v.copy())
             d[key] = v
         # the copy's own arrays handed out, pending edits included
-        d["_handed"] = {name: (a.copy(), snap) for name, (a, snap) in self._handed.items()}
+        d["_handed"] = self._handed.detached()
         state = self._state
         if state.prior is not None:
             # ask_update knows the pending second set by the identity of the estimate it was

@@ -16,7 +16,7 @@ from collections.abc import Callable
 import numpy as np
 
 from . import kernels
-from .errors import DowndateError, NonFiniteError, NotPositiveDefiniteError
+from .errors import DowndateError, NonFiniteError, NotPositiveDefiniteError, ShapeError
 from .linalg import all_finite
 from .rows import RowForm, WeightRows, weight_rows
 from .validate import as_float_array, call_hook
@@ -24,6 +24,7 @@ from .validate import as_float_array, call_hook
 __all__ = [
     "weighted_mean",
     "deviations",
+    "cross_covariance",
     "factor_rows",
     "transform_factor",
     "sqrt_unscented_transform",
@@ -102,6 +103,40 @@ def deviations(
         for i, s in enumerate(sigmas[idx] if sigmas.ndim > 2 else sigmas):
             dev[idx + (i,)] = call_hook(residual_fn, (s, m), (d,), hook)
     return dev
+
+
+def cross_covariance(sigmas_f: np.ndarray, sigmas_h: np.ndarray, x, z, Wcs, hooks) -> np.ndarray:
+    """``sum Wc[i] (sigmas_f[i] - x)(sigmas_h[i] - z)^T`` with the weights of the set of ``N`` points.
+
+    Parameters
+    ----------
+    sigmas_f : ndarray, shape (N, n)
+    sigmas_h : ndarray, shape (N, m)
+    x : array_like, shape (n,)
+    z : array_like, shape (m,)
+    Wcs : sequence of ndarray or None
+        Candidate covariance weights (the first set's, the second set's);
+        the first of length ``N`` is used.
+    hooks : squkf.plan.Hooks
+        ``residual_x`` and ``residual_z`` give the deviations.
+
+    Returns
+    -------
+    ndarray, shape (n, m)
+
+    Raises
+    ------
+    ShapeError
+        No set has ``N`` points.
+    """
+    N = sigmas_f.shape[0]
+    sets = [w for w in Wcs if w is not None]
+    Wc = next((w for w in sets if w.shape[0] == N), None)
+    if Wc is None:
+        raise ShapeError(f"sigmas_f has {N} points but the sigma-point sets have {sets[-1].shape[0]}")
+    dx = deviations(sigmas_f, as_float_array(x, "x"), hooks.residual_x, "residual_x")
+    dz = deviations(sigmas_h, as_float_array(z, "z"), hooks.residual_z, "residual_z")
+    return (dx.T * Wc) @ dz
 
 
 def _raise_status(

@@ -10,7 +10,6 @@ call.
 
 from __future__ import annotations
 
-import copy
 import math
 import sys
 from collections.abc import Callable
@@ -18,117 +17,25 @@ from typing import cast
 
 import numpy as np
 
-from . import blas, smoother
+from . import smoother
 from . import step as steps
 from .batch import batch_filter
-from .boundary import inputs
+from .boundary import attributes, inputs
+from .boundary.attributes import Covariance, Hook, State
 from .boundary.config import Config
-from .boundary.factors import noise_factor
 from .boundary.loop import Transaction
-from .boundary.model_form import ModelForm
-from .boundary.records import embed, gain, innovation_inverse
-from .covariance import FactorSlot
-from .errors import NonFiniteError, ParameterError, ShapeError
+from .boundary.one_filter import OneFilter
+from .boundary.records import LastUpdate, embed, innovation_inverse
 from .gating import Gate
-from .generators import as_generator, noise_family, sigma_points_from_factor
-from .noise import call_model, noise_points
-from .plan import Hooks, Plan, build_plan
-from .transform import deviations
-from .validate import as_float_array, check_time_step, check_values
-from .weights import as_family
+from .plan import Plan
+from .validate import as_float_array, check_time_step
 
 __all__ = ["SquareRootUKF"]
 
 _LOG_TINY = math.log(sys.float_info.min)
 
 
-_one_blas_thread = blas.one_thread_method(lambda self: self._dim_x)
-
-
-class _Covariance:
-    """``P``, ``Q`` or ``R``: a matrix kept in the instance's ``__dict__``, backed by a factor slot.
-
-    Not a ``property``, on purpose: filterpy's ``Saver`` deep-copies the
-    instance's ``__dict__`` (so a saved matrix is a copy, as for filterpy's
-    own filters) but would keep a property's value by reference.
-    """
-
-    def __set_name__(self, owner, name: str):
-        self.name = name
-        self.slot = "_" + name
-
-    def __get__(self, obj, owner=None):
-        if obj is None:
-            return self
-        value = obj.__dict__[self.name]
-        if isinstance(value, _Unformed):
-            value = obj.__dict__[self.name] = value.slot.matrix()
-        return value
-
-    def __set__(self, obj, value):
-        slot = obj.__dict__[self.slot]
-        slot.set_matrix(value)
-        obj.__dict__[self.name] = slot.matrix()
-        obj._covariance_assigned(self.name)
-
-
-class _Unformed:
-    """Stands in the ``__dict__`` for a matrix nobody has read since the step changed its factor.
-
-    Reading the attribute forms the matrix (:class:`_Covariance`); a deep copy
-    of the ``__dict__`` (what filterpy's ``Saver`` takes) gets the matrix
-    itself, so a saved history holds arrays, formed only when saved.
-    """
-
-    __slots__ = ("slot",)
-
-    def __init__(self, slot: FactorSlot):
-        self.slot = slot
-
-    def __deepcopy__(self, memo):
-        return self.slot.matrix().copy()
-
-    def __copy__(self):
-        return self.slot.matrix().copy()
-
-
-class _InDict:
-    """A data descriptor over the instance's ``__dict__`` entry of its own name; subclasses set it."""
-
-    def __set_name__(self, owner, name: str):
-        self.name = name
-
-    def __get__(self, obj, owner=None):
-        if obj is None:
-            return self
-        return obj.__dict__[self.name]
-
-
-class _State(_InDict):
-    """``x``: the state vector kept in the instance's ``__dict__`` (see :class:`_Covariance`)."""
-
-    def __set__(self, obj, value):
-        x = obj._as_state(value, "x")
-        obj.__dict__["_xs"] = x
-        obj.__dict__[self.name] = x.copy()
-        obj._covariance_assigned("x")
-
-
-class _Hook(_InDict):
-    """A hook (``residual_x``, ``state_add``, ...) kept in the instance's ``__dict__``, as filterpy's.
-
-    Setting one drops the :class:`~squkf.plan.Hooks` tuple the filter built
-    from them, so that a step reads that tuple (twice a step) without
-    gathering the five attributes again.
-    """
-
-    def __set__(self, obj, value):
-        d = obj.__dict__
-        d[self.name] = value
-        d["_hooks_cache"] = None
-
-
-class SquareRootUKF(ModelForm):
+class SquareRootUKF(OneFilter):
     """Square-root Unscented Kalman Filter with filterpy's interface.
 
     The model is ``x[k+1] = fx(x[k], dt) + v``, ``z[k] = hx(x[k]) + w`` with
@@ -189,37 +96,16 @@ class SquareRootUKF(ModelForm):
     ----------
     x : ndarray, shape (dim_x,)
     P, Q : ndarray, shape (dim_x, dim_x)
-        Read as matrices, stored as factors. An assignment is validated at
-        once (and, if it fails, changes nothing); edits in place take effect
-        at the next call, where they are validated. Every step assigns fresh
-        arrays to ``x`` and ``P``, so arrays read earlier (a ``Saver``'s
-        history) are never rewritten.
+        Read as matrices, stored as factors; assignments and edits in place as
+        :ref:`promise-edits` says, fresh arrays as :ref:`promise-records`.
     R : ndarray, shape (dim_z, dim_z)
-    P1_2, Q1_2, R1_2 : ndarray
-        The lower factors (each read gives a fresh copy; assign to change).
-    x_prior, P_prior, P1_2_prior, x_post, P_post, P1_2_post
-        Records of the last prediction and update: fresh arrays each step,
-        never the filter's own state.
-    K : ndarray, shape (dim_x, dim_z)
+    x_prior, P1_2_prior, x_post, P1_2_post : ndarray
+        Records of the last prediction and update (also ``P_prior``,
+        ``P_post`` and the last update's records below).
     y : ndarray, shape (dim_z,)
         Innovation; NaN in components that were not measured.
     z : ndarray
-    S, SI : ndarray, shape (dim_z, dim_z)
-        Innovation covariance and its inverse (formed on request, SI by
-        triangular solves); ``S1_2`` is the innovation factor.
     sigmas_f, sigmas_h : ndarray
-    Wm, Wc : ndarray
-        Weights of the first sigma-point set.
-    log_likelihood, likelihood : float
-        Of the components the last update used (0 and 1 when a gate rejected
-        them all).
-    mahalanobis, nis : float
-        ``||S1_2^-1 y||`` and its square, the normalised innovation squared
-        of the last update's measured components (what a gate tests).
-    rejected : ndarray of bool, shape (dim_z,)
-        The components of the last measurement that the gate rejected; after
-        a gated update ``y``, ``S``, ``S1_2`` are the tested innovation's,
-        ``K`` the gain applied (zero columns for rejected components).
 
     Examples
     --------
@@ -256,19 +142,15 @@ class SquareRootUKF(ModelForm):
     [6.0168 0.9937]
     """
 
-    x = _State()
-    P = _Covariance()
-    Q = _Covariance()
-    R = _Covariance()
-    x_mean = _Hook()
-    z_mean = _Hook()
-    residual_x = _Hook()
-    residual_z = _Hook()
-    state_add = _Hook()
-    # the slots behind P, Q, R (set through __dict__ in __init__)
-    _P: FactorSlot
-    _Q: FactorSlot
-    _R: FactorSlot
+    x = State()
+    P = Covariance()
+    Q = Covariance()
+    R = Covariance()
+    x_mean = Hook()
+    z_mean = Hook()
+    residual_x = Hook()
+    residual_z = Hook()
+    state_add = Hook()
 
     def __init__(
         self,
@@ -313,35 +195,12 @@ class SquareRootUKF(ModelForm):
         self.gate = gate
         self.inv = np.linalg.inv
 
-        d = self.__dict__
-        d["_P"] = FactorSlot("P", n, semidefinite=False, factor=np.eye(n))
-        q, r = self._fx_noise or n, self._hx_noise or m  # the noise's own dimensions when it enters fx, hx
-        d["_Q"] = FactorSlot("Q", q, semidefinite=True, factor=np.eye(q))
-        d["_R"] = FactorSlot("R", r, semidefinite=True, factor=np.eye(r))
-        for name in ("P", "Q", "R"):
-            d[name] = d["_" + name].matrix()
-        d["_xs"] = np.zeros(n)
-        d["x"] = np.zeros(n)
+        # x, P, Q (the noise's own dimension when it enters fx), R; the records of no step yet
+        attributes.initial(self.__dict__, n, m, self._fx_noise or n, self._hx_noise or m, self._num_sigmas)
         self._state = steps.StepState()
         self._step_plan = self._plan
-        self._noise_cache: dict = {}
-
-        self.x_prior = np.zeros(n)
-        self.P1_2_prior = np.eye(n)
-        self.x_post = np.zeros(n)
-        self.P1_2_post = np.eye(n)
-        self.sigmas_f = np.zeros((self._num_sigmas, n))
-        self.sigmas_h = np.zeros((self._num_sigmas, m))
-        self.y = np.zeros(m)
-        self.z = np.array([[None] * m]).T
-        self._K: np.ndarray | None = None
-        self._L21 = np.zeros((n, m))  # K @ S1_2 of the last update, observed columns
-        self._Sy = np.zeros((m, m))  # innovation factor of the last update, observed block
-        self._ll = 0.0  # the last update's log-likelihood and NIS w.w (w = Sy^-1 y), from the kernel
-        self._nis = 0.0
-        self._observed = None  # mask of the measured components, None: all
-        self._measured = False  # whether an update has happened
-        self._rejected = np.zeros(m, dtype=bool)  # the gate's decision in the last update
+        self._noise_cache = {}
+        self._last = LastUpdate.none(n, m)
 
     # -- configuration -----------------------------------------------------
 
@@ -352,19 +211,7 @@ class SquareRootUKF(ModelForm):
 
     @points_fn.setter
     def points_fn(self, points):
-        family = as_family(points)
-        n, dw = self._dim_x, self._fx_noise
-        try:
-            num = (noise_family(family, n, dw) if dw else family).num_sigmas(n + dw)
-        except ParameterError:
-            raise
-        except Exception as exc:  # a user's family that cannot serve this dimension
-            raise ParameterError(f"points cannot give sigma points for dim_x={n}: {exc}") from exc
-        plan = self._build_plan(family, self._generator) if self._generator is not None else None
-        self._points = points
-        self._family = family
-        self._num_sigmas = num
-        self._plan = cast(Plan, plan)  # None only while __init__ has not set the scheme yet
+        self._set_points(points)
 
     @property
     def scheme(self):
@@ -373,15 +220,7 @@ class SquareRootUKF(ModelForm):
 
     @scheme.setter
     def scheme(self, value):
-        gen = as_generator(value)
-        if hasattr(gen, "num_sigmas") and not self._hx_noise:
-            gen.num_sigmas(self._dim_x, self._family)  # fails now, not at the first update
-        plan = self._build_plan(self._family, gen)
-        self._generator = gen
-        self._plan = plan
-
-    def _build_plan(self, family, generator) -> Plan:
-        return build_plan(family, generator, self._dim_x, self._fx_noise, self._hx_noise)
+        self._set_scheme(value)
 
     @property
     def dim_x(self) -> int:
@@ -403,27 +242,7 @@ class SquareRootUKF(ModelForm):
         """Covariance weights of the first sigma-point set, shape ``(N,)`` (a copy)."""
         return self._plan.first.rows.Wc.copy()
 
-    def _hooks(self) -> Hooks:
-        d = self.__dict__
-        hooks = d["_hooks_cache"]
-        if hooks is None:  # a hook was set since the last step
-            rx, rz, add = d["residual_x"], d["residual_z"], d["state_add"]
-            hooks = d["_hooks_cache"] = Hooks(
-                d["x_mean"],
-                d["z_mean"],
-                None if rx is np.subtract else rx,
-                None if rz is np.subtract else rz,
-                None if add is np.add else add,
-            )
-        return hooks
-
     # -- state and covariances ---------------------------------------------
-
-    def _covariance_assigned(self, name: str) -> None:
-        """An assignment to ``x``, ``P``, ``Q`` or ``R`` succeeded (hook for subclasses)."""
-
-    def _as_state(self, value, name) -> np.ndarray:
-        return inputs.as_state(value, name, self._dim_x)
 
     @property
     def P1_2(self) -> np.ndarray:
@@ -432,9 +251,7 @@ class SquareRootUKF(ModelForm):
 
     @P1_2.setter
     def P1_2(self, value):
-        slot = self._P
-        slot.set_factor(value)
-        self.__dict__["P"] = slot.matrix()
+        attributes.set_factor(self.__dict__, "P", value)
 
     @property
     def Q1_2(self) -> np.ndarray:
@@ -443,8 +260,7 @@ class SquareRootUKF(ModelForm):
 
     @Q1_2.setter
     def Q1_2(self, value):
-        self._Q.set_factor(value)
-        self.__dict__["Q"] = self._Q.matrix()
+        attributes.set_factor(self.__dict__, "Q", value)
 
     @property
     def R1_2(self) -> np.ndarray:
@@ -453,8 +269,7 @@ class SquareRootUKF(ModelForm):
 
     @R1_2.setter
     def R1_2(self, value):
-        self._R.set_factor(value)
-        self.__dict__["R"] = self._R.matrix()
+        attributes.set_factor(self.__dict__, "R", value)
 
     @property
     def P_prior(self) -> np.ndarray:
@@ -471,41 +286,42 @@ class SquareRootUKF(ModelForm):
     @property
     def S1_2(self) -> np.ndarray:
         """Lower factor of the last innovation covariance (NaN where a component was missing)."""
-        return embed(self._Sy, self._observed, np.nan)
+        return embed(self._last.Sy, self._last.observed, np.nan)
 
     @property
     def S(self) -> np.ndarray:
         """Innovation covariance of the last update, ``S1_2 @ S1_2.T`` (NaN where missing)."""
-        return embed(self._Sy @ self._Sy.T, self._observed, np.nan)
+        last = self._last
+        return embed(last.Sy @ last.Sy.T, last.observed, np.nan)
 
     @property
     def SI(self) -> np.ndarray:
         """Inverse of ``S``, by triangular solves with ``S1_2`` (or by ``self.inv`` if replaced)."""
         if self.inv is not np.linalg.inv:
             return self.inv(self.S)
-        return innovation_inverse(self._Sy, self._observed)
+        return innovation_inverse(self._last.Sy, self._last.observed)
 
     @property
     def K(self) -> np.ndarray:
         """Kalman gain of the last update, shape ``(dim_x, dim_z)`` (zero columns where missing).
 
-        Formed once per update and handed out as a fresh copy on each read, so
-        an array read earlier (a ``Saver``'s history) is never rewritten.
+        Formed once per update; a fresh copy on each read (:ref:`promise-records`).
         """
-        if self._K is None:
-            self._K = gain(self._Sy, self._L21, self._measured, self._observed, self._dim_x)
-        return self._K.copy()
+        if self._last.K is None:
+            self._last = self._last.with_gain(self._dim_x)
+        return self._last.K.copy()  # type: ignore[union-attr]  # formed above
 
     @K.setter
     def K(self, value):
-        self._K = as_float_array(value, "K")  # a private copy: K reads as a fresh one
+        self._last = self._last.replace(K=as_float_array(value, "K"))  # a private copy: read as fresh ones
 
     @property
     def log_likelihood(self) -> float:
-        """Log-likelihood of the last measurement (its measured components), from the innovation factor."""
-        if not self._measured:
-            return _LOG_TINY
-        return self._ll
+        """Log-likelihood of the last measurement (the components it used), from the innovation factor.
+
+        0 when a gate rejected them all (``likelihood`` 1).
+        """
+        return self._last.log_likelihood if self._last.measured else _LOG_TINY
 
     @property
     def likelihood(self) -> float:
@@ -515,43 +331,24 @@ class SquareRootUKF(ModelForm):
     @property
     def mahalanobis(self) -> float:
         """Mahalanobis distance of the last innovation, ``||S1_2^-1 y||`` (measured components)."""
-        return math.sqrt(self._nis) if self._measured else 0.0
+        return math.sqrt(self._last.nis) if self._last.measured else 0.0
 
     @property
     def nis(self) -> float:
-        """Normalised innovation squared of the last update, ``y^T S^-1 y`` (measured components)."""
-        return self._nis if self._measured else 0.0
+        """Normalised innovation squared of the last update, ``y^T S^-1 y`` (measured components).
+
+        What a gate tests.
+        """
+        return self._last.nis if self._last.measured else 0.0
 
     @property
     def rejected(self) -> np.ndarray:
-        """Which components of the last measurement the gate rejected, shape ``(dim_z,)`` (a fresh array)."""
-        return self._rejected.copy()
+        """Which components of the last measurement the gate rejected, shape ``(dim_z,)`` (a fresh array).
 
-    # -- helpers ------------------------------------------------------------
-
-    def _noise_factor(self, value, name: str, dim: int) -> np.ndarray | None:
-        """Lower factor of ``Q`` or ``R`` (``value`` for this call, else the attribute's); None: zero."""
-        return noise_factor(value, name, dim, self.__dict__["_" + name].factor, self._noise_cache)
-
-    def _current(self) -> tuple[np.ndarray, np.ndarray]:
-        """The current mean and factor, with in-place edits of ``x`` and ``P`` validated."""
-        d = self.__dict__
-        xu, xs = d["x"], d["_xs"]
-        if xu.shape != xs.shape or xu.dtype != xs.dtype or xu.tobytes() != xs.tobytes():
-            d["_xs"] = self._as_state(xu, "x")  # edited in place since last checked
-        return d["_xs"], self._P.factor()  # type: ignore[return-value]  # P is never singular
-
-    def _evaluate(self, fn: Callable, sigmas: np.ndarray, args: tuple, kwargs: dict) -> object:
-        return inputs.evaluate(fn, sigmas, args, kwargs, self.vectorized)
-
-    def _commit_estimate(self, x: np.ndarray, S: np.ndarray) -> None:
-        """Install a mean and factor computed by the filter (fresh user-facing arrays)."""
-        d = self.__dict__
-        d["_xs"] = x
-        d["x"] = x.copy()
-        slot = d["_P"]
-        slot.set_trusted_factor(S)
-        d["P"] = _Unformed(slot)  # formed when read: most steps nobody reads P
+        After a gated update ``y``, ``S``, ``S1_2`` are the tested innovation's,
+        ``K`` the gain applied (zero columns for rejected components).
+        """
+        return self._last.rejected.copy()
 
     # -- ask/tell: the step in halves ----------------------------------------
 
@@ -583,13 +380,7 @@ class SquareRootUKF(ModelForm):
         [[2. 0.]
          [0. 2.]]
         """
-        x, S = self._current()
-        plan = self._plan
-        state = steps.ask_predict(self._state, plan, x, S, self._hooks().state_add)
-        self._state, self._step_plan = state, plan
-        if plan.w_xi is not None:  # the augmented points [x_i, w_i]
-            return np.concatenate([state.sigmas, self._noise_points(plan.w_xi, None, "Q")], axis=-1)  # type: ignore[list-item]
-        return state.sigmas.copy()  # type: ignore[union-attr]  # set by ask_*
+        return self._ask_predict()
 
     def tell_predict(self, sigmas_f, Q=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of a prediction: the propagated points give the prior.
@@ -612,41 +403,9 @@ class SquareRootUKF(ModelForm):
         P1_2_prior : ndarray, shape (dim_x, dim_x)
             Fresh arrays.
         """
-        self._refuse_with_noise(self._step_plan.w_xi, "Q", Q, UT)
+        inputs.refuse_noise_args(self._step_plan.w_xi, "Q", Q, UT)
         self._tell_predict(self._state, self._step_plan, sigmas_f, Q, UT, self._hooks())
         return self.x_prior.copy(), self.P1_2_prior.copy()
-
-    def _refuse_with_noise(self, noise_xi, name: str, value, UT) -> None:
-        """With noise entering the model, ``Q``/``R`` are in the points: refuse them here (and a ``UT``)."""
-        if noise_xi is None:
-            return
-        which = "fx_noise" if name == "Q" else "hx_noise"
-        if value is not None:
-            raise ParameterError(
-                f"with {which} the noise is in the sigma points handed out by ask_*: assign ukf.{name}"
-                f" before asking, not {name}={value!r} here"
-            )
-        if UT is not None:
-            raise ParameterError(f"UT cannot be given with {which}: the transform has no noise to add")
-
-    def _noise_points(self, xi: np.ndarray, value, name: str) -> np.ndarray:
-        """The noise part of an augmented set from ``Q``/``R`` (this call's ``value``, else the attribute)."""
-        dim = xi.shape[1]
-        return noise_points(xi, self._noise_factor(value, name, dim), ())
-
-    @_one_blas_thread
-    def _tell_predict(self, state, plan: Plan, values, Q, UT, hooks: Hooks) -> None:
-        """Finish a prediction and commit it (nothing is changed if anything fails)."""
-        # noise entering fx is in the points: no noise is added to the prior
-        Q1_2 = None if plan.w_xi is not None else self._noise_factor(Q, "Q", self._dim_x)
-        state, x, S = steps.tell_predict(state, plan, values, Q1_2, hooks, UT)
-        state = steps.draw_second_set(state, plan, x, S, hooks.state_add)
-        # commit
-        self._state, self._step_plan = state, plan
-        self._commit_estimate(x, S)
-        self.x_prior = x.copy()
-        self.P1_2_prior = S.copy()
-        self.sigmas_f = state.sset.sigmas.copy()  # filterpy shows the second set once the prediction is done
 
     def ask_update(self) -> np.ndarray:
         """First half of an update: the sigma points to pass through the measurement function.
@@ -658,13 +417,7 @@ class SquareRootUKF(ModelForm):
             array); evaluate ``hx`` at each and pass the results to
             :meth:`tell_update`.
         """
-        x, S = self._current()
-        plan = self._plan
-        state = steps.ask_update(self._state, plan, x, S, self._hooks().state_add)
-        self._state = state
-        if plan.v_xi is not None:  # the augmented points [x_i, v_i]
-            return np.concatenate([state.sigmas, self._noise_points(plan.v_xi, None, "R")], axis=-1)  # type: ignore[list-item]
-        return state.sigmas.copy()  # type: ignore[union-attr]  # set by ask_*
+        return self._ask_update()
 
     def tell_update(self, sigmas_h, z, R=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of an update: measurement-function values and ``z`` give the posterior.
@@ -674,7 +427,7 @@ class SquareRootUKF(ModelForm):
         sigmas_h : array_like, shape (N2, dim_z)
             The measurement function at each point from :meth:`ask_update`.
         z : array_like, shape (dim_z,)
-            The measurement; NaN (or masked) components are missing. Its
+            The measurement (missing components: :ref:`promise-missing`); its
             length may differ from ``dim_z`` if ``R`` has the matching size.
         R : ndarray, optional
             Measurement noise for this update only (default ``self.R``); a
@@ -687,57 +440,8 @@ class SquareRootUKF(ModelForm):
         P1_2_post : ndarray, shape (dim_x, dim_x)
             Fresh arrays.
         """
-        self._refuse_with_noise(self._plan.v_xi, "R", R, UT)
-        meas = self._as_measurement(z, R)
-        if meas is None:
-            raise NonFiniteError(
-                "tell_update needs a measurement, but z holds none (all NaN, masked or None)"
-            )
-        self._tell_update(self._state, sigmas_h, meas[0], meas[1], R, UT, self._hooks())
+        self._told_update(sigmas_h, z, R, UT)
         return self.x_post.copy(), self.P1_2_post.copy()
-
-    @_one_blas_thread
-    def _tell_update(self, state, values, z: np.ndarray, observed, R, UT, hooks: Hooks) -> None:
-        """Finish an update and commit it (nothing is changed if anything fails)."""
-        # noise entering hx is in the points: the update adds none
-        R1_2 = None if self._plan.v_xi is not None else self._noise_factor(R, "R", z.shape[0])
-        if R1_2 is None:
-            R1_2 = np.zeros((z.shape[0], z.shape[0]))
-        state, gated, H = steps.gated_update(state, values, z, R1_2, observed, hooks, UT, self._gate)
-        post = gated.tested
-        m = z.shape[0]
-        if observed is None:
-            y = post.y
-            rejected = gated.rejected  # a fresh array of the step's
-        else:
-            rejected = np.zeros(m, dtype=bool)
-            y = np.full(m, np.nan)
-            y[observed] = post.y
-            rejected[observed] = gated.rejected
-        K = None
-        if gated.K is not None:  # the gate rejected something: the gain applied, not the tested one
-            K = np.zeros((self._dim_x, m))
-            K[:, slice(None) if observed is None else observed] = gated.K
-        # commit
-        self._state = state
-        self._commit_estimate(gated.x, gated.S)
-        self.x_post = gated.x.copy()
-        self.P1_2_post = gated.S.copy()
-        self.y = y
-        self.z = z
-        self.sigmas_h = H
-        self._Sy, self._L21, self._observed = post.Sy, post.L21, observed
-        self._ll, self._nis = float(gated.log_likelihood), float(post.nis)
-        self._K = K
-        self._rejected = rejected
-        self._measured = True
-
-    def _as_measurement(self, z, R) -> tuple[np.ndarray, np.ndarray | None] | None:
-        """``z`` checked, as ``(z, observed)`` (the mask of the measured components, or None: all)."""
-        return inputs.measurement(z, R, self._dim_z, self._R_dim, self._hx_noise)
-
-    def _R_dim(self) -> int:
-        return self._R.factor_or_zeros().shape[0]
 
     # -- filterpy's methods ---------------------------------------------------
 
@@ -747,11 +451,8 @@ class SquareRootUKF(ModelForm):
         Parameters
         ----------
         dt : float, optional
-            Time step for this prediction (default: the constructor's ``dt``):
-            any finite real number, ``0`` (``fx(x, 0)``) and negative steps
-            included, as filterpy; every route (``batch_filter``, the smoothers,
-            the fleet) takes the same rule, :func:`squkf.validate.check_time_step`.
-            A string (``"0.1"`` too) is a :class:`~squkf.errors.ParameterError`.
+            Time step for this prediction (default: the constructor's ``dt``),
+            as :ref:`promise-dt` says.
         UT : callable, optional
             Square-root transform, signature of :func:`squkf.sqrt_unscented_transform`.
         fx : callable, optional
@@ -761,20 +462,7 @@ class SquareRootUKF(ModelForm):
         **fx_args
             Passed to ``fx``.
         """
-        dt = self._dt if dt is None else check_time_step(dt)
-        fx = self.fx if fx is None else fx
-        x, S = self._current()
-        plan = self._plan
-        hooks = self._hooks()
-        state = steps.ask_predict(self._state, plan, x, S, hooks.state_add)
-        if plan.w_xi is not None:
-            self._refuse_with_noise(plan.w_xi, "Q", None, UT)
-            W = self._noise_points(plan.w_xi, Q, "Q")
-            values = call_model(fx, "fx", self._fx_noise, state.sigmas, W, (dt,), fx_args, self.vectorized)  # type: ignore[arg-type]
-        else:
-            # not copied: these points are never read again (the step keeps only their shape)
-            values = self._evaluate(fx, state.sigmas, (dt,), fx_args)  # type: ignore[arg-type]  # set by ask_*
-        self._tell_predict(state, plan, values, Q, UT, hooks)
+        self._predict(dt, UT, fx, Q, fx_args)
 
     def update(self, z, R=None, UT=None, hx=None, **hx_args) -> None:
         """Update the estimate with measurement ``z``: ``x``, ``P`` become the posterior.
@@ -782,9 +470,8 @@ class SquareRootUKF(ModelForm):
         Parameters
         ----------
         z : array_like, shape (dim_z,), or None
-            ``None``, a NaN scalar, an all-NaN or a fully masked ``z`` mean no
-            measurement: the prior is kept as the posterior. NaN (or masked)
-            components are missing: the update uses the measured ones only.
+            The measurement; ``None`` and missing components as
+            :ref:`promise-missing` says.
         R : ndarray or float, optional
             Measurement noise for this update (default ``self.R``). With a
             ``z`` of another length (a second sensor), give ``R`` and ``hx``.
@@ -794,43 +481,11 @@ class SquareRootUKF(ModelForm):
         **hx_args
             Passed to ``hx``.
         """
-        meas = self._as_measurement(z, R)
-        if meas is None:
-            state = steps.skip_update(self._state)
-            x, S = self._current()
-            self._state = state
-            self.z = np.array([[None] * self._dim_z]).T
-            self._rejected = np.zeros(self._dim_z, dtype=bool)
-            self.x_post = x.copy()
-            self.P1_2_post = S.copy()
-            return
-        hx = self.hx if hx is None else hx
-        x, S = self._current()
-        hooks = self._hooks()
-        plan = self._plan
-        state = steps.ask_update(self._state, plan, x, S, hooks.state_add)
-        X = state.sigmas.copy()  # type: ignore[union-attr]  # set by ask_*
-        if plan.v_xi is not None:
-            self._refuse_with_noise(plan.v_xi, "R", None, UT)
-            V = self._noise_points(plan.v_xi, R, "R")
-            values = call_model(hx, "hx", self._hx_noise, X, V, (), hx_args, self.vectorized)
-        else:
-            values = self._evaluate(hx, X, (), hx_args)
-        self._tell_update(state, values, meas[0], meas[1], R, UT, hooks)
+        self._update(z, R, UT, hx, hx_args)
 
     def compute_process_sigmas(self, dt, fx=None, **fx_args) -> None:
         """Set ``sigmas_f`` to the first set propagated through ``fx`` (state unchanged)."""
-        dt = check_time_step(dt)
-        fx = self.fx if fx is None else fx
-        x, S = self._current()
-        plan = self._plan
-        sigmas = sigma_points_from_factor(x, S, plan.first.xi, self._hooks().state_add)
-        if plan.w_xi is not None:
-            W = self._noise_points(plan.w_xi, None, "Q")
-            values = call_model(fx, "fx", self._fx_noise, sigmas, W, (dt,), fx_args, self.vectorized)
-        else:
-            values = self._evaluate(fx, sigmas, (dt,), fx_args)
-        self.sigmas_f = check_values(values, sigmas.shape, "fx values")
+        self._process_sigmas(dt, fx, fx_args)
 
     def cross_variance(self, x, z, sigmas_f, sigmas_h) -> np.ndarray:
         """Cross-covariance ``sum Wc[i] (sigmas_f[i] - x)(sigmas_h[i] - z)^T``.
@@ -838,19 +493,7 @@ class SquareRootUKF(ModelForm):
         The weights are those of the set with as many points as ``sigmas_f``
         (the second set after a prediction, else the first).
         """
-        sigmas_f = as_float_array(sigmas_f, "sigmas_f")
-        sigmas_h = np.atleast_2d(as_float_array(sigmas_h, "sigmas_h"))
-        N = sigmas_f.shape[0]
-        Wc = self._plan.first.rows.Wc
-        sset = self._state.sset
-        if Wc.shape[0] != N and sset is not None:
-            Wc = sset.Wc
-        if Wc.shape[0] != N:
-            raise ShapeError(f"sigmas_f has {N} points but the sigma-point sets have {Wc.shape[0]}")
-        hooks = self._hooks()
-        dx = deviations(sigmas_f, as_float_array(x, "x"), hooks.residual_x, "residual_x")
-        dz = deviations(sigmas_h, as_float_array(z, "z"), hooks.residual_z, "residual_z")
-        return (dx.T * Wc) @ dz
+        return self._cross_variance(x, z, sigmas_f, sigmas_h)
 
     def batch_filter(
         self,
@@ -866,47 +509,23 @@ class SquareRootUKF(ModelForm):
         return_factors: bool = False,
         progress=False,
     ):
-        """Filter a whole sequence of measurements; see :func:`squkf.batch.batch_filter`.
-
-        Returns ``(means, covariances)`` as filterpy does (the factors instead
-        with ``return_factors``). ``zs`` may be any iterable (a list, an array,
-        a generator, ``tqdm(zs)``); ``progress=True`` shows a bar. An error at
-        step ``k`` says so, carries the first ``k`` results as ``exc.partial``
-        and leaves the filter as it was.
-        """
+        """Filter a whole sequence of measurements: :func:`squkf.batch.batch_filter` on this filter."""
         return batch_filter(
-            self,
-            zs,
-            Rs,
-            dts,
-            UT,
-            saver,
-            Qs=Qs,
-            fx_args=fx_args,
-            hx_args=hx_args,
-            return_factors=return_factors,
-            progress=progress,
-        )
+            self, zs, Rs, dts, UT, saver, Qs=Qs, fx_args=fx_args, hx_args=hx_args,
+            return_factors=return_factors, progress=progress,
+        )  # fmt: skip
 
     def rts_smoother(self, Xs, Ps, Qs=None, dts=None, UT=None, *, fx_args=None):
-        """Square-root unscented RTS smoother; see :func:`squkf.smoother.rts_smoother`.
-
-        Returns ``(xs, Ps, Ks)`` as filterpy does. ``Qs[k]`` and ``dts[k]`` are
-        those of the prediction into step ``k`` (the lists given to
-        ``batch_filter``); ``fx_args`` may be given the same way.
-        """
+        """Square-root unscented RTS smoother: :func:`squkf.smoother.rts_smoother` on this filter."""
         self._refuse_smoother()
         return smoother.rts_smoother(self, Xs, Ps, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
 
     def rts_smoother_factors(self, Xs, P1_2s, Qs=None, dts=None, UT=None, *, fx_args=None):
-        """The smoother on lower factors; see :func:`squkf.smoother.rts_smoother_factors`."""
+        """The smoother on lower factors: :func:`squkf.smoother.rts_smoother_factors` on this filter."""
         self._refuse_smoother()
         return smoother.rts_smoother_factors(self, Xs, P1_2s, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
 
-    def _refuse_smoother(self) -> None:
-        inputs.refuse_smoother_noise(self._fx_noise, "filter")
-
-    # -- transactions, copies, pickling ---------------------------------------
+    # -- configuration and transactions (copies and pickles: InDictCopies) ------
 
     def configuration(self) -> Config:
         """The filter's configuration and noise factors (``squkf.boundary.Config``).
@@ -914,14 +533,7 @@ class SquareRootUKF(ModelForm):
         What ``Fleet.from_filters`` and the smoother read; the arrays are the
         filter's own, to be read and not written.
         """
-        d = self.__dict__
-        rx, rz, add = d["residual_x"], d["residual_z"], d["state_add"]
-        return Config(
-            self._dim_x, self._dim_z, self._dt, self.hx, self.fx, self._points, self._family, self._generator,
-            d["x_mean"], d["z_mean"], None if rx is np.subtract else rx, None if rz is np.subtract else rz,
-            None if add is np.add else add, self._gate, self.fx_noise, self.hx_noise, self.vectorized,
-            self._plan, self._hooks(), self._Q.factor(), self._R.factor(),
-        )  # fmt: skip
+        return self._configuration()
 
     def transaction(self) -> Transaction:
         """A context manager that puts the filter back as it was on entry if anything inside raises.
@@ -930,97 +542,5 @@ class SquareRootUKF(ModelForm):
         """
         return Transaction(self._snapshot, self._restore)
 
-    def _snapshot(self) -> dict:
-        """Everything a failed multi-step call must put back.
-
-        The filter's own arrays are replaced by each step, never changed in
-        place; only the matrices and vector the caller may edit in place are
-        copied.
-        """
-        state = dict(self.__dict__)
-        for name in ("P", "Q", "R"):
-            slot = state["_" + name] = copy.copy(state["_" + name])
-            if isinstance(state[name], _Unformed):
-                state[name] = _Unformed(slot)
-        return state
-
-    def _restore(self, state: dict) -> None:
-        self.__dict__.clear()
-        self.__dict__.update(state)
-
-    def __copy__(self):
-        # an independent filter: arrays and covariance slots are copied, functions and
-        # configuration objects are shared (as copy.copy of a filterpy filter shares them)
-        new = type(self).__new__(type(self))
-        d = {}
-        for key, value in self.__dict__.items():
-            if isinstance(value, np.ndarray):
-                value = value.copy()
-            elif isinstance(value, FactorSlot):
-                value = value.detached()  # the factor shared, the matrix handed out copied
-            d[key] = value
-        for name in ("P", "Q", "R"):
-            d[name] = d["_" + name].matrix()
-        new.__dict__.update(d)
-        return new
-
-    def __deepcopy__(self, memo):
-        new = type(self).__new__(type(self))
-        memo[id(self)] = new
-        d = copy.deepcopy(self.__dict__, memo)
-        for name in ("P", "Q", "R"):
-            if isinstance(self.__dict__[name], _Unformed):  # the copy's matrix is its slot's
-                d[name] = d["_" + name].matrix()
-        new.__dict__.update(d)
-        return new
-
-    def __getstate__(self):
-        state = self.__dict__.copy()
-        state["_noise_cache"] = {}
-        for name in ("P", "Q", "R"):
-            if isinstance(state[name], _Unformed):
-                del state[name]  # formed again from the slot when unpickled
-        return state
-
-    def __setstate__(self, state):
-        self.__dict__.update(state)
-        for name in ("P", "Q", "R"):
-            self.__dict__[name] = self.__dict__["_" + name].matrix()
-
     def __repr__(self) -> str:
-        from filterpy.common import pretty_str
-
-        return "\n".join(
-            [
-                "SquareRootUKF object",
-                pretty_str("x", self.x),
-                pretty_str("P1_2", self._P.factor()),
-                pretty_str("x_prior", self.x_prior),
-                pretty_str("P1_2_prior", self.P1_2_prior),
-                pretty_str("Q1_2", self._Q.factor()),
-                pretty_str("R1_2", self._R.factor()),
-                pretty_str("S1_2", self.S1_2),
-                pretty_str("K", self.K),
-                pretty_str("y", self.y),
-                pretty_str("log-likelihood", self.log_likelihood),
-                pretty_str("likelihood", self.likelihood),
-                pretty_str("mahalanobis", self.mahalanobis),
-                pretty_str("sigmas_f", self.sigmas_f),
-                pretty_str("sigmas_h", self.sigmas_h),
-                pretty_str("Wm", self.Wm),
-                pretty_str("Wc", self.Wc),
-                pretty_str("points_fn", self.points_fn),
-                pretty_str("scheme", self.scheme),
-                pretty_str("vectorized", self.vectorized),
-                pretty_str("gate", self.gate),
-                pretty_str("fx_noise", self.fx_noise),
-                pretty_str("hx_noise", self.hx_noise),
-                pretty_str("residual_x", self.residual_x),
-                pretty_str("residual_z", self.residual_z),
-                pretty_str("state_add", self.state_add),
-                pretty_str("hx", self.hx),
-                pretty_str("fx", self.fx),
-                pretty_str("x_mean", self.x_mean),
-                pretty_str("z_mean", self.z_mean),
-            ]
-        )
+        return self._describe("SquareRootUKF object")

@@ -586,6 +586,29 @@ def nan_for_big_line_fx(X, dt):
     return out
 
 
+def pushed_line_fx(X, dt, push):
+    """``line_fx`` with the velocity changed by ``push`` (per filter: ``(K, 1)`` in a fleet)."""
+    out = line_fx(X, dt)
+    out[..., 1] += push
+    return out
+
+
+class DuckArray:
+    """An array-like that is not an ndarray, list or tuple (as a dask or xarray array): numpy reads it."""
+
+    def __init__(self, a):
+        self.a = np.asarray(a)
+
+    def __array__(self, dtype=None, copy=None):
+        return self.a if dtype is None else self.a.astype(dtype)
+
+    def __len__(self):
+        return len(self.a)
+
+    def __iter__(self):  # over the first axis (filters), as an array's
+        return iter(self.a)
+
+
 def line_fleet(K, fx=line_fx, seed=0, per_filter_R=False):
     rng = np.random.default_rng(seed)
     f = Fleet(K, 2, 2, 0.1, line_hx, fx, MerweScaledWeights(0.5))

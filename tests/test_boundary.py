@@ -16,7 +16,7 @@ import pytest
 from models import CV3_K, CV3_NZ, assert_fleet_state, fleet_state, make_cv3_fleet
 
 import squkf
-from squkf.boundary import config, factors, inputs, loop, records
+from squkf.boundary import config, edits, factors, inputs, loop, records
 from squkf.errors import FleetStepError, NonFiniteError, ParameterError, ShapeError
 
 PACKAGE = Path(squkf.__file__).resolve().parent
@@ -69,6 +69,37 @@ def test_a_given_covariance_is_factored_once_shared_or_per_filter():
     assert factors.noise_factor(A, "R", 2, lambda: None, cache) is one  # the same array: not factored again
     Ps = factors.covariance_factors(A, "P", 2, 3)
     assert Ps.shape == (3, 2, 2) and np.array_equal(Ps[1], Ps[0])
+
+
+def test_an_edit_in_place_is_taken_once_through_the_setter_or_stays_pending():
+    taken = []
+
+    def assign(name, a):
+        if np.isnan(a).any():
+            raise NonFiniteError(f"{name} contains NaN")
+        taken.append((name, a.copy()))
+
+    out = edits.HandOut()
+    a = out.array("x", lambda: np.zeros(2))
+    assert out.array("x", lambda: np.ones(2)) is a  # the same array until dropped
+    out.take(["x"], assign)
+    assert taken == []  # not edited: nothing to take
+    a[0] = np.nan
+    with pytest.raises(NonFiniteError):
+        out.take(["x"], assign)
+    copied = out.detached()  # a copy's own array, the edit pending there too
+    a[0] = 1.0
+    out.take(["x"], assign)
+    out.take(["x"], assign)  # taken once
+    assert [name for name, _ in taken] == ["x"] and taken[0][1].tolist() == [1.0, 0.0]
+    with pytest.raises(NonFiniteError):
+        copied.take(["x"], assign)
+    a.shape = (1, 2)  # a change of shape in place is an edit too
+    assert edits.Handed(np.zeros(2)).edited() is False
+    out.take(["x"], assign)
+    assert taken[-1][1].shape == (1, 2)
+    out.drop("x")
+    assert out.array("x", lambda: np.ones(2)).tolist() == [1.0, 1.0]
 
 
 def test_a_transaction_puts_back_what_was_taken_on_any_error():
@@ -169,7 +200,9 @@ def test_the_front_ends_and_the_smoother_import_each_other_in_no_cycle():
             visit(m, [])
 
 
-@pytest.mark.parametrize("module", ["smoother", "batch", "dask", "boundary/config", "boundary/loop"])
+@pytest.mark.parametrize(
+    "module", ["smoother", "batch", "dask", "boundary/config", "boundary/loop", "boundary/stacking"]
+)
 def test_no_module_reads_a_front_ends_private_members(module):
     tree = ast.parse((PACKAGE / f"{module}.py").read_text())
     reads = [

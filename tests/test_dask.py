@@ -18,7 +18,13 @@ dd = pytest.importorskip("dask.dataframe")
 pd = pytest.importorskip("pandas")
 distributed = pytest.importorskip("distributed")
 
-from models import line_fleet, line_measurements, nan_for_big_line_fx, slow_line_fx  # noqa: E402
+from models import (  # noqa: E402
+    line_fleet,
+    line_measurements,
+    nan_for_big_line_fx,
+    pushed_line_fx,
+    slow_line_fx,
+)
 
 import squkf.dask as sd  # noqa: E402
 from squkf import ParameterError, ShapeError  # noqa: E402
@@ -203,7 +209,7 @@ def test_filter_frame_matches_a_fleet_per_series():
     out = sd.filter_frame(
         frame, template, key="series", time="t", columns=["r", "v"], x0=x0, state_names=["p", "v"]
     )
-    assert list(out.columns) == ["p", "v", "std_p", "std_v"]
+    assert list(out.columns) == ["p", "v", "std_p", "std_v", "failed"]
     got = out.compute(scheduler="synchronous")
     src = frame.compute()
     assert len(got) == len(src) and np.array_equal(got.index.to_numpy(), src.index.to_numpy())
@@ -233,3 +239,34 @@ def test_filter_frame_rejects_frames_it_cannot_filter_per_series():
     split = dd.from_pandas(df, npartitions=3).set_index("series", sorted=False).clear_divisions()
     with pytest.raises(ParameterError, match="known divisions"):
         sd.filter_frame(split, template, key="series", time="t", columns=["r", "v"])
+
+
+def test_per_filter_arguments_are_cut_by_chunk_bit_identical():
+    K, T = 9, 6
+    fleet = line_fleet(K, fx=pushed_line_fx)
+    zs = line_measurements(K, T)
+    push = np.linspace(-0.5, 0.5, K)
+    want = in_process(fleet, zs, fx_args={"push": push})
+    for chunks in [(2, -1, -1), (4, 3, 1), (9, -1, -1)]:
+        got = sd.compute(sd.batch_filter(fleet, da.from_array(zs, chunks=chunks), fx_args={"push": push}))
+        same(got, want)
+    shared = in_process(fleet, zs, fx_args={"push": 0.25})  # a scalar is shared, as in one process
+    same(
+        sd.compute(sd.batch_filter(fleet, da.from_array(zs, chunks=(2, -1, -1)), fx_args={"push": 0.25})),
+        shared,
+    )
+    # a shared array as long as a chunk would be read per filter by that chunk's fleet: refused
+    with pytest.raises(ParameterError, match=r"fx_args\['push'\] has a leading axis of 3"):
+        sd.batch_filter(fleet, da.from_array(zs, chunks=(3, -1, -1)), fx_args={"push": np.zeros(3)})
+
+
+def test_filter_frame_reports_the_series_that_failed():
+    df = long_frame()
+    frame = dd.from_pandas(df, npartitions=3).set_index("series", sorted=False)
+    template = line_fleet(1, fx=nan_for_big_line_fx)
+    x0 = pd.DataFrame({"p": np.where(np.arange(12) == 5, 1e7, 0.0), "v": 0.0}, index=range(12))
+    got = sd.filter_frame(frame, template, key="series", time="t", columns=["r", "v"], x0=x0).compute(
+        scheduler="synchronous"
+    )
+    assert got["failed"].dtype == bool
+    assert got.groupby(level=0)["failed"].all().to_dict() == {k: k == 5 for k in range(12)}

@@ -55,6 +55,11 @@ def test_html_build_has_no_warning_and_documents_the_public_api(tmp_path, doctre
     documented = {name for entries in inventory.values() for name in entries}
     missing = [name for name in squkf.__all__ if f"squkf.{name}" not in documented]
     assert not missing, f"public names without an API entry: {missing}"
+    # the faces' members written once in a base (squkf.boundary) are documented with the faces
+    inherited = [
+        f"squkf.{face}.{m}" for face in ("SquareRootUKF", "Fleet") for m in ("fx_noise", "hx_noise", "gate")
+    ]
+    assert not [name for name in inherited if name not in documented]
     assert not [m for m in MODULES if m not in inventory["py:module"]]
     # the internals are not part of the reference
     assert not [m for m in inventory["py:module"] if m in ("squkf.step", "squkf.lane")]

@@ -787,6 +787,53 @@ def test_from_filters_rejects_mixed_configurations():
     assert Fleet.from_filters([a, single(scheme=Augmented(weights=JulierWeights(kappa=0.0)))]).n_filters == 2
 
 
+def test_from_filters_validates_pending_edits_and_takes_points_objects_equal_by_value():
+    from filterpy.kalman import MerweScaledSigmaPoints
+
+    f = cv_single(MerweScaledWeights())
+    f.x[2] = np.nan  # an edit in place, pending: validated as an assignment would be
+    with pytest.raises(NonFiniteError, match="x contains NaN"):
+        Fleet.from_filters([cv_single(MerweScaledWeights()), f])
+    f = cv_single(MerweScaledWeights())
+    f.P[0, 1] = 5.0  # not symmetric
+    with pytest.raises(SqukfError, match="not symmetric"):
+        Fleet.from_filters([f])
+    f = cv_single(MerweScaledWeights())
+    f.P *= 4.0  # a valid edit is taken
+    np.testing.assert_allclose(Fleet.from_filters([f]).P[0], 4.0 * np.eye(FLEET_N_X))
+    # filterpy's points objects compare by identity: two built alike are one configuration
+    fs = [cv_single(MerweScaledSigmaPoints(FLEET_N_X, 0.5, 2.0, 0.0)) for _ in range(2)]
+    assert Fleet.from_filters(fs).n_filters == 2
+    with pytest.raises(ParameterError, match="differs in configuration"):
+        Fleet.from_filters([fs[0], cv_single(MerweScaledSigmaPoints(FLEET_N_X, 0.4, 2.0, 0.0))])
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_one_filter_out_or_filters_in_between_predict_and_update_keep_the_step_or_raise(scheme):
+    fleet, singles, zs = fleet_and_singles(3, "merwe", scheme)
+    fleet.predict()
+    for f in singles:
+        f.predict()
+    if scheme == "redrawn":  # the second set is the prior's alone: the copies take the same update
+        ref = copy.copy(fleet)
+        ref.update(zs[:, 0])
+        one = fleet[1]
+        one.update(zs[1, 0])
+        np.testing.assert_array_equal(one.x, ref.x[1])
+        back = Fleet.from_filters(singles)
+        back.update(zs[:, 0])
+        singles[1].update(zs[1, 0])
+        np.testing.assert_array_equal(back.x[1], singles[1].x)
+    else:  # the pending second set reads the propagated points, which a copy cannot carry
+        with pytest.raises(CallSequenceError, match=r"fleet\[1\]: the step is pending"):
+            fleet[1]
+        with pytest.raises(CallSequenceError, match=r"filters\[0\]: the step is pending"):
+            Fleet.from_filters(singles)
+    fleet.ask_predict()  # points handed out and not told: refused whatever the scheme
+    with pytest.raises(CallSequenceError, match=r"fleet\[0\]: the step is pending \(an ask"):
+        fleet[0]
+
+
 # -- batch_filter ---------------------------------------------------------------------------------
 
 

@@ -14,6 +14,7 @@ from models import (
     CV3_K,
     CV3_NX,
     CV3_NZ,
+    DuckArray,
     assert_filter_state,
     assert_fleet_state,
     ct_fx,
@@ -224,6 +225,15 @@ def test_a_generator_yielding_a_bad_step_is_named_for_one_filter():
         with pytest.raises(error, match=match):
             f.batch_filter(z for z in steps)
         assert_filter_state(f, snap)
+
+
+def test_an_array_like_zs_is_read_as_the_array_of_filters_steps_and_components():
+    zs = cv3_zs(5)  # (K, T, dim_z): a duck array is read as it, not iterated over its filters
+    want = make_cv3_fleet().batch_filter(zs)
+    got = make_cv3_fleet().batch_filter(DuckArray(zs))
+    np.testing.assert_array_equal(got.means, want.means)
+    with pytest.raises(ShapeError, match=r"zs has shape \(5, 3, 2\)"):
+        make_cv3_fleet().batch_filter(DuckArray(zs.transpose(1, 0, 2)))
 
 
 @pytest.mark.parametrize(

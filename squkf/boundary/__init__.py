@@ -13,8 +13,16 @@ One layer between the callers and the step (:mod:`squkf.step`), used by
   :mod:`squkf.dask` read instead of a facade's private members;
 - :mod:`squkf.boundary.model_form`: ``fx_noise``, ``hx_noise`` and ``gate``, the
   model's form as both faces show it;
+- :mod:`squkf.boundary.edits`: edits in place of the arrays handed out, seen
+  at the next call and taken through the validating setter (both faces);
+- :mod:`squkf.boundary.attributes`: one filter's attributes in its
+  ``__dict__`` (filterpy's ``Saver``), their copies and pickles;
+- :mod:`squkf.boundary.one_filter`: the single filter's step at its boundary,
+  under the public face of :class:`squkf.SquareRootUKF`;
+- :mod:`squkf.boundary.stacking`: ``fleet[k]`` and ``Fleet.from_filters``;
 - :mod:`squkf.boundary.records`: what a fleet's run hands out
-  (:class:`FleetResult`) and the error of its failing filters;
+  (:class:`FleetResult`), the error of its failing filters, one filter's last
+  update;
 - :mod:`squkf.boundary.loop`: the batch loop's option checks, its progress
   bar and its transaction (the filter as it was, on any error).
 

@@ -18,6 +18,7 @@ from ..angles import _AngleHook
 from ..errors import ParameterError
 from ..gating import Gate
 from ..plan import Hooks, Plan
+from ..weights import FilterpyPoints
 
 __all__ = ["Config", "common_config", "filter_kwargs"]
 
@@ -48,6 +49,10 @@ class Config(NamedTuple):
     Q1_2, R1_2 : ndarray or None
         Lower factors of ``Q`` and ``R``: ``(d, d)``, or ``(K, d, d)`` per filter
         of a fleet; ``Q1_2`` None when there is no process noise.
+    step : str
+        The phase of one filter's pending ask/tell step (``squkf.step.IDLE``,
+        ...), which ``Fleet.from_filters`` checks; a fleet's is left idle
+        (``fleet[k]`` checks the fleet's own).
     """
 
     dim_x: int
@@ -71,6 +76,7 @@ class Config(NamedTuple):
     hooks: Hooks
     Q1_2: np.ndarray | None
     R1_2: np.ndarray | None
+    step: str = "idle"
 
 
 def filter_kwargs(c: Config) -> dict:
@@ -102,6 +108,15 @@ def _same(h):  # squkf's angle hooks are equal when they wrap the same component
     return (type(h), tuple(h.angle_indices)) if isinstance(h, _AngleHook) else h
 
 
+def _by_value(family):
+    """A family as compared: a filterpy points object (equal only to itself) by the points it gives."""
+    if not isinstance(family, FilterpyPoints):
+        return family
+    n = family.n
+    Wm, Wc = family.weights(n)
+    return (type(family.points), n, family.unit_sigma_points(n).tobytes(), Wm.tobytes(), Wc.tobytes())
+
+
 def _key(c: Config) -> tuple:
     scheme = c.scheme
     fields = (
@@ -110,7 +125,7 @@ def _key(c: Config) -> tuple:
         c.dt,
         c.hx,
         c.fx,
-        c.family,
+        _by_value(c.family),
         type(scheme),
         # a generator's parameters (Augmented(weights=...)), not only its kind
         tuple(sorted(vars(scheme).items())) if hasattr(scheme, "__dict__") else scheme,

@@ -13,21 +13,32 @@ import numpy as np
 
 from ..batch import iter_measurements
 from ..errors import NonFiniteError, ParameterError, ShapeError
+from ..generators import as_generator, noise_family
 from ..linalg import all_finite
 from ..noise import check_accepts_noise, check_noise_dim
 from ..validate import as_float_array, as_measurements, describe_nonfinite
+from ..weights import as_family
 
 __all__ = [
     "as_state",
+    "check_chunk_args",
     "check_sizes",
+    "chunk_args",
     "evaluate",
+<<<<<<< HEAD
     "finite_images",
+=======
+    "is_per_filter",
+>>>>>>> boundary-faces
     "measurement",
     "measurement_series",
     "measurements",
     "model_noise",
     "per_filter",
+    "refuse_noise_args",
     "refuse_smoother_noise",
+    "second_set",
+    "sigma_family",
     "stacked_images",
     "stacked_shape",
     "with_filter_axis",
@@ -203,8 +214,10 @@ def measurement_series(zs, K: int, m: int) -> np.ndarray:
     Parameters
     ----------
     zs : array_like, shape (K, T, m) or (K, T) when ``m`` is 1, or an iterable of (K, m) arrays
-        Lists and tuples are read as the array; any other iterable yields one
-        step at a time, each checked by :func:`measurements` (naming it ``zs[t]``).
+        Lists, tuples and any object numpy reads as an array (``__array__``:
+        a dask or xarray array, ...) are read as the array; any other
+        iterable yields one step at a time, each checked by
+        :func:`measurements` (naming it ``zs[t]``).
     K, m : int
         Number of filters and measurement size.
 
@@ -212,7 +225,7 @@ def measurement_series(zs, K: int, m: int) -> np.ndarray:
     -------
     Z : ndarray, shape (K, T, m)
     """
-    if not isinstance(zs, (np.ndarray, list, tuple)):  # a MaskedArray is an ndarray
+    if not isinstance(zs, (np.ndarray, list, tuple)) and not hasattr(zs, "__array__"):  # MaskedArray: ndarray
         # a generator, an iterator, tqdm(...): one (K, dim_z) array per step, each checked
         it = iter_measurements(zs)
         steps_read = [measurements(z, K, m, f"zs[{t}]") for t, z in enumerate(it)]
@@ -245,10 +258,54 @@ def with_filter_axis(kwargs: dict, K: int) -> dict:
     """
     out = {}
     for key, v in kwargs.items():
-        if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == K:
+        if is_per_filter(v, K):
             v = v.reshape((K, 1) + v.shape[1:])
         out[key] = v
     return out
+
+
+def is_per_filter(v, K: int) -> bool:
+    """Whether a model function's argument is per filter in a fleet of ``K`` (an ndarray, leading axis K)."""
+    return isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == K
+
+
+def chunk_args(kwargs: dict, K: int, rows: slice) -> dict:
+    """The model functions' arguments of a chunk of a fleet of ``K``: per-filter arrays cut to ``rows``.
+
+    Parameters
+    ----------
+    kwargs : dict
+    K : int
+    rows : slice
+        The chunk's filters.
+
+    Returns
+    -------
+    dict
+        A new dict (the arrays cut are views).
+    """
+    return {key: v[rows] if is_per_filter(v, K) else v for key, v in kwargs.items()}
+
+
+def check_chunk_args(kwargs: dict, name: str, K: int, sizes) -> None:
+    """Refuse a shared array argument as long as a chunk: that chunk's fleet would read it per filter.
+
+    Parameters
+    ----------
+    kwargs : dict
+    name : str
+        ``"fx_args"`` or ``"hx_args"``, for the message.
+    K : int
+        Number of filters.
+    sizes : sequence of int
+        The chunks' sizes.
+    """
+    for key, v in kwargs.items():
+        if isinstance(v, np.ndarray) and v.ndim >= 1 and not is_per_filter(v, K) and v.shape[0] in sizes:
+            raise ParameterError(
+                f"{name}[{key!r}] has a leading axis of {v.shape[0]}, the size of a chunk of filters but "
+                f"not their number ({K}): a chunk's fleet would read it per filter; rechunk zs"
+            )
 
 
 def evaluate(fn: Callable, sigmas: np.ndarray, args: tuple, kwargs: dict, vectorized: bool) -> object:
@@ -402,3 +459,75 @@ def refuse_smoother_noise(fx_noise: int, who: str) -> None:
         raise ParameterError(
             f"the RTS smoother takes additive process noise only; this {who} has fx_noise={fx_noise}"
         )
+
+
+def refuse_noise_args(noise_xi, name: str, value, UT) -> None:
+    """With noise entering the model, ``Q``/``R`` are in the points: refuse them in a call (and a ``UT``).
+
+    Parameters
+    ----------
+    noise_xi : ndarray or None
+        The plan's noise part of the unit points (None: additive noise, nothing refused).
+    name : {"Q", "R"}
+    value : object
+        The call's ``Q`` or ``R`` (None: not given).
+    UT : callable or None
+    """
+    if noise_xi is None:
+        return
+    which = "fx_noise" if name == "Q" else "hx_noise"
+    if value is not None:
+        raise ParameterError(
+            f"with {which} the noise is in the sigma points handed out by ask_*: assign ukf.{name}"
+            f" before asking, not {name}={value!r} here"
+        )
+    if UT is not None:
+        raise ParameterError(f"UT cannot be given with {which}: the transform has no noise to add")
+
+
+def sigma_family(points, n: int, fx_noise: int) -> tuple[object, int]:
+    """``points`` as a sigma-point family, checked to serve dimension ``n``, and its number of points.
+
+    Parameters
+    ----------
+    points : sigma-point family or filterpy points object
+    n : int
+        State dimension.
+    fx_noise : int
+        Dimension of the noise entering ``fx`` (0: additive); the first set is then augmented.
+
+    Returns
+    -------
+    family : squkf.weights.SigmaPointFamily
+    num : int
+        Number of points of the first set.
+    """
+    family = as_family(points)
+    try:
+        num = (noise_family(family, n, fx_noise) if fx_noise else family).num_sigmas(n + fx_noise)
+    except ParameterError:
+        raise
+    except Exception as exc:  # a user's family that cannot serve this dimension
+        raise ParameterError(f"points cannot give sigma points for dim_x={n}: {exc}") from exc
+    return family, num
+
+
+def second_set(scheme, n: int, family, hx_noise: int):
+    """The second-set generator of ``scheme``, checked against the family at dimension ``n`` now.
+
+    Parameters
+    ----------
+    scheme : {"redrawn", "augmented", "propagated"} or generator
+    n : int
+    family : squkf.weights.SigmaPointFamily
+    hx_noise : int
+        Dimension of the noise entering ``hx`` (0: additive).
+
+    Returns
+    -------
+    generator
+    """
+    gen = as_generator(scheme)
+    if hasattr(gen, "num_sigmas") and not hx_noise:
+        gen.num_sigmas(n, family)  # fails now, not at the first update
+    return gen
