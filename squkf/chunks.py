@@ -27,7 +27,7 @@ from .generators import SigmaSet
 from .isolate import BLOCK, isolated_posterior, isolated_prior, rows_of, take_set
 from .plan import Hooks, Plan
 
-__all__ = ["CHUNK", "chunks", "kwargs_rows", "stacked_prior", "stacked_posterior", "Prior", "Posteriors"]
+__all__ = ["CHUNK", "chunks", "stacked_prior", "stacked_posterior", "Prior", "Posteriors"]
 
 #: Filters per chunk of a fleet's step (their arrays stay in cache; see the module docstring).
 CHUNK = 1024
@@ -36,30 +36,6 @@ CHUNK = 1024
 def chunks(K: int, size: int = CHUNK) -> list[slice]:
     """The chunks of ``K`` filters, ``size`` each (the last one shorter), as slices."""
     return [slice(lo, min(lo + size, K)) for lo in range(0, K, size)]
-
-
-def kwargs_rows(kwargs: dict, rows: slice, K: int) -> dict:
-    """A model function's keyword arguments for the filters ``rows``: per-filter arrays cut.
-
-    Parameters
-    ----------
-    kwargs : dict
-        After :func:`squkf.boundary.inputs.with_filter_axis`: an ndarray with a
-        leading axis of length ``K`` is per filter.
-    rows : slice
-    K : int
-
-    Returns
-    -------
-    dict
-        ``kwargs`` itself when ``rows`` is every filter, else a new dict.
-    """
-    if rows.start == 0 and rows.stop == K:
-        return kwargs
-    return {
-        key: v[rows] if isinstance(v, np.ndarray) and v.ndim >= 1 and v.shape[0] == K else v
-        for key, v in kwargs.items()
-    }
 
 
 def _label(name: str, rows: slice, K: int) -> str:

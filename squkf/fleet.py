@@ -50,7 +50,7 @@ from .boundary.loop import Transaction, annotate_step, check_keep, check_progres
 from .boundary.model_form import ModelForm
 from .boundary.records import FleetResult, Records, failures_error, new_records
 from .boundary.stacking import filter_of, stacked
-from .chunks import CHUNK, kwargs_rows, stacked_posterior, stacked_prior
+from .chunks import CHUNK, stacked_posterior, stacked_prior
 from .errors import FleetStepError, ParameterError
 from .gating import Gate, as_gate
 from .generators import as_generator
@@ -455,7 +455,7 @@ class Fleet(ModelForm):
         kwargs, K, plan, Q = inputs.with_filter_axis(fx_args, self._K), self._K, self._plan, self._Q1_2
 
         def images(rows: slice, X: np.ndarray):
-            kw = kwargs_rows(kwargs, rows, K)
+            kw = inputs.chunk_args(kwargs, K, rows)
             if plan.w_xi is None:  # the points themselves: the step reads only their shape afterwards
                 return self.fx(X, dt, **kw)
             W = noise_points(plan.w_xi, rows_of(Q, rows, 2), (X.shape[0],))
@@ -525,7 +525,7 @@ class Fleet(ModelForm):
         kwargs, K, plan = inputs.with_filter_axis(hx_args, self._K), self._K, self._plan
 
         def images(rows: slice, sset):
-            kw = kwargs_rows(kwargs, rows, K)
+            kw = inputs.chunk_args(kwargs, K, rows)
             if plan.v_xi is None:
                 return self.hx(sset.sigmas.copy(), **kw)
             V = noise_points(plan.v_xi, rows_of(R1_2, rows, 2), (sset.sigmas.shape[0],))

@@ -25,11 +25,8 @@ __all__ = [
     "check_sizes",
     "chunk_args",
     "evaluate",
-<<<<<<< HEAD
     "finite_images",
-=======
     "is_per_filter",
->>>>>>> boundary-faces
     "measurement",
     "measurement_series",
     "measurements",
