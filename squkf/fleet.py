@@ -69,6 +69,16 @@ __all__ = ["Fleet", "FleetResult", "FleetStepError"]
 _HANDED = {"_x": "x", "_S": "P", "_Q1_2": "Q", "_R1_2": "R"}
 
 
+def _record(name: str, doc: str, covariance: bool = False) -> property:
+    """A read-only record of the last step: a copy of the array ``name`` (``S @ S.T`` for a covariance)."""
+
+    def read(self) -> np.ndarray:
+        a = getattr(self, name)
+        return a @ np.swapaxes(a, -1, -2) if covariance else a.copy()
+
+    return property(read, doc=doc)
+
+
 class Fleet(ModelForm):
     """K independent square-root UKFs with one model and one configuration.
 
@@ -324,35 +334,12 @@ class Fleet(ModelForm):
 
     # -- records of the last step (the arrays behind them are never written in place) ------
 
-    @property
-    def x_prior(self) -> np.ndarray:
-        """States after the last prediction, shape ``(K, dim_x)`` (fresh)."""
-        return self._x_prior.copy()
-
-    @property
-    def P1_2_prior(self) -> np.ndarray:
-        """Lower factors after the last prediction, shape ``(K, dim_x, dim_x)`` (fresh)."""
-        return self._S_prior.copy()
-
-    @property
-    def P_prior(self) -> np.ndarray:
-        """Covariances after the last prediction (fresh)."""
-        return self._S_prior @ np.swapaxes(self._S_prior, -1, -2)
-
-    @property
-    def x_post(self) -> np.ndarray:
-        """States after the last update, shape ``(K, dim_x)`` (fresh)."""
-        return self._x_post.copy()
-
-    @property
-    def P1_2_post(self) -> np.ndarray:
-        """Lower factors after the last update, shape ``(K, dim_x, dim_x)`` (fresh)."""
-        return self._S_post.copy()
-
-    @property
-    def P_post(self) -> np.ndarray:
-        """Covariances after the last update (fresh)."""
-        return self._S_post @ np.swapaxes(self._S_post, -1, -2)
+    x_prior = _record("_x_prior", "States after the last prediction, shape ``(K, dim_x)`` (fresh).")
+    P1_2_prior = _record("_S_prior", "Lower factors after the last prediction, ``(K, n, n)`` (fresh).")
+    P_prior = _record("_S_prior", "Covariances after the last prediction (fresh).", covariance=True)
+    x_post = _record("_x_post", "States after the last update, shape ``(K, dim_x)`` (fresh).")
+    P1_2_post = _record("_S_post", "Lower factors after the last update, ``(K, n, n)`` (fresh).")
+    P_post = _record("_S_post", "Covariances after the last update (fresh).", covariance=True)
 
     @property
     def chunk(self) -> int:
