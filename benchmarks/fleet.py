@@ -414,6 +414,12 @@ def accuracy(model, impls, K: int, T: int, seed: int) -> dict:
     return out
 
 
+def state_bytes(f) -> int:
+    """The bytes of a fleet's own arrays, each counted once (a record may be the state's array)."""
+    arrays = {id(v): v for v in vars(f).values() if isinstance(v, np.ndarray)}
+    return sum(a.nbytes for a in arrays.values())
+
+
 def fleet_memory(model, K: int, seed: int) -> dict:
     """tracemalloc peak during one predict + update of a K-filter fleet, above the allocations before it."""
     truth, zs = simulate(model, K, 2, seed)
@@ -429,7 +435,7 @@ def fleet_memory(model, K: int, seed: int) -> dict:
     f.update(z)
     current, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
-    state = sum(v.nbytes for v in vars(f).values() if isinstance(v, np.ndarray))
+    state = state_bytes(f)
     return {"K": K, "peak_MB": (peak - before) / 1e6, "state_MB": state / 1e6}
 
 
@@ -477,7 +483,7 @@ def rss_child(model, K: int, seed: int) -> dict:
     f = Fleet(K, model.n, model.m, model.dt, model.hx, model.fx, points())
     f.x, f.P, f.Q, f.R = model.x0, model.P0, model.Q, model.R
     r1 = _status_mb()["VmRSS"]
-    state = sum(v.nbytes for v in vars(f).values() if isinstance(v, np.ndarray)) / 1e6
+    state = state_bytes(f) / 1e6
     out = {"K": K, "state_MB": state, "built_rss_MB": r1 - r0, "reset": True}
     for t in (0, 1):
         out["reset"] &= _reset_peak()

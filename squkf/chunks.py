@@ -30,7 +30,7 @@ from .plan import Hooks, Plan
 __all__ = ["CHUNK", "chunks", "stacked_prior", "stacked_posterior", "Prior", "Posteriors"]
 
 #: Filters per chunk of a fleet's step (their arrays stay in cache; see the module docstring).
-CHUNK = 1024
+CHUNK = 2048
 
 
 def chunks(K: int, size: int = CHUNK) -> list[slice]:
