@@ -138,3 +138,32 @@ def test_both_qr_routes_give_the_factor_with_a_non_negative_diagonal(columns):
         if k != 2:  # the factor of a positive definite matrix is unique: numpy's Cholesky agrees
             np.testing.assert_allclose(S[k], np.linalg.cholesky(G), rtol=1e-10, atol=1e-12)
         np.testing.assert_array_equal(S[k], kernels.tria(rows[k]))
+
+
+def test_an_error_in_one_chunk_on_a_thread_is_raised_and_changes_no_filter():
+    """Chunks on two threads: a model function that raises in one chunk raises, after every chunk ends."""
+    K = 6
+    x0, P0, Q, R, zs = plain_scenario(K, T=2, seed=2)
+    fleet = Fleet(K, 4, 2, 0.1, plain_hx, plain_fx, chunk=2, **CONFIGS["merwe"])
+    fleet.x, fleet.P, fleet.Q, fleet.R = x0, P0, Q, R
+    fleet.predict()
+    fleet.update(zs[0])
+    x, P = fleet.x.copy(), fleet.P.copy()
+    calls, x4 = [], x[4, 0]
+
+    def fx(X, dt):
+        calls.append(X.shape[0])
+        if X[0, 0, 0] == x4:  # the central point of filter 4: the chunk of filters 4 and 5
+            raise ValueError("a broken model")
+        return plain_fx(X, dt)
+
+    fleet.fx = fx
+    kernels.set_num_threads(2)
+    try:
+        with pytest.raises(ValueError, match="a broken model"):
+            fleet.predict()
+    finally:
+        kernels.set_num_threads(1)
+    assert sorted(calls) == [2, 2, 2]
+    np.testing.assert_array_equal(fleet.x, x)
+    np.testing.assert_array_equal(fleet.P, P)

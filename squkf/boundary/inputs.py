@@ -36,7 +36,6 @@ __all__ = [
     "refuse_smoother_noise",
     "second_set",
     "sigma_family",
-    "stacked_images",
     "stacked_shape",
     "with_filter_axis",
 ]
@@ -335,34 +334,6 @@ def evaluate(fn: Callable, sigmas: np.ndarray, args: tuple, kwargs: dict, vector
         dt = args[0]
         return [fn(s, dt) for s in sigmas]
     return [fn(s, *args) for s in sigmas]
-
-
-def stacked_images(values, shape: tuple, name: str, active, fails: dict, copy: bool) -> tuple:
-    """A stack's model-function images checked: their shape for all, finiteness per filter.
-
-    Parameters
-    ----------
-    values : array_like, shape ``shape``
-        ``fx`` or ``hx`` at the sigma points of ``K`` filters, ``(K, N, d)``.
-    shape : tuple of int
-        What ``values`` must be.
-    name : {"fx values", "hx values"}
-        For messages.
-    active : ndarray of bool, shape (K,)
-        The filters whose images count (not flagged, measured).
-    fails : dict
-        An active filter with a non-finite image is added (:func:`finite_images`).
-    copy : bool
-        As for :func:`stacked_shape`.
-
-    Returns
-    -------
-    images : ndarray, shape ``shape``
-    finite : ndarray of bool, shape (K,)
-        Which filters' images are finite.
-    """
-    A = stacked_shape(values, shape, name, copy)
-    return A, finite_images(A, name, active, fails)
 
 
 def stacked_shape(values, shape: tuple, name: str, copy: bool) -> np.ndarray:
