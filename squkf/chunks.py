@@ -179,8 +179,8 @@ def stacked_posterior(
 
     Parameters
     ----------
-    plan : Plan
-    hooks : Hooks
+    plan, hooks, fails, size
+        As for :func:`stacked_prior`.
     gate : Gate or None
     pending : StepState
         From :func:`squkf.step.pending_update`: the priors ``(K, ...)`` and
@@ -194,10 +194,6 @@ def stacked_posterior(
     images : callable
         ``images(rows, sset)``: the model at the second sets ``sset`` of the
         filters ``rows`` (a slice), shape ``(k, N2, m)``.
-    fails : dict
-        Filled with ``filter -> reason`` for the filters that fail.
-    size : int
-        Filters per chunk.
 
     Returns
     -------
