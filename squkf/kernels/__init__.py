@@ -60,12 +60,14 @@ _worker = threading.local()  # .busy: this thread runs a job of the pool (no nes
 
 
 def set_num_threads(n: int) -> None:
-    """Use ``n`` threads for the kernels of a large stack (a fleet); 1 (the default) runs serially.
+    """Use ``n`` threads for a fleet's step and large stacks; 1 (the default) runs serially.
 
-    The filters of a stack are cut into ``n`` contiguous parts, each stepped by
-    one kernel call on its own thread (the kernels release the GIL). Each
-    filter's numbers are the same, bit for bit, for any thread count. The
-    environment variable ``SQUKF_NUM_THREADS`` sets the count at import.
+    A fleet's step hands its chunks to the threads (:func:`thread_map`, model
+    functions included); any other large stack is cut into ``n`` contiguous
+    parts, each stepped by one kernel call on its own thread (the kernels
+    release the GIL). Each filter's numbers are the same, bit for bit, for
+    any thread count. The environment variable ``SQUKF_NUM_THREADS`` sets
+    the count at import.
 
     Parameters
     ----------
