@@ -359,9 +359,8 @@ def batch_filter(
         or an iterable gives one per step (each a matrix or a scalar).
     dts : None, float, or T floats, optional
         Time step of the prediction into each step (default: the constructor's
-        ``dt``). Every entry must be a finite real number, of any sign, as for
-        ``predict`` (:func:`squkf.validate.check_time_step`); these are checked
-        before the first step when ``dts`` is a sequence.
+        ``dt``), as :ref:`promise-dt` says; checked before the first step when
+        ``dts`` is a sequence.
     UT : callable, optional
         Square-root transform (see :func:`squkf.sqrt_unscented_transform`).
     saver : filterpy.common.Saver, optional

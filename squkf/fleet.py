@@ -101,11 +101,8 @@ class Fleet(StackedFilter):
     P, P1_2 : ndarray, shape (K, dim_x, dim_x)
         Assign to change (a single ``(dim_x,)`` or ``(dim_x, dim_x)`` value is
         given to every filter). ``x``, ``P``, ``Q`` and ``R`` may also be
-        edited in place (``fleet.P[3] *= 10``, several statements too), as
-        for :class:`squkf.SquareRootUKF`: the next call validates the edit
-        and takes it (an invalid one raises there and changes nothing). Every
-        step hands out fresh arrays, so arrays read earlier are never
-        rewritten. The factors are fresh copies on each read.
+        edited in place, as :ref:`promise-edits` says; what is read is the
+        caller's (:ref:`promise-records`).
     Q, R, Q1_2, R1_2 : ndarray
         Shared ``(d, d)`` or per filter ``(K, d, d)``.
     x_prior, x_post, P1_2_prior, P1_2_post : ndarray
@@ -340,9 +337,7 @@ class Fleet(StackedFilter):
         Parameters
         ----------
         dt : float, optional
-            Time step (default: the constructor's); any finite real number,
-            ``0`` and negative steps included (:func:`squkf.validate.check_time_step`);
-            a string is an error.
+            Time step (default: the constructor's), as :ref:`promise-dt` says.
         **fx_args
             Passed to ``fx``; arrays with a leading axis of length K are per
             filter and get a sigma-point axis (``u[k]`` becomes ``u[:, None]``),
@@ -425,9 +420,8 @@ class Fleet(StackedFilter):
             read as the ``(K, T, dim_z)`` array; a string, a dict or a set is a
             ShapeError.
         dts : float or array_like of shape (T,), optional
-            Time step of each prediction (default: the constructor's): any
-            finite real number, negative included, as for :meth:`predict`
-            (the rule of :func:`squkf.validate.check_time_step`).
+            Time step of each prediction (default: the constructor's), as
+            :ref:`promise-dt` says.
         keep : {"all", "diagonals", "means", "final"}
             What to store: everything; means and the covariances' diagonals;
             means only; or only the final state (for long runs).
@@ -522,8 +516,8 @@ class Fleet(StackedFilter):
             From :meth:`batch_filter` with ``keep="all"`` (its means and factors).
         dts : float or array_like of shape (T,), optional
             ``dts[k]``: time step of the prediction into step ``k``, as given to
-            :meth:`batch_filter` (default: the constructor's); any finite
-            real number, as for :meth:`predict`.
+            :meth:`batch_filter` (default: the constructor's), as
+            :ref:`promise-dt` says.
         fx_args : dict, optional
             Passed to ``fx`` at every step (per-filter arrays as for :meth:`predict`).
 
