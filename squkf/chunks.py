@@ -150,7 +150,8 @@ class Posteriors(NamedTuple):
     S : ndarray, shape (K, n, n)
     y : ndarray, shape (K, m)
         Innovations (NaN where a component was missing or the filter not updated).
-    log_likelihood, mahalanobis, nis : ndarray, shape (K,)
+    log_likelihood, nis : ndarray, shape (K,)
+        (The Mahalanobis distance is ``sqrt(nis)``.)
     rejected : ndarray of bool, shape (K, m)
     """
 
@@ -158,7 +159,6 @@ class Posteriors(NamedTuple):
     S: np.ndarray
     y: np.ndarray
     log_likelihood: np.ndarray
-    mahalanobis: np.ndarray
     nis: np.ndarray
     rejected: np.ndarray
 
@@ -202,7 +202,7 @@ def stacked_posterior(
     x, S = pending.prior  # type: ignore[misc]
     K, m = z.shape
     out = Posteriors(
-        np.empty_like(x), np.empty_like(S), np.empty((K, m)), np.empty(K), np.empty(K), np.empty(K),
+        np.empty_like(x), np.empty_like(S), np.empty((K, m)), np.empty(K), np.empty(K),
         np.empty((K, m), dtype=bool),
     )  # fmt: skip
     sset, propagated, Q1_2 = pending.sset, pending.propagated, pending.Q1_2

@@ -48,7 +48,7 @@ from .boundary.stacking import filter_of, stacked
 from .chunks import CHUNK
 from .errors import FleetStepError, ParameterError
 from .gating import Gate
-from .noise import noise_points
+from .noise import handed_points
 from .smoother import fleet_rts_smoother
 from .ukf import SquareRootUKF
 from .validate import check_time_step
@@ -293,7 +293,7 @@ class Fleet(StackedFilter):
     @property
     def mahalanobis(self) -> np.ndarray:
         """Mahalanobis distance of each filter's last innovation, shape ``(K,)``."""
-        return self._maha.copy()
+        return np.sqrt(self._nis)
 
     @property
     def nis(self) -> np.ndarray:
@@ -323,10 +323,7 @@ class Fleet(StackedFilter):
         self._take_edits()
         state = steps.ask_predict(self._state, self._plan, self._x, self._S, self.state_add)
         self._state = state
-        if self._plan.w_xi is not None:  # the augmented points [x_i, w_i]
-            W = noise_points(self._plan.w_xi, self._Q1_2, (self._K,))
-            return np.concatenate([state.sigmas, W], axis=-1)  # type: ignore[list-item]
-        return state.sigmas.copy()  # type: ignore[union-attr]
+        return handed_points(state.sigmas, self._plan.w_xi, self._Q1_2, (self._K,))  # type: ignore[arg-type]
 
     def predict(self, dt=None, **fx_args) -> None:
         """Predict every filter one step ahead (flagged filters stay as they are).
@@ -360,10 +357,7 @@ class Fleet(StackedFilter):
         self._take_edits()
         state = steps.ask_update(self._state, self._plan, self._x, self._S, self.state_add)
         self._state = state
-        if self._plan.v_xi is not None:  # the augmented points [x_i, v_i]
-            V = noise_points(self._plan.v_xi, self._R1_2, (self._K,))
-            return np.concatenate([state.sigmas, V], axis=-1)  # type: ignore[list-item]
-        return state.sigmas.copy()  # type: ignore[union-attr]
+        return handed_points(state.sigmas, self._plan.v_xi, self._R1_2, (self._K,))  # type: ignore[arg-type]
 
     def update(self, z, R=None, **hx_args) -> None:
         """Update every filter with its measurement.

@@ -221,7 +221,7 @@ def isolated_posterior(state: steps.StepState, H, z, R1_2, todo, hooks: Hooks, g
     -------
     tuple
         ``x (K, n)``, ``S (K, n, n)``, ``y (K, m)``, ``loglik (K,)``,
-        ``mahalanobis (K,)``, ``nis (K,)``, ``rejected (K, m)``: fresh arrays.
+        ``nis (K,)``, ``rejected (K, m)``: fresh arrays.
     """
     sset = state.sset
     x0, S0 = state.prior  # type: ignore[misc]
@@ -231,7 +231,7 @@ def isolated_posterior(state: steps.StepState, H, z, R1_2, todo, hooks: Hooks, g
     def unchanged():
         """The records of filters that no update reaches: the prior, no innovation, no likelihood."""
         return (
-            x0.copy(), S0.copy(), np.full((K, m), np.nan), np.zeros(K), np.zeros(K), np.zeros(K),
+            x0.copy(), S0.copy(), np.full((K, m), np.nan), np.zeros(K), np.zeros(K),
             np.zeros((K, m), dtype=bool),
         )  # fmt: skip
 
@@ -240,7 +240,6 @@ def isolated_posterior(state: steps.StepState, H, z, R1_2, todo, hooks: Hooks, g
     S_new: Any = None
     y: Any = None
     loglik: Any = None
-    maha: Any = None
     nis: Any = None
     rejected: Any = None
     todo_idx = np.flatnonzero(todo)
@@ -256,22 +255,22 @@ def isolated_posterior(state: steps.StepState, H, z, R1_2, todo, hooks: Hooks, g
             sub = steps.StepState(steps.UPDATING, None, None, None, take_set(sset, ix), (x0[ix], S0[ix]))  # type: ignore[arg-type]
             _, g, _ = steps.gated_update(sub, H[ix], z[ix], rows_of(R1_2, ix, 2), mask, hooks, None, gate)
             post = g.tested
-            return g.x, g.S, post.y, g.log_likelihood, np.sqrt(post.nis), post.nis, g.rejected
+            return g.x, g.S, post.y, g.log_likelihood, post.nis, g.rejected
 
         good, res = run_isolated(posterior, group, K, fails, block)
         if res is not None and good.size == K and mask is None:
             # every filter, in order, all measured: the kernels' fresh arrays as they are
-            x_new, S_new, y, loglik, maha, nis, rejected = res
+            x_new, S_new, y, loglik, nis, rejected = res
         elif res is not None:
             if x_new is None:
-                x_new, S_new, y, loglik, maha, nis, rejected = unchanged()
+                x_new, S_new, y, loglik, nis, rejected = unchanged()
             x_new[good], S_new[good] = res[0], res[1]
             if obs.all():
-                y[good], rejected[good] = res[2], res[6]
+                y[good], rejected[good] = res[2], res[5]
             else:
                 cols = np.ix_(good, np.flatnonzero(obs))
-                y[cols], rejected[cols] = res[2], res[6]
-            loglik[good], maha[good], nis[good] = res[3], res[4], res[5]
+                y[cols], rejected[cols] = res[2], res[5]
+            loglik[good], nis[good] = res[3], res[4]
     if x_new is None:
         return unchanged()
-    return x_new, S_new, y, loglik, maha, nis, rejected
+    return x_new, S_new, y, loglik, nis, rejected

@@ -27,7 +27,7 @@ import numpy as np
 from . import kernels
 from .errors import ParameterError
 
-__all__ = ["check_noise_dim", "check_accepts_noise", "noise_points", "call_model"]
+__all__ = ["check_noise_dim", "check_accepts_noise", "noise_points", "handed_points", "call_model"]
 
 
 def check_noise_dim(value, name: str) -> int:
@@ -111,6 +111,28 @@ def noise_points(xi: np.ndarray, factor: np.ndarray | None, batch: tuple[int, ..
     factor = np.broadcast_to(factor, batch + (d, d))
     _, offsets = kernels.sigma_points(np.zeros(batch + (d,)), factor, xi, 0.0)
     return offsets
+
+
+def handed_points(sigmas: np.ndarray, xi: np.ndarray | None, factor, batch: tuple[int, ...]) -> np.ndarray:
+    """What ``ask_*`` hands out: a copy of the sigma points, with their noise part beside them if any.
+
+    Parameters
+    ----------
+    sigmas : ndarray, shape (batch..., N, n)
+    xi : ndarray, shape (N, d), or None
+        The unit points' noise part (None: additive noise, the points alone).
+    factor : ndarray, shape (d, d) or (batch..., d, d), or None
+        Lower factor of the noise covariance.
+    batch : tuple of int
+
+    Returns
+    -------
+    ndarray, shape (batch..., N, n) or (batch..., N, n + d)
+        A fresh array: the augmented points ``[x_i, w_i]``.
+    """
+    if xi is None:
+        return sigmas.copy()
+    return np.concatenate([sigmas, noise_points(xi, factor, batch)], axis=-1)
 
 
 def call_model(

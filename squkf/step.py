@@ -251,15 +251,11 @@ def ask_update(
 
     Parameters
     ----------
-    state : StepState
-        Not ``"predicting"``.
+    state, x, S
+        As for :func:`pending_update`: when ``(x, S)`` is not what the
+        pending set was drawn from (the caller changed it), the set is
+        redrawn from it, without the propagated set.
     plan : Plan
-    x : ndarray, shape (..., n)
-    S : ndarray, shape (..., n, n)
-        The prior (after a prediction) or the current estimate. When they
-        are not what the pending set was drawn from (the caller changed
-        them), the set is redrawn from them, without the propagated set
-        (:func:`pending_update`).
     state_add : callable, optional
 
     Returns

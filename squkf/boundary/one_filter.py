@@ -21,7 +21,7 @@ from ..covariance import FactorSlot
 from ..errors import NonFiniteError
 from ..gating import Gate
 from ..generators import sigma_points_from_factor
-from ..noise import call_model, noise_points
+from ..noise import call_model, handed_points, noise_points
 from ..plan import Hooks, Plan, build_plan
 from ..transform import cross_covariance
 from ..validate import as_float_array, check_time_step, check_values
@@ -143,9 +143,8 @@ class OneFilter(ModelForm, InDictCopies):
 
     def _handed_points(self, state: steps.StepState, xi: np.ndarray | None, name: str) -> np.ndarray:
         """What ``ask_*`` hands out: a copy of the state's points, with their noise part if any."""
-        if xi is not None:  # the augmented points [x_i, w_i] or [x_i, v_i]
-            return np.concatenate([state.sigmas, self._noise_points(xi, None, name)], axis=-1)  # type: ignore[list-item]
-        return state.sigmas.copy()  # type: ignore[union-attr]  # set by ask_*
+        factor = None if xi is None else self._noise_factor(None, name, xi.shape[1])
+        return handed_points(state.sigmas, xi, factor, ())  # type: ignore[arg-type]  # set by ask_*
 
     def _ask_predict(self) -> np.ndarray:
         x, S = self._current()

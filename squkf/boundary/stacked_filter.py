@@ -88,7 +88,6 @@ class StackedFilter(ModelForm):
         self._x_prior, self._x_post, self._S_prior, self._S_post = self._x, self._x, self._S, self._S
         self.y = np.zeros((K, m))
         self._loglik = np.zeros(K)
-        self._maha = np.zeros(K)
         self._nis = np.zeros(K)
         self._rejected = np.zeros((K, m), dtype=bool)
 
@@ -212,7 +211,7 @@ class StackedFilter(ModelForm):
         self._x, self._S = post.x, post.S
         self._flag(fails)
         self._x_post, self._S_post = post.x, post.S  # never written in place: copied when read
-        self.y, self._loglik, self._maha = post.y, post.log_likelihood, post.mahalanobis
+        self.y, self._loglik = post.y, post.log_likelihood
         self._nis, self._rejected = post.nis, post.rejected
 
     def _no_update(self) -> None:
@@ -220,7 +219,7 @@ class StackedFilter(ModelForm):
         K, m = self._K, self._m
         self._state = steps.StepState()
         self._x_post, self._S_post = self._x, self._S
-        self.y, self._loglik, self._maha = np.full((K, m), np.nan), np.zeros(K), np.zeros(K)
+        self.y, self._loglik = np.full((K, m), np.nan), np.zeros(K)
         self._nis, self._rejected = np.zeros(K), np.zeros((K, m), dtype=bool)
 
     # -- many steps ----------------------------------------------------------------------------
@@ -306,7 +305,7 @@ class StackedFilter(ModelForm):
         new._state = steps.StepState()
         new._x_prior, new._x_post = self._x_prior[idx], self._x_post[idx]
         new._S_prior, new._S_post = self._S_prior[idx], self._S_post[idx]
-        new.y, new._loglik, new._maha = self.y[idx], self._loglik[idx], self._maha[idx]
+        new.y, new._loglik = self.y[idx], self._loglik[idx]
         new._nis, new._rejected = self._nis[idx], self._rejected[idx]
         return new
 

@@ -103,10 +103,10 @@ def _in_pool(fn: Callable, *args):
         _worker.busy = False
 
 
-T = TypeVar("T")
+_T = TypeVar("_T")
 
 
-def thread_map(fn: Callable[[Any], T], items: Sequence) -> list[T]:
+def thread_map(fn: Callable[[Any], _T], items: Sequence) -> list[_T]:
     """``[fn(item) for item in items]``, on the threads of :func:`set_num_threads`.
 
     With one thread, or one item, or when called from a job of the pool
