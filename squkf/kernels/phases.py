@@ -48,18 +48,13 @@ time (a constant one is unrolled into scalar code), and no index arithmetic
 on global arrays inside a lane loop. No ``fastmath``: reassociation or FMA
 contraction would make a lane's rounding depend on the vector width.
 
-One filter is a block of one lane, and there every lane loop has trip count
-one: each would pay the vectoriser's run-time checks for one element. So each
-lane helper whose loops grow with the points (loads, stores, deviations, the
-rows of a QR; not the small Householder QR or the rank-1 modifications, whose
-second copy would cost more compile time than it saves) is a dispatcher over
-an inlined body (``_inline``), called with
-``nb`` the constant 1 for a block of one lane, where LLVM folds the lane loops
-away, and with the run-time ``nb`` otherwise: the same source, so the same
-operations in the same order. The deviation buffers are point-major
-(``Pl[i, l, b]``, point ``i``, component ``l``): a filter's points load as
-they are, and a sum over the points runs over every component at once (each
-component's sum still in the order of the points).
+One filter is a block of one lane: the same code with ``nb`` 1 (no second,
+one-lane copy of any helper: it doubled the compile time and saved nothing
+measurable, the kernels being a small part of one filter's step). The
+deviation buffers are point-major (``Pl[i, l, b]``, point ``i``, component
+``l``): a filter's points load as they are, and a sum over the points runs
+over every component at once (each component's sum still in the order of
+the points).
 
 Every compiled function lives in this one module on purpose: numba's disk
 cache is keyed on the source file of the kernel called, not on the files of
@@ -90,13 +85,18 @@ _TINY = float(np.finfo(np.float64).tiny)
 _LOG_2PI = math.log(2.0 * math.pi)
 #: The decorator of every kernel and helper: compiled on first call, cached on disk, releases the GIL.
 kernel = njit(cache=True, nogil=True, error_model="numpy")
-#: The decorator of a lane helper's body, inlined (numba IR) into its dispatcher, which calls it twice:
-#: with ``nb`` the constant 1 when the block has one lane, so that LLVM folds every lane loop away (one
-#: filter: long scalar loops instead of vectoriser checks on loops of trip count one), and with the run-time
-#: ``nb`` otherwise. The same source, so the same operations in the same order on every lane.
+#: Inlined into its caller (numba IR), so that it never compiles on its own (:func:`_unfold`).
 _inline = njit(cache=True, nogil=True, error_model="numpy", inline="always")
 _LANES = 64
 _SCRATCH = 32768  # entries of the largest lane scratch array (keeps a block's arrays in cache)
+
+
+@_inline
+def _unfold(v):
+    """``v`` typed as a plain integer, not as the literal it is (a constant ``0`` handed to a helper):
+    numba compiles a callee once per argument type and a literal is a type of its own, so a helper
+    given ``0`` in one place and a variable in another would otherwise compile twice."""
+    return v + 0
 
 
 #: From this many columns on, each lane's QR is LAPACK's blocked ``dgeqrf`` (the routine numba's own
@@ -195,8 +195,8 @@ def tria_lanes(At, c, r, nb, V):
             At[j, j, b] = V[5, b]
 
 
-@_inline
-def _solve_lower_lanes_nb(L, y, n, nb, trans):
+@kernel
+def solve_lower_lanes(L, y, n, nb, trans):
     """Solve ``L w = y`` (or ``L.T w = y``) in place for lower-triangular ``L``, on lanes.
 
     Parameters
@@ -206,8 +206,8 @@ def _solve_lower_lanes_nb(L, y, n, nb, trans):
     y : ndarray, shape (>= n, >= nb)
         The right-hand side; overwritten by the solution.
     n, nb : int
-    trans : bool
-        Solve with ``L.T``.
+    trans : int
+        Non-zero: solve with ``L.T``.
     """
     if not trans:
         for i in range(n):
@@ -223,15 +223,6 @@ def _solve_lower_lanes_nb(L, y, n, nb, trans):
                     y[i, b] -= L[j, i, b] * y[j, b]
             for b in range(nb):
                 y[i, b] /= L[i, i, b]
-
-
-@kernel
-def solve_lower_lanes(L, y, n, nb, trans):
-    """:func:`_solve_lower_lanes_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
-    if nb == 1:
-        _solve_lower_lanes_nb(L, y, n, 1, trans)
-    else:
-        _solve_lower_lanes_nb(L, y, n, nb, trans)
 
 
 @kernel
@@ -302,8 +293,8 @@ def _source(mode, r, N):
 # sets stay a loop per filter (contiguous rows: faster there, measured).
 
 
-@_inline
-def _load_points_nb(P, k0, nb, Pl):
+@kernel
+def _load_points(P, k0, nb, Pl):
     """``Pl[i, l, b] = P[k0 + b, i, l]`` (point-major: one filter's points are copied as they are)."""
     N, d = P.shape[1], P.shape[2]
     Q = P[k0 : k0 + nb]
@@ -314,16 +305,7 @@ def _load_points_nb(P, k0, nb, Pl):
 
 
 @kernel
-def _load_points(P, k0, nb, Pl):
-    """:func:`_load_points_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
-    if nb == 1:
-        _load_points_nb(P, k0, 1, Pl)
-    else:
-        _load_points_nb(P, k0, nb, Pl)
-
-
-@_inline
-def _load_vector_nb(a, k0, nb, al):
+def _load_vector(a, k0, nb, al):
     """``al[l, b] = a[k0 + b, l]``, or ``a[0, l]`` for a shared ``a``."""
     if a.shape[0] == 1:
         for l in range(a.shape[1]):
@@ -338,16 +320,7 @@ def _load_vector_nb(a, k0, nb, al):
 
 
 @kernel
-def _load_vector(a, k0, nb, al):
-    """:func:`_load_vector_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
-    if nb == 1:
-        _load_vector_nb(a, k0, 1, al)
-    else:
-        _load_vector_nb(a, k0, nb, al)
-
-
-@_inline
-def _load_matrix_nb(a, k0, nb, al):
+def _load_matrix(a, k0, nb, al):
     """``al[i, j, b] = a[k0 + b, i, j]``, or ``a[0, i, j]`` for a shared ``a``."""
     if a.shape[0] == 1:
         for i in range(a.shape[1]):
@@ -364,16 +337,7 @@ def _load_matrix_nb(a, k0, nb, al):
 
 
 @kernel
-def _load_matrix(a, k0, nb, al):
-    """:func:`_load_matrix_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
-    if nb == 1:
-        _load_matrix_nb(a, k0, 1, al)
-    else:
-        _load_matrix_nb(a, k0, nb, al)
-
-
-@_inline
-def _store_lower_nb(L, i0, j0, n, k0, nb, out):
+def _store_lower(L, i0, j0, n, k0, nb, out):
     """``out[k0 + b] = tril(L[i0:i0 + n, j0:j0 + n, b])``."""
     Q = out[k0 : k0 + nb]
     for i in range(n):
@@ -387,16 +351,7 @@ def _store_lower_nb(L, i0, j0, n, k0, nb, out):
 
 
 @kernel
-def _store_lower(L, i0, j0, n, k0, nb, out):
-    """:func:`_store_lower_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
-    if nb == 1:
-        _store_lower_nb(L, i0, j0, n, k0, 1, out)
-    else:
-        _store_lower_nb(L, i0, j0, n, k0, nb, out)
-
-
-@_inline
-def _deviations_nb(Pl, N, d, nb, mode, wm, mean):
+def _deviations(Pl, N, d, nb, mode, wm, mean):
     """The rows of a form in place in ``Pl`` (``N x d x nb``) and the mean in ``mean`` (``d x nb``).
 
     Point by point, each over every component and lane, so that one filter's loops are long too; each
@@ -437,16 +392,7 @@ def _deviations_nb(Pl, N, d, nb, mode, wm, mean):
 
 
 @kernel
-def _deviations(Pl, N, d, nb, mode, wm, mean):
-    """:func:`_deviations_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
-    if nb == 1:
-        _deviations_nb(Pl, N, d, 1, mode, wm, mean)
-    else:
-        _deviations_nb(Pl, N, d, nb, mode, wm, mean)
-
-
-@_inline
-def _state_rows_nb(Xl, N, n, nb, mode, wm, xref):
+def _state_rows(Xl, N, n, nb, mode, wm, xref):
     """State rows in place in ``Xl`` (``N x n x nb``): central (mode 0), ``X - xref`` (1), as given (2)."""
     if mode == 0:
         for l in range(n):
@@ -470,16 +416,7 @@ def _state_rows_nb(Xl, N, n, nb, mode, wm, xref):
 
 
 @kernel
-def _state_rows(Xl, N, n, nb, mode, wm, xref):
-    """:func:`_state_rows_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
-    if nb == 1:
-        _state_rows_nb(Xl, N, n, 1, mode, wm, xref)
-    else:
-        _state_rows_nb(Xl, N, n, nb, mode, wm, xref)
-
-
-@_inline
-def _factor_lanes_nb(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, fl, st):
+def _factor_lanes(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, fl, st):
     """Factor weighted rows and a noise factor in place in ``At`` (``L = At`` below its diagonal).
 
     Each row is ``[D1[r], D2[r]]`` (``d1 + d2`` entries, row ``r`` of form ``mode`` in the
@@ -548,15 +485,6 @@ def _factor_lanes_nb(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, 
 
 
 @kernel
-def _factor_lanes(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, fl, st):
-    """:func:`_factor_lanes_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
-    if nb == 1:
-        _factor_lanes_nb(D1, D2, N, 1, mode, scale, sign, noise, k0, split, At, V, v, fl, st)
-    else:
-        _factor_lanes_nb(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, fl, st)
-
-
-@kernel
 def tria_kernel(A, S):
     """``S[k]``: the lower factor (non-negative diagonal) of ``A[k].T @ A[k]``.
 
@@ -617,7 +545,7 @@ def solve_kernel(L, Y, trans, X, ok):
                 Yk = Y[k0 + b]
                 for i in range(n):
                     y[i, b] = Yk[i, j]
-            solve_lower_lanes(Ll, y, n, nb, trans != 0)
+            solve_lower_lanes(Ll, y, n, nb, trans)
             for b in range(nb):
                 Xk = X[k0 + b]
                 for i in range(n):
@@ -653,11 +581,11 @@ def chol_update_kernel(L, v, sign, out, fail):
         chol_update_lanes(Ll, vl, n, nb, sign, fl, V)
         for b in range(nb):
             fail[k0 + b] = fl[b]
-        _store_lower(Ll, 0, 0, n, k0, nb, out)
+        _store_lower(Ll, _unfold(0), _unfold(0), n, k0, nb, out)
 
 
-@_inline
-def _offsets_nb(Sl, xi, gamma, N, n, nb, Dl):
+@kernel
+def _offsets(Sl, xi, gamma, N, n, nb, Dl):
     """The offsets ``Dl[i, l, b] = (xi[i] @ S_b.T)[l]`` of :func:`points_kernel` (``S_b = Sl[:, :, b]``).
 
     For axis points, ``[0; gamma I; -gamma I]`` (``N = 2n + 1``) or ``[gamma I; -gamma I]`` (``N = 2n``),
@@ -685,15 +613,6 @@ def _offsets_nb(Sl, xi, gamma, N, n, nb, Dl):
                     c = xi[i, j]
                     for b in range(nb):
                         Dl[i, l, b] += c * Sl[l, j, b]
-
-
-@kernel
-def _offsets(Sl, xi, gamma, N, n, nb, Dl):
-    """:func:`_offsets_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
-    if nb == 1:
-        _offsets_nb(Sl, xi, gamma, N, n, 1, Dl)
-    else:
-        _offsets_nb(Sl, xi, gamma, N, n, nb, Dl)
 
 
 @kernel
@@ -779,17 +698,17 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status):
         if mode == 2:
             _load_vector(ref, k0, nb, ml)
         _deviations(Pl, N, d, nb, mode, wm, ml)
-        _factor_lanes(Pl, none, N, nb, mode, scale, sign, noise, k0, 0, At, V, v, fl, st)
+        _factor_lanes(Pl, none, N, nb, mode, scale, sign, noise, k0, _unfold(0), At, V, v, fl, st)
         for b in range(nb):
             status[k0 + b] = st[b]
             mk = mean[k0 + b]
             for l in range(d):
                 mk[l] = ml[l, b]
-        _store_lower(At, 0, 0, d, k0, nb, S)
+        _store_lower(At, _unfold(0), _unfold(0), d, k0, nb, S)
 
 
-@_inline
-def _paired_rows_nb(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V):
+@kernel
+def _paired_rows(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V):
     """The rotated joint rows of axis points (``joint_update_kernel``'s ``pair``) into ``At``.
 
     ``Hl``, ``Xl`` hold the central form's deviations (``mu`` in slot 0); pair ``j`` is points
@@ -825,15 +744,6 @@ def _paired_rows_nb(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V):
         for i in range(m):
             for b in range(nb):
                 At[m + l, h + i, b] = 0.0
-
-
-@kernel
-def _paired_rows(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V):
-    """:func:`_paired_rows_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
-    if nb == 1:
-        _paired_rows_nb(Hl, Xl, R1_2, k0, 1, N, m, n, c, mus, Zt, At, V)
-    else:
-        _paired_rows_nb(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V)
 
 
 @kernel
@@ -968,7 +878,7 @@ def joint_update_kernel(
             for l in range(n):
                 for j in range(m):
                     Lk[l, j] = L[m + l, j, b]
-        _store_lower(L, 0, 0, m, k0, nb, Sy)
+        _store_lower(L, _unfold(0), _unfold(0), m, k0, nb, Sy)
         _store_lower(L, m, m, n, k0, nb, Spost)
 
 
@@ -985,8 +895,8 @@ def _likelihood(Sy, w, m, k0, nb, ll, ww):
         ll[k0 + b] = -0.5 * (m * _LOG_2PI + 2.0 * logdet + s)
 
 
-@_inline
-def _innovation_nb(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
+@kernel
+def _innovation(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
     """From the innovation factor: g13ej's 302 unless ``Sy`` is regular, ``w = Sy^-1 y``, the
     likelihood, and ``dx = L21 w`` with ``L21`` the rows ``r0 .. r0 + n`` of its buffer."""
     for b in range(nb):
@@ -997,7 +907,7 @@ def _innovation_nb(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
     for l in range(m):
         for b in range(nb):
             wl[l, b] = yl[l, b]
-    solve_lower_lanes(Sy, wl, m, nb, False)
+    solve_lower_lanes(Sy, wl, m, nb, _unfold(0))
     _likelihood(Sy, wl, m, k0, nb, ll, ww)
     for l in range(n):
         for b in range(nb):
@@ -1005,15 +915,6 @@ def _innovation_nb(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
         for j in range(m):
             for b in range(nb):
                 dxl[l, b] += L21[r0 + l, j, b] * wl[j, b]
-
-
-@kernel
-def _innovation(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
-    """:func:`_innovation_nb`, with ``nb`` a constant when it is 1 (one filter: scalar loops)."""
-    if nb == 1:
-        _innovation_nb(Sy, L21, r0, yl, wl, dxl, m, n, k0, 1, st, ll, ww)
-    else:
-        _innovation_nb(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww)
 
 
 @kernel
@@ -1105,12 +1006,12 @@ def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpos
                     c = wc[i]
                     for b in range(nb):
                         t[j, b] += c * (Xl[i, l, b] - xr[l, b]) * (Hl[i, j, b] - zr[j, b])
-            solve_lower_lanes(Syl, t, m, nb, False)
+            solve_lower_lanes(Syl, t, m, nb, _unfold(0))
             for j in range(m):
                 for b in range(nb):
                     Ll[l, j, b] = t[j, b]
         _load_vector(yin, k0, nb, yl)
-        _innovation(Syl, Ll, 0, yl, wl, xr, m, n, k0, nb, st, ll, ww)
+        _innovation(Syl, Ll, _unfold(0), yl, wl, xr, m, n, k0, nb, st, ll, ww)
         _load_vector(x, k0, nb, xl)
         for b in range(nb):
             fl[b] = -1
@@ -1121,7 +1022,7 @@ def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpos
             chol_update_lanes(Sl, t, n, nb, -1.0, fl, V)
         for b in range(nb):
             st[b] = 303 if (fl[b] >= 0 and st[b] == 0) else st[b]
-        _finish(Sl, 0, n, xl, xr, st, k0, nb, dx, xpost)
+        _finish(Sl, _unfold(0), n, xl, xr, st, k0, nb, dx, xpost)
         for b in range(nb):
             status[k0 + b] = st[b]
             wk, Lk = w[k0 + b], L21[k0 + b]
@@ -1130,4 +1031,4 @@ def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpos
             for l in range(n):
                 for j in range(m):
                     Lk[l, j] = Ll[l, j, b]
-        _store_lower(Sl, 0, 0, n, k0, nb, Spost)
+        _store_lower(Sl, _unfold(0), _unfold(0), n, k0, nb, Spost)
