@@ -168,11 +168,16 @@ def write_markdown(out: Path, rows: list[tuple[str, str, int, dict]], files: dic
                 f"| {v:.1f} s | {'yes' if v <= COLD_TARGET_S else 'no'} |"
             )
         elif cache == "cached":
-            v = r["to_first_step_end_s"]
+            step, v = r["first_step_s"], r["to_first_step_end_s"]
             lines.append(
-                f"| {config}, with the cache: import + build + first predict + update <= "
-                f"{CACHED_TARGET_S:g} s | {v:.2f} s (the step alone {r['first_step_s']:.2f} s) "
-                f"| {'yes' if v <= CACHED_TARGET_S else 'no'} |"
+                f"| {config}, with the cache: the first predict + update of a new process <= "
+                f"{CACHED_TARGET_S:g} s (issue 21) | {step:.2f} s "
+                f"| {'yes' if step <= CACHED_TARGET_S else 'no'} |"
+            )
+            lines.append(
+                f"| {config}, with the cache, stricter: import + build + first predict + update <= "
+                f"{CACHED_TARGET_S:g} s | {v:.2f} s (`import squkf` {r['import_s']:.2f} s: numpy, scipy, "
+                f"numba) | {'yes' if v <= CACHED_TARGET_S else 'no'} |"
             )
     text = "\n".join(lines) + "\n"
     out.mkdir(parents=True, exist_ok=True)

@@ -133,6 +133,7 @@ def sigma_points_and_offsets(
     offsets : ndarray, shape (..., N, n)
     """
     sigmas, dx = kernels.sigma_points(x, S, xi, 0.0 if gamma is None else gamma)
+    assert dx is not None
     if state_add is None or state_add is np.add:
         return sigmas, dx
     out = np.empty(sigmas.shape)
@@ -149,6 +150,8 @@ def sigma_points_from_factor(
     x: np.ndarray, S: np.ndarray, xi: np.ndarray, state_add=None, gamma: float | None = None
 ) -> np.ndarray:
     """The sigma points of :func:`sigma_points_and_offsets` alone, shape ``(..., N, n)``."""
+    if state_add is None or state_add is np.add:  # the offsets are not needed: not formed
+        return kernels.sigma_points(x, S, xi, 0.0 if gamma is None else gamma, offsets=False)[0]
     return sigma_points_and_offsets(x, S, xi, state_add, gamma)[0]
 
 

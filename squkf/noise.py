@@ -110,6 +110,7 @@ def noise_points(xi: np.ndarray, factor: np.ndarray | None, batch: tuple[int, ..
         return np.zeros(batch + (N, d))
     factor = np.broadcast_to(factor, batch + (d, d))
     _, offsets = kernels.sigma_points(np.zeros(batch + (d,)), factor, xi, 0.0)
+    assert offsets is not None
     return offsets
 
 

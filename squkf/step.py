@@ -29,7 +29,7 @@ from typing import NamedTuple
 import numpy as np
 
 from .errors import CallSequenceError, NonFiniteError
-from .generators import SigmaSet, sigma_points_and_offsets
+from .generators import SigmaSet, sigma_points_from_factor
 from .linalg import all_finite
 from .measurement import Posterior, measurement_update, observed_noise_factor
 from .plan import Hooks, Plan
@@ -118,7 +118,7 @@ def ask_predict(
         ``[x, x + g S[:, j], x - g S[:, j]]`` for a symmetric family.
     """
     first = plan.first
-    sigmas, _ = sigma_points_and_offsets(x, S, first.xi, state_add, first.gamma)
+    sigmas = sigma_points_from_factor(x, S, first.xi, state_add, first.gamma)
     return StepState(PREDICTING, sigmas)
 
 

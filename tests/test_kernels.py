@@ -13,8 +13,11 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import hypothesis.extra.numpy as hnp
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from models import plain_fx, plain_hx, plain_scenario
 
 import squkf.chunks
@@ -120,7 +123,7 @@ def test_importing_squkf_compiles_nothing():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     compiled, count = map(int, out.split())
-    assert count == len(ENTRY_KERNELS) == 7 and compiled == 0
+    assert count == len(ENTRY_KERNELS) == 8 and compiled == 0
 
 
 @pytest.mark.parametrize("columns", [phases.LAPACK_MIN_COLUMNS - 1, phases.LAPACK_MIN_COLUMNS, 40])
@@ -167,3 +170,33 @@ def test_an_error_in_one_chunk_on_a_thread_is_raised_and_changes_no_filter():
     assert sorted(calls) == [2, 2, 2]
     np.testing.assert_array_equal(fleet.x, x)
     np.testing.assert_array_equal(fleet.P, P)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    hnp.arrays(
+        np.float64,
+        hnp.array_shapes(min_dims=2, max_dims=4, min_side=1, max_side=6),
+        elements=st.floats(allow_nan=True, allow_infinity=True, allow_subnormal=True),
+    )
+)
+def test_finite_rows_says_what_numpys_isfinite_says(A):
+    """The bit test on the exponent: NaN of any sign or payload, +/-inf, subnormals and -0.0 too."""
+    expected = np.isfinite(A.reshape(A.shape[0], -1)).all(axis=1)
+    np.testing.assert_array_equal(kernels.finite_rows(A), expected)
+    np.testing.assert_array_equal(kernels.finite_rows(np.asfortranarray(A)), expected)  # a copy: C order
+
+
+def test_points_without_their_offsets_are_the_same_points():
+    """The first set is drawn without its offsets (nothing reads them): the same numbers."""
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(7, 4))
+    S = np.linalg.cholesky(np.eye(4) + 0.3 * np.ones((4, 4)))[None] * rng.uniform(0.5, 2.0, (7, 1, 1))
+    xi = MerweScaledWeights(0.5, 2.0, 0.0).unit_sigma_points(4)
+    for gamma in (0.0, float(xi[1, 0])):
+        X, dX = kernels.sigma_points(x, S, xi, gamma)
+        X_alone, none = kernels.sigma_points(x, S, xi, gamma, offsets=False)
+        assert none is None
+        np.testing.assert_array_equal(X_alone, X)
+        np.testing.assert_array_equal(X, x[:, None, :] + dX)
+        np.testing.assert_allclose(dX, np.einsum("ij,klj->kil", xi, S), rtol=0, atol=1e-14)

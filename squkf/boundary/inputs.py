@@ -11,6 +11,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from .. import kernels
 from ..batch import iter_measurements
 from ..errors import NonFiniteError, ParameterError, ShapeError
 from ..generators import as_generator, noise_family
@@ -385,7 +386,7 @@ def finite_images(A: np.ndarray, name: str, active, fails: dict) -> np.ndarray:
     -------
     ndarray of bool, shape (K,)
     """
-    finite = np.isfinite(A.reshape(A.shape[0], -1)).all(axis=1)
+    finite = kernels.finite_rows(A)
     for k in np.flatnonzero(active & ~finite).tolist():
         fails.setdefault(int(k), f"NonFiniteError: {describe_nonfinite(A[k], name)}")
     return finite

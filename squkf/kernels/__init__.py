@@ -308,7 +308,7 @@ def chol_update(S: np.ndarray, v: np.ndarray, sign: float) -> tuple[np.ndarray, 
     return out.reshape(batch + (n, n)), fail.reshape(batch)
 
 
-def sigma_points(x: np.ndarray, S: np.ndarray, xi: np.ndarray, gamma: float = 0.0):
+def sigma_points(x: np.ndarray, S: np.ndarray, xi: np.ndarray, gamma: float = 0.0, offsets: bool = True):
     """Sigma points ``x + xi @ S.T`` and their offsets ``xi @ S.T``.
 
     Parameters
@@ -320,16 +320,20 @@ def sigma_points(x: np.ndarray, S: np.ndarray, xi: np.ndarray, gamma: float = 0.
         Unit points.
     gamma : float
         Non-zero when ``xi`` is ``[0; gamma I; -gamma I]`` or ``[gamma I; -gamma I]`` (offsets in O(n^2)).
+    offsets : bool
+        Whether the offsets are wanted (not written otherwise).
 
     Returns
     -------
-    sigmas, offsets : ndarray, shape (..., N, n)
+    sigmas : ndarray, shape (..., N, n)
+    offsets : ndarray, shape (..., N, n), or None
+        None when not wanted.
     """
     batch = _batch((x, 1), (S, 2))
     N, n = xi.shape
     Ss = _stack(S, batch, 2)
     X = np.empty((Ss.shape[0], N, n))
-    dX = np.empty(X.shape)
+    dX = np.empty(X.shape if offsets else (0, N, n))
     _call(
         phases.points_kernel,
         Ss.shape[0],
@@ -341,7 +345,24 @@ def sigma_points(x: np.ndarray, S: np.ndarray, xi: np.ndarray, gamma: float = 0.
         dX,
         plan=(2,),
     )
-    return X.reshape(batch + (N, n)), dX.reshape(batch + (N, n))
+    return X.reshape(batch + (N, n)), (dX.reshape(batch + (N, n)) if offsets else None)
+
+
+def finite_rows(A: np.ndarray) -> np.ndarray:
+    """Which filters' values are all finite.
+
+    Parameters
+    ----------
+    A : ndarray, shape (K, ...)
+
+    Returns
+    -------
+    ndarray of bool, shape (K,)
+    """
+    rows = _kernel_array(A.reshape(A.shape[0], -1))
+    ok = np.empty(rows.shape[0], dtype=np.bool_)
+    _call(phases.finite_rows_kernel, rows.shape[0], rows, ok)
+    return ok
 
 
 def transform(

@@ -76,6 +76,7 @@ __all__ = [
     "solve_kernel",
     "chol_update_kernel",
     "points_kernel",
+    "finite_rows_kernel",
     "transform_kernel",
     "joint_update_kernel",
     "downdate_update_kernel",
@@ -630,10 +631,13 @@ def points_kernel(x, S, xi, gamma, X, dX):
         Non-zero when ``xi`` is ``[0; gamma I; -gamma I]`` or ``[gamma I; -gamma I]``:
         the offsets are then ``+/- gamma`` times the columns of ``S`` (the same
         numbers as the product, in O(n^2)).
-    X, dX : ndarray, shape (B, N, n)
-        Outputs.
+    X : ndarray, shape (B, N, n)
+        Output.
+    dX : ndarray, shape (B, N, n), or (0, N, n)
+        Output; with no rows the offsets are not written (only the points are wanted).
     """
     B, N, n = X.shape
+    offsets = dX.shape[0] == B
     nl = _lanes(N * n, B)
     Sl = np.empty((n, n, nl))
     xl = np.empty((n, nl))
@@ -645,12 +649,38 @@ def points_kernel(x, S, xi, gamma, X, dX):
         _offsets(Sl, xi, gamma, N, n, nb, Dl)
         for b in range(nb):
             Xk = X[k0 + b]
-            Dk = dX[k0 + b]
             for i in range(N):
                 for l in range(n):
-                    d = Dl[i, l, b]
-                    Dk[i, l] = d
-                    Xk[i, l] = xl[l, b] + d
+                    Xk[i, l] = xl[l, b] + Dl[i, l, b]
+            if offsets:
+                Dk = dX[k0 + b]
+                for i in range(N):
+                    for l in range(n):
+                        Dk[i, l] = Dl[i, l, b]
+
+
+@kernel
+def finite_rows_kernel(A, ok):
+    """``ok[k]``: every entry of row ``A[k]`` is finite.
+
+    A double is an infinity or a NaN exactly when its 11 exponent bits are all ones: the test is on
+    the bits, an integer OR over the row, which LLVM vectorises (a floating-point reduction it may not
+    reorder).
+
+    Parameters
+    ----------
+    A : ndarray, shape (B, r)
+    ok : ndarray of bool, shape (B,)
+        Output.
+    """
+    B, r = A.shape
+    bits = A.view(np.int64)
+    for k in range(B):
+        row = bits[k]
+        special = 0
+        for i in range(r):
+            special |= (((row[i] >> 52) & 0x7FF) + 1) >> 11  # 1 when the exponent is 0x7FF
+        ok[k] = special == 0
 
 
 @kernel
