@@ -34,10 +34,15 @@ imported) and the process is pinned to one CPU (``os.sched_setaffinity``,
 ``--cores``), so that XLA, which dynamax runs on, has one core too.
 
 Two threads: when ``squkf.Fleet`` has a thread setting (a ``threads=``
-argument, or ``set_num_threads`` in ``squkf`` or ``squkf.kernels``), a
-subprocess on two CPUs times, interleaved, the fleet on one thread, the fleet
-on two and dynamax (XLA with both cores) at K >= 10^4 of the n = 4 model. With
-no such setting there is no two-thread table, and the results say so.
+argument, or ``set_num_threads`` in ``squkf`` or ``squkf.kernels``), two
+subprocesses on two CPUs time the n = 4 model at K >= 10^4: one the fleet on
+one thread and on two, interleaved, with jax never imported (the speed-up);
+the other the fleet on two threads and dynamax (XLA with both cores),
+interleaved. They are apart because XLA's worker threads keep spinning for a
+while after each dynamax call and take the CPU from the fleet's second thread
+(measured: in one process with dynamax the fleet's speed-up on two threads fell
+from 1.65x to 1.38x at K = 10^5). With no such setting there is no two-thread
+table, and the results say so.
 
 Memory, two measures of one fleet ``predict`` + ``update`` (a warm step):
 
@@ -585,13 +590,15 @@ def versions(impls) -> str:
 
 
 def two_threads_child(args) -> dict:
-    """In this process (on two CPUs): the fleet on one and on two threads, and dynamax, interleaved."""
+    """In this process (on two CPUs): the fleet on one and two threads (``--skip dynamax``: jax never
+    imported), or the fleet on two threads and dynamax, interleaved."""
     model = ConstantVelocity()
     impls = {
         "fleet": lambda m, zs, keep=False: run_fleet(m, zs, keep, threads=1),
         "fleet2": lambda m, zs, keep=False: run_fleet(m, zs, keep, threads=2),
     }
     if "dynamax" not in args.skip:
+        impls = {"fleet": impls["fleet2"]}  # the fleet on two threads, as the reference
         try:
             impls["dynamax"] = Dynamax().run
         except ImportError:  # no bench extra (as in CI): as the main run, without the peer
@@ -602,20 +609,32 @@ def two_threads_child(args) -> dict:
 
 
 def two_threads(args, log) -> dict:
-    """``two_threads_child`` in a subprocess pinned to two CPUs."""
+    """``two_threads_child`` in subprocesses pinned to two CPUs: the scaling (no jax), then dynamax.
+
+    Returns ``{K: row}``: the scaling run's row (``fleet``, ``fleet2`` with its speed-up), with
+    ``vs_dynamax`` (the other run's row: ``fleet`` on two threads and ``dynamax``) when dynamax ran.
+    """
     import subprocess
 
-    cmd = [sys.executable, str(Path(__file__).resolve()), "--threads-child", "--cores", "2"]
-    cmd += ["--quick"] if args.quick else []
-    cmd += ["--skip", "dynamax"] if "dynamax" in args.skip else []
-    cmd += ["--Ks", *map(str, args.Ks)] if args.Ks else []
-    p = subprocess.run(cmd, capture_output=True, text=True)
-    if p.returncode:
-        raise RuntimeError(f"two-thread subprocess failed:\n{p.stderr[-3000:]}")
-    for line in p.stderr.splitlines():
-        if line.startswith("  K="):
-            log("  two threads:" + line[1:])
-    return json.loads(p.stdout.strip().splitlines()[-1])
+    def child(with_dynamax: bool) -> dict:
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--threads-child", "--cores", "2"]
+        cmd += ["--quick"] if args.quick else []
+        cmd += [] if with_dynamax else ["--skip", "dynamax"]
+        cmd += ["--Ks", *map(str, args.Ks)] if args.Ks else []
+        p = subprocess.run(cmd, capture_output=True, text=True)
+        if p.returncode:
+            raise RuntimeError(f"two-thread subprocess failed:\n{p.stderr[-3000:]}")
+        for line in p.stderr.splitlines():
+            if line.startswith("  K="):
+                log(("  two threads, with dynamax:" if with_dynamax else "  two threads:") + line[1:])
+        return json.loads(p.stdout.strip().splitlines()[-1])
+
+    rows = child(False)
+    if "dynamax" not in args.skip:
+        for K, row in child(True).items():
+            if "dynamax" in row and K in rows:
+                rows[K]["vs_dynamax"] = row
+    return rows
 
 
 def _fmt(x: float) -> str:
@@ -715,22 +734,28 @@ def threads_section(results: dict) -> list[str]:
         why = (th or {}).get("why", "not run")
         return lines + [f"Not measured: {why}.", ""]
     lines += [
-        f"A subprocess pinned to two CPUs, threads set with `{th['control']}`; the fleet on one thread, on "
-        "two and dynamax (XLA with both cores) interleaved. Speed-up: the median over repetitions of "
-        "(one-thread time) / (two-thread time).",
+        f"Subprocesses pinned to two CPUs, threads set with `{th['control']}`. Speed-up: the fleet on one "
+        "thread and on two interleaved in a process that never imports jax; the median over repetitions of "
+        "(one-thread time) / (two-thread time). Against dynamax: the fleet on two threads and dynamax (XLA "
+        "with both cores) interleaved in another process (XLA's worker threads spin after each call and "
+        "would take the CPU from the fleet's second thread in the first; see the docstring); the median of "
+        "the per-repetition ratios.",
         "",
-        "| K | T x reps | fleet, 1 thread us | fleet, 2 threads us | dynamax us | 2 threads: speed-up over 1 "
-        "| fleet 2 threads / dynamax time |",
-        "|---|---|---|---|---|---|---|",
+        "| K | T x reps | fleet, 1 thread us | fleet, 2 threads us | 2 threads: speed-up over 1 "
+        "| with dynamax: fleet 2 threads us | dynamax us | fleet 2 threads / dynamax time |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for K, row in th["rows"].items():
         two = row.get("fleet2")
-        dyn = row.get("dynamax")
+        vs = row.get("vs_dynamax") or {}
+        dyn = vs.get("dynamax")
         sp = f"{1 / two['speedup']:.3g}" if two else ""
-        vs = f"{two['us'] / dyn['us']:.3g}" if two and dyn else ""
+        cells = (
+            [_fmt(vs["fleet"]["us"]), _fmt(dyn["us"]), f"{1 / dyn['speedup']:.3g}"] if dyn else ["", "", ""]
+        )
         lines.append(
             f"| {int(K):,} | {row['T']} x {row['reps']} | {_fmt(row['fleet']['us'])} | "
-            f"{_fmt(two['us']) if two else ''} | {_fmt(dyn['us']) if dyn else ''} | {sp} | {vs} |"
+            f"{_fmt(two['us']) if two else ''} | {sp} | " + " | ".join(cells) + " |"
         )
     return lines + [""]
 
