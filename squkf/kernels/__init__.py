@@ -216,6 +216,15 @@ def _stack(a: np.ndarray, batch: tuple[int, ...], core: int) -> np.ndarray:
     return _kernel_array(a.reshape((-1,) + tail))
 
 
+def _unstack(a: np.ndarray, batch: tuple[int, ...]) -> np.ndarray:
+    """A kernel's output stack ``(B, ...)`` in the caller's batch shape, a view (:func:`_stack` undone)."""
+    if not batch:  # one filter: the stack of one's row, 0-d for a scalar
+        return a[0, ...]
+    if len(batch) == 1:
+        return a
+    return a.reshape(batch + a.shape[1:])
+
+
 def _shared(a: np.ndarray, batch: tuple[int, ...], core: int) -> np.ndarray:
     """Like :func:`_stack`, but an ``a`` with no batch axis is passed once (leading axis 1)."""
     if a.ndim == core:
@@ -252,7 +261,7 @@ def tria(rows: np.ndarray) -> np.ndarray:
     A = _stack(rows, batch, 2)
     S = np.empty((A.shape[0], n, n))
     _call(phases.tria_kernel, A.shape[0], A, S)
-    return S.reshape(batch + (n, n))
+    return _unstack(S, batch)
 
 
 def solve_lower(L: np.ndarray, b: np.ndarray, trans: bool = False) -> tuple[np.ndarray, np.ndarray]:
@@ -279,8 +288,8 @@ def solve_lower(L: np.ndarray, b: np.ndarray, trans: bool = False) -> tuple[np.n
     X = np.empty(Y.shape)
     ok = np.empty(Y.shape[0], dtype=np.bool_)
     _call(phases.solve_kernel, Y.shape[0], _shared(L, batch, 2), Y, 1 if trans else 0, X, ok)
-    X = X.reshape(batch + (n, q))
-    return (X[..., 0] if vector else X), ok.reshape(batch)
+    X = _unstack(X, batch)
+    return (X[..., 0] if vector else X), _unstack(ok, batch)
 
 
 def chol_update(S: np.ndarray, v: np.ndarray, sign: float) -> tuple[np.ndarray, np.ndarray]:
@@ -300,12 +309,11 @@ def chol_update(S: np.ndarray, v: np.ndarray, sign: float) -> tuple[np.ndarray, 
         The first column whose rotation failed, or -1.
     """
     batch = _batch((S, 2), (v, 1))
-    n = v.shape[-1]
     L = _stack(S, batch, 2)
     out = np.empty(L.shape)
     fail = np.empty(L.shape[0], dtype=np.int64)
     _call(phases.chol_update_kernel, L.shape[0], L, _stack(v, batch, 1), float(sign), out, fail)
-    return out.reshape(batch + (n, n)), fail.reshape(batch)
+    return _unstack(out, batch), _unstack(fail, batch)
 
 
 def sigma_points(x: np.ndarray, S: np.ndarray, xi: np.ndarray, gamma: float = 0.0, offsets: bool = True):
@@ -345,7 +353,7 @@ def sigma_points(x: np.ndarray, S: np.ndarray, xi: np.ndarray, gamma: float = 0.
         dX,
         plan=(2,),
     )
-    return X.reshape(batch + (N, n)), (dX.reshape(batch + (N, n)) if offsets else None)
+    return _unstack(X, batch), (_unstack(dX, batch) if offsets else None)
 
 
 def finite_rows(A: np.ndarray) -> np.ndarray:
@@ -421,7 +429,7 @@ def transform(
         status,
         plan=(3, 4, 5),
     )
-    return mean.reshape(batch + (d,)), S.reshape(batch + (d, d)), status.reshape(batch)
+    return _unstack(mean, batch), _unstack(S, batch), _unstack(status, batch)
 
 
 class JointUpdate(NamedTuple):
@@ -523,7 +531,7 @@ def joint_update(
         *out,
         plan=(8, 9, 10),
     )
-    return JointUpdate(*(a.reshape(batch + a.shape[1:]) for a in out))
+    return JointUpdate(*(_unstack(a, batch) for a in out))
 
 
 def downdate_update(
@@ -590,4 +598,4 @@ def downdate_update(
         plan=(8,),
     )
     out = (ys, w, Sys, L21, dx, xp, Sp, ll, ww, status)
-    return JointUpdate(None, *(a.reshape(batch + a.shape[1:]) for a in out))
+    return JointUpdate(None, *(_unstack(a, batch) for a in out))
