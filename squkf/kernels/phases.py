@@ -586,34 +586,47 @@ def chol_update_kernel(L, v, sign, out, fail):
 
 
 @kernel
-def _offsets(Sl, xi, gamma, N, n, nb, Dl):
-    """The offsets ``Dl[i, l, b] = (xi[i] @ S_b.T)[l]`` of :func:`points_kernel` (``S_b = Sl[:, :, b]``).
+def _offsets(Sl, xi, N, n, nb, Dl):
+    """The offsets ``Dl[i, l, b] = (xi[i] @ S_b.T)[l]`` of :func:`points_kernel` (``S_b = Sl[:, :, b]``),
+    point-major, so that one filter's offsets are its output's rows."""
+    for i in range(N):
+        for l in range(n):
+            for b in range(nb):
+                Dl[i, l, b] = 0.0
+            for j in range(l + 1):
+                c = xi[i, j]
+                for b in range(nb):
+                    Dl[i, l, b] += c * Sl[l, j, b]
 
-    For axis points, ``[0; gamma I; -gamma I]`` (``N = 2n + 1``) or ``[gamma I; -gamma I]`` (``N = 2n``),
-    they are ``+/- gamma`` times the columns of ``S_b``. Point-major, so that one filter's offsets are
-    its output's rows.
-    """
-    if gamma != 0.0:
-        o = N - 2 * n  # 1 with the central point, else 0
+
+@kernel
+def _axis_points(x, S, gamma, X, dX, offsets):
+    """:func:`points_kernel` for axis points, one filter at a time: the columns of its factor, times
+    ``+/- gamma``, straight into its rows (``x + s`` and ``x + (-s)``, as the general route adds them)."""
+    B, N, n = X.shape
+    o = N - 2 * n  # 1 with the central point, else 0
+    shared = x.shape[0] == 1
+    for k in range(B):
+        xk = x[0] if shared else x[k]
+        Sk, Xk = S[k], X[k]
         if o == 1:
             for l in range(n):
-                for b in range(nb):
-                    Dl[0, l, b] = 0.0
-        for l in range(n):
-            for j in range(n):
-                for b in range(nb):
-                    s = gamma * Sl[l, j, b] if j <= l else 0.0
-                    Dl[o + j, l, b] = s
-                    Dl[o + n + j, l, b] = -s
-    else:
-        for i in range(N):
+                Xk[0, l] = xk[l] + 0.0
+        for j in range(n):
             for l in range(n):
-                for b in range(nb):
-                    Dl[i, l, b] = 0.0
-                for j in range(l + 1):
-                    c = xi[i, j]
-                    for b in range(nb):
-                        Dl[i, l, b] += c * Sl[l, j, b]
+                s = gamma * Sk[l, j] if j <= l else 0.0
+                Xk[o + j, l] = xk[l] + s
+                Xk[o + n + j, l] = xk[l] + (-s)
+        if offsets:
+            Dk = dX[k]
+            if o == 1:
+                for l in range(n):
+                    Dk[0, l] = 0.0
+            for j in range(n):
+                for l in range(n):
+                    s = gamma * Sk[l, j] if j <= l else 0.0
+                    Dk[o + j, l] = s
+                    Dk[o + n + j, l] = -s
 
 
 @kernel
@@ -638,6 +651,9 @@ def points_kernel(x, S, xi, gamma, X, dX):
     """
     B, N, n = X.shape
     offsets = dX.shape[0] == B
+    if gamma != 0.0:  # O(n^2) a filter, no product: a loop per filter stores its rows directly
+        _axis_points(x, S, gamma, X, dX, offsets)
+        return
     nl = _lanes(N * n, B)
     Sl = np.empty((n, n, nl))
     xl = np.empty((n, nl))
@@ -646,7 +662,7 @@ def points_kernel(x, S, xi, gamma, X, dX):
         nb = min(nl, B - k0)
         _load_matrix(S, k0, nb, Sl)
         _load_vector(x, k0, nb, xl)
-        _offsets(Sl, xi, gamma, N, n, nb, Dl)
+        _offsets(Sl, xi, N, n, nb, Dl)
         for b in range(nb):
             Xk = X[k0 + b]
             for i in range(N):
