@@ -10,8 +10,11 @@ would be the library's.
 
 from __future__ import annotations
 
+import json
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import hypothesis.extra.numpy as hnp
 import numpy as np
@@ -97,8 +100,9 @@ def test_the_thread_count_must_be_a_whole_number_of_at_least_one(bad):
     assert kernels.get_num_threads() == 1
 
 
-def test_every_kernel_has_one_signature():
-    """float64, C-contiguous, fixed ranks: each kernel compiles once, whatever the configuration."""
+def run_every_configuration():
+    """Every configuration of :data:`CONFIGS` as a fleet and a filter with its smoother, and the rank-1
+    modifications (the smoother's downdates, hooks' negative rows): every kernel of the core runs."""
     x0, P0, Q, R, zs = plain_scenario(5, T=3)
     for config in CONFIGS.values():
         run_fleet(5, config, x0, P0, Q, R, zs)
@@ -107,12 +111,40 @@ def test_every_kernel_has_one_signature():
         means, covariances = f.batch_filter(list(zs[:, 0]))[:2]
         f.rts_smoother(means, covariances)
     L = np.linalg.cholesky(P0)
-    for sign in (1.0, -1.0):  # the rank-1 modification (the smoother's downdates, hooks' negative rows)
+    for sign in (1.0, -1.0):
         chol_update(L, 0.1 * L[..., 0], sign)
         chol_update(L[0], 0.1 * L[0, :, 0], sign)
+
+
+def test_every_kernel_has_one_signature():
+    """float64, C-contiguous, fixed ranks: each kernel compiles once, whatever the configuration."""
+    run_every_configuration()
     used = {name: getattr(phases, name).signatures for name in ENTRY_KERNELS}
     assert all(len(s) >= 1 for s in used.values()), {k: len(v) for k, v in used.items()}
     assert all(len(s) == 1 for s in used.values()), used
+
+
+def test_every_helper_compiles_once_on_an_empty_cache(tmp_path):
+    """The compile time: no helper is compiled twice, for a literal argument or a second lane count.
+
+    Loaded from the cache, the entry kernels bring their helpers' machine code along and the helpers
+    themselves never compile; on an empty cache (a fresh process) every one compiles, and once.
+    """
+    code = (
+        f"import json, sys; sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+        "from numba.core.registry import CPUDispatcher\n"
+        "import squkf.kernels.phases as p\n"
+        "from test_kernels import run_every_configuration\n"
+        "run_every_configuration()\n"
+        "jitted = {n: f for n, f in vars(p).items() if isinstance(f, CPUDispatcher)}\n"
+        "print(json.dumps({n: len(f.signatures) for n, f in jitted.items()}))\n"
+    )
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
+    counts = json.loads(out.stdout.strip().splitlines()[-1])
+    assert {n for n, c in counts.items() if c > 1} == set(), counts
+    assert all(counts[name] == 1 for name in ENTRY_KERNELS), counts
+    assert sum(c == 1 for c in counts.values()) >= 20  # the helpers compiled too: the cache was empty
 
 
 def test_importing_squkf_compiles_nothing():
