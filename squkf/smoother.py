@@ -55,9 +55,10 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from . import kernels
 from .batch import model_kwargs, per_step
 from .boundary.factors import noise_factor
-from .boundary.inputs import evaluate, with_filter_axis
+from .boundary.inputs import evaluate, finite_images, with_filter_axis
 from .boundary.records import FleetResult, failures_error
 from .covariance import FactorSlot, as_lower_factor
 from .errors import (
@@ -72,7 +73,7 @@ from .isolate import rows_of, run_isolated
 from .linalg import chol_downdate_columns, kalman_gain, tria
 from .plan import Hooks
 from .transform import deviations, factor_rows, swap_last, transform_factor
-from .validate import as_float_array, call_hook, check_values, describe_nonfinite
+from .validate import as_float_array, call_hook, check_values
 
 __all__ = ["rts_smoother", "rts_smoother_factors", "fleet_rts_smoother", "FleetSmoothed"]
 
@@ -474,9 +475,7 @@ def _backward(
             if F.shape != X.shape:
                 raise ShapeError(f"fx values have shape {F.shape}, expected {X.shape} (a row per point)")
             fails: dict[int, str] = {}
-            finite = np.isfinite(F.reshape(K, -1)).all(axis=1)
-            for j in np.flatnonzero(~failed & ~finite).tolist():
-                fails[j] = f"NonFiniteError: {describe_nonfinite(F[j], 'fx values')}"
+            finite = finite_images(F, "fx values", ~failed, fails)
             idx = np.flatnonzero(~failed & finite)
             x_next, S_next = xs_s[:, k + 1], Ss_s[:, k + 1]
 
@@ -510,7 +509,7 @@ def _finite_per_filter(arrays: tuple[np.ndarray, ...]) -> np.ndarray:
     """Whether each filter's slice (leading axis) of every array is finite."""
     ok = np.ones(arrays[0].shape[0], dtype=bool)
     for a in arrays:
-        ok &= np.isfinite(a.reshape(a.shape[0], -1)).all(axis=1)
+        ok &= kernels.finite_rows(a)
     return ok
 
 

@@ -338,14 +338,14 @@ def _load_matrix(a, k0, nb, al):
 
 
 @kernel
-def _store_lower(L, i0, j0, n, k0, nb, out):
-    """``out[k0 + b] = tril(L[i0:i0 + n, j0:j0 + n, b])``."""
+def _store_lower(L, i0, n, k0, nb, out):
+    """``out[k0 + b] = tril(L[i0:i0 + n, i0:i0 + n, b])``, a diagonal block of the lanes' factors."""
     Q = out[k0 : k0 + nb]
     for i in range(n):
         for j in range(n):
             if j <= i:
                 for b in range(nb):
-                    Q[b, i, j] = L[i0 + i, j0 + j, b]
+                    Q[b, i, j] = L[i0 + i, i0 + j, b]
             else:
                 for b in range(nb):
                     Q[b, i, j] = 0.0
@@ -582,7 +582,7 @@ def chol_update_kernel(L, v, sign, out, fail):
         chol_update_lanes(Ll, vl, n, nb, sign, fl, V)
         for b in range(nb):
             fail[k0 + b] = fl[b]
-        _store_lower(Ll, _unfold(0), _unfold(0), n, k0, nb, out)
+        _store_lower(Ll, _unfold(0), n, k0, nb, out)
 
 
 @kernel
@@ -602,29 +602,26 @@ def _offsets(Sl, xi, N, n, nb, Dl):
 @kernel
 def _axis_points(x, S, gamma, X, dX, offsets):
     """:func:`points_kernel` for axis points, one filter at a time: the columns of its factor, times
-    ``+/- gamma``, straight into its rows (``x + s`` and ``x + (-s)``, as the general route adds them)."""
+    ``+/- gamma``, straight into its rows. Each point is its centre plus its offset, ``x + s`` and
+    ``x + (-s)``, the same sums as the general route's ``x + dX``."""
     B, N, n = X.shape
     o = N - 2 * n  # 1 with the central point, else 0
     shared = x.shape[0] == 1
     for k in range(B):
         xk = x[0] if shared else x[k]
         Sk, Xk = S[k], X[k]
+        Dk = dX[k] if offsets else Xk  # never written when the offsets are not wanted
         if o == 1:
             for l in range(n):
                 Xk[0, l] = xk[l] + 0.0
+                if offsets:
+                    Dk[0, l] = 0.0
         for j in range(n):
             for l in range(n):
                 s = gamma * Sk[l, j] if j <= l else 0.0
                 Xk[o + j, l] = xk[l] + s
                 Xk[o + n + j, l] = xk[l] + (-s)
-        if offsets:
-            Dk = dX[k]
-            if o == 1:
-                for l in range(n):
-                    Dk[0, l] = 0.0
-            for j in range(n):
-                for l in range(n):
-                    s = gamma * Sk[l, j] if j <= l else 0.0
+                if offsets:
                     Dk[o + j, l] = s
                     Dk[o + n + j, l] = -s
 
@@ -750,7 +747,7 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status):
             mk = mean[k0 + b]
             for l in range(d):
                 mk[l] = ml[l, b]
-        _store_lower(At, _unfold(0), _unfold(0), d, k0, nb, S)
+        _store_lower(At, _unfold(0), d, k0, nb, S)
 
 
 @kernel
@@ -924,8 +921,8 @@ def joint_update_kernel(
             for l in range(n):
                 for j in range(m):
                     Lk[l, j] = L[m + l, j, b]
-        _store_lower(L, _unfold(0), _unfold(0), m, k0, nb, Sy)
-        _store_lower(L, m, m, n, k0, nb, Spost)
+        _store_lower(L, _unfold(0), m, k0, nb, Sy)
+        _store_lower(L, m, n, k0, nb, Spost)
 
 
 @kernel
@@ -1077,4 +1074,4 @@ def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpos
             for l in range(n):
                 for j in range(m):
                     Lk[l, j] = Ll[l, j, b]
-        _store_lower(Sl, _unfold(0), _unfold(0), n, k0, nb, Spost)
+        _store_lower(Sl, _unfold(0), n, k0, nb, Spost)
