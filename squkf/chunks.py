@@ -216,7 +216,7 @@ def stacked_posterior(
             prop = None if propagated is None else propagated[rows]
             s = plan.second.draw(xs, Ss, prop, rows_of(Q1_2, rows, 2), hooks.state_add)
         shape = s.sigmas.shape[:-1] + (m,)
-        H = stacked_shape(images(rows, s), shape, _label("hx values", rows, K), copy=True)
+        H = stacked_shape(images(rows, s), shape, _label("hx values", rows, K), copy=False)
         on = active[rows]
         finite = finite_images(H, "hx values", on, found)
         sub = steps.StepState(steps.UPDATING, None, None, None, s, (xs, Ss))

@@ -52,7 +52,7 @@ def run_isolated(fn: Callable, idx: np.ndarray, K: int, fails: dict[int, str], b
         failing filter ``k`` it is also called as ``fn(k)`` (no batch axis), to
         describe the failure by that filter's values alone.
     idx : ndarray of int
-        The filters to run.
+        The filters to run, in increasing order, each once.
     K : int
         How many filters there are (when ``idx`` is all of them, ``fn`` gets slices: views, no copies).
     fails : dict
@@ -70,7 +70,7 @@ def run_isolated(fn: Callable, idx: np.ndarray, K: int, fails: dict[int, str], b
     if idx.size == 0:
         return idx, None
     size = BLOCK if block is None else block
-    every = idx.size == K and bool(np.all(idx == np.arange(K)))
+    every = idx.size == K  # increasing and distinct in range(K): all of them, in order
     cuts = list(range(0, idx.size, size)) + [idx.size]
     goods, parts = [], []
     for lo, hi in zip(cuts[:-1], cuts[1:]):
@@ -166,7 +166,7 @@ def isolated_prior(plan: Plan, hooks: Hooks, X: np.ndarray, F: np.ndarray, Q1_2,
     X : ndarray, shape (K, N, n)
         The first sets.
     F : ndarray, shape (K, N, n)
-        ``fx`` at them (finite for the filters ``idx``).
+        ``fx`` at them, float64, checked: finite for the filters ``idx``.
     Q1_2 : ndarray, shape (d, d) or (K, d, d), or None
         Process noise factor, shared or per filter (None: none added).
     idx : ndarray of int
@@ -186,7 +186,7 @@ def isolated_prior(plan: Plan, hooks: Hooks, X: np.ndarray, F: np.ndarray, Q1_2,
 
     def prior(ix):
         sub = steps.StepState(steps.PREDICTING, X[ix])
-        _, x, S = steps.tell_predict(sub, plan, F[ix], rows_of(Q1_2, ix, 2), hooks)
+        _, x, S = steps.tell_predict(sub, plan, F[ix], rows_of(Q1_2, ix, 2), hooks, checked=True)
         return x, S
 
     return run_isolated(prior, idx, K, fails, block)
@@ -204,7 +204,7 @@ def isolated_posterior(state: steps.StepState, H, z, R1_2, todo, hooks: Hooks, g
     state : StepState
         The pending update of ``K`` filters (its second sets and priors).
     H : ndarray, shape (K, N2, m)
-        ``hx`` at the second sets.
+        ``hx`` at the second sets, float64, checked: finite for the filters ``todo``.
     z : ndarray, shape (K, m)
         Measurements, NaN where missing.
     R1_2 : ndarray, shape (m, m) or (K, m, m)
@@ -243,17 +243,18 @@ def isolated_posterior(state: steps.StepState, H, z, R1_2, todo, hooks: Hooks, g
     nis: Any = None
     rejected: Any = None
     todo_idx = np.flatnonzero(todo)
-    if observed[todo].all():  # the usual case: one group
-        patterns, which = np.ones((1, m), dtype=bool), np.zeros(todo_idx.size, dtype=int)
-    else:
+    groups: list[tuple[np.ndarray, np.ndarray | None]] = [(todo_idx, None)]  # the usual case: one group
+    if not (observed.all() or observed[todo].all()):
         patterns, which = np.unique(observed[todo], axis=0, return_inverse=True)
-    for p, obs in enumerate(patterns):
-        group = todo_idx[which.reshape(-1) == p]
-        mask = None if obs.all() else obs
+        which = which.reshape(-1)
+        groups = [(todo_idx[which == p], None if obs.all() else obs) for p, obs in enumerate(patterns)]
+    for group, mask in groups:
 
         def posterior(ix, mask=mask):
             sub = steps.StepState(steps.UPDATING, None, None, None, take_set(sset, ix), (x0[ix], S0[ix]))  # type: ignore[arg-type]
-            _, g, _ = steps.gated_update(sub, H[ix], z[ix], rows_of(R1_2, ix, 2), mask, hooks, None, gate)
+            _, g, _ = steps.gated_update(
+                sub, H[ix], z[ix], rows_of(R1_2, ix, 2), mask, hooks, None, gate, checked=True
+            )
             post = g.tested
             return g.x, g.S, post.y, g.log_likelihood, post.nis, g.rejected
 
@@ -265,10 +266,10 @@ def isolated_posterior(state: steps.StepState, H, z, R1_2, todo, hooks: Hooks, g
             if x_new is None:
                 x_new, S_new, y, loglik, nis, rejected = unchanged()
             x_new[good], S_new[good] = res[0], res[1]
-            if obs.all():
+            if mask is None:
                 y[good], rejected[good] = res[2], res[5]
             else:
-                cols = np.ix_(good, np.flatnonzero(obs))
+                cols = np.ix_(good, np.flatnonzero(mask))
                 y[cols], rejected[cols] = res[2], res[5]
             loglik[good], nis[good] = res[3], res[4]
     if x_new is None:

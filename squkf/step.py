@@ -130,6 +130,7 @@ def tell_predict(
     hooks: Hooks = _NO_HOOKS,
     UT: Callable | None = None,
     name: str = "fx values",
+    checked: bool = False,
 ) -> tuple[StepState, np.ndarray, np.ndarray]:
     """Finish the prediction from the first set's images.
 
@@ -149,6 +150,10 @@ def tell_predict(
         :func:`squkf.sqrt_unscented_transform`).
     name : str
         How to call ``values`` in error messages.
+    checked : bool
+        ``values`` is a float64 array of the right shape, found finite, that
+        nothing else writes during the call (a fleet's chunk checks its
+        images per filter first): taken as it is.
 
     Returns
     -------
@@ -164,7 +169,7 @@ def tell_predict(
         )
     shape = state.sigmas.shape  # type: ignore[union-attr]  # set in phase PREDICTING
     keep = plan.keeps_propagated
-    F = check_values(values, shape, name, private=keep)
+    F = values if checked else check_values(values, shape, name, private=keep)
     rows = plan.first.rows
     if UT is None:
         x, S = transform_factor(
@@ -279,6 +284,7 @@ def tell_update(
     hooks: Hooks = _NO_HOOKS,
     UT: Callable | None = None,
     name: str = "hx values",
+    checked: bool = False,
 ) -> tuple[StepState, Posterior, np.ndarray]:
     """Finish the update from the second set's images and the measurement.
 
@@ -298,6 +304,8 @@ def tell_update(
     hooks : Hooks
     UT : callable, optional
     name : str
+    checked : bool
+        As for :func:`tell_predict`.
 
     Returns
     -------
@@ -316,7 +324,7 @@ def tell_update(
     m = z.shape[-1]
     sset: SigmaSet = state.sset  # type: ignore[assignment]  # set in phase UPDATING, as is the prior
     sigmas = sset.sigmas
-    H = check_values(values, sigmas.shape[:-1] + (m,), name)
+    H = values if checked else check_values(values, sigmas.shape[:-1] + (m,), name)
     Ho, zo, Ro = H, z, R1_2
     if observed is not None and not observed.all():
         Ho, zo, Ro = H[..., observed], z[..., observed], observed_noise_factor(R1_2, observed)
@@ -412,6 +420,7 @@ def gated_update(
     UT: Callable | None,
     gate,
     name: str = "hx values",
+    checked: bool = False,
 ) -> tuple[StepState, GatedUpdate, np.ndarray]:
     """:func:`tell_update` through an outlier gate (:mod:`squkf.gating`).
 
@@ -423,7 +432,7 @@ def gated_update(
 
     Parameters
     ----------
-    state, values, z, R1_2, observed, hooks, UT, name
+    state, values, z, R1_2, observed, hooks, UT, name, checked
         As for :func:`tell_update`; ``R1_2`` is ``(m, m)`` or per filter
         ``(..., m, m)``.
     gate : Gate or None
@@ -437,7 +446,7 @@ def gated_update(
     H : ndarray, shape (..., N, m)
         The images, checked (a private array).
     """
-    new, post, H = tell_update(state, values, z, R1_2, observed, hooks, UT, name)
+    new, post, H = tell_update(state, values, z, R1_2, observed, hooks, UT, name, checked)
     if gate is None:
         return (
             new,

@@ -348,8 +348,10 @@ def stacked_shape(values, shape: tuple, name: str, copy: bool) -> np.ndarray:
     name : str
         For messages.
     copy : bool
-        Whether a float64 ndarray is copied (``hx``) or taken as it is (``fx``:
-        the step copies it only if it keeps it).
+        Whether a float64 ndarray is copied (values a caller told, which it
+        may go on writing) or taken as it is (a model function's images,
+        read within the chunk's step; the step copies them only if it keeps
+        them).
 
     Returns
     -------
