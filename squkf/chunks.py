@@ -33,8 +33,22 @@ __all__ = ["CHUNK", "chunks", "stacked_prior", "stacked_posterior", "Prior", "Po
 CHUNK = 2048
 
 
-def chunks(K: int, size: int = CHUNK) -> list[slice]:
-    """The chunks of ``K`` filters, ``size`` each (the last one shorter), as slices."""
+def chunks(K: int, size: int = CHUNK, parts: int = 1) -> list[slice]:
+    """The chunks of ``K`` filters, at most ``size`` each, as slices in order.
+
+    With ``parts == 1``, ``size`` each and the last one shorter. With more
+    parts (the threads they are run on) and more than one chunk, their count
+    is rounded up to a multiple of ``parts`` and their sizes differ by one at
+    most, so that every thread gets as many filters (10^4 filters on two
+    threads: six chunks of 1666 or 1667, not 2048 * 4 + 1808, three on one
+    thread).
+    """
+    count = -(-K // size)
+    if parts > 1 and count > 1:
+        count = min(K, -(-count // parts) * parts)
+        q, r = divmod(K, count)  # the first r chunks get one filter more
+        cuts = [i * q + min(i, r) for i in range(count + 1)]
+        return [slice(lo, hi) for lo, hi in zip(cuts[:-1], cuts[1:])]
     return [slice(lo, min(lo + size, K)) for lo in range(0, K, size)]
 
 
@@ -137,7 +151,7 @@ def stacked_prior(
             propagated[rows] = F
         return {rows.start + i: why for i, why in found.items()}
 
-    _gather(kernels.thread_map(one, chunks(K, size)), fails)
+    _gather(kernels.thread_map(one, chunks(K, size, kernels.get_num_threads())), fails)
     return Prior(x_new, S_new, propagated)
 
 
@@ -227,5 +241,5 @@ def stacked_posterior(
             whole[rows] = part
         return {rows.start + i: why for i, why in found.items()}
 
-    _gather(kernels.thread_map(one, chunks(K, size)), fails)
+    _gather(kernels.thread_map(one, chunks(K, size, kernels.get_num_threads())), fails)
     return out

@@ -93,6 +93,22 @@ def test_results_do_not_depend_on_chunk_block_size_or_thread_count(monkeypatch, 
             np.testing.assert_array_equal(ll, ll1, err_msg=say)
 
 
+@settings(max_examples=300, deadline=None)
+@given(K=st.integers(1, 20_000), size=st.integers(1, 3000), parts=st.integers(1, 4))
+def test_chunks_cover_the_fleet_in_order_and_share_it_evenly_between_threads(K, size, parts):
+    cut = squkf.chunks.chunks(K, size, parts)
+    assert [c.start for c in cut] == [0] + [c.stop for c in cut[:-1]] and cut[-1].stop == K
+    sizes = [c.stop - c.start for c in cut]
+    assert min(sizes) >= 1 and max(sizes) <= size
+    full = -(-K // size)  # chunks of `size` filters and the rest
+    if parts == 1 or full == 1:
+        assert sizes == [size] * (full - 1) + [K - size * (full - 1)]
+    else:  # a multiple of the threads' count (unless there are fewer filters), sizes within one
+        assert len(cut) == min(K, -(-full // parts) * parts)
+        assert len(cut) % parts == 0 or len(cut) == K
+        assert max(sizes) - min(sizes) <= 1
+
+
 @pytest.mark.parametrize("bad", [0, -1, 1.5, "2", True, None])
 def test_the_thread_count_must_be_a_whole_number_of_at_least_one(bad):
     with pytest.raises(ValueError, match="thread count"):
@@ -177,7 +193,7 @@ def test_both_qr_routes_give_the_factor_with_a_non_negative_diagonal(columns):
 
 def test_an_error_in_one_chunk_on_a_thread_is_raised_and_changes_no_filter():
     """Chunks on two threads: a model function that raises in one chunk raises, after every chunk ends."""
-    K = 6
+    K = 8  # four chunks of two, two on each thread
     x0, P0, Q, R, zs = plain_scenario(K, T=2, seed=2)
     fleet = Fleet(K, 4, 2, 0.1, plain_hx, plain_fx, chunk=2, **CONFIGS["merwe"])
     fleet.x, fleet.P, fleet.Q, fleet.R = x0, P0, Q, R
@@ -199,7 +215,7 @@ def test_an_error_in_one_chunk_on_a_thread_is_raised_and_changes_no_filter():
             fleet.predict()
     finally:
         kernels.set_num_threads(1)
-    assert sorted(calls) == [2, 2, 2]
+    assert sorted(calls) == [2, 2, 2, 2]
     np.testing.assert_array_equal(fleet.x, x)
     np.testing.assert_array_equal(fleet.P, P)
 
