@@ -161,8 +161,9 @@ def _ropt_values(ropt) -> list[float]:
         try:
             values.append(_real_number(v, f"ROPT({i})"))
         except ParameterError:
+            what = "" if _ROPT_ERRNO[i - 1] else " (beta)"  # an error without a number says which it is
             raise ParameterError(
-                f"On entry, ROPT({i}) = {v!r}. Constraint: ROPT({i}) is a real number.",
+                f"On entry, ROPT({i}) = {v!r}. Constraint: ROPT({i}){what} is a real number.",
                 errno=_ROPT_ERRNO[i - 1],
             ) from None
     return values

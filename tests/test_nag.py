@@ -16,7 +16,7 @@ import warnings
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from models import at_exit, call, fill, first_entry
 
@@ -655,6 +655,7 @@ JUNK_ARGS = st.one_of(
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(arg=st.sampled_from(["y", "ly", "lx", "fxt", "ropt"]), junk=JUNK_ARGS, k=st.sampled_from([0, 1, 2]))
+@example(arg="ropt", junk=[0, 0, 0, None], k=0)  # beta not a number: no IFAIL, and the message says beta
 def test_junk_in_any_argument_is_a_numbered_squkf_error(arg, junk, k):
     a = first_entry() if k == 0 else at_exit(k)
     if arg == "ropt" and k != 0:
