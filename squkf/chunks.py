@@ -1,6 +1,7 @@
 """The fleet's step a chunk of filters at a time.
 
-A step of K filters runs chunk by chunk, :data:`CHUNK` filters each: a
+A step of K filters runs chunk by chunk, at most ``Fleet.chunk`` filters
+each (by default :func:`default_chunk`, :data:`CHUNK` on one thread): a
 chunk's first set is drawn, the model function is called with the chunk's
 points, and the chunk's prior is computed (a prediction); or its second set
 is drawn, the model called, and its posterior computed (an update). The
@@ -27,10 +28,21 @@ from .generators import SigmaSet
 from .isolate import BLOCK, isolated_posterior, isolated_prior, rows_of, take_set
 from .plan import Hooks, Plan
 
-__all__ = ["CHUNK", "chunks", "stacked_prior", "stacked_posterior", "Prior", "Posteriors"]
+__all__ = ["CHUNK", "default_chunk", "chunks", "stacked_prior", "stacked_posterior", "Prior", "Posteriors"]
 
-#: Filters per chunk of a fleet's step (their arrays stay in cache; see the module docstring).
+#: Filters per chunk of a fleet's step on one thread (their arrays stay in cache; see the module docstring).
 CHUNK = 2048
+
+
+def default_chunk(threads: int) -> int:
+    """Filters per chunk when the fleet leaves it to the library: :data:`CHUNK` on one thread, twice on more.
+
+    On several threads what stays serial is the step's Python per chunk,
+    which holds the GIL; chunks twice as large halve it per filter. On one
+    thread :data:`CHUNK` is the faster size (the figures: ARCHITECTURE.md,
+    "Measured").
+    """
+    return CHUNK if threads == 1 else 2 * CHUNK
 
 
 def chunks(K: int, size: int = CHUNK, parts: int = 1) -> list[slice]:
@@ -57,6 +69,12 @@ def _label(name: str, rows: slice, K: int) -> str:
     if rows.start == 0 and rows.stop == K:
         return name
     return f"{name} of filters {rows.start} to {rows.stop - 1} (one call of {rows.stop - rows.start})"
+
+
+def _cut(K: int, size: int | None) -> list[slice]:
+    """The chunks of a step of ``K`` filters on the threads of :func:`squkf.set_num_threads`."""
+    threads = kernels.get_num_threads()
+    return chunks(K, default_chunk(threads) if size is None else size, threads)
 
 
 def _gather(parts: list[dict[int, str]], fails: dict[int, str]) -> None:
@@ -91,7 +109,7 @@ def stacked_prior(
     images: Callable[[slice, np.ndarray], object],
     fails: dict[int, str],
     first: np.ndarray | None = None,
-    size: int = CHUNK,
+    size: int | None = None,
 ) -> Prior:
     """The prediction of a stack of filters, a chunk at a time, failing filters isolated.
 
@@ -112,8 +130,8 @@ def stacked_prior(
         Filled with ``filter -> reason`` for the filters that fail.
     first : ndarray, shape (K, N, n), optional
         The first sets already handed out (``ask_predict``); default: drawn per chunk.
-    size : int
-        Filters per chunk.
+    size : int, optional
+        Filters per chunk, at most (default: :func:`default_chunk` of the thread count).
 
     Returns
     -------
@@ -151,7 +169,7 @@ def stacked_prior(
             propagated[rows] = F
         return {rows.start + i: why for i, why in found.items()}
 
-    _gather(kernels.thread_map(one, chunks(K, size, kernels.get_num_threads())), fails)
+    _gather(kernels.thread_map(one, _cut(K, size)), fails)
     return Prior(x_new, S_new, propagated)
 
 
@@ -187,7 +205,7 @@ def stacked_posterior(
     active: np.ndarray,
     images: Callable[[slice, SigmaSet], object],
     fails: dict[int, str],
-    size: int = CHUNK,
+    size: int | None = None,
 ) -> Posteriors:
     """The update of a stack of filters, a chunk at a time, failing filters isolated.
 
@@ -241,5 +259,5 @@ def stacked_posterior(
             whole[rows] = part
         return {rows.start + i: why for i, why in found.items()}
 
-    _gather(kernels.thread_map(one, chunks(K, size, kernels.get_num_threads())), fails)
+    _gather(kernels.thread_map(one, _cut(K, size)), fails)
     return out

@@ -45,7 +45,6 @@ from .boundary.factors import (
 from .boundary.records import FleetResult
 from .boundary.stacked_filter import StackedFilter
 from .boundary.stacking import filter_of, stacked
-from .chunks import CHUNK
 from .errors import FleetStepError, ParameterError
 from .gating import Gate
 from .noise import handed_points
@@ -87,13 +86,15 @@ class Fleet(StackedFilter):
         ``fx(X, W, dt, **fx_args)`` with ``W`` ``(K, N, dim_w)`` and
         ``hx(X, V, **hx_args)`` with ``V`` ``(K, N2, dim_v)``; ``Q`` and ``R``
         are then w's and v's covariances (shared or per filter).
-    chunk : int
-        Filters per call of ``fx`` and ``hx``: a step runs a chunk of
+    chunk : int, optional
+        Filters per call of ``fx`` and ``hx``, at most: a step runs a chunk of
         filters at a time (:mod:`squkf.chunks`), so its temporary arrays stay
         in cache and its memory does not grow with K; the model functions
         get ``(k, N, d)`` points with ``k <= chunk``, and per-filter
-        ``fx_args``/``hx_args`` cut to the same filters. The numbers do not
-        depend on it.
+        ``fx_args``/``hx_args`` cut to the same filters. On several threads
+        (:func:`squkf.set_num_threads`) the chunks are cut evenly between
+        them. Default (None): 2048 on one thread, 4096 on more
+        (:func:`squkf.chunks.default_chunk`). The numbers do not depend on it.
 
     Attributes
     ----------
@@ -154,7 +155,7 @@ class Fleet(StackedFilter):
         gate: float | Gate | None = None,
         fx_noise: int | None = None,
         hx_noise: int | None = None,
-        chunk: int = CHUNK,
+        chunk: int | None = None,
     ):
         K, n, m = inputs.check_sizes(n_filters=n_filters, dim_x=dim_x, dim_z=dim_z)
         hooks = (x_mean_fn, z_mean_fn, residual_x, residual_z, state_add)
@@ -262,13 +263,16 @@ class Fleet(StackedFilter):
         self._R1_2 = np.zeros((self._rd, self._rd)) if S is None else S
 
     @property
-    def chunk(self) -> int:
-        """Filters per call of ``fx`` and ``hx`` in a step (:mod:`squkf.chunks`); assign to change."""
+    def chunk(self) -> int | None:
+        """Filters per call of ``fx`` and ``hx`` in a step, at most (:mod:`squkf.chunks`); assign to change.
+
+        None: the library's choice for the thread count (:func:`squkf.chunks.default_chunk`).
+        """
         return self._chunk
 
     @chunk.setter
     def chunk(self, value) -> None:
-        (self._chunk,) = inputs.check_sizes(chunk=value)
+        (self._chunk,) = (None,) if value is None else inputs.check_sizes(chunk=value)
 
     @property
     def failed(self) -> np.ndarray:
@@ -328,8 +332,8 @@ class Fleet(StackedFilter):
     def predict(self, dt=None, **fx_args) -> None:
         """Predict every filter one step ahead (flagged filters stay as they are).
 
-        ``fx`` is called once per chunk of :attr:`chunk` filters, with their
-        points ``(k, N, dim_x)`` (one call when ``K <= chunk``).
+        ``fx`` is called once per chunk of at most :attr:`chunk` filters, with
+        their points ``(k, N, dim_x)`` (one call when ``K`` is no more).
 
         Parameters
         ----------
@@ -362,7 +366,7 @@ class Fleet(StackedFilter):
     def update(self, z, R=None, **hx_args) -> None:
         """Update every filter with its measurement.
 
-        ``hx`` is called once per chunk of :attr:`chunk` filters, as ``fx`` is by :meth:`predict`.
+        ``hx`` is called once per chunk of at most :attr:`chunk` filters, as ``fx`` is by :meth:`predict`.
 
         Parameters
         ----------

@@ -458,10 +458,37 @@ def test_a_chunks_wrong_fx_shape_names_its_filters_and_changes_nothing():
     assert_fleet_state(fleet, before)
 
 
-@pytest.mark.parametrize("bad", [0, -2, 1.5, "8", True, None])
+@pytest.mark.parametrize("bad", [0, -2, 1.5, "8", True, "auto"])
 def test_chunk_must_be_a_positive_integer(bad):
     with pytest.raises(ParameterError, match="chunk"):
         cv_fleet(3, MerweScaledWeights(), chunk=bad)
+
+
+@pytest.mark.parametrize(("threads", "chunk", "calls"), [
+    (1, None, [2048, 2048, 904]),  # the default: CHUNK on one thread
+    (2, None, [2500, 2500]),  # twice CHUNK on more, cut evenly between the threads
+    (2, 1000, [834, 834, 833, 833, 833, 833]),  # given: at most that many, a multiple of the threads
+    (1, 3000, [3000, 2000]),
+])  # fmt: skip
+def test_chunk_none_is_the_librarys_size_for_the_thread_count(threads, chunk, calls):
+    fleet = cv_fleet(5000, MerweScaledWeights(), chunk=chunk)
+    assert fleet.chunk == chunk
+    seen = []
+
+    def fx(X, dt):
+        seen.append(X.shape[0])
+        return cv_fx_stacked(X, dt)
+
+    fleet.fx = fx
+    squkf.set_num_threads(threads)
+    try:
+        fleet.predict()
+    finally:
+        squkf.set_num_threads(1)
+    assert sorted(seen, reverse=True) == calls
+    fleet.chunk = 7
+    fleet.chunk = None  # back to the library's choice
+    assert fleet.chunk is None
 
 
 @pytest.mark.parametrize("scheme", SCHEMES)

@@ -56,7 +56,7 @@ class StackedFilter(ModelForm):
     _K: int
     _n: int
     _m: int
-    _chunk: int
+    _chunk: int | None
     _state: steps.StepState
     _gate: Gate | None
 

@@ -63,7 +63,8 @@ def set_num_threads(n: int) -> None:
     """Use ``n`` threads for a fleet's step and large stacks; 1 (the default) runs serially.
 
     A fleet's step hands its chunks to the threads (:func:`thread_map`, model
-    functions included); any other large stack is cut into ``n`` contiguous
+    functions included; a multiple of ``n`` chunks of near equal sizes:
+    :func:`squkf.chunks.chunks`); any other large stack is cut into ``n`` contiguous
     parts, each stepped by one kernel call on its own thread (the kernels
     release the GIL). Each filter's numbers are the same, bit for bit, for
     any thread count. The environment variable ``SQUKF_NUM_THREADS`` sets
