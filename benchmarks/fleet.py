@@ -41,8 +41,9 @@ the other the fleet on two threads and dynamax (XLA with both cores),
 interleaved. They are apart because XLA's worker threads keep spinning for a
 while after each dynamax call and take the CPU from the fleet's second thread
 (measured: in one process with dynamax the fleet's speed-up on two threads fell
-from 1.65x to 1.38x at K = 10^5). With no such setting there is no two-thread
-table, and the results say so.
+from 1.65x to 1.38x at K = 10^5). They run first, before this process calls
+dynamax: its own spinning workers took a CPU from them too (1.54x then). With
+no such setting there is no two-thread table, and the results say so.
 
 Memory, two measures of one fleet ``predict`` + ``update`` (a warm step):
 
@@ -879,6 +880,19 @@ def main(args) -> int:
         "cores": args.cores,
         "models": {},
     }
+    # the two-thread subprocesses first: after this process's dynamax calls its XLA workers spin for a
+    # while on the CPU the subprocesses share (1.54x measured then, 1.64-1.66x alone)
+    if args.no_two_threads:
+        two = {"why": "--no-two-threads"}
+    elif control is None:
+        two = {
+            "why": "squkf.Fleet has no thread setting (no threads= argument, no set_num_threads in "
+            "squkf or squkf.kernels), so the fleet runs on one thread only"
+        }
+    elif "n4" not in args.models:
+        two = {"why": "the n = 4 model was not run"}
+    else:
+        two = {"control": control[0], "rows": two_threads(args, log)}
     ok = True
     models = {"n4": ConstantVelocity, "n10": Oscillators}
     for i, mkey in enumerate(args.models):
@@ -897,17 +911,7 @@ def main(args) -> int:
         log(f"  RSS: {json.dumps(rss)}")
         tm = timing(model, impls, Ks, args.quick, args.loop_budget, 100 * (i + 1), log)
         results["models"][model.name] = {"timing": tm, "memory": mem, "rss": rss, "accuracy": acc}
-    if args.no_two_threads:
-        results["two_threads"] = {"why": "--no-two-threads"}
-    elif control is None:
-        results["two_threads"] = {
-            "why": "squkf.Fleet has no thread setting (no threads= argument, no set_num_threads in "
-            "squkf or squkf.kernels), so the fleet runs on one thread only"
-        }
-    elif "n4" not in args.models:
-        results["two_threads"] = {"why": "the n = 4 model was not run"}
-    else:
-        results["two_threads"] = {"control": control[0], "rows": two_threads(args, log)}
+    results["two_threads"] = two
     results["targets"] = targets(results)
     command = "python benchmarks/fleet.py" + (" --quick" if args.quick else "")
     command += f" --skip {' '.join(args.skip)}" if args.skip else ""
