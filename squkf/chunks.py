@@ -39,8 +39,8 @@ def default_chunk(threads: int) -> int:
 
     On several threads what stays serial is the step's Python per chunk,
     which holds the GIL; chunks twice as large halve it per filter. On one
-    thread :data:`CHUNK` is the faster size (the figures: ARCHITECTURE.md,
-    "Measured").
+    thread :data:`CHUNK` is the faster size (``benchmarks/chunk_sizes.py``;
+    the figures in ARCHITECTURE.md, "Measured").
     """
     return CHUNK if threads == 1 else 2 * CHUNK
 
