@@ -34,15 +34,29 @@ __all__ = ["CHUNK", "default_chunk", "chunks", "stacked_prior", "stacked_posteri
 CHUNK = 2048
 
 
-def default_chunk(threads: int) -> int:
-    """Filters per chunk when the fleet leaves it to the library: :data:`CHUNK` on one thread, twice on more.
+def default_chunk(threads: int, K: int) -> int:
+    """Filters per chunk when the fleet leaves it to the library: :data:`CHUNK`, or twice on threads.
 
     On several threads what stays serial is the step's Python per chunk,
-    which holds the GIL; chunks twice as large halve it per filter. On one
-    thread :data:`CHUNK` is the faster size (``benchmarks/chunk_sizes.py``;
-    the figures in ARCHITECTURE.md, "Measured").
+    which holds the GIL; chunks twice as large halve it per filter, which
+    pays once every thread has at least four of them. Below that, larger
+    chunks only leave threads idle, and on one thread :data:`CHUNK` is the
+    faster size (``benchmarks/chunk_sizes.py``; the figures in
+    ARCHITECTURE.md, "Measured").
+
+    Parameters
+    ----------
+    threads : int
+        The thread count of :func:`squkf.set_num_threads`.
+    K : int
+        Filters in the step.
+
+    Returns
+    -------
+    int
     """
-    return CHUNK if threads == 1 else 2 * CHUNK
+    big = 2 * CHUNK
+    return big if threads > 1 and K >= 4 * threads * big else CHUNK
 
 
 def chunks(K: int, size: int = CHUNK, parts: int = 1) -> list[slice]:
@@ -74,7 +88,7 @@ def _label(name: str, rows: slice, K: int) -> str:
 def _cut(K: int, size: int | None) -> list[slice]:
     """The chunks of a step of ``K`` filters on the threads of :func:`squkf.set_num_threads`."""
     threads = kernels.get_num_threads()
-    return chunks(K, default_chunk(threads) if size is None else size, threads)
+    return chunks(K, default_chunk(threads, K) if size is None else size, threads)
 
 
 def _gather(parts: list[dict[int, str]], fails: dict[int, str]) -> None:
@@ -131,7 +145,7 @@ def stacked_prior(
     first : ndarray, shape (K, N, n), optional
         The first sets already handed out (``ask_predict``); default: drawn per chunk.
     size : int, optional
-        Filters per chunk, at most (default: :func:`default_chunk` of the thread count).
+        Filters per chunk, at most (default: :func:`default_chunk` of the thread count and ``K``).
 
     Returns
     -------

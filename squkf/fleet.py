@@ -93,7 +93,8 @@ class Fleet(StackedFilter):
         get ``(k, N, d)`` points with ``k <= chunk``, and per-filter
         ``fx_args``/``hx_args`` cut to the same filters. On several threads
         (:func:`squkf.set_num_threads`) the chunks are cut evenly between
-        them. Default (None): 2048 on one thread, 4096 on more
+        them. Default (None): 2048, or 4096 on several threads when each
+        thread gets at least four such chunks
         (:func:`squkf.chunks.default_chunk`). The numbers do not depend on it.
 
     Attributes

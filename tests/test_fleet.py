@@ -464,14 +464,15 @@ def test_chunk_must_be_a_positive_integer(bad):
         cv_fleet(3, MerweScaledWeights(), chunk=bad)
 
 
-@pytest.mark.parametrize(("threads", "chunk", "calls"), [
-    (1, None, [2048, 2048, 904]),  # the default: CHUNK on one thread
-    (2, None, [2500, 2500]),  # twice CHUNK on more, cut evenly between the threads
-    (2, 1000, [834, 834, 833, 833, 833, 833]),  # given: at most that many, a multiple of the threads
-    (1, 3000, [3000, 2000]),
+@pytest.mark.parametrize(("K", "threads", "chunk", "calls"), [
+    (5000, 1, None, [2048, 2048, 904]),  # the default: CHUNK
+    (5000, 2, None, [1250] * 4),  # on threads cut evenly, a multiple of their count
+    (40_000, 2, None, [4000] * 10),  # twice CHUNK once each thread gets four such chunks
+    (5000, 2, 1000, [834, 834, 833, 833, 833, 833]),  # given: at most that many
+    (5000, 1, 3000, [3000, 2000]),
 ])  # fmt: skip
-def test_chunk_none_is_the_librarys_size_for_the_thread_count(threads, chunk, calls):
-    fleet = cv_fleet(5000, MerweScaledWeights(), chunk=chunk)
+def test_chunk_none_is_the_librarys_size_for_the_thread_count(K, threads, chunk, calls):
+    fleet = cv_fleet(K, MerweScaledWeights(), chunk=chunk)
     assert fleet.chunk == chunk
     seen = []
 
