@@ -314,7 +314,7 @@ def tell_update(
     post : Posterior
         Of the observed components.
     H : ndarray, shape (..., N, m)
-        The images, checked (a private array).
+        The images, checked (a private array; with ``checked``, ``values`` itself).
     """
     if state.phase != UPDATING:
         raise CallSequenceError(
@@ -444,7 +444,7 @@ def gated_update(
         Phase ``"idle"``.
     update : GatedUpdate
     H : ndarray, shape (..., N, m)
-        The images, checked (a private array).
+        The images, checked (a private array; with ``checked``, ``values`` itself).
     """
     new, post, H = tell_update(state, values, z, R1_2, observed, hooks, UT, name, checked)
     if gate is None:
