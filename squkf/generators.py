@@ -107,6 +107,11 @@ def axis_gamma(xi: np.ndarray) -> float | None:
     return gamma if gamma != 0.0 and np.array_equal(xi, axes) else None
 
 
+def _plain_sum(state_add) -> bool:
+    """Whether ``state_add`` is the plain sum ``x + dx`` (the kernel forms the points itself)."""
+    return state_add is None or state_add is np.add
+
+
 def sigma_points_and_offsets(
     x: np.ndarray, S: np.ndarray, xi: np.ndarray, state_add=None, gamma: float | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -134,7 +139,7 @@ def sigma_points_and_offsets(
     """
     sigmas, dx = kernels.sigma_points(x, S, xi, 0.0 if gamma is None else gamma)
     assert dx is not None
-    if state_add is None or state_add is np.add:
+    if _plain_sum(state_add):
         return sigmas, dx
     out = np.empty(sigmas.shape)
     n = x.shape[-1]
@@ -150,7 +155,7 @@ def sigma_points_from_factor(
     x: np.ndarray, S: np.ndarray, xi: np.ndarray, state_add=None, gamma: float | None = None
 ) -> np.ndarray:
     """The sigma points of :func:`sigma_points_and_offsets` alone, shape ``(..., N, n)``."""
-    if state_add is None or state_add is np.add:  # the offsets are not needed: not formed
+    if _plain_sum(state_add):  # the offsets are not needed: not formed
         return kernels.sigma_points(x, S, xi, 0.0 if gamma is None else gamma, offsets=False)[0]
     return sigma_points_and_offsets(x, S, xi, state_add, gamma)[0]
 
@@ -232,7 +237,7 @@ class UnitSet:
         """The set for mean ``x`` ``(..., n)`` and lower factor ``S`` ``(..., n, n)``."""
         sigmas, offsets = sigma_points_and_offsets(x, S, self.xi, state_add, self.gamma)
         rows = self.rows
-        axis = self.gamma is not None and (state_add is None or state_add is np.add)
+        axis = self.gamma is not None and _plain_sum(state_add)
         return SigmaSet(sigmas, rows.Wm, rows.Wc, self.exact, offsets, rows, axis)
 
 
