@@ -493,7 +493,8 @@ def batch_filter(
                 ukf.predict(dt=dt_k.at(k), UT=UT, Q=Q_k.at(k), **fx_k.at(k))
                 ukf.update(z, R=R_k.at(k), UT=UT, **hx_k.at(k))
                 measured = ukf.z.dtype != object  # update(None) leaves filterpy's column of Nones
-                rejected.append(ukf.rejected)
+                # a step's own records: of nothing measured, nothing rejected and NIS 0
+                rejected.append(ukf.rejected if measured else np.zeros(ukf.dim_z, dtype=bool))
                 nis.append(ukf.nis if measured else 0.0)
                 loglik.append(ukf.log_likelihood if measured else 0.0)
                 means.append(ukf.x)

@@ -138,6 +138,7 @@ def measurement_update(
     z: np.ndarray,
     R1_2: np.ndarray,
     *,
+    observed: np.ndarray | None = None,
     z_mean_fn: Callable | None = None,
     residual_x: Callable | None = None,
     residual_z: Callable | None = None,
@@ -157,9 +158,17 @@ def measurement_update(
     sigmas_h : ndarray, shape (..., N, m)
         The measurement function's values at ``sset.sigmas``.
     z : ndarray, shape (..., m)
-        The measurement.
+        The measurement (components not measured may hold anything, NaN too).
     R1_2 : ndarray, shape (..., m, m)
         Lower factor of the measurement noise covariance.
+    observed : ndarray of bool, shape (m,), optional
+        The components the update uses (default: all). The update is that of
+        the measurement of these alone, with the factor of R's observed block.
+        ``z_mean_fn``, ``residual_z`` and ``UT`` see whole vectors (every
+        component, the others too; ``residual_z`` sees the predicted value at
+        a component of ``z`` not measured); the update takes the observed
+        components of what they return, so a hook that indexes a fixed
+        component stays right.
     z_mean_fn, residual_x, residual_z, state_add : callable, optional
         filterpy's hooks for non-additive quantities (angles), called per
         filter; what they return is checked.
@@ -170,6 +179,8 @@ def measurement_update(
     Returns
     -------
     Posterior
+        Of the observed components (``y``, ``z_pred``, ``Sy``, ``L21``, ``w``
+        have ``m_obs`` of them).
 
     Raises
     ------
@@ -181,15 +192,24 @@ def measurement_update(
         The posterior factor could not be formed (IFAIL 303).
     """
     rows = sset.rows if sset.rows is not None else weight_rows(sset.Wm, sset.Wc)
-    hooks = z_mean_fn is not None or residual_x is not None or residual_z is not None
+    z_hooks = z_mean_fn is not None or residual_z is not None
+    cols: np.ndarray | slice = slice(None)  # the observed components of what is formed over all of them
+    Ro = R1_2
+    if observed is not None and not observed.all():
+        Ro = observed_noise_factor(R1_2, observed)
+        if z_hooks or UT is not None:  # they see every component: their results are cut below
+            cols = observed
+        else:  # the kernels form everything from the measured components alone
+            sigmas_h, z = sigmas_h[..., observed], z[..., observed]
     if UT is None and sset.moments_exact:
-        if hooks:
+        if z_hooks or residual_x is not None:
             form = rows.mean_form
             z_pred = weighted_mean(sigmas_h, rows.Wm, z_mean_fn, "z_mean_fn")
             Dz = deviations(sigmas_h, z_pred, residual_z, "residual_z")
-            y = _innovation(z, z_pred, residual_z)
+            y = _innovation(_present(z, z_pred, cols), z_pred, residual_z)
+            z_pred, Dz, y = z_pred[..., cols], Dz[..., cols], y[..., cols]
             u = kernels.joint_update(
-                Dz, _state_deviations(sset, x, residual_x), y, R1_2, x, kernels.GIVEN,
+                Dz, _state_deviations(sset, x, residual_x), y, Ro, x, kernels.GIVEN,
                 rows.Wm, form.scale, form.sign, zref=z_pred,
             )  # fmt: skip
         else:
@@ -204,45 +224,64 @@ def measurement_update(
             else:
                 X, xref, mode = sset.sigmas, x, kernels.MEAN
             u = kernels.joint_update(
-                sigmas_h, X, z, R1_2, x, mode, rows.Wm, form.scale, form.sign, xref=xref, pair=pair
+                sigmas_h, X, z, Ro, x, mode, rows.Wm, form.scale, form.sign, xref=xref, pair=pair
             )
             z_pred = cast(np.ndarray, u.z_pred)
-        _raise_update_status(u.status, form, S, R1_2)
+        _raise_update_status(u.status, form, S, Ro)
     else:
         m = z.shape[-1]
+        mo = m if isinstance(cols, slice) else int(np.count_nonzero(cols))
+        batch = sigmas_h.shape[:-2]
         if UT is None:
-            z_pred, Sy = transform_factor(
-                sigmas_h, rows, R1_2, z_mean_fn, residual_z, errno=301, hooks=("z_mean_fn", "residual_z")
-            )
+            z_pred = weighted_mean(sigmas_h, rows.Wm, z_mean_fn, "z_mean_fn") if z_hooks else None
         else:
             z_pred, Sy = UT(sigmas_h, sset.Wm, sset.Wc, R1_2, z_mean_fn, residual_z)
-            z_pred = check_hook_result(z_pred, sigmas_h.shape[:-2] + (m,), "UT")
-            Sy = check_hook_result(Sy, sigmas_h.shape[:-2] + (m, m), "UT")
-        check_gain(Sy)
-        y = _innovation(z, z_pred, residual_z)
-        if residual_z is None:
+            z_pred = check_hook_result(z_pred, batch + (m,), "UT")
+            Sy = check_hook_result(Sy, batch + (m, m), "UT")
+            if not isinstance(cols, slice):  # the factor of the observed block: its rows, by one QR
+                Sy = observed_noise_factor(Sy, cols)
+        if z_pred is None:  # no hook, no UT: the transform kernel forms the mean too
+            z_pred, Sy = transform_factor(sigmas_h, rows, Ro, errno=301)
             H, zref = sigmas_h, z_pred
+        elif residual_z is None:
+            H, zref = sigmas_h[..., cols], z_pred[..., cols]
         else:
-            H, zref = deviations(sigmas_h, z_pred, residual_z, "residual_z"), np.zeros(m)
+            H, zref = deviations(sigmas_h, z_pred, residual_z, "residual_z")[..., cols], np.zeros(mo)
+        y = _innovation(_present(z, z_pred, cols), z_pred, residual_z)[..., cols]
+        z_pred = z_pred[..., cols]
+        if UT is None and z_hooks:  # the hooks' rows, weighed as the transform weighs them
+            Sy = factor_rows(H - zref[..., None, :], rows.mean_form, Ro, errno=301)
+        check_gain(Sy)
+        n = x.shape[-1]
         if residual_x is None:
-            X, xref = (sset.sigmas, x) if sset.offsets is None else (sset.offsets, np.zeros(x.shape[-1]))
+            X, xref = (sset.sigmas, x) if sset.offsets is None else (sset.offsets, np.zeros(n))
         else:
-            X, xref = deviations(sset.sigmas, x, residual_x, "residual_x"), np.zeros(x.shape[-1])
+            X, xref = deviations(sset.sigmas, x, residual_x, "residual_x"), np.zeros(n)
         u = kernels.downdate_update(H, zref, X, xref, y, Sy, S, x, rows.Wc)
         if sset.moments_exact:  # a user's UT with an exact set: the gain form, no downdate
-            S_gain = _gain_form_posterior(
-                Sy, u.L21, X - xref[..., None, :], H - zref[..., None, :], rows, R1_2
-            )
+            S_gain = _gain_form_posterior(Sy, u.L21, X - xref[..., None, :], H - zref[..., None, :], rows, Ro)
             if not (all_finite(S_gain) and all_finite(u.x)):
                 raise PosteriorFactorError("the posterior mean or factor is not finite", errno=303)
             u = u._replace(S=S_gain, status=np.zeros_like(u.status))
-        _raise_update_status(u.status, rows.mean_form, S, R1_2)
+        _raise_update_status(u.status, rows.mean_form, S, Ro)
     x_post = u.x
     if state_add is not None:
         x_post = _per_filter(state_add, x, u.dx, "state_add")
         if not all_finite(x_post):
             raise PosteriorFactorError("the posterior mean or factor is not finite", errno=303)
     return Posterior(x_post, u.S, u.y, z_pred, u.Sy, u.L21, u.w, u.log_likelihood, u.nis)
+
+
+def _present(z: np.ndarray, z_pred: np.ndarray, cols: np.ndarray | slice) -> np.ndarray:
+    """``z`` as ``residual_z`` sees it: every component, the predicted value where one is missing (NaN).
+
+    The hook is called with whole vectors, so that one indexing a fixed component (an angle) stays
+    right; a missing component holds ``z_pred``'s value there (finite; its innovation is discarded),
+    a component a gate rejected its measured value.
+    """
+    if isinstance(cols, slice):
+        return z
+    return np.where(np.isnan(z), z_pred, z)
 
 
 def _innovation(z: np.ndarray, z_pred: np.ndarray, residual_z: Callable | None) -> np.ndarray:

@@ -31,7 +31,7 @@ import numpy as np
 from .errors import CallSequenceError, NonFiniteError
 from .generators import SigmaSet, sigma_points_from_factor
 from .linalg import all_finite
-from .measurement import Posterior, measurement_update, observed_noise_factor
+from .measurement import Posterior, measurement_update
 from .plan import Hooks, Plan
 from .transform import transform_factor
 from .validate import check_hook_result, check_values
@@ -300,7 +300,8 @@ def tell_update(
     observed : ndarray of bool, shape (m,), optional
         The components of ``z`` that were measured (default: all). The update
         uses those only: their columns of the images, and the factor of R's
-        observed block; the hooks and ``UT`` see the observed components.
+        observed block; the hooks and ``UT`` see whole vectors, and the update
+        takes the observed components of what they return.
     hooks : Hooks
     UT : callable, optional
     name : str
@@ -325,17 +326,15 @@ def tell_update(
     sset: SigmaSet = state.sset  # type: ignore[assignment]  # set in phase UPDATING, as is the prior
     sigmas = sset.sigmas
     H = values if checked else check_values(values, sigmas.shape[:-1] + (m,), name)
-    Ho, zo, Ro = H, z, R1_2
-    if observed is not None and not observed.all():
-        Ho, zo, Ro = H[..., observed], z[..., observed], observed_noise_factor(R1_2, observed)
     x, S = state.prior  # type: ignore[misc]
     post = measurement_update(
         x,
         S,
         sset,
-        Ho,
-        zo,
-        Ro,
+        H,
+        z,
+        R1_2,
+        observed=observed,
         z_mean_fn=hooks.z_mean_fn,
         residual_x=hooks.residual_x,
         residual_z=hooks.residual_z,

@@ -1187,3 +1187,34 @@ def assert_fleet_state(fleet, snap: dict) -> None:
         np.testing.assert_array_equal(np.asarray(getattr(fleet, a)), snap[a], err_msg=a)
     assert list(fleet.failure) == snap["failure list"]
     assert fleet._state.phase == snap["phase"]
+
+
+# -- a [range, bearing, heading] sensor: hooks that index a fixed component of z ------------------
+
+RBH_X0 = np.array([-100.0, 0.4, 0.1, 2.0])  # bearing near +pi: the sigma points' bearings wrap
+RBH_P0 = np.diag([4.0, 4.0, 0.01, 0.25])
+RBH_Q = np.diag([0.1, 0.1, 1e-4, 0.01])
+RBH_R = np.diag([0.25, 0.003**2 * 100, 0.02**2])
+
+
+def range_bearing_heading_hx(X):
+    """Range and bearing of [px, py] (an angle, near +-pi here) and the heading, for ``X[..., i]``."""
+    return np.stack([np.hypot(X[..., 0], X[..., 1]), np.arctan2(X[..., 1], X[..., 0]), X[..., 2]], axis=-1)
+
+
+def bearing_heading_hx(X):
+    """:func:`range_bearing_heading_hx` without the range: the oracle of a missing range."""
+    return range_bearing_heading_hx(X)[..., 1:]
+
+
+def rbh_filter(gate=None, m: int = 3, vectorized: bool = False):
+    """A filter of the [range, bearing, heading] sensor (``m = 2``: without the range, the bearing first)."""
+    hx = range_bearing_heading_hx if m == 3 else bearing_heading_hx
+    b = 1 if m == 3 else 0  # the bearing's index in z
+    f = SquareRootUKF(
+        4, m, 1.0, hx, turn_fx_stacked, MerweScaledWeights(alpha=0.5),
+        z_mean_fn=AngleMean([b]), residual_z=AngleResidual([b]), gate=gate, vectorized=vectorized,
+    )  # fmt: skip
+    f.x, f.P, f.Q = RBH_X0, RBH_P0, RBH_Q
+    f.R = RBH_R if m == 3 else RBH_R[1:, 1:]
+    return f

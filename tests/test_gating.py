@@ -25,12 +25,15 @@ from models import (
     cv_fx_stacked,
     radar_configure,
     radar_track,
+    range_bearing_heading_hx,
     range_bearing_hx,
+    rbh_filter,
 )
 from scipy.stats import chi2
 
 import squkf
 from squkf import Fleet, Gate, MerweScaledWeights, ParameterError, SquareRootUKF
+from squkf.angles import wrap
 from squkf.batch import BatchResult
 
 
@@ -327,3 +330,86 @@ def test_dask_gives_the_fleets_gate_records(keep):
     else:
         assert got.nis is None
     np.testing.assert_array_equal(got.x, want.x)
+
+
+# == hooks see the whole z through a gate (issue 29, item 5) ======================================
+
+
+def test_a_rejected_range_leaves_the_bearings_hook_at_its_index():
+    """Per-component gating drops a wild range of a [range, bearing, heading] sensor; the bearing,
+    still index 1 for ``AngleResidual([1])``, is wrapped: the update equals the sensor without the
+    range (its hooks at index 0) fed the bearing and the heading (1e-12: another arithmetic order).
+    """
+    gated, oracle = rbh_filter(Gate(nis=9.0, per_component=True)), rbh_filter(m=2)
+    for _ in range(3):
+        gated.predict()
+        oracle.predict()
+        z = range_bearing_heading_hx(gated.x) + np.array([60.0, 0.002, -0.004])  # a range far off
+        z[1] = wrap(z[1])
+        gated.update(z)
+        oracle.update(z[1:])
+        np.testing.assert_array_equal(gated.rejected, [True, False, False])
+        np.testing.assert_allclose(gated.x, oracle.x, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(gated.P, oracle.P, rtol=1e-10, atol=1e-14)
+
+
+# == one record, one update (issue 29, item 6) =====================================================
+
+
+def last_update_records(f) -> dict:
+    return {
+        name: np.array(getattr(f, name), dtype=float)
+        for name in ("nis", "mahalanobis", "rejected", "y", "S", "log_likelihood", "likelihood")
+    }
+
+
+@pytest.mark.parametrize("nothing", [None, np.array([np.nan, np.nan])], ids=["None", "all-nan"])
+def test_an_update_without_measurement_keeps_the_last_updates_records(nothing):
+    """``nis``, ``rejected``, ``y``, ``S`` and the likelihoods all describe the last update, as filterpy
+    keeps ``mahalanobis`` and the likelihoods after ``update(None)``."""
+    _, zs = radar_track(3, seed=5, wild=0.0)
+    f = squkf_ukf(Gate(0.999, per_component=True))
+    f.predict()
+    wild = zs[0] + np.array([0.0, 3.0])  # the bearing rejected
+    f.update(wild)
+    assert f.rejected.tolist() == [False, True]
+    before = last_update_records(f)
+    f.predict()
+    f.update(nothing)
+    after = last_update_records(f)
+    for name, value in before.items():
+        np.testing.assert_array_equal(after[name], value, err_msg=name)
+    # filterpy's own rule, for the record
+    ref = filterpy_ukf()
+    ref.predict()
+    ref.update(zs[0])
+    kept = (ref.mahalanobis, ref.log_likelihood, ref.likelihood)
+    ref.predict()
+    ref.update(None)
+    assert (ref.mahalanobis, ref.log_likelihood, ref.likelihood) == kept
+
+
+def test_a_step_with_nothing_measured_records_nis_zero_and_nothing_rejected():
+    """batch_filter's and a fleet's per-step records of a step with no measurement: NIS 0, none rejected."""
+    _, zs = radar_track(4, seed=5, wild=0.0)
+    zs = list(zs)
+    zs[1] = zs[1] + np.array([0.0, 3.0])  # the bearing rejected at step 1
+    zs[2] = None  # and nothing measured at step 2
+    result = squkf_ukf(Gate(0.999, per_component=True)).batch_filter(zs)
+    assert result.rejected[1].tolist() == [False, True]
+    assert result.rejected[2].tolist() == [False, False]
+    assert result.nis[2] == 0.0 and result.log_likelihood[2] == 0.0
+    # a fleet: filter 0 rejects a bearing, then has no measurement while filter 1 has one
+    fleet = fleet_and_filters(2, Gate(0.999, per_component=True))
+    fleet.predict()
+    fleet.update(np.array([zs[1], zs[0]]))
+    assert fleet.rejected[0].tolist() == [False, True]
+    fleet.predict()
+    fleet.update(np.array([[np.nan, np.nan], zs[3]]))
+    assert fleet.rejected[0].tolist() == [False, False]
+    assert fleet.nis[0] == 0.0 and fleet.log_likelihood[0] == 0.0 and fleet.nis[1] > 0.0
+    run = fleet_and_filters(2, Gate(0.999, per_component=True)).batch_filter(
+        np.array([[zs[0], zs[1], [np.nan, np.nan]], [zs[0], zs[0], zs[3]]])
+    )
+    assert run.rejected[0, 1].tolist() == [False, True]
+    assert run.rejected[0, 2].tolist() == [False, False] and run.nis[0, 2] == 0.0

@@ -32,13 +32,18 @@ from models import (
     lin4_ukf,
     make_cv3_fleet,
     one_d_measured,
+    range_bearing_heading_hx,
+    rbh_filter,
     step,
 )
 
+import squkf
 from squkf import (
+    Fleet,
     MerweScaledWeights,
     SquareRootUKF,
 )
+from squkf.angles import wrap
 
 # == partial measurements: the Kalman filter on the observed rows ==================================
 
@@ -256,3 +261,73 @@ def test_a_masked_zs_is_missing_where_masked_on_dask():
     for zs in (masked, da.ma.masked_array(da.from_array(masked.data, chunks=(2, -1, -1)), mask=masked.mask)):
         got = sd.compute(sd.batch_filter(make_cv3_fleet(), zs), scheduler="synchronous")
         np.testing.assert_array_equal(got.means, expected.means)
+
+
+# == hooks see the whole z (issue 29, item 5) ========================================================
+
+
+def rbh_z(f) -> np.ndarray:
+    """A measurement of the [range, bearing, heading] sensor near the prior's prediction."""
+    z = range_bearing_heading_hx(f.x)
+    return np.array([z[0] + 0.7, wrap(z[1] + 0.02), z[2] - 0.01])
+
+
+def test_z_hooks_see_the_whole_vector_with_a_missing_component():
+    """A missing range: AngleResidual([1]) still wraps the bearing (index 1 of the whole z).
+
+    The oracle is the filter of the sensor without the range (its hooks at index 0), fed
+    the bearing and heading: the same update in another arithmetic order (R's observed
+    block factored by a QR of R1_2's rows there, by Cholesky here), so 1e-12.
+    """
+    full, oracle = rbh_filter(), rbh_filter(m=2)
+    for _ in range(3):
+        full.predict()
+        oracle.predict()
+        z = rbh_z(full)
+        full.update(np.array([np.nan, z[1], z[2]]))
+        oracle.update(z[1:])
+        np.testing.assert_allclose(full.x, oracle.x, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(full.P, oracle.P, rtol=1e-10, atol=1e-14)
+        np.testing.assert_allclose(full.y[1:], oracle.y, rtol=1e-10, atol=1e-14)
+        assert np.isnan(full.y[0])
+        assert full.log_likelihood == pytest.approx(oracle.log_likelihood, rel=1e-12)
+
+
+def test_a_ut_sees_the_whole_vector_with_a_missing_component():
+    """A user's UT is called with every component (and the whole R); the update takes the measured ones."""
+    seen = []
+
+    def UT(sigmas, Wm, Wc, noise_sqrt, mean_fn, residual_fn):
+        seen.append((sigmas.shape, noise_sqrt.shape))
+        return squkf.sqrt_unscented_transform(sigmas, Wm, Wc, noise_sqrt, mean_fn, residual_fn)
+
+    with_ut, plain = rbh_filter(), rbh_filter()
+    for f in (with_ut, plain):
+        f.predict()
+    z = rbh_z(plain)
+    z[0] = np.nan
+    with_ut.update(z, UT=UT)
+    plain.update(z)
+    assert seen == [((9, 3), (3, 3))]
+    np.testing.assert_allclose(with_ut.x, plain.x, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(with_ut.P1_2, plain.P1_2, rtol=1e-10, atol=1e-14)
+
+
+def test_a_fleet_with_z_hooks_and_missing_components_equals_its_filters():
+    """A fleet's filters with hooks and a missing range each equal the single filter, bit for bit."""
+    singles = [rbh_filter(vectorized=True) for _ in range(3)]
+    fleet = Fleet.from_filters(singles)
+    for t in range(2):
+        zs = []
+        for k, f in enumerate(singles):
+            f.predict()
+            z = rbh_z(f)
+            if (k + t) % 2:
+                z[0] = np.nan
+            f.update(z)
+            zs.append(z)
+        fleet.predict()
+        fleet.update(np.array(zs))
+    for k, f in enumerate(singles):
+        np.testing.assert_array_equal(fleet.x[k], f.x)
+        np.testing.assert_array_equal(fleet.P1_2[k], f.P1_2)

@@ -260,7 +260,6 @@ class OneFilter(ModelForm, InDictCopies):
         state = steps.skip_update(self._state)
         x, S = self._current()
         self._state = state
-        self.z = np.array([[None] * self._dim_z]).T
-        self._last = self._last.replace(rejected=np.zeros(self._dim_z, dtype=bool))
+        self.z = np.array([[None] * self._dim_z]).T  # the last update's records stay, as filterpy's
         self.x_post = x.copy()
         self.P1_2_post = S.copy()
