@@ -182,6 +182,8 @@ def _set_threads(n: int) -> None:
 def _hold() -> _Threads:
     """The current count and its pool, held (the pool made if need be) until :func:`_let_go`."""
     global _pool
+    if _threads == 1:  # unlocked: a count set meanwhile is a step late, as it would be a moment later
+        return _SERIAL
     with _lock:
         if _threads == 1:
             return _SERIAL
