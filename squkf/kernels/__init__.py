@@ -148,7 +148,7 @@ def get_num_threads() -> int:
 def _threads_from_environ(text: str) -> int:
     """The count ``SQUKF_NUM_THREADS=text`` asks for, capped at the usable cores; 1 if it is not a count.
 
-    Either way out is said in a ``RuntimeWarning``: the import goes on.
+    Either correction is said in a ``RuntimeWarning`` naming the variable; the import goes on.
     """
     try:
         n = int(text)
