@@ -17,6 +17,7 @@ from .errors import (
     ShapeError,
     SqukfError,
     SqukfValueError,
+    UnsupportedEnvironmentError,
 )
 from .fleet import Fleet, FleetResult, FleetStepError
 from .gating import Gate
@@ -65,4 +66,5 @@ __all__ = [
     "PosteriorFactorError",
     "CallSequenceError",
     "CommunicationError",
+    "UnsupportedEnvironmentError",
 ]

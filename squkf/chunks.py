@@ -85,15 +85,18 @@ def _label(name: str, rows: slice, K: int) -> str:
     return f"{name} of filters {rows.start} to {rows.stop - 1} (one call of {rows.stop - rows.start})"
 
 
-def _cut(K: int, size: int | None) -> list[slice]:
-    """The chunks of a step of ``K`` filters on the threads of :func:`squkf.set_num_threads`."""
-    threads = kernels.get_num_threads()
-    return chunks(K, default_chunk(threads, K) if size is None else size, threads)
+def _map_chunks(
+    one: Callable[[slice], dict[int, str]], K: int, size: int | None, fails: dict[int, str]
+) -> None:
+    """``one`` over the chunks of a step of ``K`` filters, on the threads of :func:`squkf.set_num_threads`.
 
-
-def _gather(parts: list[dict[int, str]], fails: dict[int, str]) -> None:
-    for part in parts:
-        fails.update(part)
+    The step holds the thread count it starts with (:func:`squkf.kernels.step_threads`):
+    its chunks are cut for it and run on its threads whatever the count is set to meanwhile.
+    """
+    with kernels.step_threads() as threads:
+        cut = chunks(K, default_chunk(threads, K) if size is None else size, threads)
+        for part in kernels.thread_map(one, cut):
+            fails.update(part)
 
 
 class Prior(NamedTuple):
@@ -183,7 +186,7 @@ def stacked_prior(
             propagated[rows] = F
         return {rows.start + i: why for i, why in found.items()}
 
-    _gather(kernels.thread_map(one, _cut(K, size)), fails)
+    _map_chunks(one, K, size, fails)
     return Prior(x_new, S_new, propagated)
 
 
@@ -273,5 +276,5 @@ def stacked_posterior(
             whole[rows] = part
         return {rows.start + i: why for i, why in found.items()}
 
-    _gather(kernels.thread_map(one, _cut(K, size)), fails)
+    _map_chunks(one, K, size, fails)
     return out

@@ -3,7 +3,8 @@
 Every exception derives from :class:`SqukfError`, and also from the built-in
 class a caller is likely to catch already: bad arguments are ``ValueError``s,
 lost positive-definiteness is a ``numpy.linalg.LinAlgError``, misuse of the
-ask/tell protocol is a ``RuntimeError``.
+ask/tell protocol is a ``RuntimeError``, a process squkf cannot run in is an
+``ImportError`` (raised by ``import squkf``).
 
 Where an error corresponds to one of the error exits documented for NAG's
 routine g13ej, the exception carries that number as ``errno`` (``None``
@@ -29,6 +30,7 @@ __all__ = [
     "CallSequenceError",
     "CommunicationError",
     "FleetStepError",
+    "UnsupportedEnvironmentError",
 ]
 
 
@@ -135,3 +137,12 @@ class FleetStepError(SqukfError, ArithmeticError):
 
     def __reduce__(self):
         return (type(self), (self.args[0], self.filters, self.reasons))
+
+
+class UnsupportedEnvironmentError(SqukfError, ImportError):
+    """The process is set up in a way squkf cannot run in; raised by ``import squkf``.
+
+    ``NUMBA_DISABLE_JIT`` is one: the kernels rely on being compiled by numba.
+    An ``ImportError``, so code that treats squkf as optional
+    (``try: import squkf`` / ``except ImportError``) goes on without it.
+    """

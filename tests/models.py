@@ -757,6 +757,14 @@ def plain_scenario(K, T=6, seed=0):
     return x0, P0, Q, R, zs
 
 
+def plain_fleet(K, fx=plain_fx, chunk=None, seed=0):
+    """A fleet of the plain model (Merwe points) at :func:`plain_scenario`'s start, and its zs (T, K, 2)."""
+    x0, P0, Q, R, zs = plain_scenario(K, seed=seed)
+    fleet = Fleet(K, 4, 2, 0.1, plain_hx, fx, MerweScaledWeights(1.0, 2.0, 0.0), chunk=chunk)
+    fleet.x, fleet.P, fleet.Q, fleet.R = x0, P0, Q, R
+    return fleet, zs
+
+
 # -- linear models -------------------------------------------------------------------------------
 
 # the precise sensor: position measured to 1e-6, almost no process noise (filterpy's UKF fails)

@@ -79,6 +79,7 @@ def test_results_do_not_depend_on_chunk_block_size_or_thread_count(monkeypatch, 
     config = CONFIGS[name]
     reference = run_fleet(K, config, x0, P0, Q, R, zs)
     monkeypatch.setattr(kernels, "MIN_FILTERS_PER_THREAD", 7)  # cut small stacks too
+    monkeypatch.setattr(kernels, "usable_cores", lambda: 3)  # three threads, not capped on fewer cores
     for block, chunk, threads in ((64, 1024, 1), (37, 50, 2), (300, 7, 2), (5, 300, 3), (16, 1, 2)):
         monkeypatch.setattr(squkf.chunks, "BLOCK", block)
         kernels.set_num_threads(threads)

@@ -8,10 +8,13 @@ results back in that shape. One filter is a stack of one, computed by the
 same kernel as a fleet, so a filter alone and the same filter in a fleet get
 the same numbers, bit for bit.
 
-Kernels are compiled on first use (about a minute on an empty cache, in
-total) and cached on disk beside the package (numba's ``cache=True``); a
-new process loads them in a fraction of a second. Importing squkf compiles
-nothing.
+Kernels are compiled on first use (on an empty cache, 22 s for the default
+``SquareRootUKF`` or ``Fleet`` on the 2-core benchmark machine:
+``python benchmarks/compile_time.py``, ``benchmarks/results/compile.md``) and
+cached on disk beside the package (numba's ``cache=True``); a new process
+loads them in a fraction of a second. Importing squkf compiles nothing, and
+is refused with ``NUMBA_DISABLE_JIT`` set (the kernels are never run as
+Python).
 
 Failures are not raised here: each function returns a status per filter
 (see :mod:`squkf.kernels.phases`), which the callers turn into squkf's
@@ -23,12 +26,16 @@ from __future__ import annotations
 
 import os
 import threading
-from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+import warnings
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import contextmanager
 from typing import Any, NamedTuple, TypeVar
 
+import numba
 import numpy as np
 
+from ..errors import ParameterError, UnsupportedEnvironmentError
 from . import phases
 
 __all__ = [
@@ -45,6 +52,8 @@ __all__ = [
     "GIVEN",
     "set_num_threads",
     "get_num_threads",
+    "usable_cores",
+    "step_threads",
     "thread_map",
 ]
 
@@ -54,9 +63,51 @@ CENTRAL, MEAN, GIVEN = 0, 1, 2
 #: Below this many filters a stack is never split between threads (the hand-off costs more).
 MIN_FILTERS_PER_THREAD = 2048
 
+
+def _refuse_interpreted_kernels() -> None:
+    """Raise when numba's compiler is switched off: the kernels would run as Python and give wrong numbers.
+
+    Run as Python, a kernel loses what it relies on being compiled (LAPACK's
+    ``dgeqrf`` called through raw pointers, from 16 columns on), so the
+    setting is refused rather than run.
+    """
+    disabled = numba.config.DISABLE_JIT  # type: ignore[attr-defined]  # numba's config is set at run time
+    if disabled:
+        raise UnsupportedEnvironmentError(
+            f"NUMBA_DISABLE_JIT is set (numba.config.DISABLE_JIT={disabled!r}), and squkf "
+            "does not support it: its kernels rely on being compiled by numba, and run as Python they give "
+            "wrong numbers (the QR from 16 columns on calls LAPACK's dgeqrf through raw pointers). "
+            "Unset NUMBA_DISABLE_JIT to use squkf."
+        )
+
+
+_refuse_interpreted_kernels()
+
+
+class _Threads(NamedTuple):
+    """A thread count and its pool (None for one thread), as a running step holds them."""
+
+    n: int
+    pool: ThreadPoolExecutor | None
+
+
+_SERIAL = _Threads(1, None)
+_lock = threading.Lock()  # guards the three below
 _threads = 1
-_pool: ThreadPoolExecutor | None = None
-_worker = threading.local()  # .busy: this thread runs a job of the pool (no nested hand-off)
+_pool: ThreadPoolExecutor | None = None  # the pool of _threads, made on first use
+_holders: dict[ThreadPoolExecutor, int] = {}  # pool -> running steps holding it (current or replaced)
+_local = threading.local()  # .held: what this thread's running step holds (_SERIAL in a job of the pool)
+
+
+def usable_cores() -> int:
+    """The cores this process may run on: its CPU affinity where the system has one, else all."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return os.cpu_count() or 1
+
+
+def _too_many(asked: str, cores: int) -> str:
+    return f"{asked} asks for more threads than the {cores} cores this process may use; squkf uses {cores}"
 
 
 def set_num_threads(n: int) -> None:
@@ -67,21 +118,26 @@ def set_num_threads(n: int) -> None:
     :func:`squkf.chunks.chunks`); any other large stack is cut into ``n`` contiguous
     parts, each stepped by one kernel call on its own thread (the kernels
     release the GIL). Each filter's numbers are the same, bit for bit, for
-    any thread count. The environment variable ``SQUKF_NUM_THREADS`` sets
-    the count at import.
+    any thread count. What it takes, its cap at the usable cores, the
+    environment variable ``SQUKF_NUM_THREADS`` and when a change takes effect:
+    :ref:`the thread count <thread-rules>`.
 
     Parameters
     ----------
     n : int
         At least 1.
+
+    Raises
+    ------
+    ParameterError
+        If ``n`` is not a whole number of at least 1 (the count is left as it was).
     """
-    global _threads, _pool
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
-        raise ValueError(f"the thread count must be a whole number >= 1, got n={n!r}")
-    if _pool is not None and n != _threads:
-        _pool.shutdown(wait=True)
-        _pool = None
-    _threads = int(n)
+        raise ParameterError(f"the thread count must be a whole number >= 1, got n={n!r}")
+    cores = usable_cores()
+    if n > cores:
+        warnings.warn(_too_many(f"set_num_threads(n={n!r})", cores), RuntimeWarning, stacklevel=2)
+    _set_threads(min(int(n), cores))
 
 
 def get_num_threads() -> int:
@@ -89,19 +145,118 @@ def get_num_threads() -> int:
     return _threads
 
 
-def _get_pool() -> ThreadPoolExecutor:
+def _threads_from_environ(text: str) -> int:
+    """The count ``SQUKF_NUM_THREADS=text`` asks for, capped at the usable cores; 1 if it is not a count.
+
+    Either correction is said in a ``RuntimeWarning`` naming the variable; the import goes on.
+    """
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        warnings.warn(
+            f"SQUKF_NUM_THREADS={text!r} is not a whole number >= 1; squkf uses one thread",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+        return 1
+    cores = usable_cores()
+    if n > cores:
+        warnings.warn(_too_many(f"SQUKF_NUM_THREADS={text!r}", cores), RuntimeWarning, stacklevel=2)
+    return min(n, cores)
+
+
+def _set_threads(n: int) -> None:
+    """Make ``n`` the count; the old count's pool is shut down once no running step holds it."""
+    global _threads, _pool
+    with _lock:
+        if n == _threads:
+            return
+        old, _pool, _threads = _pool, None, n
+        idle = old is not None and old not in _holders
+    if old is not None and idle:
+        old.shutdown()
+
+
+def _hold() -> _Threads:
+    """The current count and its pool, held (the pool made if need be) until :func:`_let_go`."""
     global _pool
-    if _pool is None:
-        _pool = ThreadPoolExecutor(_threads, thread_name_prefix="squkf-kernel")
-    return _pool
+    if _threads == 1:  # unlocked: a count set meanwhile is a step late, as it would be a moment later
+        return _SERIAL
+    with _lock:
+        if _threads == 1:
+            return _SERIAL
+        if _pool is None:
+            _pool = ThreadPoolExecutor(_threads, thread_name_prefix="squkf-kernel")
+        _holders[_pool] = _holders.get(_pool, 0) + 1
+        return _Threads(_threads, _pool)
+
+
+def _let_go(held: _Threads) -> None:
+    """Undo one :func:`_hold`; a pool replaced meanwhile is shut down when its last step lets go."""
+    pool = held.pool
+    if pool is None:
+        return
+    with _lock:
+        left = _holders.pop(pool) - 1
+        if left:
+            _holders[pool] = left
+        retired = not left and pool is not _pool
+    if retired:
+        pool.shutdown()  # every job of it has ended: its steps waited for them
+
+
+@contextmanager
+def _held() -> Iterator[_Threads]:
+    """What the calling thread's running step holds; if none runs, the current count, held for the block."""
+    outer = getattr(_local, "held", None)
+    if outer is not None:
+        yield outer
+        return
+    held = _hold()
+    _local.held = held
+    try:
+        yield held
+    finally:
+        _local.held = None
+        _let_go(held)
+
+
+@contextmanager
+def step_threads() -> Iterator[int]:
+    """Hold the thread count for the block: a step's :func:`thread_map` and kernel calls in it use it.
+
+    A step holds the count (and the pool) it starts with until it ends: a
+    change of :func:`set_num_threads` meanwhile, from another thread or from
+    a model function inside the step, takes effect at the next step, and the
+    running one finishes on its threads. Inside a job of the pool, and inside
+    a block already held, it yields what is held there.
+
+    Yields
+    ------
+    int
+        The count held.
+    """
+    with _held() as held:
+        yield held.n
 
 
 def _in_pool(fn: Callable, *args):
-    _worker.busy = True
+    _local.held = _SERIAL  # a job hands nothing on: what it calls runs on its own thread
     try:
         return fn(*args)
     finally:
-        _worker.busy = False
+        _local.held = None
+
+
+def _results(jobs: list[Future]) -> list:
+    """The jobs' results once every one has ended; the first one's exception (in their order) raised."""
+    errors = [job.exception() for job in jobs]  # waits for every job
+    for exc in errors:
+        if exc is not None:
+            raise exc
+    return [job.result() for job in jobs]
 
 
 _T = TypeVar("_T")
@@ -114,7 +269,9 @@ def thread_map(fn: Callable[[Any], _T], items: Sequence) -> list[_T]:
     itself, the items are run in order on the calling thread. Otherwise
     they are handed to the pool; every job is waited for, and the first
     item's exception (in the order of ``items``) is raised, so no job still
-    runs when this returns.
+    runs when this returns. The count used is the one held by the calling
+    thread's step (:func:`step_threads`), else the current one, held until
+    every item has run.
 
     Parameters
     ----------
@@ -128,55 +285,52 @@ def thread_map(fn: Callable[[Any], _T], items: Sequence) -> list[_T]:
     list
         ``fn``'s results, in the order of ``items``.
     """
-    if _threads == 1 or len(items) < 2 or getattr(_worker, "busy", False):
-        return [fn(item) for item in items]
-    pool = _get_pool()
-    jobs = [pool.submit(_in_pool, fn, item) for item in items]
-    errors = [job.exception() for job in jobs]  # waits for every job
-    for exc in errors:
-        if exc is not None:
-            raise exc
-    return [job.result() for job in jobs]
+    with _held() as held:
+        if held.pool is None or len(items) < 2:
+            return [fn(item) for item in items]
+        pool = held.pool
+        return _results([pool.submit(_in_pool, fn, item) for item in items])
 
 
-def _run(kernel: Any, B: int, args: tuple, per_filter: tuple[bool, ...]) -> None:
-    """Call ``kernel(*args)``, cut over ``B`` filters between the threads when that pays.
+def _run(
+    pool: ThreadPoolExecutor, kernel: Any, B: int, parts: int, args: tuple, per_filter: tuple[bool, ...]
+) -> None:
+    """Call ``kernel(*args)`` with its ``B`` filters cut into ``parts`` contiguous parts on ``pool``.
 
     ``per_filter[i]`` tells whether ``args[i]`` has one row per filter (cut) or is
     shared (a plan's data, a shared noise factor: passed whole).
     """
-    parts = min(_threads, B // MIN_FILTERS_PER_THREAD)
-    if parts <= 1:
-        kernel(*args)
-        return
-    pool = _get_pool()
     cuts = [B * i // parts for i in range(parts + 1)]
-    jobs = [
+    _results([
         pool.submit(kernel, *(a[lo:hi] if cut else a for a, cut in zip(args, per_filter)))
         for lo, hi in zip(cuts[:-1], cuts[1:])
-    ]
-    for job in jobs:
-        job.result()
+    ])  # fmt: skip
 
 
 def _call(kernel: Any, B: int, *args, plan: tuple[int, ...] = ()) -> None:
     """``kernel(*args)`` over ``B`` filters; the arguments at ``plan`` are the plan's data, never cut.
 
     Every other array with ``B`` rows is one row per filter; a shared array has one row.
+    A large stack is cut between the threads the calling thread's step holds (:func:`step_threads`).
     """
-    if _threads == 1 or B < 2 * MIN_FILTERS_PER_THREAD or getattr(_worker, "busy", False):
+    if B < 2 * MIN_FILTERS_PER_THREAD:
         kernel(*args)
         return
-    cut = tuple(
-        i not in plan and isinstance(a, np.ndarray) and a.ndim >= 1 and a.shape[0] == B
-        for i, a in enumerate(args)
-    )
-    _run(kernel, B, args, cut)
+    with _held() as held:
+        parts = min(held.n, B // MIN_FILTERS_PER_THREAD)
+        if held.pool is None or parts <= 1:
+            kernel(*args)
+            return
+        cut = tuple(
+            i not in plan and isinstance(a, np.ndarray) and a.ndim >= 1 and a.shape[0] == B
+            for i, a in enumerate(args)
+        )
+        _run(held.pool, kernel, B, parts, args, cut)
 
 
-_env_threads = os.environ.get("SQUKF_NUM_THREADS")
-if _env_threads:
-    set_num_threads(int(_env_threads))
+_environ_threads = os.environ.get("SQUKF_NUM_THREADS")
+if _environ_threads:
+    _set_threads(_threads_from_environ(_environ_threads))
 
 
 def _batch(*arrays: tuple[np.ndarray | None, int]) -> tuple[int, ...]:
