@@ -387,6 +387,26 @@ def _shared(a: np.ndarray, batch: tuple[int, ...], core: int) -> np.ndarray:
     return _stack(a, batch, core)
 
 
+_NO_POINTS: dict[int, np.ndarray] = {}
+_NO_SET: dict[int, np.ndarray] = {}
+
+
+def _no_points(d: int) -> np.ndarray:
+    """No unit points, shape ``(0, d)``, read-only: a kernel told to draw no set."""
+    a = _NO_POINTS.get(d)
+    if a is None:
+        a = _NO_POINTS[d] = _plan(np.empty((0, d)))
+    return a
+
+
+def _no_set(d: int) -> np.ndarray:
+    """No set to write, shape ``(0, 1, d)``: a kernel's set output when none is drawn."""
+    a = _NO_SET.get(d)
+    if a is None:
+        a = _NO_SET[d] = np.empty((0, 1, d))
+    return a
+
+
 def _plan(a: np.ndarray) -> np.ndarray:
     """A plan's array as the kernels take it: float64, C-contiguous and read-only.
 
@@ -569,6 +589,7 @@ def transform(
     mean = np.empty((B, d))
     S = np.empty((B, d, d))
     status = np.empty(B, dtype=np.int64)
+    nothing = _no_set(d)
     _call(
         phases.transform_kernel,
         B,
@@ -582,7 +603,12 @@ def transform(
         mean,
         S,
         status,
-        plan=(3, 4, 5),
+        0,
+        _no_points(d),
+        0.0,
+        nothing,
+        nothing,
+        plan=(3, 4, 5, 11),
     )
     return _unstack(mean, batch), _unstack(S, batch), _unstack(status, batch)
 
@@ -684,7 +710,10 @@ def joint_update(
         _plan(sign),
         float(pair),
         *out,
-        plan=(8, 9, 10),
+        _no_points(n),
+        0.0,
+        _no_set(n),
+        plan=(8, 9, 10, 23),
     )
     return JointUpdate(*(_unstack(a, batch) for a in out))
 

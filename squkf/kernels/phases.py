@@ -607,9 +607,10 @@ def _axis_points(x, S, gamma, X, dX, offsets):
     B, N, n = X.shape
     o = N - 2 * n  # 1 with the central point, else 0
     shared = x.shape[0] == 1
+    shared_S = S.shape[0] == 1
     for k in range(B):
         xk = x[0] if shared else x[k]
-        Sk, Xk = S[k], X[k]
+        Sk, Xk = S[0] if shared_S else S[k], X[k]
         Dk = dX[k] if offsets else Xk  # never written when the offsets are not wanted
         if o == 1:
             for l in range(n):
@@ -633,7 +634,7 @@ def points_kernel(x, S, xi, gamma, X, dX):
     Parameters
     ----------
     x : ndarray, shape (B or 1, n)
-    S : ndarray, shape (B, n, n)
+    S : ndarray, shape (B or 1, n, n)
         Lower factors.
     xi : ndarray, shape (N, n)
         Unit points.
@@ -697,11 +698,39 @@ def finite_rows_kernel(A, ok):
 
 
 @kernel
-def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status):
-    """Weighted mean and lower factor of points' covariance plus additive noise.
+def _augmented_set(F, noise, xi, gamma, X2):
+    """``X2[k] = [F[k]; F[k, 0] + xi @ noise[k].T]``: g13ej's augmented second set (``noise``, shape
+    ``(B or 1, d, q)``, the process noise's lower factor; with ``q == 0`` the set is ``F`` alone)."""
+    B, N, d = F.shape
+    for k in range(B):
+        Xk, Fk = X2[k], F[k]
+        for i in range(N):
+            for l in range(d):
+                Xk[i, l] = Fk[i, l]
+    N2 = X2.shape[1]
+    if N2 == N:
+        return
+    centre = np.empty((B, d))
+    for k in range(B):
+        for l in range(d):
+            centre[k, l] = F[k, 0, l]
+    extra = np.empty((B, N2 - N, d))
+    points_kernel(centre, noise, xi, gamma, extra, np.empty((0, N2 - N, d)))
+    for k in range(B):
+        Xk, Ek = X2[k], extra[k]
+        for i in range(N2 - N):
+            for l in range(d):
+                Xk[N + i, l] = Ek[i, l]
+
+
+@kernel
+def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status, draw, xi2, gamma2, X2, D2):
+    """Weighted mean and lower factor of points' covariance plus additive noise; then, optionally,
+    the next sigma-point set (a prediction's second set: the step's prior and its set in one call).
 
     ``S[k] @ S[k].T = sum_r sign[r] scale[r]**2 D_r D_r^T + noise[k] @ noise[k].T``
-    with the rows ``D_r`` of form ``mode`` (module docstring).
+    with the rows ``D_r`` of form ``mode`` (module docstring). ``status[k]`` is 305 when the mean
+    or the factor is not finite (and nothing else failed).
 
     Parameters
     ----------
@@ -718,6 +747,18 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status):
     mean : ndarray, shape (B, d)
     S : ndarray, shape (B, d, d)
     status : ndarray of int64, shape (B,)
+        Outputs.
+    draw : int
+        0: no set drawn. 1: the set ``mean + xi2 @ S.T`` (the redrawn second set), into ``X2`` with
+        its offsets in ``D2`` (when ``D2`` has ``B`` rows), as :func:`points_kernel` draws it. 2: the
+        augmented set, ``P`` itself followed by ``P[:, 0] + xi2 @ noise.T`` (``noise`` a lower factor,
+        ``d`` columns; with none, ``P`` alone).
+    xi2 : ndarray, shape (N2, d)
+        Unit points of the set drawn (rows ``N`` on for ``draw == 2``).
+    gamma2 : float
+        As :func:`points_kernel`'s ``gamma`` for ``xi2``.
+    X2 : ndarray, shape (B, N2, d), or (0, N2, d) when nothing is drawn
+    D2 : ndarray, shape (B, N2, d), or (0, N2, d)
         Outputs.
     """
     B, N, d = P.shape
@@ -743,11 +784,19 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status):
         _deviations(Pl, N, d, nb, mode, wm, ml)
         _factor_lanes(Pl, none, N, nb, mode, scale, sign, noise, k0, _unfold(0), At, V, v, fl, st)
         for b in range(nb):
-            status[k0 + b] = st[b]
             mk = mean[k0 + b]
+            good = True
             for l in range(d):
                 mk[l] = ml[l, b]
+                good = good and math.isfinite(ml[l, b])
+                for j in range(l + 1):
+                    good = good and math.isfinite(At[l, j, b])
+            status[k0 + b] = st[b] if (st[b] != 0 or good) else 305
         _store_lower(At, _unfold(0), d, k0, nb, S)
+    if draw == 1:
+        points_kernel(mean, S, xi2, gamma2, X2, D2)
+    elif draw == 2:
+        _augmented_set(P, noise, xi2, gamma2, X2)
 
 
 @kernel
@@ -814,8 +863,13 @@ def joint_update_kernel(
     ll,
     ww,
     status,
+    xi1,
+    gamma1,
+    X1,
 ):
-    """The measurement update by one QR of the joint rows (the square-root array form).
+    """The measurement update by one QR of the joint rows (the square-root array form); then,
+    optionally, the next prediction's sigma points from the posterior (the step's update and the next
+    first set in one call).
 
     ``tria([[Dz, Dx], [R1_2^T, 0]]) = [[Sy, 0], [L21, L22]]``, then each
     negative row's downdate of the joint factor; ``w = Sy^-1 y``,
@@ -857,6 +911,12 @@ def joint_update_kernel(
         The log-likelihood of the measurement and the squared Mahalanobis distance ``w.w``.
     status : ndarray of int64, shape (B,)
         Outputs.
+    xi1 : ndarray, shape (N1, n)
+        Unit points of the set drawn from the posterior.
+    gamma1 : float
+        As :func:`points_kernel`'s ``gamma`` for ``xi1``.
+    X1 : ndarray, shape (B, N1, n), or (0, N1, n) when no set is drawn
+        Output: ``xpost + xi1 @ Spost.T``, as :func:`points_kernel` draws it.
     """
     B, N, m = H.shape
     n = X.shape[2]
@@ -923,6 +983,8 @@ def joint_update_kernel(
                     Lk[l, j] = L[m + l, j, b]
         _store_lower(L, _unfold(0), m, k0, nb, Sy)
         _store_lower(L, m, n, k0, nb, Spost)
+    if X1.shape[0] == B:
+        points_kernel(xpost, Spost, xi1, gamma1, X1, np.empty((0, X1.shape[1], n)))
 
 
 @kernel
