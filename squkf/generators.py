@@ -41,6 +41,7 @@ from .validate import call_hook
 from .weights import FilterpyPoints, as_family
 
 __all__ = [
+    "FusedDraw",
     "SigmaSet",
     "Redrawn",
     "Augmented",
@@ -53,6 +54,31 @@ __all__ = [
     "sigma_points_from_factor",
     "sigma_points_and_offsets",
 ]
+
+
+class FusedDraw(NamedTuple):
+    """A second set the prediction's kernel draws with the prior (the drawer's ``fused()``).
+
+    Attributes
+    ----------
+    xi : ndarray, shape (N2, n), read-only
+        The unit points drawn: the redrawn set's, or the augmented set's noise part.
+    gamma : float
+        Non-zero for axis points (:func:`axis_gamma`).
+    augmented : bool
+        The set is the propagated set followed by ``F_1 + xi @ Q1_2.T`` (else ``x + xi @ S.T``).
+    rows : WeightRows
+    exact : bool
+    axis : bool
+        The set is ``x + [0; gamma S^T; -gamma S^T]`` with its offsets (:class:`SigmaSet`).
+    """
+
+    xi: np.ndarray
+    gamma: float
+    augmented: bool
+    rows: WeightRows
+    exact: bool
+    axis: bool
 
 
 class SigmaSet(NamedTuple):
@@ -294,6 +320,12 @@ class _RedrawnSet:
     def __init__(self, unit: UnitSet):
         self.unit = unit
 
+    def fused(self) -> FusedDraw:
+        """The set as the prediction's kernel draws it (with the plain sum)."""
+        u = self.unit
+        axis = u.gamma is not None
+        return FusedDraw(u.xi, u.gamma if axis else 0.0, False, u.rows, u.exact, axis)  # type: ignore[arg-type]
+
     def draw(self, x, S, propagated, Q1_2, state_add) -> SigmaSet:
         return self.unit.draw(x, S, state_add)
 
@@ -384,6 +416,11 @@ class _AugmentedSet:
         g = float(noise_xi[0, 0]) if n else 0.0
         axes = g != 0.0 and np.array_equal(noise_xi, np.vstack([g * np.eye(n), -g * np.eye(n)]))
         self.noise_gamma = g if axes else None  # [g I; -g I]: the extra points in O(n^2)
+
+    def fused(self) -> FusedDraw:
+        """The set with process noise as the prediction's kernel draws it (with the plain sum)."""
+        g = 0.0 if self.noise_gamma is None else self.noise_gamma
+        return FusedDraw(self.noise_xi, g, True, self.rows, self.exact, False)
 
     def draw(self, x, S, propagated, Q1_2, state_add) -> SigmaSet:
         if propagated is None:

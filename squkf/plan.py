@@ -16,7 +16,8 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from .errors import ParameterError
-from .generators import Redrawn, UnitSet, noise_family, prepare_second_set
+from .generators import FusedDraw, Redrawn, UnitSet, noise_family, prepare_second_set
+from .kernels import plan_array
 
 __all__ = ["Plan", "Hooks", "build_plan"]
 
@@ -61,6 +62,19 @@ class Plan:
     keeps_propagated : bool
         Whether the second set reads the first set's images (augmented,
         propagated), which the step then keeps (derived from ``second``).
+
+    The route's data for the kernels, read-only (derived once):
+
+    xi1 : ndarray, shape (N, n)
+        The first set's unit points (state part).
+    gamma1 : float
+        Non-zero for axis points (the offsets in O(n^2)).
+    wm1, scale1, sign1 : ndarray, shape (N,)
+        The first set's mean weights and its best row form (:mod:`squkf.rows`):
+        the prediction's transform.
+    fused_draw : FusedDraw or None
+        The second set as the prediction's kernel can draw it with the prior
+        (redrawn, augmented), or None (the propagated set, a user's generator).
     """
 
     n: int
@@ -71,10 +85,29 @@ class Plan:
     w_xi: np.ndarray | None = None
     v_xi: np.ndarray | None = None
     keeps_propagated: bool = field(init=False)
+    xi1: np.ndarray = field(init=False)
+    gamma1: float = field(init=False)
+    wm1: np.ndarray = field(init=False)
+    scale1: np.ndarray = field(init=False)
+    sign1: np.ndarray = field(init=False)
+    fused_draw: FusedDraw | None = field(init=False)
 
     def __post_init__(self):
-        # read twice a step: an attribute, not a property
-        object.__setattr__(self, "keeps_propagated", bool(getattr(self.second, "uses_propagated", True)))
+        # read at every step: attributes, not properties
+        derived = object.__setattr__
+        derived(self, "keeps_propagated", bool(getattr(self.second, "uses_propagated", True)))
+        first = self.first
+        form = first.rows.best
+        derived(self, "xi1", plan_array(first.xi))
+        derived(self, "gamma1", 0.0 if first.gamma is None else float(first.gamma))
+        derived(self, "wm1", plan_array(first.rows.Wm))
+        derived(self, "scale1", plan_array(form.scale))
+        derived(self, "sign1", plan_array(form.sign))
+        fused = getattr(self.second, "fused", None)
+        draw = None if fused is None else fused()
+        if draw is not None:
+            draw = draw._replace(xi=plan_array(draw.xi))
+        derived(self, "fused_draw", draw)
 
     @property
     def num_sigmas(self) -> int:

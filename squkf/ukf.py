@@ -1,41 +1,58 @@
 """``SquareRootUKF``: g13ej's square-root UKF behind filterpy's ``UnscentedKalmanFilter`` API.
 
-A thin facade over the step (:mod:`squkf.step`): each call validates its
-inputs at the boundary, runs the step's pure transitions on the filter's
-private state, and commits every new value at once when the whole call
-succeeded. What it hands out is the caller's (fresh arrays), and what the
-caller may edit in place (``x``, ``P``, ``Q``, ``R``) is validated at the next
-call.
+The face of one filter over an engine (:mod:`squkf.engine`, a block of one):
+each public method reads like filterpy's, with the step in its body: the
+inputs checked, ``fx`` or ``hx`` called at the engine's points, the engine's
+half step told. The engine commits only when the whole call succeeded, so a
+call that fails changes nothing. What is handed out is the caller's (fresh
+arrays, the records formed from the engine's factors when read), and what
+the caller may edit in place (``x``, ``P``, ``Q``, ``R``) is validated at the
+next call.
 """
 
 from __future__ import annotations
 
+import copy
 import math
 import sys
 from collections.abc import Callable
-from typing import cast
 
 import numpy as np
 
-from . import smoother
-from . import step as steps
+from . import blas, smoother
 from .batch import batch_filter
-from .boundary import attributes, inputs
-from .boundary.attributes import Covariance, Hook, State
+from .boundary import inputs
+from .boundary.attributes import COVARIANCES, Covariance, Hook, State, Unformed, hooks_of, initial, set_factor
 from .boundary.config import Config
+from .boundary.edits import Handed
+from .boundary.factors import noise_factor
 from .boundary.loop import Transaction
-from .boundary.one_filter import OneFilter
-from .boundary.records import LastUpdate, embed, innovation_inverse
-from .gating import Gate
-from .plan import Plan
-from .validate import as_float_array, check_time_step
+from .boundary.records import embed, innovation_inverse
+from .engine import IDLE, Engine, Update
+from .errors import NonFiniteError
+from .gating import Gate, as_gate
+from .generators import sigma_points_from_factor
+from .measurement import gain_from_factors
+from .noise import call_model, handed_points, noise_points
+from .plan import Plan, build_plan
+from .transform import cross_covariance
+from .validate import as_float_array, check_time_step, check_values
 
 __all__ = ["SquareRootUKF"]
 
 _LOG_TINY = math.log(sys.float_info.min)
+_one_blas_thread = blas.one_thread_method(lambda self: self._dim_x)
+
+# what repr shows, in order
+_SHOWN = (
+    "x P1_2 x_prior P1_2_prior Q1_2 R1_2 S1_2 K y log_likelihood likelihood mahalanobis sigmas_f sigmas_h"
+    " Wm Wc points_fn scheme vectorized gate fx_noise hx_noise residual_x residual_z state_add hx fx"
+    " x_mean z_mean"
+).split()
+_LABELS = {"log_likelihood": "log-likelihood"}
 
 
-class SquareRootUKF(OneFilter):
+class SquareRootUKF:
     """Square-root Unscented Kalman Filter with filterpy's interface.
 
     The model is ``x[k+1] = fx(x[k], dt) + v``, ``z[k] = hx(x[k]) + w`` with
@@ -142,6 +159,8 @@ class SquareRootUKF(OneFilter):
     [6.0168 0.9937]
     """
 
+    __slots__ = ("_engine", "__dict__", "__weakref__")
+
     x = State()
     P = Covariance()
     Q = Covariance()
@@ -174,33 +193,30 @@ class SquareRootUKF(OneFilter):
         hx_noise: int | None = None,
     ):
         n, m = inputs.check_sizes(dim_x=dim_x, dim_z=dim_z)
-        self._dim_x = n
-        self._dim_z = m
-        self._fx_noise, self._hx_noise = inputs.model_noise(fx, hx, fx_noise, hx_noise)
-        self._dt = check_time_step(dt)
-        self._plan = cast(Plan, None)  # the scheme setter below sets it
-        self._family = None
-        self._generator = None
+        fx_noise_, hx_noise_ = inputs.model_noise(fx, hx, fx_noise, hx_noise)
+        dt_ = check_time_step(dt)
+        family, num = inputs.sigma_family(points, n, fx_noise_)
+        generator = inputs.second_set(scheme, n, family, hx_noise_)
+        plan = build_plan(family, generator, n, fx_noise_, hx_noise_)
+        d = self.__dict__
+        d.update(_dim_x=n, _dim_z=m, _dt=dt_, _num_sigmas=num, _fx_noise=fx_noise_, _hx_noise=hx_noise_)
+        d.update(_points=points, _family=family, _generator=generator, _plan=plan, _gate=as_gate(gate))
+        d.update(_noise_cache={}, _K=None, _x=None)
         self.hx = hx
         self.fx = fx
-        self.points_fn = points
-        self.scheme = scheme
         self.msqrt = sqrt_fn
-        self.x_mean = x_mean_fn
-        self.z_mean = z_mean_fn
-        self.residual_x = np.subtract if residual_x is None else residual_x
-        self.residual_z = np.subtract if residual_z is None else residual_z
-        self.state_add = np.add if state_add is None else state_add
+        d.update(x_mean=x_mean_fn, z_mean=z_mean_fn)
+        d["residual_x"] = np.subtract if residual_x is None else residual_x
+        d["residual_z"] = np.subtract if residual_z is None else residual_z
+        d["state_add"] = np.add if state_add is None else state_add
         self.vectorized = bool(vectorized)
-        self.gate = gate
         self.inv = np.linalg.inv
-
-        # x, P, Q (the noise's own dimension when it enters fx), R; the records of no step yet
-        attributes.initial(self.__dict__, n, m, self._fx_noise or n, self._hx_noise or m, self._num_sigmas)
-        self._state = steps.StepState()
-        self._step_plan = self._plan
-        self._noise_cache = {}
-        self._last = LastUpdate.none(n, m)
+        # P, Q (the noise's own dimension when it enters fx), R; x = 0; the records of no step yet
+        initial(d, n, m, fx_noise_ or n, hx_noise_ or m)
+        x0, S0 = np.zeros((1, n)), np.eye(n)[None]
+        self._engine = Engine(plan, hooks_of(d), d["_gate"], x0, S0, single=True)
+        self._engine.records_of_no_step(np.zeros((1, num, n)), np.zeros((1, num, m)), m)
+        d["x"] = Unformed(self._formed_x)
 
     # -- configuration -----------------------------------------------------
 
@@ -211,7 +227,11 @@ class SquareRootUKF(OneFilter):
 
     @points_fn.setter
     def points_fn(self, points):
-        self._set_points(points)
+        d = self.__dict__
+        family, num = inputs.sigma_family(points, self._dim_x, self._fx_noise)
+        plan = build_plan(family, self._generator, self._dim_x, self._fx_noise, self._hx_noise)
+        d.update(_points=points, _family=family, _num_sigmas=num, _plan=plan)
+        self._configured()
 
     @property
     def scheme(self):
@@ -220,7 +240,30 @@ class SquareRootUKF(OneFilter):
 
     @scheme.setter
     def scheme(self, value):
-        self._set_scheme(value)
+        gen = inputs.second_set(value, self._dim_x, self._family, self._hx_noise)
+        plan = build_plan(self._family, gen, self._dim_x, self._fx_noise, self._hx_noise)
+        self.__dict__.update(_generator=gen, _plan=plan)
+        self._configured()
+
+    @property
+    def gate(self) -> Gate | None:
+        """The outlier gate (None: every measurement is used); assign a probability or a Gate."""
+        return self._gate
+
+    @gate.setter
+    def gate(self, value) -> None:
+        self.__dict__["_gate"] = as_gate(value)
+        self._configured()
+
+    @property
+    def fx_noise(self) -> int | None:
+        """Dimension of the noise ``fx`` takes as its second argument (None: additive noise)."""
+        return self._fx_noise or None
+
+    @property
+    def hx_noise(self) -> int | None:
+        """Dimension of the noise ``hx`` takes as its second argument (None: additive noise)."""
+        return self._hx_noise or None
 
     @property
     def dim_x(self) -> int:
@@ -242,16 +285,62 @@ class SquareRootUKF(OneFilter):
         """Covariance weights of the first sigma-point set, shape ``(N,)`` (a copy)."""
         return self._plan.first.rows.Wc.copy()
 
+    def _configured(self) -> None:
+        """The plan, hooks or gate changed: the engine's routes are decided again."""
+        d = self.__dict__
+        self._engine.configure(d["_plan"], hooks_of(d), d["_gate"])
+
+    def _hooks_assigned(self) -> None:
+        if "_plan" in self.__dict__:  # (not while __init__ sets the hooks)
+            self._configured()
+
     # -- state and covariances ---------------------------------------------
+
+    def _formed_x(self) -> np.ndarray:
+        """``x`` as handed out: a copy of the estimate."""
+        return self._engine.x[0].copy()
+
+    def _assign_state(self, x: np.ndarray) -> None:
+        """``x = value``, validated: the engine's estimate, ``x`` formed again when read."""
+        self._engine.assign(x=x[None])
+        d = self.__dict__
+        d["x"], d["_x"] = Unformed(self._formed_x), None
+
+    def _covariance_assigned(self, name: str) -> None:
+        """An assignment to ``P``, ``Q`` or ``R`` succeeded."""
+        if name == "P":
+            self._engine.assign(S=self._P.factor()[None])
+
+    def _take_edits(self) -> None:
+        """The edits in place of ``x`` and ``P`` validated and taken into the engine (either may raise)."""
+        d = self.__dict__
+        handed = d["_x"]
+        if handed is not None and handed.edited():
+            x = inputs.as_state(handed.array, "x", self._dim_x)
+            self._engine.assign(x=x[None])
+            d["_x"] = Handed(handed.array)
+        slot = d["_P"]
+        if slot.pending():
+            self._engine.assign(S=slot.factor()[None])
+
+    def _stepped(self) -> None:
+        """The engine committed a new estimate: ``x`` and ``P`` are formed from it when read."""
+        d = self.__dict__
+        e = self._engine
+        d["_P"].set_trusted_factor(e.S[0])
+        d["x"], d["_x"] = Unformed(self._formed_x), None
+        d["P"] = Unformed(d["_P"].matrix)
 
     @property
     def P1_2(self) -> np.ndarray:
         """Lower Cholesky factor of ``P`` (a fresh copy; assign to change)."""
-        return cast(np.ndarray, self._P.factor()).copy()  # P is never singular, so never None
+        self._take_edits()
+        return self._engine.S[0].copy()
 
     @P1_2.setter
     def P1_2(self, value):
-        attributes.set_factor(self.__dict__, "P", value)
+        set_factor(self.__dict__, "P", value)
+        self._covariance_assigned("P")
 
     @property
     def Q1_2(self) -> np.ndarray:
@@ -260,7 +349,7 @@ class SquareRootUKF(OneFilter):
 
     @Q1_2.setter
     def Q1_2(self, value):
-        attributes.set_factor(self.__dict__, "Q", value)
+        set_factor(self.__dict__, "Q", value)
 
     @property
     def R1_2(self) -> np.ndarray:
@@ -269,37 +358,98 @@ class SquareRootUKF(OneFilter):
 
     @R1_2.setter
     def R1_2(self, value):
-        attributes.set_factor(self.__dict__, "R", value)
+        set_factor(self.__dict__, "R", value)
+
+    def _noise_factor(self, value, name: str, dim: int) -> np.ndarray | None:
+        """Lower factor of ``Q`` or ``R`` (``value`` for this call, else the attribute's); None: zero."""
+        return noise_factor(value, name, dim, self.__dict__["_" + name].factor, self._noise_cache)
+
+    # -- the records of the last prediction and update (formed when read) --------------------
+
+    @property
+    def x_prior(self) -> np.ndarray:
+        """State after the last prediction, shape ``(dim_x,)`` (a fresh array)."""
+        return self._engine.prior_record[0][0].copy()
+
+    @property
+    def P1_2_prior(self) -> np.ndarray:
+        """Lower factor of the covariance after the last prediction (a fresh array)."""
+        return self._engine.prior_record[1][0].copy()
 
     @property
     def P_prior(self) -> np.ndarray:
         """Covariance after the last prediction (a fresh array)."""
-        return self.P1_2_prior @ self.P1_2_prior.T
+        S = self._engine.prior_record[1][0]
+        return S @ S.T
+
+    @property
+    def x_post(self) -> np.ndarray:
+        """State after the last update, shape ``(dim_x,)`` (a fresh array)."""
+        return self._engine.post_record[0][0].copy()
+
+    @property
+    def P1_2_post(self) -> np.ndarray:
+        """Lower factor of the covariance after the last update (a fresh array)."""
+        return self._engine.post_record[1][0].copy()
 
     @property
     def P_post(self) -> np.ndarray:
         """Covariance after the last update (a fresh array)."""
-        return self.P1_2_post @ self.P1_2_post.T
+        S = self._engine.post_record[1][0]
+        return S @ S.T
 
-    # -- the last update's records ------------------------------------------
+    @property
+    def sigmas_f(self) -> np.ndarray:
+        """The second set after a prediction (filterpy's ``sigmas_f``), ``(N2, dim_x)`` (a fresh array)."""
+        return self._engine.shown_f[0].copy()  # type: ignore[index]  # set by records_of_no_step
+
+    @property
+    def sigmas_h(self) -> np.ndarray:
+        """``hx`` at the second set in the last update, ``(N2, dim_z)`` (a fresh array)."""
+        return self._engine.H[0].copy()  # type: ignore[index]  # set by records_of_no_step
+
+    @property
+    def y(self) -> np.ndarray:
+        """Innovation of the last update, shape ``(dim_z,)``; NaN in components not measured (fresh)."""
+        last = self._last()
+        if last is None:
+            return np.zeros(self._dim_z)
+        y = last.y[0]
+        if last.observed is None:
+            return y.copy()
+        out = np.full(last.m, np.nan)
+        out[last.observed] = y
+        return out
+
+    def _last(self) -> Update | None:
+        return self._engine.last
+
+    def _Sy(self) -> tuple[np.ndarray, np.ndarray | None]:
+        last = self._last()
+        if last is None:
+            m = self._dim_z
+            return np.zeros((m, m)), None
+        return last.Sy[0], last.observed
 
     @property
     def S1_2(self) -> np.ndarray:
         """Lower factor of the last innovation covariance (NaN where a component was missing)."""
-        return embed(self._last.Sy, self._last.observed, np.nan)
+        Sy, observed = self._Sy()
+        return embed(Sy, observed, np.nan)
 
     @property
     def S(self) -> np.ndarray:
         """Innovation covariance of the last update, ``S1_2 @ S1_2.T`` (NaN where missing)."""
-        last = self._last
-        return embed(last.Sy @ last.Sy.T, last.observed, np.nan)
+        Sy, observed = self._Sy()
+        return embed(Sy @ Sy.T, observed, np.nan)
 
     @property
     def SI(self) -> np.ndarray:
         """Inverse of ``S``, by triangular solves with ``S1_2`` (or by ``self.inv`` if replaced)."""
         if self.inv is not np.linalg.inv:
             return self.inv(self.S)
-        return innovation_inverse(self._last.Sy, self._last.observed)
+        Sy, observed = self._Sy()
+        return innovation_inverse(Sy, observed)
 
     @property
     def K(self) -> np.ndarray:
@@ -307,13 +457,27 @@ class SquareRootUKF(OneFilter):
 
         Formed once per update; a fresh copy on each read (:ref:`promise-records`).
         """
-        if self._last.K is None:
-            self._last = self._last.with_gain(self._dim_x)
-        return self._last.K.copy()  # type: ignore[union-attr]  # formed above
+        d = self.__dict__
+        K = d["_K"]
+        last = self._last()
+        if K is None or K[0] is not last:
+            K = d["_K"] = (last, self._gain(last))
+        return K[1].copy()
 
     @K.setter
     def K(self, value):
-        self._last = self._last.replace(K=as_float_array(value, "K"))  # a private copy: read as fresh ones
+        self.__dict__["_K"] = (self._last(), as_float_array(value, "K"))  # read as fresh copies
+
+    def _gain(self, last: Update | None) -> np.ndarray:
+        n = self._dim_x
+        if last is None:
+            return np.zeros((n, self._dim_z))
+        K = last.K[0] if last.K is not None else gain_from_factors(last.Sy[0], last.L21[0])
+        if last.observed is None:
+            return K
+        full = np.zeros((n, last.m))
+        full[:, last.observed] = K
+        return full
 
     @property
     def log_likelihood(self) -> float:
@@ -321,7 +485,8 @@ class SquareRootUKF(OneFilter):
 
         0 when a gate rejected them all (``likelihood`` 1).
         """
-        return self._last.log_likelihood if self._last.measured else _LOG_TINY
+        last = self._last()
+        return float(last.log_likelihood[0]) if last is not None else _LOG_TINY
 
     @property
     def likelihood(self) -> float:
@@ -331,7 +496,7 @@ class SquareRootUKF(OneFilter):
     @property
     def mahalanobis(self) -> float:
         """Mahalanobis distance of the last innovation, ``||S1_2^-1 y||`` (measured components)."""
-        return math.sqrt(self._last.nis) if self._last.measured else 0.0
+        return math.sqrt(self.nis)
 
     @property
     def nis(self) -> float:
@@ -339,7 +504,8 @@ class SquareRootUKF(OneFilter):
 
         What a gate tests.
         """
-        return self._last.nis if self._last.measured else 0.0
+        last = self._last()
+        return float(last.nis[0]) if last is not None else 0.0
 
     @property
     def rejected(self) -> np.ndarray:
@@ -348,7 +514,14 @@ class SquareRootUKF(OneFilter):
         After a gated update ``y``, ``S``, ``S1_2`` are the tested innovation's,
         ``K`` the gain applied (zero columns for rejected components).
         """
-        return self._last.rejected.copy()
+        last = self._last()
+        if last is None:
+            return np.zeros(self._dim_z, dtype=bool)
+        if last.observed is None:
+            return last.rejected[0].copy()
+        out = np.zeros(last.m, dtype=bool)
+        out[last.observed] = last.rejected[0]
+        return out
 
     # -- ask/tell: the step in halves ----------------------------------------
 
@@ -380,7 +553,9 @@ class SquareRootUKF(OneFilter):
         [[2. 0.]
          [0. 2.]]
         """
-        return self._ask_predict()
+        self._take_edits()
+        X = self._engine.ask_predict()[0]
+        return self._handed(X, self._plan.w_xi, "Q")
 
     def tell_predict(self, sigmas_f, Q=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of a prediction: the propagated points give the prior.
@@ -403,9 +578,10 @@ class SquareRootUKF(OneFilter):
         P1_2_prior : ndarray, shape (dim_x, dim_x)
             Fresh arrays.
         """
-        inputs.refuse_noise_args(self._step_plan.w_xi, "Q", Q, UT)
-        self._tell_predict(self._state, self._step_plan, sigmas_f, Q, UT, self._hooks())
-        return self.x_prior.copy(), self.P1_2_prior.copy()
+        inputs.refuse_noise_args(self._engine.step_plan.w_xi, "Q", Q, UT)
+        self._told_predict(sigmas_f, Q, UT)
+        e = self._engine
+        return e.x[0].copy(), e.S[0].copy()
 
     def ask_update(self) -> np.ndarray:
         """First half of an update: the sigma points to pass through the measurement function.
@@ -417,7 +593,9 @@ class SquareRootUKF(OneFilter):
             array); evaluate ``hx`` at each and pass the results to
             :meth:`tell_update`.
         """
-        return self._ask_update()
+        self._take_edits()
+        X = self._engine.ask_update()[0]
+        return self._handed(X, self._plan.v_xi, "R")
 
     def tell_update(self, sigmas_h, z, R=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of an update: measurement-function values and ``z`` give the posterior.
@@ -440,8 +618,13 @@ class SquareRootUKF(OneFilter):
         P1_2_post : ndarray, shape (dim_x, dim_x)
             Fresh arrays.
         """
-        self._told_update(sigmas_h, z, R, UT)
-        return self.x_post.copy(), self.P1_2_post.copy()
+        inputs.refuse_noise_args(self._plan.v_xi, "R", R, UT)
+        meas = inputs.measurement(z, R, self._dim_z, self._R_dim, self._hx_noise)
+        if meas is None:
+            raise NonFiniteError("tell_update needs a measurement, but z holds none (all NaN, masked or None)")
+        self._told_update(sigmas_h, meas[0], meas[1], R, UT)
+        e = self._engine
+        return e.x[0].copy(), e.S[0].copy()
 
     # -- filterpy's methods ---------------------------------------------------
 
@@ -462,7 +645,11 @@ class SquareRootUKF(OneFilter):
         **fx_args
             Passed to ``fx``.
         """
-        self._predict(dt, UT, fx, Q, fx_args)
+        dt = self._dt if dt is None else check_time_step(dt)
+        self._take_edits()
+        sigmas = self._engine.ask_predict()[0]  # fx may write on them: the step reads only their shape
+        values = self._model(self.fx if fx is None else fx, "fx", sigmas, (dt,), fx_args, Q, UT)
+        self._told_predict(values, Q, UT)
 
     def update(self, z, R=None, UT=None, hx=None, **hx_args) -> None:
         """Update the estimate with measurement ``z``: ``x``, ``P`` become the posterior.
@@ -481,11 +668,27 @@ class SquareRootUKF(OneFilter):
         **hx_args
             Passed to ``hx``.
         """
-        self._update(z, R, UT, hx, hx_args)
+        meas = inputs.measurement(z, R, self._dim_z, self._R_dim, self._hx_noise)
+        if meas is None:  # no measurement: the prior stays, and the last update's records
+            self._take_edits()
+            self._engine.skip_update()
+            self.__dict__["z"] = np.array([[None] * self._dim_z]).T
+            return
+        self._take_edits()
+        sigmas = self._engine.ask_update()[0].copy()  # hx gets its own copy: the update reads the set
+        values = self._model(self.hx if hx is None else hx, "hx", sigmas, (), hx_args, R, UT)
+        self._told_update(values, meas[0], meas[1], R, UT)
 
     def compute_process_sigmas(self, dt, fx=None, **fx_args) -> None:
         """Set ``sigmas_f`` to the first set propagated through ``fx`` (state unchanged)."""
-        self._process_sigmas(dt, fx, fx_args)
+        dt = check_time_step(dt)
+        fx = self.fx if fx is None else fx
+        self._take_edits()
+        e = self._engine
+        first = self._plan.first
+        sigmas = sigma_points_from_factor(e.x[0], e.S[0], first.xi, hooks_of(self.__dict__).state_add)
+        values = self._model(fx, "fx", sigmas, (dt,), fx_args)
+        e.shown_f = check_values(values, sigmas.shape, "fx values")[None]
 
     def cross_variance(self, x, z, sigmas_f, sigmas_h) -> np.ndarray:
         """Cross-covariance ``sum Wc[i] (sigmas_f[i] - x)(sigmas_h[i] - z)^T``.
@@ -493,7 +696,11 @@ class SquareRootUKF(OneFilter):
         The weights are those of the set with as many points as ``sigmas_f``
         (the second set after a prediction, else the first).
         """
-        return self._cross_variance(x, z, sigmas_f, sigmas_h)
+        sigmas_f = as_float_array(sigmas_f, "sigmas_f")
+        sigmas_h = np.atleast_2d(as_float_array(sigmas_h, "sigmas_h"))
+        sset = self._engine.sset
+        Wcs = (self._plan.first.rows.Wc, None if sset is None else sset.Wc)
+        return cross_covariance(sigmas_f, sigmas_h, x, z, Wcs, hooks_of(self.__dict__))
 
     def batch_filter(
         self,
@@ -517,15 +724,56 @@ class SquareRootUKF(OneFilter):
 
     def rts_smoother(self, Xs, Ps, Qs=None, dts=None, UT=None, *, fx_args=None):
         """Square-root unscented RTS smoother: :func:`squkf.smoother.rts_smoother` on this filter."""
-        self._refuse_smoother()
+        inputs.refuse_smoother_noise(self._fx_noise, "filter")
         return smoother.rts_smoother(self, Xs, Ps, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
 
     def rts_smoother_factors(self, Xs, P1_2s, Qs=None, dts=None, UT=None, *, fx_args=None):
         """The smoother on lower factors: :func:`squkf.smoother.rts_smoother_factors` on this filter."""
-        self._refuse_smoother()
+        inputs.refuse_smoother_noise(self._fx_noise, "filter")
         return smoother.rts_smoother_factors(self, Xs, P1_2s, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
 
-    # -- configuration and transactions (copies and pickles: InDictCopies) ------
+    # -- the step's parts -----------------------------------------------------
+
+    def _model(self, fn: Callable, which: str, X: np.ndarray, args: tuple, kwargs: dict, noise=None, UT=None):
+        """``fn`` (``"fx"`` or ``"hx"``) at the points ``X``, with noise points if the noise enters it."""
+        plan = self._plan
+        xi, name, dim = (plan.w_xi, "Q", self._fx_noise) if which == "fx" else (plan.v_xi, "R", self._hx_noise)
+        if xi is None:
+            if self.vectorized:
+                return fn(X, *args, **kwargs)
+            return inputs.evaluate(fn, X, args, kwargs, False)
+        inputs.refuse_noise_args(xi, name, noise, UT)
+        W = noise_points(xi, self._noise_factor(noise, name, xi.shape[1]), ())
+        return call_model(fn, which, dim, X, W, args, kwargs, self.vectorized)
+
+    def _handed(self, X: np.ndarray, xi: np.ndarray | None, name: str) -> np.ndarray:
+        """What ``ask_*`` hands out: a copy of the points, with their noise part if any."""
+        factor = None if xi is None else self._noise_factor(None, name, xi.shape[1])
+        return handed_points(X, xi, factor, ())
+
+    @_one_blas_thread
+    def _told_predict(self, values, Q, UT) -> None:
+        """Finish a prediction in the engine (which commits only if it all succeeds)."""
+        e = self._engine
+        # noise entering fx is in the points: no noise is added to the prior
+        Q1_2 = None if e.step_plan.w_xi is not None else self._noise_factor(Q, "Q", self._dim_x)
+        e.tell_predict(values, Q1_2, UT)
+        self._stepped()
+
+    @_one_blas_thread
+    def _told_update(self, values, z: np.ndarray, observed, R, UT) -> None:
+        """Finish an update in the engine (which commits only if it all succeeds)."""
+        m = z.shape[0]
+        # noise entering hx is in the points: the update adds none
+        R1_2 = None if self._plan.v_xi is not None else self._noise_factor(R, "R", m)
+        self._engine.tell_update(values, z, observed, np.zeros((m, m)) if R1_2 is None else R1_2, UT)
+        self.__dict__["z"] = z
+        self._stepped()
+
+    def _R_dim(self) -> int:
+        return self._R.factor_or_zeros().shape[0]
+
+    # -- configuration, transactions, copies ------------------------------------
 
     def configuration(self) -> Config:
         """The filter's configuration and noise factors (``squkf.boundary.Config``).
@@ -533,7 +781,13 @@ class SquareRootUKF(OneFilter):
         What ``Fleet.from_filters`` and the smoother read; the arrays are the
         filter's own, to be read and not written.
         """
-        return self._configuration()
+        d = self.__dict__
+        hooks = hooks_of(d)  # the hooks as given, None where filterpy's default is meant
+        return Config(
+            self._dim_x, self._dim_z, self._dt, self.hx, self.fx, self._points, self._family, self._generator,
+            *hooks, self._gate, self.fx_noise, self.hx_noise, self.vectorized,
+            self._plan, hooks, self._Q.factor(), self._R.factor(), self._engine.phase,
+        )  # fmt: skip
 
     def transaction(self) -> Transaction:
         """A context manager that puts the filter back as it was on entry if anything inside raises.
@@ -542,5 +796,74 @@ class SquareRootUKF(OneFilter):
         """
         return Transaction(self._snapshot, self._restore)
 
+    def _snapshot(self):
+        # the engine's arrays are replaced by each step, never changed in place: a shallow copy keeps
+        # them; the covariance slots, whose matrices the caller may edit in place, are copied
+        state = dict(self.__dict__)
+        for name in COVARIANCES:
+            slot = state["_" + name] = copy.copy(state["_" + name])
+            if type(state[name]) is Unformed:
+                state[name] = Unformed(slot.matrix)
+        return state, copy.copy(self._engine)
+
+    def _restore(self, saved) -> None:
+        state, engine = saved
+        self.__dict__.clear()
+        self.__dict__.update(state)
+        self._engine = engine
+
+    def __copy__(self):
+        new = type(self).__new__(type(self))
+        d = {}
+        for key, value in self.__dict__.items():
+            if isinstance(value, np.ndarray):
+                value = value.copy()
+            elif key in ("_P", "_Q", "_R"):
+                value = value.detached()  # the factor shared, the matrix handed out copied
+            elif isinstance(value, Handed):
+                value = value.copy()
+            d[key] = value
+        new._engine = copy.copy(self._engine)
+        new.__dict__.update(d)
+        new._rebind()
+        return new
+
+    def __deepcopy__(self, memo):
+        new = type(self).__new__(type(self))
+        memo[id(self)] = new
+        d = copy.deepcopy({k: v for k, v in self.__dict__.items() if type(v) is not Unformed}, memo)
+        new._engine = copy.deepcopy(self._engine, memo)
+        new.__dict__.update(d)
+        new._rebind()
+        return new
+
+    def __getstate__(self):
+        state = {k: v for k, v in self.__dict__.items() if type(v) is not Unformed}
+        state["_noise_cache"] = {}
+        return state, self._engine
+
+    def __setstate__(self, saved):
+        state, engine = saved
+        self.__dict__.update(state)
+        self._engine = engine
+        self._rebind()
+
+    def _rebind(self) -> None:
+        """After a copy: ``x`` and the matrices formed from the copy's own engine and slots."""
+        d = self.__dict__
+        if "x" not in d or type(d["x"]) is Unformed:
+            d["x"], d["_x"] = Unformed(self._formed_x), None
+        if d["_x"] is not None:  # the array handed out is the copy's own
+            d["x"] = d["_x"].array
+        for name in COVARIANCES:
+            if name not in d or type(d[name]) is Unformed:
+                d[name] = Unformed(d["_" + name].matrix)
+            else:
+                d[name] = d["_" + name].matrix()
+
     def __repr__(self) -> str:
-        return self._describe("SquareRootUKF object")
+        from filterpy.common import pretty_str
+
+        factors = {"P1_2": self._engine.S[0], "Q1_2": self._Q.factor(), "R1_2": self._R.factor()}
+        rows = [(_LABELS.get(a, a), factors[a] if a in factors else getattr(self, a)) for a in _SHOWN]
+        return "\n".join(["SquareRootUKF object"] + [pretty_str(label, v) for label, v in rows])

@@ -1,20 +1,20 @@
-"""One filter's attributes kept in its ``__dict__``, as filterpy keeps them: read, set, copied, pickled.
+"""One filter's attributes kept in its ``__dict__``, as filterpy keeps them, formed when read.
 
 filterpy's ``Saver`` deep-copies a filter's ``__dict__`` at each step, so the
-arrays a caller reads (``x``, ``P``, ``Q``, ``R``) and the hooks live there,
-behind data descriptors (not properties, whose values a ``Saver`` would keep
-by reference). The truth behind ``P``, ``Q``, ``R`` is a
-:class:`~squkf.covariance.FactorSlot` (``_P``, ``_Q``, ``_R``); the truth
-behind ``x`` is the validated state ``_xs``, with the array handed out and its
-record in ``_x`` (:class:`~squkf.boundary.edits.Handed`): an edit in place is
-taken at the next call (:func:`current_state`).
-
-:class:`InDictCopies` copies, snapshots and pickles such a ``__dict__``.
+arrays a caller reads and may edit in place (``x``, ``P``, ``Q``, ``R``) and the
+hooks live there, behind data descriptors (not properties, whose values a
+``Saver`` would keep by reference). After a step, ``x`` and ``P`` are
+:class:`Unformed` there: formed from the filter's estimate when read (or when
+a ``Saver`` copies the ``__dict__``), and handed out as the same array until
+the next step, so that an edit in place is seen at the next call
+(:class:`~squkf.boundary.edits.Handed`). The truth behind ``P``, ``Q``, ``R`` is
+a :class:`~squkf.covariance.FactorSlot` (``_P``, ``_Q``, ``_R``), the truth
+behind ``x`` the engine's estimate.
 """
 
 from __future__ import annotations
 
-import copy
+from collections.abc import Callable
 
 import numpy as np
 
@@ -23,22 +23,34 @@ from ..plan import Hooks
 from .edits import Handed
 from .inputs import as_state
 
-__all__ = [
-    "COVARIANCES",
-    "Covariance",
-    "Hook",
-    "InDictCopies",
-    "State",
-    "Unformed",
-    "commit_estimate",
-    "current_state",
-    "hooks_of",
-    "initial",
-    "set_factor",
-    "set_state",
-]
+__all__ = ["COVARIANCES", "Covariance", "Hook", "State", "Unformed", "hooks_of", "initial", "set_factor"]
 
 COVARIANCES = ("P", "Q", "R")
+
+
+class Unformed:
+    """Stands in the ``__dict__`` for an array nobody has read since the step changed it.
+
+    Reading the attribute forms it (:class:`Covariance`, :class:`State`); a deep
+    copy of the ``__dict__`` (what filterpy's ``Saver`` takes) gets the array
+    itself, so a saved history holds arrays, formed only when saved.
+
+    Parameters
+    ----------
+    form : callable
+        ``form()``: the array as it would be handed out now.
+    """
+
+    __slots__ = ("form",)
+
+    def __init__(self, form: Callable[[], np.ndarray]):
+        self.form = form
+
+    def __deepcopy__(self, memo):
+        return self.form().copy()
+
+    def __copy__(self):
+        return self.form().copy()
 
 
 class Covariance:
@@ -56,40 +68,50 @@ class Covariance:
     def __get__(self, obj, owner=None):
         if obj is None:
             return self
-        value = obj.__dict__[self.name]
-        if isinstance(value, Unformed):
-            value = obj.__dict__[self.name] = value.slot.matrix()
+        d = obj.__dict__
+        value = d[self.name]
+        if type(value) is Unformed:
+            value = d[self.name] = d[self.slot].matrix()
         return value
 
     def __set__(self, obj, value):
-        slot = obj.__dict__[self.slot]
+        d = obj.__dict__
+        slot = d[self.slot]
         slot.set_matrix(value)
-        obj.__dict__[self.name] = slot.matrix()
+        d[self.name] = slot.matrix()
         obj._covariance_assigned(self.name)
 
 
-class Unformed:
-    """Stands in the ``__dict__`` for a matrix nobody has read since the step changed its factor.
+class State:
+    """``x``: the state vector kept in the instance's ``__dict__`` (see :class:`Covariance`).
 
-    Reading the attribute forms the matrix (:class:`Covariance`); a deep copy
-    of the ``__dict__`` (what filterpy's ``Saver`` takes) gets the matrix
-    itself, so a saved history holds arrays, formed only when saved.
+    Formed from the filter's estimate when first read after a step, and handed
+    out as the same array (with its record, ``_x``) until the next one.
     """
 
-    __slots__ = ("slot",)
+    def __set_name__(self, owner, name: str):
+        self.name = name
 
-    def __init__(self, slot: FactorSlot):
-        self.slot = slot
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        d = obj.__dict__
+        value = d["x"]
+        if type(value) is Unformed:
+            value = value.form()
+            d["x"], d["_x"] = value, Handed(value)
+        return value
 
-    def __deepcopy__(self, memo):
-        return self.slot.matrix().copy()
-
-    def __copy__(self):
-        return self.slot.matrix().copy()
+    def __set__(self, obj, value):
+        obj._assign_state(as_state(value, "x", obj.dim_x))
 
 
-class InDict:
-    """A data descriptor over the instance's ``__dict__`` entry of its own name; subclasses set it."""
+class Hook:
+    """A hook (``residual_x``, ``state_add``, ...) kept in the instance's ``__dict__``, as filterpy's.
+
+    Setting one tells the filter (``_hooks_assigned``), which builds its
+    :class:`~squkf.plan.Hooks` again.
+    """
 
     def __set_name__(self, owner, name: str):
         self.name = name
@@ -99,31 +121,13 @@ class InDict:
             return self
         return obj.__dict__[self.name]
 
-
-class State(InDict):
-    """``x``: the state vector kept in the instance's ``__dict__`` (see :class:`Covariance`)."""
-
     def __set__(self, obj, value):
-        set_state(obj.__dict__, as_state(value, "x", obj.dim_x))
-        obj._covariance_assigned("x")
+        obj.__dict__[self.name] = value
+        obj._hooks_assigned()
 
 
-class Hook(InDict):
-    """A hook (``residual_x``, ``state_add``, ...) kept in the instance's ``__dict__``, as filterpy's.
-
-    Setting one drops the :class:`~squkf.plan.Hooks` tuple the filter built
-    from them (:func:`hooks_of`), so that a step reads that tuple (twice a
-    step) without gathering the five attributes again.
-    """
-
-    def __set__(self, obj, value):
-        d = obj.__dict__
-        d[self.name] = value
-        d["_hooks_cache"] = None
-
-
-def initial(d: dict, n: int, m: int, q: int, r: int, N: int) -> None:
-    """Fill a new filter's ``__dict__``: ``x = 0``, ``P``, ``Q``, ``R`` identities, the records of no step.
+def initial(d: dict, n: int, m: int, q: int, r: int) -> None:
+    """Fill a new filter's ``__dict__``: ``P``, ``Q``, ``R`` identities (``x`` is the engine's, zero).
 
     Parameters
     ----------
@@ -132,19 +136,13 @@ def initial(d: dict, n: int, m: int, q: int, r: int, N: int) -> None:
         State and measurement dimensions.
     q, r : int
         The dimensions of ``Q`` and ``R`` (the noise's own when it enters ``fx``, ``hx``).
-    N : int
-        Number of sigma points of the first set (``sigmas_f``, ``sigmas_h``).
     """
     d["_P"] = FactorSlot("P", n, semidefinite=False, factor=np.eye(n))
     d["_Q"] = FactorSlot("Q", q, semidefinite=True, factor=np.eye(q))
     d["_R"] = FactorSlot("R", r, semidefinite=True, factor=np.eye(r))
     for name in COVARIANCES:
         d[name] = d["_" + name].matrix()
-    set_state(d, np.zeros(n))
-    d["x_prior"], d["P1_2_prior"] = np.zeros(n), np.eye(n)
-    d["x_post"], d["P1_2_post"] = np.zeros(n), np.eye(n)
-    d["sigmas_f"], d["sigmas_h"] = np.zeros((N, n)), np.zeros((N, m))
-    d["y"], d["z"] = np.zeros(m), np.array([[None] * m]).T
+    d["z"] = np.array([[None] * m]).T
 
 
 def set_factor(d: dict, name: str, value) -> None:
@@ -155,116 +153,12 @@ def set_factor(d: dict, name: str, value) -> None:
 
 
 def hooks_of(d: dict) -> Hooks:
-    """The filter's :class:`~squkf.plan.Hooks` from its ``__dict__`` (built once after a hook was set)."""
-    hooks = d["_hooks_cache"]
-    if hooks is None:
-        rx, rz, add = d["residual_x"], d["residual_z"], d["state_add"]
-        hooks = d["_hooks_cache"] = Hooks(
-            d["x_mean"],
-            d["z_mean"],
-            None if rx is np.subtract else rx,
-            None if rz is np.subtract else rz,
-            None if add is np.add else add,
-        )
-    return hooks
-
-
-def set_state(d: dict, x: np.ndarray) -> None:
-    """Install the validated state ``x`` (kept, not copied) and hand out a copy of it as ``x``."""
-    d["_xs"] = x
-    handed = d["_x"] = Handed(x.copy())
-    d["x"] = handed.array
-
-
-def current_state(d: dict, dim_x: int) -> tuple[np.ndarray, np.ndarray]:
-    """The current mean and factor, with the edits in place of ``x`` and ``P`` validated and taken.
-
-    Parameters
-    ----------
-    d : dict
-        The filter's ``__dict__``.
-    dim_x : int
-
-    Returns
-    -------
-    x : ndarray, shape (dim_x,)
-    S : ndarray, shape (dim_x, dim_x)
-        The filter's own arrays, to be read and not written.
-    """
-    d["_x"] = d["_x"].take(lambda a: d.__setitem__("_xs", as_state(a, "x", dim_x)))
-    return d["_xs"], d["_P"].factor()
-
-
-def commit_estimate(d: dict, x: np.ndarray, S: np.ndarray) -> None:
-    """Install a mean and factor computed by the filter (fresh arrays handed out; ``P`` formed when read)."""
-    set_state(d, x)
-    slot = d["_P"]
-    slot.set_trusted_factor(S)
-    d["P"] = Unformed(slot)  # formed when read: most steps nobody reads P
-
-
-class InDictCopies:
-    """Copies, snapshots and pickles of a filter whose attributes live in its ``__dict__`` as laid out here.
-
-    A base of :class:`squkf.SquareRootUKF`: ``copy.copy`` gives an independent
-    filter (arrays and covariance slots copied, functions and configuration
-    objects shared, as ``copy.copy`` of a filterpy filter shares them; an
-    edit in place pending here is pending in the copy), ``copy.deepcopy`` a
-    deep copy whose matrices are its own slots', a pickle leaves the caches
-    and the matrices nobody formed out. ``_snapshot``/``_restore`` are what a
-    transaction (:class:`squkf.boundary.loop.Transaction`) puts back.
-    """
-
-    def _snapshot(self) -> dict:
-        # the filter's own arrays are replaced by each step, never changed in place; only
-        # the covariance slots, whose matrices the caller may edit in place, are copied
-        state = dict(self.__dict__)
-        for name in COVARIANCES:
-            slot = state["_" + name] = copy.copy(state["_" + name])
-            if isinstance(state[name], Unformed):
-                state[name] = Unformed(slot)
-        return state
-
-    def _restore(self, state: dict) -> None:
-        self.__dict__.clear()
-        self.__dict__.update(state)
-
-    def __copy__(self):
-        d = {}
-        for key, value in self.__dict__.items():
-            if isinstance(value, np.ndarray):
-                value = value.copy()
-            elif isinstance(value, FactorSlot):
-                value = value.detached()  # the factor shared, the matrix handed out copied
-            elif isinstance(value, Handed):
-                value = value.copy()
-            d[key] = value
-        d["x"] = d["_x"].array
-        for name in COVARIANCES:
-            d[name] = d["_" + name].matrix()
-        new = type(self).__new__(type(self))
-        new.__dict__.update(d)
-        return new
-
-    def __deepcopy__(self, memo):
-        new = type(self).__new__(type(self))
-        memo[id(self)] = new
-        d = copy.deepcopy(self.__dict__, memo)
-        for name in COVARIANCES:
-            if isinstance(self.__dict__[name], Unformed):  # the copy's matrix is its slot's
-                d[name] = d["_" + name].matrix()
-        new.__dict__.update(d)
-        return new
-
-    def __getstate__(self):
-        state = self.__dict__.copy()
-        state["_noise_cache"] = {}
-        for name in COVARIANCES:
-            if isinstance(state[name], Unformed):
-                del state[name]  # formed again from the slot when unpickled
-        return state
-
-    def __setstate__(self, state):
-        self.__dict__.update(state)
-        for name in COVARIANCES:
-            self.__dict__[name] = self.__dict__["_" + name].matrix()
+    """The filter's :class:`~squkf.plan.Hooks` from its ``__dict__`` (None where filterpy's default is meant)."""
+    rx, rz, add = d["residual_x"], d["residual_z"], d["state_add"]
+    return Hooks(
+        d["x_mean"],
+        d["z_mean"],
+        None if rx is np.subtract else rx,
+        None if rz is np.subtract else rz,
+        None if add is np.add else add,
+    )

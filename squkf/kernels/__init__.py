@@ -407,6 +407,66 @@ def _no_set(d: int) -> np.ndarray:
     return a
 
 
+class KernelTable(NamedTuple):
+    """The kernels of the step, for a block of filters: what the engine calls (:mod:`squkf.engine`).
+
+    Each entry takes C-contiguous float64 stacks with the filter axis first and writes its
+    results into the outputs it is given (:mod:`squkf.kernels.phases` documents the arguments).
+    A second table (another backend) gives the same entries with the same arguments.
+    """
+
+    points: Callable
+    transform: Callable
+    joint_update: Callable
+    downdate_update: Callable
+    finite_rows: Callable
+
+
+#: The CPU table: the numba kernels.
+KERNELS = KernelTable(
+    phases.points_kernel,
+    phases.transform_kernel,
+    phases.joint_update_kernel,
+    phases.downdate_update_kernel,
+    phases.finite_rows_kernel,
+)
+
+_NO_NOISE: dict[int, np.ndarray] = {}
+
+
+def no_noise(d: int) -> np.ndarray:
+    """No additive noise for the transform kernel, shape ``(1, d, 0)``."""
+    a = _NO_NOISE.get(d)
+    if a is None:
+        a = _NO_NOISE[d] = np.zeros((1, d, 0))
+    return a
+
+
+def zeros_row(d: int) -> np.ndarray:
+    """A shared row of zeros, shape ``(1, d)`` (a reference the kernels read, never write)."""
+    return _zeros(d)
+
+
+def no_points(d: int) -> np.ndarray:
+    """No unit points, shape ``(0, d)``, read-only (a kernel told to draw no set)."""
+    return _no_points(d)
+
+
+def no_set(d: int) -> np.ndarray:
+    """No set to write, shape ``(0, 1, d)`` (a kernel's set output when none is drawn)."""
+    return _no_set(d)
+
+
+def kernel_array(a: np.ndarray) -> np.ndarray:
+    """``a`` itself if float64, C-contiguous and writeable (the kernels' one signature), else a copy."""
+    return _kernel_array(a)
+
+
+def plan_array(a: np.ndarray) -> np.ndarray:
+    """A plan's array as the kernels take it: float64, C-contiguous and read-only (:func:`_plan`)."""
+    return _plan(a)
+
+
 def _plan(a: np.ndarray) -> np.ndarray:
     """A plan's array as the kernels take it: float64, C-contiguous and read-only.
 
