@@ -31,11 +31,17 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
-import dask
-import dask.array as da
-import dask.dataframe as dd
 import numpy as np
-import pandas as pd
+
+try:
+    import dask
+    import dask.array as da
+    import dask.dataframe as dd
+    import pandas as pd
+except ImportError as exc:  # say which extra brings them
+    raise ModuleNotFoundError(
+        f'squkf.dask needs its extra: pip install "squkf[dask]" ({exc})', name=exc.name
+    ) from exc
 
 from .batch import model_kwargs, per_step
 from .boundary import inputs

@@ -35,24 +35,55 @@ def doctrees(tmp_path_factory) -> Path:
     return tmp_path_factory.mktemp("doctrees")
 
 
-def sphinx(builder: str, out: Path, doctrees: Path) -> subprocess.CompletedProcess:
+# the modules of the `dask` extra (pandas comes with dask's dataframes), absent where only the
+# `docs` extra is installed
+DASK_EXTRA = ("dask", "distributed", "pandas")
+
+
+def without(modules: tuple[str, ...]) -> str:
+    """Python code that makes ``modules`` (and their submodules) unimportable, as if not installed."""
+    return f"""
+import sys
+
+class NotInstalled:
+    def find_spec(self, name, path=None, target=None):
+        if name.split(".")[0] in {modules!r}:
+            raise ModuleNotFoundError(f"No module named {{name!r}}", name=name)
+
+sys.meta_path.insert(0, NotInstalled())
+"""
+
+
+def run_python(code: str, *args: str) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    cmd = [sys.executable, "-c", code, *args]
+    return subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT, timeout=300)
+
+
+def sphinx(
+    builder: str, out: Path, doctrees: Path, missing: tuple[str, ...] = ()
+) -> subprocess.CompletedProcess:
+    """Sphinx's build, as ``python -m sphinx`` runs it, with the ``missing`` modules unimportable."""
     pytest.importorskip("sphinx")
     pytest.importorskip("numpydoc")
     pytest.importorskip("furo")
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
-    cmd = [sys.executable, "-m", "sphinx", "-W", "--keep-going", "-q", "-b", builder]
-    cmd += ["-d", str(doctrees), str(DOCS), str(out)]
-    return subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=ROOT, timeout=300)
+    main = "from sphinx.cmd.build import main; sys.exit(main(sys.argv[1:]))"
+    args = ["-W", "--keep-going", "-q", "-b", builder, "-d", str(doctrees), str(DOCS), str(out)]
+    return run_python(without(missing) + main, *args)
+
+
+def inventory(html: Path) -> dict:
+    from sphinx.util.inventory import InventoryFile
+
+    with open(html / "objects.inv", "rb") as f:
+        return InventoryFile.load(f, "", lambda base, uri: uri)
 
 
 def test_html_build_has_no_warning_and_documents_the_public_api(tmp_path, doctrees):
     result = sphinx("html", tmp_path, doctrees)
     assert result.returncode == 0, result.stdout + result.stderr
-    from sphinx.util.inventory import InventoryFile
-
-    with open(tmp_path / "objects.inv", "rb") as f:
-        inventory = InventoryFile.load(f, "", lambda base, uri: uri)
-    documented = {name for entries in inventory.values() for name in entries}
+    objects = inventory(tmp_path)
+    documented = {name for entries in objects.values() for name in entries}
     missing = [name for name in squkf.__all__ if f"squkf.{name}" not in documented]
     assert not missing, f"public names without an API entry: {missing}"
     # the faces' members written once in a base (squkf.boundary) are documented with the faces
@@ -60,9 +91,25 @@ def test_html_build_has_no_warning_and_documents_the_public_api(tmp_path, doctre
         f"squkf.{face}.{m}" for face in ("SquareRootUKF", "Fleet") for m in ("fx_noise", "hx_noise", "gate")
     ]
     assert not [name for name in inherited if name not in documented]
-    assert not [m for m in MODULES if m not in inventory["py:module"]]
+    assert not [m for m in MODULES if m not in objects["py:module"]]
     # the internals are not part of the reference
-    assert not [m for m in inventory["py:module"] if m in ("squkf.step", "squkf.lane")]
+    assert not [m for m in objects["py:module"] if m in ("squkf.step", "squkf.lane")]
+
+
+def test_html_build_needs_only_the_docs_extra(tmp_path):
+    # the README's docs command where the dask extra is not installed (a doctree cache of its own:
+    # every page is read again, squkf.dask imported without dask)
+    result = sphinx("html", tmp_path / "html", tmp_path / "doctrees", missing=DASK_EXTRA)
+    assert result.returncode == 0, result.stdout + result.stderr
+    functions = inventory(tmp_path / "html")["py:function"]
+    assert {f"squkf.dask.{name}" for name in ("batch_filter", "filter_frame", "compute")} <= set(functions)
+
+
+def test_squkf_dask_without_its_extra_says_which_extra_to_install():
+    # the docs' stand-ins for the dask extra are the docs build's alone: a user still gets the error
+    result = run_python(without(DASK_EXTRA) + "import squkf.dask")
+    assert result.returncode != 0
+    assert 'ModuleNotFoundError: squkf.dask needs its extra: pip install "squkf[dask]"' in result.stderr
 
 
 def test_doctests_of_pages_and_docstrings_pass(tmp_path, doctrees):
