@@ -6,6 +6,7 @@ docstring the pages document, so an example in a public docstring is tested here
 """
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -120,3 +121,53 @@ def test_doctests_of_pages_and_docstrings_pass(tmp_path, doctrees):
     for page in ("index", "guide/filterpy", "guide/g13ej", "api/protocols", "api/weights", "api/errors"):
         assert f"Document: {page}\n" in report, f"no doctests ran in {page}"
     assert " 0 failures in tests" in report
+
+
+def code_lines(rst: str) -> list[str]:
+    """The lines of a page's doctest blocks and literal blocks (``::``, ``.. code-block::``), as rendered."""
+    code: list[str] = []
+    opener = content = None  # indents of the line that opens a literal block, and of its first line
+    doctest = False
+    for line in rst.splitlines():
+        indent = len(line) - len(line.lstrip())
+        if not line.strip():
+            doctest = False
+            continue
+        if opener is not None and indent > opener:
+            content = indent if content is None else content
+            code.append(line[content:])
+            continue
+        opener = content = None
+        doctest = doctest or line.startswith(">>>")
+        if doctest:
+            code.append(line)
+        elif line.rstrip().endswith("::") or line.lstrip().startswith(".. code-block::"):
+            opener = indent
+    return code
+
+
+def test_landing_page_code_fits_79_columns():
+    code = code_lines((DOCS / "index.rst").read_text(encoding="utf-8"))
+    assert any(line.startswith(">>> ukf = SquareRootUKF(") for line in code)  # the quick start is read
+    assert "   pip install -e ." not in code and "pip install -e ." in code  # block indent stripped
+    assert not [line for line in code if len(line) > 79]
+
+
+def test_landing_page_links_every_part_of_the_library():
+    page = (DOCS / "index.rst").read_text(encoding="utf-8")
+    parts = ["api/fleet", "api/gating", "api/noise", "api/core", "api/errors", "api/protocols"]
+    assert not [p for p in parts if f":doc:`{p}`" not in page]
+    assert ":class:`~squkf.Fleet`" in page and ":mod:`squkf.dask`" in page
+
+
+def test_scheme_docstrings_name_every_scheme_by_name():
+    from squkf import Fleet, SquareRootUKF
+    from squkf.generators import as_generator
+
+    with pytest.raises(squkf.ParameterError) as info:
+        as_generator("no such scheme")
+    accepted = set(re.findall(r"'(\w+)'", str(info.value).split(" or ")[0]))
+    assert {"redrawn", "augmented", "propagated"} <= accepted
+    for face in (SquareRootUKF, Fleet):
+        (documented,) = re.findall(r"scheme : \{([^}]*)\}", face.__doc__)
+        assert set(re.findall(r'"(\w+)"', documented)) == accepted, face.__name__
