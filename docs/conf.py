@@ -4,6 +4,7 @@ Build with ``python -m sphinx -W --keep-going -b html docs docs/_build/html``; t
 doctests of the pages and of the documented docstrings run with ``-b doctest``.
 """
 
+import importlib
 import sys
 from pathlib import Path
 
@@ -37,6 +38,20 @@ autodoc_default_options = {"member-order": "bysource"}
 autodoc_typehints = "signature"
 autodoc_preserve_defaults = True
 autosummary_generate = False
+
+
+def _importable(module: str) -> bool:
+    try:
+        importlib.import_module(module)
+    except ImportError:
+        return False
+    return True
+
+
+# squkf.dask documents itself with only the docs extra installed: where its extra (dask,
+# distributed, and the pandas that dask's dataframes bring) is missing, autodoc imports it
+# against stand-ins; where they are installed, against the real modules.
+autodoc_mock_imports = [m for m in ("dask", "distributed", "pandas") if not _importable(m)]
 
 # numpydoc: the pages list members themselves (autodoc's :members:), so numpydoc adds no
 # autosummary tables of its own

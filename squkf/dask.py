@@ -31,11 +31,17 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
-import dask
-import dask.array as da
-import dask.dataframe as dd
 import numpy as np
-import pandas as pd
+
+try:
+    import dask
+    import dask.array as da
+    import dask.dataframe as dd
+    import pandas as pd
+except ImportError as exc:  # say which extra brings them
+    raise ModuleNotFoundError(
+        f'squkf.dask needs its extra: pip install "squkf[dask]" ({exc})', name=exc.name
+    ) from exc
 
 from .batch import model_kwargs, per_step
 from .boundary import inputs
@@ -296,7 +302,9 @@ def filter_frame(
         The time column (each series is filtered in its order; the fleet's
         ``dt`` is the step).
     columns : sequence of str
-        The measurement columns, ``dim_z`` of them; NaN means missing.
+        The measurement columns, ``dim_z`` of them, of float, integer or bool
+        dtype (numpy's, or pandas' nullable ones); NaN (or ``NA``) means
+        missing.
     x0 : callable ``key -> (dim_x,)`` or pandas.DataFrame, optional
         Initial states per series (a frame indexed by key with ``dim_x``
         columns); default filter 0's state of the template.
@@ -318,7 +326,9 @@ def filter_frame(
     ------
     ParameterError, ShapeError
         Before anything is scheduled: unknown divisions, missing columns, a
-        wrong number of measurement columns, shared noise required.
+        wrong number of measurement columns, a measurement column of another
+        dtype (text, objects, categories, dates, durations, complex numbers),
+        shared noise required.
     """
     if not isinstance(frame, dd.DataFrame):
         raise ParameterError(f"frame must be a dask.dataframe.DataFrame, got {type(frame).__name__}")
@@ -330,6 +340,8 @@ def filter_frame(
     missing = [c for c in [time, *columns] if c not in frame.columns]
     if missing:
         raise ParameterError(f"frame has no column(s) {missing}")
+    for column in columns:  # the frame's dtypes are known without computing anything
+        _check_measurement_dtype(column, frame.dtypes[column])
     if frame.index.name != key or not frame.known_divisions:
         raise ParameterError(
             "filter_frame needs the series key as a sorted index with known divisions, so that no "
@@ -354,6 +366,19 @@ def filter_frame(
     return frame.map_partitions(
         _filter_partition, template, time, columns, x0, P0, names, meta=meta, align_dataframes=False
     )
+
+
+def _check_measurement_dtype(column: str, dtype) -> None:
+    """Refuse a measurement column whose dtype is not float, integer or bool (``filter_frame``'s rule).
+
+    Converting any other column to float would fail in a task (text), or give
+    numbers that mean something else (nanoseconds, category codes, a real part).
+    """
+    if getattr(dtype, "kind", "O") not in "fiub":
+        raise ParameterError(
+            f"measurement column {column!r} must hold real numbers (float, integer or bool), "
+            f"got dtype {dtype}"
+        )
 
 
 def _initial(spec, key, default: np.ndarray, name: str) -> np.ndarray:

@@ -91,7 +91,7 @@ class SquareRootUKF:
     residual_x, residual_z : callable ``(a, b) -> a - b``, optional
     state_add : callable ``(x, dx) -> x + dx``, optional
         filterpy's hooks for angles and other non-additive quantities.
-    scheme : {"redrawn", "augmented"} or generator, keyword-only
+    scheme : {"redrawn", "augmented", "propagated"} or generator, keyword-only
         How the second sigma-point set is formed (g13ej's ROPT(1)); a
         generator object may carry its own weights (ROPT(5..7)).
     vectorized : bool, keyword-only

@@ -241,6 +241,64 @@ def test_filter_frame_rejects_frames_it_cannot_filter_per_series():
         sd.filter_frame(split, template, key="series", time="t", columns=["r", "v"])
 
 
+@pytest.mark.parametrize(
+    "values",
+    [
+        lambda v: v.astype(str),  # text, even of numbers
+        lambda v: pd.to_datetime(np.arange(v.size), unit="s"),  # would be read as nanoseconds
+        lambda v: pd.to_timedelta(np.arange(v.size), unit="s"),
+        lambda v: pd.Categorical(v),  # would be read as the categories' codes
+        lambda v: v + 1j,  # would lose its imaginary part
+        lambda v: pd.Series(v, dtype=object),
+    ],
+)
+def test_filter_frame_refuses_a_measurement_column_that_is_not_numbers_before_scheduling(values):
+    df = long_frame()
+    df["v"] = values(df["v"].to_numpy())
+    frame = _indexed(df)
+    dtype = frame.dtypes["v"]
+    with dask.config.set(scheduler=_no_scheduling), pytest.raises(ParameterError) as info:
+        sd.filter_frame(frame, line_fleet(1), key="series", time="t", columns=["r", "v"])
+    assert "'v'" in str(info.value) and f"dtype {dtype}" in str(info.value)
+
+
+def _indexed(df):
+    # divisions known from pandas (set_index on the dask frame would compute them)
+    return dd.from_pandas(df.set_index("series").sort_index(kind="stable"), npartitions=3)
+
+
+def _no_scheduling(*args, **kwargs):
+    raise AssertionError("a task was scheduled")
+
+
+@pytest.mark.parametrize(
+    "values",
+    [
+        lambda v: v > 0,  # bool: 0 and 1, as numpy and squkf read bools
+        lambda v: pd.array(np.where(np.isnan(v), None, np.round(10 * v)), dtype="Int64"),  # NA missing
+        lambda v: pd.array(np.where(np.isnan(v), None, v), dtype="Float64"),
+        lambda v: v.astype(np.float32),
+    ],
+)
+def test_filter_frame_reads_integer_bool_and_nullable_columns_as_floats(values):
+    df = long_frame()
+    df["v"] = values(df["v"].to_numpy())
+    as_float = df.assign(v=df["v"].to_numpy(dtype=float, na_value=np.nan))
+    assert np.isnan(as_float["v"]).sum() == (1 if df["v"].dtype != bool else 0)
+    template = line_fleet(1)
+    got, want = (
+        sd.filter_frame(
+            _indexed(d),
+            template,
+            key="series",
+            time="t",
+            columns=["r", "v"],
+        ).compute(scheduler="synchronous")
+        for d in (df, as_float)
+    )
+    pd.testing.assert_frame_equal(got, want, check_exact=True)
+
+
 def test_per_filter_arguments_are_cut_by_chunk_bit_identical():
     K, T = 9, 6
     fleet = line_fleet(K, fx=pushed_line_fx)

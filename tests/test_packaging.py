@@ -1,5 +1,5 @@
 """The sdist and the wheel carry the licence, the typing marker and what the sdist's own tests read;
-the version is written once.
+the version is written once; the `notebook` extra installs what the notebooks import.
 
 The distributions are built with setuptools' PEP 517 backend in a subprocess, from a copy of the
 source tree (the backend writes ``squkf.egg-info`` beside the sources); the wheel is built from the
@@ -8,8 +8,10 @@ unpacked sdist, as pip does.
 
 from __future__ import annotations
 
+import ast
 import importlib.metadata
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -133,3 +135,101 @@ def test_installed_version_is_the_package_version():
     assert squkf.__version__ == importlib.metadata.version("squkf"), (
         "installed metadata is stale: reinstall (pip install -e .)"
     )
+
+
+# -- the notebook extra ----------------------------------------------------------------------------
+
+NOTEBOOKS = ROOT / "notebooks"
+
+# import names of distributions whose name differs
+DISTRIBUTION_OF = {"IPython": "ipython", "sklearn": "scikit-learn"}
+
+# squkf's modules that need an extra of their own
+EXTRA_OF = {"squkf.dask": "dask"}
+
+
+def normalized(name: str) -> str:
+    return re.sub(r"[-_.]+", "-", name).lower()
+
+
+def requirements(meta, extra: str | None) -> set[str]:
+    """The distributions the wheel's metadata requires with ``extra`` (``None``: at run time).
+
+    squkf's own extras named in it (``squkf[dask]``) are expanded.
+    """
+    names = set()
+    for line in meta.get_all("Requires-Dist"):
+        requirement, _, marker = line.partition(";")
+        if (extra is None and marker) or (extra is not None and f'extra == "{extra}"' not in marker):
+            continue
+        name, extras = re.fullmatch(r"\s*([A-Za-z0-9._-]+)\s*(?:\[([^\]]*)\])?.*", requirement).groups()
+        if normalized(name) == "squkf":
+            for own in (extras or "").split(","):
+                names |= requirements(meta, own.strip())
+        else:
+            names.add(normalized(name))
+    return names
+
+
+def imported_modules(notebook: Path) -> set[str]:
+    """Dotted names of the modules a notebook's code cells import (``from a import b``: ``a`` and ``a.b``)."""
+    modules = set()
+    for cell in json.loads(notebook.read_text(encoding="utf-8"))["cells"]:
+        if cell["cell_type"] != "code":
+            continue
+        lines = "".join(cell["source"]).splitlines()
+        code = "\n".join(line for line in lines if not line.lstrip().startswith(("%", "!")))  # IPython's
+        for node in ast.walk(ast.parse(code)):
+            if isinstance(node, ast.Import):
+                modules |= {alias.name for alias in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                modules |= {node.module} | {f"{node.module}.{alias.name}" for alias in node.names}
+    return modules
+
+
+def needed_distributions(modules: set[str], meta) -> set[str]:
+    """What installing ``modules`` takes: third-party distributions, and those of squkf's extras they use."""
+    local = {p.stem for p in NOTEBOOKS.glob("*.py")}
+    needed = set()
+    for module in modules:
+        top = module.split(".")[0]
+        if module in EXTRA_OF:
+            needed |= requirements(meta, EXTRA_OF[module])
+        elif top not in sys.stdlib_module_names and top not in local and top != "squkf":
+            needed.add(normalized(DISTRIBUTION_OF.get(top, top)))
+    return needed
+
+
+def wheel_metadata(wheel: Path):
+    with zipfile.ZipFile(wheel) as whl:
+        (info,) = {n.split("/")[0] for n in whl.namelist() if n.split("/")[0].endswith(".dist-info")}
+        return metadata(whl.read(f"{info}/METADATA").decode())
+
+
+def test_notebook_extra_installs_what_every_notebook_imports(dists):
+    if not NOTEBOOKS.is_dir():
+        pytest.skip("not a checkout of the repository: no notebooks/ (the sdist carries none)")
+    meta = wheel_metadata(dists["wheel"])
+    provided = requirements(meta, None) | requirements(meta, "notebook")
+    notebooks = sorted(NOTEBOOKS.glob("*.ipynb"))
+    assert len(notebooks) >= 8
+    lacking = {
+        nb.name: sorted(needed_distributions(imported_modules(nb), meta) - provided) for nb in notebooks
+    }
+    assert not {name: missing for name, missing in lacking.items() if missing}
+    # the reading itself: notebook 07 imports dask, pandas and squkf.dask
+    assert {"dask", "pandas", "distributed"} <= needed_distributions(
+        imported_modules(NOTEBOOKS / "07_dask.ipynb"), meta
+    )
+
+
+def test_readme_and_landing_page_name_every_dependency_and_extra(dists):
+    meta = wheel_metadata(dists["wheel"])
+    extras = meta.get_all("Provides-Extra")
+    runtime = requirements(meta, None)
+    assert "numba" in runtime and {"plot", "dask", "notebook"} <= set(extras)
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    landing = (ROOT / "docs" / "index.rst").read_text(encoding="utf-8")
+    for page, code in ((readme, "`{}`"), (landing, "``{}``")):
+        assert not [extra for extra in extras if code.format(extra) not in page]
+        assert not [name for name in runtime if not re.search(rf"\b{name}\b", page)]

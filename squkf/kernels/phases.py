@@ -41,8 +41,8 @@ and each lane does exactly the same operations in the same order whatever the
 other lanes hold and however many there are: a filter's numbers never depend
 on the block it is computed in (one filter is a block of one).
 
-Three things keep the vectoriser on (each measured in the prototype of
-``shared/prototypes/numba_step``): ``error_model="numpy"`` (the default puts a
+Three things keep the vectoriser on (each measured on a prototype of these
+kernels): ``error_model="numpy"`` (the default puts a
 ZeroDivisionError branch on every division), a lane count known only at run
 time (a constant one is unrolled into scalar code), and no index arithmetic
 on global arrays inside a lane loop. No ``fastmath``: reassociation or FMA
