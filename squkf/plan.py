@@ -200,12 +200,10 @@ def _serving(n: int, name: str, d: int) -> Iterator[None]:
         yield
     except ParameterError:
         raise
-    except MemoryError as exc:
-        if not d:
-            raise ParameterError(f"points cannot give sigma points for dim_x={n}: {exc}") from exc
-        raise ParameterError(
-            f"{name}={d} is too large: its set of sigma points over [x, noise], of dimension"
-            f" {n} + {d} = {n + d}, cannot be allocated ({exc})"
-        ) from exc
     except Exception as exc:  # a user's family or generator that cannot serve this dimension
+        if d and isinstance(exc, MemoryError):
+            raise ParameterError(
+                f"{name}={d} is too large: its set of sigma points over [x, noise], of dimension"
+                f" {n} + {d} = {n + d}, cannot be allocated ({exc})"
+            ) from exc
         raise ParameterError(f"points cannot give sigma points for dim_x={n}: {exc}") from exc

@@ -158,8 +158,8 @@ def _one_per_point(values, shape: tuple[int, ...]) -> bool:
 def _as_rows(values, arr: np.ndarray | None, shape: tuple[int, ...], name: str) -> np.ndarray:
     """``values`` (read as ``arr``, None if ragged) of a shape other than ``shape``, as ``shape``.
 
-    Only when every value does not already have its row's shape: the common
-    per-point case costs nothing more than the stacking.
+    Called only when ``values`` did not stack to ``shape``: per-point values
+    that are rows ``(d,)`` cost nothing more than the stacking.
     """
     if arr is not None and (arr.shape == shape + (1,) or (shape[-1] == 1 and arr.shape == shape[:-1])):
         # column vectors, or scalars for a 1-d measurement
