@@ -167,7 +167,7 @@ def stacked_prior(
             X = first[rows]
         assert X is not None
         k = X.shape[0]
-        F = stacked_shape(images(rows, X), X.shape, _label("fx values", rows, K), copy=False)
+        F = stacked_shape(images(rows, X), X.shape, _label("fx values", rows, K), False, ("fx", X.shape))
         on = active[rows]
         finite = finite_images(F, "fx values", on, found)
         if not finite.all():
@@ -265,7 +265,7 @@ def stacked_posterior(
             prop = None if propagated is None else propagated[rows]
             s = plan.second.draw(xs, Ss, prop, rows_of(Q1_2, rows, 2), hooks.state_add)
         shape = s.sigmas.shape[:-1] + (m,)
-        H = stacked_shape(images(rows, s), shape, _label("hx values", rows, K), copy=False)
+        H = stacked_shape(images(rows, s), shape, _label("hx values", rows, K), False, ("hx", s.sigmas.shape))
         on = active[rows]
         finite = finite_images(H, "hx values", on, found)
         sub = steps.StepState(steps.UPDATING, None, None, None, s, (xs, Ss))

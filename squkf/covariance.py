@@ -17,7 +17,7 @@ import numpy as np
 
 from .boundary.edits import Handed
 from .errors import NonFiniteError, NotPositiveDefiniteError, ShapeError, SqukfValueError
-from .linalg import factor_covariance
+from .linalg import all_finite, factor_covariance
 from .validate import as_float_array
 
 __all__ = ["FactorSlot", "as_matrix", "as_lower_factor"]
@@ -93,8 +93,9 @@ def as_lower_factor(value, name: str, dim: int | None, singular_ok: bool) -> np.
 
     Raises
     ------
-    ShapeError, NonFiniteError, SqukfValueError (not lower triangular),
-    NotPositiveDefiniteError (zero on the diagonal)
+    ShapeError, NonFiniteError (also when the covariance ``S @ S.T`` is beyond
+    float64's range: read as a matrix it would hold inf), SqukfValueError (not
+    lower triangular), NotPositiveDefiniteError (zero on the diagonal)
     """
     S = as_float_array(value, name)
     if S.ndim == 1 and S.shape[0] == 1 and dim in (None, 1):
@@ -113,6 +114,15 @@ def as_lower_factor(value, name: str, dim: int | None, singular_ok: bool) -> np.
         i, j = np.argwhere(upper != 0)[0]
         raise SqukfValueError(
             f"{name} must be lower triangular, but {name}[{i}, {j}] = {S[i, j]!r} is above the diagonal"
+        )
+    with np.errstate(over="ignore"):  # overflow is what is checked here
+        # the diagonal of S @ S.T, its largest entries (Cauchy-Schwarz): finite iff the matrix is
+        norms = np.einsum("ij,ij->i", S, S)
+    if not all_finite(norms):
+        i = int(np.flatnonzero(~np.isfinite(norms))[0])
+        raise NonFiniteError(
+            f"{name} stands for a covariance {name} @ {name}.T beyond float64's range: its entry [{i}, {i}]"
+            f" overflows (the largest entry of {name} is {float(np.max(np.abs(S))):.3g})"
         )
     d = S.diagonal()
     if not singular_ok and np.any(d == 0):

@@ -147,9 +147,16 @@ class Gate:
         m = y.shape[-1]
         limit = self.threshold(m)
         if self.per_component:
-            py = np.einsum("...jk,...jk->...j", Sy, Sy)
-            with np.errstate(divide="ignore", invalid="ignore"):
+            # an outlier beyond float64's range squared is an inf statistic, rejected as it should be
+            with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+                py = np.einsum("...jk,...jk->...j", Sy, Sy)
                 stat = y * y / py
+                if np.isinf(py).any():  # a spread beyond that range squared: (y / s)^2 / |Sy_j / s|^2
+                    s = np.max(np.abs(Sy), axis=-1)
+                    scaled = (y / s) ** 2 / np.einsum(
+                        "...jk,...jk->...j", Sy / s[..., None], Sy / s[..., None]
+                    )
+                    stat = np.where(np.isinf(py), scaled, stat)
             return ~(stat <= limit)
         whole = ~(np.asarray(nis) <= limit)
         return np.broadcast_to(whole[..., None], y.shape).copy()

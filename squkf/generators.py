@@ -498,20 +498,35 @@ class _UserSet:
 
 
 def noise_family(family, n: int, d: int):
-    """The family that weighs a set over ``[x, noise]`` (dimension ``n + d``) for ``family``.
+    """The family that weighs a set drawn in dimension ``n + d``: over ``[x, noise]``, or ``x`` (``d = 0``).
 
     A family with a spread parameter (Merwe, Julier: its ``augmented``) keeps
     the spread it has at ``n``: ``kappa`` is lowered by ``d``, so that
     ``L + kappa`` and the state part of the points are unchanged, and a model
     whose noise is in fact additive, written with the noise as an argument,
-    gives the additive filter's numbers. A filterpy points object built for
-    ``n + d`` serves as it is (built for ``n``: its squkf equivalent is used as
-    above); any other family is asked for ``n + d`` points.
+    gives the additive filter's numbers. A filterpy points object serves a set
+    of the dimension it was built for as it is, and a set of any other
+    dimension as its squkf equivalent (:meth:`~squkf.weights.FilterpyPoints.as_native`,
+    its parameters read for ``n``, as if it were built for ``n``) weighed as
+    above; any other family is asked for ``n + d`` points.
+
+    Parameters
+    ----------
+    family : sigma-point family
+    n : int
+        State dimension.
+    d : int
+        Noise dimension (0: the state alone).
+
+    Returns
+    -------
+    sigma-point family
+        ``family`` itself when it serves the set as it is.
 
     Raises
     ------
     ParameterError
-        A points object for another dimension with no squkf equivalent.
+        A points object built for another dimension, with no squkf equivalent.
     """
     dim = n + d
     if isinstance(family, FilterpyPoints):
@@ -520,10 +535,14 @@ def noise_family(family, n: int, d: int):
         native = family.as_native()
         if native is None:
             raise ParameterError(
-                f"the points object {type(family.points).__name__} was built for n={family.n}; with noise of"
-                f" dimension {d} entering the model the sets have dimension {dim}: build it with n={dim}"
+                f"points: the points object {type(family.points).__name__} was built for n={family.n}, and"
+                " it has no squkf equivalent (Merwe or Julier type) to serve a set of another dimension, but"
+                f" a set is drawn in dimension {dim} ({'dim_x' if not d else f'dim_x + {d} of noise'}): build"
+                " it for the dimension of every set the filter draws, or give a squkf family"
             )
         family = native
+    if not d:
+        return family
     if hasattr(family, "augmented"):
         return family.augmented(d)
     family.num_sigmas(dim)  # fails now if it cannot

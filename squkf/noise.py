@@ -26,6 +26,7 @@ import numpy as np
 
 from . import kernels
 from .errors import ParameterError
+from .validate import note_on_user_error
 
 __all__ = ["check_noise_dim", "check_accepts_noise", "noise_points", "handed_points", "call_model"]
 
@@ -146,7 +147,12 @@ def call_model(
     kwargs: dict,
     vectorized: bool,
 ):
-    """``fn(X, noise, *args, **kwargs)``, saying so if the noise does not fit what ``fn`` expects.
+    """``fn(X, noise, *args, **kwargs)``: a model function with the noise as its second argument.
+
+    An exception ``fn`` raises propagates unchanged (the same object), as
+    every exception from ``fx``/``hx`` does; on Python >= 3.11 it carries a
+    note naming ``{name}_noise`` and the shape of the noise given
+    (:func:`squkf.validate.note_on_user_error`).
 
     Parameters
     ----------
@@ -155,28 +161,27 @@ def call_model(
         ``"fx"`` or ``"hx"``.
     dim : int
         The noise dimension.
-    X : ndarray, shape (..., N, n)
+    X : ndarray, shape (N, n)
         Sigma points (state part).
-    noise : ndarray, shape (..., N, dim)
+    noise : ndarray, shape (N, dim)
         Their noise part.
     args, kwargs
         The rest of the call (``dt``, ``fx_args``...).
     vectorized : bool
         Call ``fn`` once with all points, else once per point ``fn(X[i], noise[i], ...)``.
 
-    Raises
-    ------
-    ParameterError
-        ``fn`` raised an ``IndexError``, ``ValueError`` or ``TypeError`` (the
-        usual signs of noise of another dimension than the function takes);
-        the original exception is chained.
+    Returns
+    -------
+    object
+        What ``fn`` returned (vectorised), or the list of its ``N`` results.
     """
     try:
         if vectorized:
             return fn(X, noise, *args, **kwargs)
         return [fn(x, w, *args, **kwargs) for x, w in zip(X, noise)]
-    except (IndexError, ValueError, TypeError) as exc:
-        raise ParameterError(
-            f"{name} failed when called with noise of dimension {name}_noise={dim} (shape"
-            f" {noise.shape}): does {name} take noise of that dimension? ({type(exc).__name__}: {exc})"
-        ) from exc
+    except Exception as exc:
+        each = f"{noise.shape}" if vectorized else f"{noise.shape[1:]} at each sigma point"
+        note_on_user_error(
+            exc, f"squkf: {name} was called with noise of dimension {name}_noise={dim}, shape {each}"
+        )
+        raise

@@ -10,6 +10,8 @@ serves any number of filters, and a configuration is data, not code.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -18,8 +20,9 @@ import numpy as np
 from .errors import ParameterError
 from .generators import FusedDraw, Redrawn, UnitSet, noise_family, prepare_second_set
 from .kernels import plan_array
+from .weights import FilterpyPoints
 
-__all__ = ["Plan", "Hooks", "build_plan"]
+__all__ = ["Plan", "Hooks", "build_plan", "check_built_for"]
 
 
 class Hooks(NamedTuple):
@@ -137,25 +140,103 @@ def build_plan(family, generator, n: int, fx_noise: int = 0, hx_noise: int = 0) 
     ------
     ParameterError
         If the family cannot give points for ``n`` or the generator cannot
-        serve the family (the augmented set needs ``+/-`` pairs).
+        serve the family (the augmented set needs ``+/-`` pairs); if a
+        filterpy points object is built for a dimension no set it serves is
+        drawn in (:func:`check_built_for`); if a set over ``[x, noise]`` is
+        too large to allocate (naming ``fx_noise`` or ``hx_noise``).
     """
     if (fx_noise or hx_noise) and not isinstance(generator, Redrawn):
         raise ParameterError(
             f"noise entering fx or hx (fx_noise={fx_noise or None}, hx_noise={hx_noise or None}) needs the"
             f" redrawn second set, scheme='redrawn', got scheme={generator!r}"
         )
+    own = generator.weights if isinstance(generator, Redrawn) else None  # the second set's own family
+    serves_second = isinstance(generator, Redrawn) and own is None
+    check_built_for(family, "points", n, fx_noise, hx_noise if serves_second else None)
+    if own is not None:
+        check_built_for(own, "Redrawn(weights=...)", n, None, hx_noise)
     w_xi = v_xi = None
-    try:
+    with _serving(n, "fx_noise", fx_noise):
         if fx_noise:
             first, w_xi = UnitSet.augmented(noise_family(family, n, fx_noise), n, fx_noise)
         else:
-            first = UnitSet(family, n)
+            first = UnitSet(noise_family(family, n, 0), n)
+    with _serving(n, "hx_noise", hx_noise):
         if hx_noise:
             second, v_xi = generator.prepare_augmented(family, n, hx_noise)
         else:
-            second = prepare_second_set(generator, family, n)
+            second = prepare_second_set(generator, noise_family(family, n, 0), n)
+    return Plan(n, family, generator, first, second, w_xi, v_xi)
+
+
+def check_built_for(
+    family, name: str, n: int, fx_noise: int | None = None, hx_noise: int | None = None
+) -> None:
+    """Refuse a filterpy points object built for a dimension that none of the sets it serves is drawn in.
+
+    A points object serves the sets it is given for as it is where a set is
+    drawn in the dimension it was built for, and as its squkf equivalent
+    elsewhere (:func:`squkf.generators.noise_family`); so it must be built for
+    ``dim_x`` or for the dimension of one of those sets, and one with no squkf
+    equivalent for the dimension of each.
+
+    Parameters
+    ----------
+    family : sigma-point family
+        Anything but a :class:`~squkf.weights.FilterpyPoints` passes.
+    name : str
+        The argument it was given as (``"points"``), for the message.
+    n : int
+        State dimension.
+    fx_noise, hx_noise : int or None
+        The noise dimensions of the first and the second set (0: the set is
+        drawn in ``n``); None: ``family`` does not serve that set.
+
+    Raises
+    ------
+    ParameterError
+        Naming ``name``, the dimension the object was built for and the
+        dimensions of the sets.
+    """
+    if not isinstance(family, FilterpyPoints):
+        return
+    sets = {
+        f"the {which} set, drawn in dimension {_dimension(n, noise, d)}": n + d
+        for which, noise, d in (("first", "fx_noise", fx_noise), ("second", "hx_noise", hx_noise))
+        if d is not None
+    }
+    dims = sorted(set(sets.values()))
+    built, native = family.n, family.as_native() is not None
+    if (native and built in (n, *dims)) or dims == [built]:
+        return
+    what = (
+        f"{name}: the points object {type(family.points).__name__} was built for n={built}, but it serves"
+        f" {' and '.join(sets)}"
+    )
+    if native:
+        raise ParameterError(f"{what}: build it with n={' or n='.join(str(d) for d in sorted({n, *dims}))}")
+    raise ParameterError(
+        f"{what}, and it has no squkf equivalent (Merwe or Julier type) to serve a set of another dimension: "
+        + (f"build it with n={dims[0]}" if len(dims) == 1 else "give a squkf family")
+    )
+
+
+def _dimension(n: int, noise: str, d: int) -> str:
+    """A set's dimension as said in a message: ``dim_x = 2``, ``dim_x + fx_noise = 2 + 1 = 3``."""
+    return f"dim_x + {noise} = {n} + {d} = {n + d}" if d else f"dim_x = {n}"
+
+
+@contextmanager
+def _serving(n: int, name: str, d: int) -> Iterator[None]:
+    """A family's or generator's failure to serve a set as a ParameterError (naming the noise: too large)."""
+    try:
+        yield
     except ParameterError:
         raise
     except Exception as exc:  # a user's family or generator that cannot serve this dimension
+        if d and isinstance(exc, MemoryError):
+            raise ParameterError(
+                f"{name}={d} is too large: its set of sigma points over [x, noise], of dimension"
+                f" {n} + {d} = {n + d}, cannot be allocated ({exc})"
+            ) from exc
         raise ParameterError(f"points cannot give sigma points for dim_x={n}: {exc}") from exc
-    return Plan(n, family, generator, first, second, w_xi, v_xi)

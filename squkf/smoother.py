@@ -289,7 +289,7 @@ def rts_smoother_factors(
         S_in,
         fx_eval,
         noise,
-        UnitSet(c.family, n),
+        c.plan.first,  # the first set as the filter draws it
         c.hooks,
         ut=UT,
         label=lambda k: f"Qs[{k + 1}], dts[{k + 1}], fx_args[{k + 1}]",

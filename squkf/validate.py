@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .errors import NonFiniteError, ParameterError, ShapeError
+from .errors import NonFiniteError, ParameterError, ShapeError, SqukfError
 from .linalg import all_finite
 
 __all__ = [
@@ -21,9 +21,11 @@ __all__ = [
     "as_measurements",
     "check_time_step",
     "check_values",
+    "point_value",
     "describe_nonfinite",
     "check_hook_result",
     "call_hook",
+    "note_on_user_error",
 ]
 
 _FLOAT64 = np.dtype(np.float64)  # numpy's native float64 dtype is one object: compared by identity
@@ -108,8 +110,11 @@ def check_values(values, shape: tuple[int, ...], name: str, private: bool = True
 
     Parameters
     ----------
-    values : array_like
-        What the model function returned (or the caller told).
+    values : array_like or list
+        What the model function returned (or the caller told): one array
+        ``shape`` (``(N, d, 1)`` and, for ``d == 1``, ``(N,)`` are taken too),
+        or, from the per-point route, a list of ``N`` values, each read by
+        :func:`point_value`.
     shape : tuple (..., N, d)
         Expected shape: one row per sigma point (after any batch axes).
     name : str
@@ -132,16 +137,75 @@ def check_values(values, shape: tuple[int, ...], name: str, private: bool = True
     if not private and type(values) is np.ndarray and values.dtype is _FLOAT64:
         arr = values
     else:
-        arr = as_float_array(values, name)
-    if arr.shape != shape:
-        # per-point functions returning column vectors, or scalars for a 1-d measurement
-        if arr.shape == shape + (1,) or (shape[-1] == 1 and arr.shape == shape[:-1]):
-            arr = arr.reshape(shape)
-        else:
-            raise ShapeError(f"{name} has shape {arr.shape}, expected {shape} (one row per sigma point)")
+        try:
+            arr = as_float_array(values, name)
+        except ShapeError:
+            if not _one_per_point(values, shape):
+                raise
+            arr = None  # per-point values of different shapes (ragged): read one by one below
+    if arr is None or arr.shape != shape:
+        arr = _as_rows(values, arr, shape, name)
     if not all_finite(arr):
         raise NonFiniteError(describe_nonfinite(arr, name))
     return arr
+
+
+def _one_per_point(values, shape: tuple[int, ...]) -> bool:
+    """Whether ``values`` is a list of one filter's per-point values (``shape`` is ``(N, d)``)."""
+    return isinstance(values, (list, tuple)) and len(shape) == 2 and len(values) == shape[0]
+
+
+def _as_rows(values, arr: np.ndarray | None, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """``values`` (read as ``arr``, None if ragged) of a shape other than ``shape``, as ``shape``.
+
+    Called only when ``values`` did not stack to ``shape``: per-point values
+    that are rows ``(d,)`` cost nothing more than the stacking.
+    """
+    if arr is not None and (arr.shape == shape + (1,) or (shape[-1] == 1 and arr.shape == shape[:-1])):
+        # column vectors, or scalars for a 1-d measurement
+        return arr.reshape(shape)
+    if _one_per_point(values, shape):
+        return np.stack([point_value(v, shape[-1], name, i) for i, v in enumerate(values)])
+    assert arr is not None
+    raise ShapeError(f"{name} has shape {arr.shape}, expected {shape} (one row per sigma point)")
+
+
+def point_value(value, d: int, name: str, i: int) -> np.ndarray:
+    """One sigma point's model value as a row ``(d,)``: the per-point rule.
+
+    numpy's rule for ``rows[i] = value`` (filterpy's), less its silent
+    broadcast of a single number: a value of shape ``(d,)``, ``(1, d)`` or
+    any other with leading axes of length 1, or a column ``(d, 1)``; a scalar
+    or a one-element array only when ``d == 1``.
+
+    Parameters
+    ----------
+    value : array_like
+        What the model function returned at sigma point ``i``.
+    d : int
+        Length of a row (``dim_x`` for ``fx``, the measurement's for ``hx``).
+    name : str
+        The values' name (``"fx values"``), for the message.
+    i : int
+        The sigma point, for the message.
+
+    Returns
+    -------
+    ndarray, shape (d,), float64
+
+    Raises
+    ------
+    ShapeError
+        Any other shape; not real numbers.
+    """
+    arr = as_float_array(value, f"{name} at sigma point {i}")
+    if arr.size == d and (d == 1 or arr.shape[-1] == d or arr.shape == (d, 1)):
+        return arr.reshape(d)
+    raise ShapeError(
+        f"{name} at sigma point {i} has shape {arr.shape}, expected ({d},): per point a model function"
+        f" returns a row ({d},), (1, {d}) or a column ({d}, 1)"
+        + (", not a single number" if arr.size == 1 else "")
+    )
 
 
 def describe_nonfinite(values: np.ndarray, name: str) -> str:
@@ -244,3 +308,20 @@ def check_time_step(dt, name: str = "dt") -> float:
     if not math.isfinite(value):
         raise ParameterError(f"{name} must be a finite number, got {name}={dt!r}")
     return value
+
+
+def note_on_user_error(exc: BaseException, note: str) -> None:
+    """Add ``note`` to an exception a user's function raised, which then propagates unchanged.
+
+    The exception stays the same object, of the same type and message; on
+    Python >= 3.11 its traceback shows ``note`` (``add_note``). squkf's own
+    exceptions, which say what they mean, get none.
+
+    Parameters
+    ----------
+    exc : BaseException
+    note : str
+        How squkf called the function (the shapes it gave it).
+    """
+    if not isinstance(exc, SqukfError) and hasattr(exc, "add_note"):
+        exc.add_note(note)

@@ -25,8 +25,11 @@ tests/README.md lists them by kind. In the order of this file:
   Cartesian (:func:`polar`, :func:`polar_rows`)
 - the radar with wild returns of the gating tests (``RADAR_*``, :func:`radar_track`,
   :func:`radar_configure`), the gusty pendulum and the other models of the noise tests (``PEND_*``,
-  :func:`pendulum_fx`, :func:`pendulum_hx`, :func:`noise_linear_model`, :func:`polar_turn_fx`),
+  :func:`pendulum_fx`, :func:`pendulum_hx`, their additive and offset forms and
+  :func:`pendulum_noise_filter`, :func:`noise_linear_model`, :func:`polar_turn_fx`),
   :func:`tanh_filter` (rank lost to rounding)
+- model values of a near shape (:data:`NEAR_SHAPES`, :data:`ONE_NUMBER_SHAPES`, :func:`near_shaped`,
+  the GP-UKF's :func:`gp_ukf_fx`) and :func:`raising` (a model function raising a given exception)
 - checks: :func:`filter_state` / :func:`assert_filter_state`, :func:`fleet_state` /
   :func:`assert_fleet_state`, :func:`assert_results_equal`, :func:`counting`, :func:`rel`
 """
@@ -1103,6 +1106,38 @@ def polar_range_hx(x):
     return np.stack([x[..., 0], np.sin(x[..., 1])], axis=-1)
 
 
+def pendulum_fx_calm(x, dt):
+    """:func:`pendulum_fx` with no gust: additive process noise (the form without ``fx_noise``)."""
+    return pendulum_fx(x, np.zeros(np.shape(x)[:-1] + (2,)), dt)
+
+
+def pendulum_hx_plain(x):
+    """Horizontal position of the bob, additive sensor noise (the form without ``hx_noise``)."""
+    return np.sin(x[..., :1])
+
+
+def pendulum_hx_offset(x, v):
+    """Horizontal position of the bob plus an offset ``v`` of dimension 1 (``hx_noise=1``)."""
+    return np.sin(x[..., :1]) + v[..., :1]
+
+
+def pendulum_noise_filter(points, fx_noise=None, hx_noise=None, cls=SquareRootUKF, **kw):
+    """The pendulum with noise entering ``fx`` (``fx_noise`` 2 or None), ``hx`` (``hx_noise`` 1, 2 or None).
+
+    ``cls`` SquareRootUKF (vectorised) or Fleet (three filters); ``Q``, ``R`` of the noise's dimension.
+    """
+    fx = pendulum_fx if fx_noise else pendulum_fx_calm
+    hx = {None: pendulum_hx_plain, 1: pendulum_hx_offset, 2: pendulum_hx}[hx_noise]
+    if cls is SquareRootUKF:
+        f = cls(2, 1, PEND_DT, hx, fx, points, vectorized=True, fx_noise=fx_noise, hx_noise=hx_noise, **kw)
+    else:
+        f = cls(3, 2, 1, PEND_DT, hx, fx, points, fx_noise=fx_noise, hx_noise=hx_noise, **kw)
+    f.x, f.P = np.array([0.5, 0.1]), np.diag([0.04, 0.25])
+    f.Q = PEND_QW if fx_noise else np.diag([1e-4, 4e-3])
+    f.R = {None: np.eye(1) * 0.0025, 1: np.eye(1) * 0.0004, 2: PEND_RV}[hx_noise]
+    return f
+
+
 class OddPoints:
     """A filterpy-style points object of no known kind, built for n = 2."""
 
@@ -1125,6 +1160,63 @@ def tanh_filter():
     f = SquareRootUKF(3, 2, 1.0, lambda x: np.tanh(x[:2]), lambda x, dt: x + dt, MerweScaledWeights())
     f.x, f.P, f.Q, f.R = np.ones(3), np.eye(3), np.full((3, 3), 8.071510225007634e256), np.eye(2)
     return f
+
+
+# -- model values of a near shape, and model functions that raise (issue 29) ------------------------
+
+
+# what a per-point model function may return for its value v of shape (d,), as filterpy's
+# ``sigmas_f[i] = fx(...)`` takes it (a column (d, 1) is squkf's own)
+NEAR_SHAPES = {
+    "row": lambda v: v,
+    "(1, d)": lambda v: v[None],
+    "(1, 1, d)": lambda v: v[None, None],
+    "column": lambda v: v[:, None],
+    "list": lambda v: v.tolist(),
+    "tuple": lambda v: tuple(v),
+}
+# the value's first number alone: its value for d = 1; for d > 1 numpy would broadcast it into the
+# row, and squkf refuses it
+ONE_NUMBER_SHAPES = {
+    "number": lambda v: float(v[0]),
+    "0-d array": lambda v: np.asarray(v[0]),
+    "(1,)": lambda v: v[:1],
+}
+
+
+def near_shaped(fn, forms):
+    """``fn`` (one point) whose k-th call returns its value in the form ``forms[k % len(forms)]``.
+
+    A form is a key of :data:`NEAR_SHAPES` or :data:`ONE_NUMBER_SHAPES`.
+    """
+    calls = [0]
+
+    def shaped(*args, **kwargs):
+        form = forms[calls[0] % len(forms)]
+        calls[0] += 1
+        shape = NEAR_SHAPES[form] if form in NEAR_SHAPES else ONE_NUMBER_SHAPES[form]
+        return shape(np.asarray(fn(*args, **kwargs), dtype=float))
+
+    return shaped
+
+
+def gp_ukf_fx(x, dt):
+    """A GP-UKF program's fx: the turn model plus a learned residual, shape (1, 5) by ``np.array([x])``."""
+    return np.add(np.array([ct_fx(x, dt)]), 1e-3 * np.tanh(x))
+
+
+def gp_ukf_fx_row(x, dt):
+    """:func:`gp_ukf_fx` as a row (5,)."""
+    return gp_ukf_fx(x, dt)[0]
+
+
+def raising(exc):
+    """A model function of any arguments that raises ``exc`` (that very object)."""
+
+    def fn(*args, **kwargs):
+        raise exc
+
+    return fn
 
 
 FILTER_STATE = (

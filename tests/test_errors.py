@@ -9,9 +9,11 @@ checked in tests/test_nag.py.
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from models import (
     CV3_K,
@@ -21,6 +23,7 @@ from models import (
     CV_R,
     CV_X0,
     CV_Z,
+    RADAR_DT,
     assert_filter_state,
     assert_fleet_state,
     assert_same_estimate,
@@ -30,9 +33,14 @@ from models import (
     cv3_zs,
     cv_filter,
     cv_fx,
+    cv_fx_stacked,
     filter_state,
     fleet_state,
     make_cv3_fleet,
+    positions_hx,
+    radar_configure,
+    raising,
+    range_bearing_hx,
     step,
 )
 
@@ -40,7 +48,9 @@ from squkf import (
     CallSequenceError,
     CubatureWeights,
     DowndateError,
+    Fleet,
     GainError,
+    Gate,
     MerweScaledWeights,
     NonFiniteError,
     NotPositiveDefiniteError,
@@ -50,6 +60,10 @@ from squkf import (
     SqukfError,
     SqukfValueError,
 )
+
+# every test here ends in a documented error or decision: no numpy RuntimeWarning may escape squkf
+pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
+
 
 # == the fault matrix of the single filter =========================================================
 
@@ -393,3 +407,143 @@ def test_non_finite_images_are_described_by_the_failing_filters_own_values():
     fl.predict(bad=np.array([False, False, True]))
     assert fl.failed.tolist() == [False, False, True]
     assert fl.failure[2] == single_error(one, lambda f: f.predict(bad=True))
+
+
+# == issue 29, 14. a fleet given per-point model functions ==========================================
+
+
+def test_a_per_point_fx_or_hx_of_a_wrong_shape_is_told_the_fleet_calls_it_with_stacks():
+    fl = Fleet(5, 4, 2, 1.0, positions_hx, cv_fx, MerweScaledWeights())  # cv_fx stacks X[0..3]
+    snap = fleet_state(fl)
+    with pytest.raises(
+        ShapeError,
+        match=r"^fx values have shape \(4, 9, 4\), expected \(5, 9, 4\): a fleet calls fx once with the"
+        r" stack X of shape \(5, 9, 4\) \(5 filters, 9 sigma points each, dim_x=4; component i of every"
+        r" point is X\[\.\.\., i\], shape \(5, 9\)\), not once per point",
+    ):
+        fl.predict()
+    assert_fleet_state(fl, snap)
+    # in chunks of 3: the chunk's own stack
+    fl = Fleet(5, 4, 2, 1.0, ct_hx, cv_fx_stacked, MerweScaledWeights(), chunk=3)
+    fl.predict()
+    snap = fleet_state(fl)
+    with pytest.raises(
+        ShapeError,
+        match=r"^hx values of filters 0 to 2 \(one call of 3\) have shape \(2, 9, 4\), expected \(3, 9, 2\):"
+        r" a fleet calls hx once with the stack X of shape \(3, 9, 4\) \(3 filters,",
+    ):
+        fl.update(np.ones((5, 2)))
+    assert_fleet_state(fl, snap)
+
+
+def notes(exc: BaseException) -> list[str]:
+    return getattr(exc, "__notes__", [])
+
+
+@pytest.mark.parametrize("chunk", [None, 2])
+def test_an_exception_inside_a_fleets_fx_or_hx_propagates_unchanged(chunk):
+    exc = ValueError("the user's own")
+    fl = Fleet(3, 4, 2, 1.0, positions_hx, raising(exc), MerweScaledWeights(), chunk=chunk)
+    snap = fleet_state(fl)
+    with pytest.raises(ValueError) as info:
+        fl.predict()
+    assert info.value is exc  # the very object
+    assert_fleet_state(fl, snap)
+    k = 3 if chunk is None else 2
+    if sys.version_info >= (3, 11):
+        assert notes(exc) == [
+            f"squkf: a fleet calls fx once with the stack X of shape ({k}, 9, 4) ({k} filters, 9 sigma points"
+            f" each, dim_x=4; component i of every point is X[..., i], shape ({k}, 9)), not once per point,"
+            " and fx returns the stack of their values"
+        ]
+    # a function written for one point: its own error, as it raised it
+    fl = Fleet(2, 4, 2, 1.0, ct_hx, cv_fx_stacked, MerweScaledWeights(), chunk=chunk)
+    fl.predict()
+    snap = fleet_state(fl)
+    with pytest.raises(IndexError) as info:  # ct_hx reads X[2] of a stack of 2 filters
+        fl.update(np.ones((2, 2)))
+    assert_fleet_state(fl, snap)
+    if sys.version_info >= (3, 11):
+        assert "a fleet calls hx once with the stack X of shape (2, 9, 4)" in notes(info.value)[0]
+
+
+def test_squkfs_own_exception_from_a_fleets_fx_gets_no_note():
+    exc = NonFiniteError("raised by the model through squkf")
+    fl = Fleet(3, 4, 2, 1.0, positions_hx, raising(exc), MerweScaledWeights())
+    with pytest.raises(NonFiniteError) as info:
+        fl.predict()
+    assert info.value is exc and notes(exc) == []
+
+
+# == issue 29, 15. no RuntimeWarning on a path that ends in a documented error or decision ===========
+#
+# This file runs with RuntimeWarning as an error (pytestmark above): the junk input, and these.
+
+
+@pytest.mark.parametrize("name", ["P1_2", "Q1_2", "R1_2"])
+@pytest.mark.parametrize("front", ["filter", "fleet"])
+def test_a_factor_whose_covariance_overflows_float64_is_refused(name, front):
+    f = make_cv3_fleet() if front == "fleet" else cv_filter()
+    state, check = (
+        (fleet_state, assert_fleet_state) if front == "fleet" else (filter_state, assert_filter_state)
+    )
+    dim = (CV3_NZ if front == "fleet" else 2) if name == "R1_2" else 4
+    snap = state(f)
+    with pytest.raises(
+        NonFiniteError, match=rf"^{name}(\[0\])? stands for a covariance .* beyond float64's range"
+    ):
+        setattr(f, name, 2.0**512 * np.eye(dim))  # 2**1024 overflows; the largest float is just below
+    check(f, snap)
+    setattr(f, name, 2.0**511 * np.eye(dim))
+    cov = getattr(f, name[0])
+    assert np.all(np.isfinite(cov)) and cov[(0,) * cov.ndim] == 2.0**1022
+
+
+def radar_filter(front: str):
+    """The radar with a per-component gate, as a filter or a fleet of 2."""
+    gate = Gate(0.99, per_component=True)
+    if front == "fleet":
+        return radar_configure(
+            Fleet(2, 4, 2, RADAR_DT, range_bearing_hx, cv_fx_stacked, MerweScaledWeights(), gate=gate)
+        )
+    return radar_configure(
+        SquareRootUKF(
+            4, 2, RADAR_DT, range_bearing_hx, cv_fx_stacked, MerweScaledWeights(), vectorized=True, gate=gate
+        )
+    )
+
+
+@pytest.mark.parametrize("front", ["filter", "fleet"])
+@pytest.mark.parametrize("outlier", [1e200, -1e300, np.finfo(float).max])
+def test_a_huge_outlier_is_rejected_alone_by_a_per_component_gate(front, outlier):
+    gated, partial = radar_filter(front), radar_filter(front)
+    z = np.array([outlier, 0.67])
+    missing = np.array([np.nan, 0.67])
+    if front == "fleet":
+        z, missing = np.stack([z, z]), np.stack([missing, missing])
+    for f in (gated, partial):
+        f.predict()
+    gated.update(z)
+    partial.update(missing)
+    np.testing.assert_array_equal(gated.rejected, np.broadcast_to([True, False], gated.rejected.shape))
+    np.testing.assert_array_equal(gated.x, partial.x)
+    np.testing.assert_array_equal(gated.P1_2, partial.P1_2)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    y=st.lists(st.floats(-50.0, 50.0), min_size=3, max_size=3),
+    diag=st.lists(st.floats(0.1, 10.0), min_size=3, max_size=3),
+    below=st.lists(st.floats(-3.0, 3.0), min_size=3, max_size=3),
+    power=st.integers(0, 1016),  # y and Sy stay below the largest float
+)
+def test_the_per_component_decision_keeps_to_the_scale_of_y_and_Sy(y, diag, below, power):
+    """Scaled by 2**power, as far as the largest float: the same decisions, no overflow on the way."""
+    gate = Gate(0.95, per_component=True)
+    Sy = np.diag(diag) + np.tril(np.outer(below, np.ones(3)), -1)
+    y = np.array(y)
+    stat = y * y / np.einsum("jk,jk->j", Sy, Sy)
+    assume(np.all(np.abs(stat - gate.threshold(3)) > 1e-9 * gate.threshold(3)))
+    scale = 2.0**power
+    want = gate.reject(y, Sy, np.zeros(()))
+    np.testing.assert_array_equal(gate.reject(y * scale, Sy * scale, np.zeros(())), want)

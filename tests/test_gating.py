@@ -36,6 +36,9 @@ from squkf import Fleet, Gate, MerweScaledWeights, ParameterError, SquareRootUKF
 from squkf.angles import wrap
 from squkf.batch import BatchResult
 
+# the paths here end in documented errors or decisions: no numpy RuntimeWarning may escape squkf
+pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
+
 
 def filterpy_ukf():
     pts = MerweScaledSigmaPoints(4, alpha=0.5, beta=2.0, kappa=0.0)

@@ -10,26 +10,43 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from models import (
     CV3_K,
     CV3_NX,
     CV3_NZ,
+    NEAR_SHAPES,
     DuckArray,
     assert_filter_state,
     assert_fleet_state,
+    assert_same_estimate,
+    ct_filter,
     ct_fx,
+    ct_fx_rows,
     ct_hx,
+    ct_measurements,
     cv3_zs,
     cv_fx_nudged,
+    decay_fx,
     filter_state,
     fleet_state,
+    gp_ukf_fx,
+    gp_ukf_fx_row,
+    half_hx,
     make_cv3_fleet,
     near_filter,
     near_measurements,
+    near_shaped,
+    one_d,
     positions_hx,
 )
 
 from squkf import Fleet, MerweScaledWeights, ParameterError, ShapeError, SquareRootUKF, SqukfError
+
+# the paths here end in documented errors or decisions: no numpy RuntimeWarning may escape squkf
+pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
+
 
 # -- 2. one rule for dt on every route: any finite real number; strings are refused ----------
 #
@@ -298,3 +315,125 @@ def test_text_measurements_are_errors_for_a_fleet_and_on_dask(what):
     if np.asarray(zs).dtype.kind in "UO":
         with pytest.raises(ShapeError, match="zs"):
             sd.batch_filter(make_cv3_fleet(), da.from_array(np.asarray(zs), chunks=(1, -1, -1)))
+
+
+# -- issue 29, 1. per point, a model value of a near shape is its row ------------------------------
+#
+# filterpy stores a per-point value with ``sigmas_f[i] = fx(...)``: any value numpy assigns into the
+# row. squkf takes the same per point (fx and hx, and the lists told to tell_*), less numpy's
+# broadcast of a single number into a longer row; the vectorised and fleet routes keep exact shapes.
+
+
+def ct_run(f, zs):
+    for z in zs:
+        f.predict()
+        f.update(z)
+    return f
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    fx_forms=st.lists(st.sampled_from(list(NEAR_SHAPES)), min_size=1, max_size=11),
+    hx_forms=st.lists(st.sampled_from(list(NEAR_SHAPES)), min_size=1, max_size=11),
+)
+def test_per_point_values_of_a_near_shape_give_the_rows_numbers(fx_forms, hx_forms):
+    """Any mix of shapes, one per sigma point (11 of them), is read as the rows, bit for bit."""
+    zs = ct_measurements(3)
+    want = ct_run(ct_filter(MerweScaledWeights()), zs)
+    f = ct_filter(MerweScaledWeights())
+    f.fx, f.hx = near_shaped(ct_fx, fx_forms), near_shaped(ct_hx, hx_forms)
+    assert_same_estimate(ct_run(f, zs), want)
+
+
+def test_a_gp_ukf_fx_of_shape_1_n_runs_as_its_row_on_every_per_point_route():
+    zs = ct_measurements(6)
+    row, gp = ct_filter(MerweScaledWeights()), ct_filter(MerweScaledWeights())
+    row.fx, gp.fx = gp_ukf_fx_row, gp_ukf_fx
+    want, got = row.batch_filter(zs), gp.batch_filter(zs)
+    for a, b in zip(want, got):
+        np.testing.assert_array_equal(a, b)
+    for a, b in zip(row.rts_smoother(*want[:2]), gp.rts_smoother(*got[:2])):
+        np.testing.assert_array_equal(a, b)
+    # ask/tell: the lists of per-point values told
+    row, told = ct_filter(MerweScaledWeights()), ct_filter(MerweScaledWeights())
+    row.fx = gp_ukf_fx_row
+    row.predict()
+    told.tell_predict([gp_ukf_fx(x, 1.0) for x in told.ask_predict()])
+    row.update(zs[0])
+    told.tell_update([ct_hx(x)[None] for x in told.ask_update()], zs[0])
+    assert_same_estimate(told, row)
+
+
+@pytest.mark.parametrize("forms", [["number"], ["0-d array"], ["(1,)"], ["(1, 1, d)", "number"], ["list"]])
+def test_one_number_is_the_value_of_a_one_dimensional_model(forms):
+    want, f = one_d(SquareRootUKF), one_d(SquareRootUKF)
+    f.fx, f.hx = near_shaped(decay_fx, forms), near_shaped(half_hx, forms)
+    for z in (0.3, -0.2, 0.1):
+        for g in (want, f):
+            g.predict()
+            g.update(z)
+        assert_same_estimate(f, want)
+
+
+NOT_A_ROW = [
+    ("number", r"sigma point 0 has shape \(\), expected \({d},\).*not a single number"),
+    ("0-d array", r"sigma point 0 has shape \(\), expected \({d},\)"),
+    ("(1,)", r"sigma point 0 has shape \(1,\), expected \({d},\).*not a single number"),
+]
+
+
+@pytest.mark.parametrize("which", ["fx", "hx"])
+@pytest.mark.parametrize("form, match", NOT_A_ROW, ids=[f for f, _ in NOT_A_ROW])
+def test_one_number_for_a_longer_row_is_refused_not_broadcast(which, form, match):
+    f = ct_filter(MerweScaledWeights())
+    f.predict()
+    f.update(ct_hx(f.x) + 1.0)
+    snap = filter_state(f)
+    with pytest.raises(ShapeError, match=f"{which} values at " + match.format(d=5 if which == "fx" else 2)):
+        if which == "fx":
+            f.predict(fx=near_shaped(ct_fx, [form]))
+        else:
+            f.update(ct_hx(f.x), hx=near_shaped(ct_hx, [form]))
+    assert_filter_state(f, snap)
+
+
+@pytest.mark.parametrize(
+    "value, match",
+    [
+        (lambda v: np.stack([v, v]), r"sigma point 0 has shape \(2, 5\)"),
+        (lambda v: v[:, None, None], r"sigma point 0 has shape \(5, 1, 1\)"),
+        (lambda v: v[None].astype(complex), "complex"),
+        (lambda v: [str(a) for a in v], "could not be read"),
+    ],
+    ids=["(2, n)", "(n, 1, 1)", "complex", "text"],
+)
+def test_other_per_point_values_are_refused_and_change_nothing(value, match):
+    f = ct_filter(MerweScaledWeights())
+    snap = filter_state(f)
+    with pytest.raises(ShapeError, match=match):
+        f.predict(fx=lambda x, dt: value(ct_fx(x, dt)))
+    assert_filter_state(f, snap)
+    X = f.ask_predict()
+    with pytest.raises(ShapeError, match=match):
+        f.tell_predict([value(ct_fx(x, 1.0)) for x in X])
+
+
+def test_the_vectorised_and_fleet_routes_keep_exact_shapes():
+    f = ct_filter(MerweScaledWeights(), vectorized=True)
+    snap = filter_state(f)
+    with pytest.raises(ShapeError, match=r"fx values has shape \(1, 11, 5\), expected \(11, 5\)"):
+        f.predict(fx=lambda X, dt: ct_fx_rows(X, dt)[None])
+    assert_filter_state(f, snap)
+    fl = Fleet(
+        CV3_K,
+        CV3_NX,
+        CV3_NZ,
+        1.0,
+        positions_hx,
+        lambda X, dt: cv_fx_nudged(X, dt)[None],
+        MerweScaledWeights(),
+    )
+    snap = fleet_state(fl)
+    with pytest.raises(ShapeError, match=r"fx values have shape \(1, 3, 9, 4\), expected \(3, 9, 4\)"):
+        fl.predict()
+    assert_fleet_state(fl, snap)

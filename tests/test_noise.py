@@ -16,6 +16,7 @@ References, each computed independently of squkf:
 from __future__ import annotations
 
 import math
+import sys
 
 import numpy as np
 import pytest
@@ -25,12 +26,18 @@ from models import (
     PEND_QW,
     PEND_RV,
     OddPoints,
+    assert_filter_state,
+    assert_fleet_state,
+    filter_state,
+    fleet_state,
     noise_linear_model,
     pendulum_fx,
     pendulum_hx,
+    pendulum_noise_filter,
     pendulum_simulate,
     polar_range_hx,
     polar_turn_fx,
+    raising,
 )
 
 from squkf import (
@@ -39,10 +46,14 @@ from squkf import (
     JulierWeights,
     MerweScaledWeights,
     ParameterError,
+    Redrawn,
     ShapeError,
     SimplexWeights,
     SquareRootUKF,
 )
+
+# the paths here end in documented errors or decisions: no numpy RuntimeWarning may escape squkf
+pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
 
 
 def merwe_weights(L, alpha, beta, kappa):
@@ -284,7 +295,7 @@ def test_model_function_that_takes_no_noise_is_refused_at_construction():
         )
 
 
-def test_noise_of_another_dimension_than_fx_takes_is_a_clear_error_and_changes_nothing():
+def test_noise_of_another_dimension_than_fx_takes_fails_with_fxs_own_error_and_changes_nothing():
     f = pendulum_filter(MerweScaledWeights())
     f.predict()
     f.update(np.array([0.4]))
@@ -292,12 +303,167 @@ def test_noise_of_another_dimension_than_fx_takes_is_a_clear_error_and_changes_n
         2, 1, PEND_DT, pendulum_hx, pendulum_fx, MerweScaledWeights(), vectorized=True, fx_noise=1, hx_noise=2
     )
     bad.x, bad.P, bad.R = f.x, f.P, PEND_RV
-    x, P = bad.x.copy(), bad.P.copy()
-    with pytest.raises(ParameterError, match="fx_noise=1") as info:
-        bad.predict()  # pendulum_fx reads w[..., 1]
-    assert isinstance(info.value.__cause__, IndexError)
-    np.testing.assert_array_equal(bad.x, x)
-    np.testing.assert_array_equal(bad.P, P)
+    snap = filter_state(bad)
+    with pytest.raises(IndexError) as info:
+        bad.predict()  # pendulum_fx reads w[..., 1]: its own IndexError, as it is
+    assert_filter_state(bad, snap)
+    if sys.version_info >= (3, 11):
+        assert info.value.__notes__ == [
+            "squkf: fx was called with noise of dimension fx_noise=1, shape (7, 1)"
+        ]
+
+
+# -- issue 29, 2. an exception from fx or hx taking noise propagates unchanged -----------------------
+
+
+@pytest.mark.parametrize("error", [ValueError, TypeError, IndexError, KeyError, ZeroDivisionError])
+@pytest.mark.parametrize("which", ["fx", "hx"])
+@pytest.mark.parametrize("front", ["per point", "vectorised", "fleet"])
+def test_the_users_exception_from_a_function_taking_noise_propagates_unchanged(error, which, front):
+    exc = error("the user's own")
+    fns = {"fx": pendulum_fx, "hx": pendulum_hx, which: raising(exc)}
+    if front == "fleet":
+        f = Fleet(3, 2, 1, PEND_DT, fns["hx"], fns["fx"], MerweScaledWeights(), fx_noise=2, hx_noise=2)
+        state, check = fleet_state, assert_fleet_state
+        z = np.full((3, 1), 0.3)
+    else:
+        f = SquareRootUKF(
+            2, 1, PEND_DT, fns["hx"], fns["fx"], MerweScaledWeights(), vectorized=front == "vectorised",
+            fx_noise=2, hx_noise=2,
+        )  # fmt: skip
+        state, check = filter_state, assert_filter_state
+        z = np.array([0.3])
+    if which == "hx":
+        f.predict()
+    snap = state(f)
+    with pytest.raises(error) as info:
+        f.predict() if which == "fx" else f.update(z)
+    assert info.value is exc  # the very object: its type, message and traceback as fx/hx raised them
+    check(f, snap)
+    if sys.version_info >= (3, 11):
+        (note,) = exc.__notes__
+        shape = {"fleet": "(3, 9, 2)", "vectorised": "(9, 2)", "per point": "(2,) at each sigma point"}[front]
+        assert f"{which}_noise=2" in note and shape in note
+
+
+# -- issue 29, 3. a points object built for the dimension a set is drawn in ------------------------
+#
+# n = 2: the first set is drawn in 2 + fx_noise, the second in 2 + hx_noise (2 without). A filterpy
+# points object serves a set of the dimension it was built for as it is, and any other set as its
+# squkf equivalent MerweScaledWeights(alpha, beta, kappa), whose kappa is lowered by the noise
+# dimension at n + d; it must be built for n or for the dimension of a set it serves.
+
+MERWE = (0.5, 2.0, 1.0)
+BUILT_FOR_A_SET = [(2, None, 2), (2, None, 4), (None, 1, 2), (None, 1, 3), (2, 1, 2), (2, 1, 4), (2, 1, 3)]
+BUILT_FOR_A_SET += [(2, 2, 2), (2, 2, 4)]
+BUILT_FOR_NO_SET = [
+    (None, None, 3),
+    (2, None, 3),
+    (2, None, 5),
+    (None, 1, 4),
+    (2, 1, 5),
+    (2, 2, 3),
+    (2, 2, 5),
+]
+
+
+def merwe_equivalent(built, fx_noise, hx_noise):
+    """The squkf families that draw each set as ``MerweScaledSigmaPoints(built, *MERWE)`` does."""
+    alpha, beta, kappa = MERWE
+
+    def family(d):  # as it is at 2 + d (its augmented(d) has kappa), else its equivalent
+        return MerweScaledWeights(alpha, beta, kappa + d if d and built == 2 + d else kappa)
+
+    return family(fx_noise), Redrawn(family(hx_noise))
+
+
+def pendulum_zs(cls, T):
+    zs = pendulum_simulate(T, seed=3)
+    return zs if cls is SquareRootUKF else np.stack([zs, zs + 0.01, zs - 0.02])
+
+
+@pytest.mark.parametrize("cls", [SquareRootUKF, Fleet])
+@pytest.mark.parametrize("fx_noise, hx_noise, built", BUILT_FOR_A_SET)
+def test_a_points_object_built_for_a_sets_dimension_draws_as_its_squkf_equivalent(
+    fx_noise, hx_noise, built, cls
+):
+    points = MerweScaledSigmaPoints(built, *MERWE)
+    first, second = merwe_equivalent(built, fx_noise or 0, hx_noise or 0)
+    f = pendulum_noise_filter(points, fx_noise, hx_noise, cls)
+    g = pendulum_noise_filter(first, fx_noise, hx_noise, cls, scheme=second)
+    zs = pendulum_zs(cls, 8)
+    for t in range(8):
+        for h in (f, g):
+            h.predict()
+            h.update(zs[t] if cls is SquareRootUKF else zs[:, t])
+        np.testing.assert_array_equal(f.x, g.x)
+        np.testing.assert_array_equal(f.P1_2, g.P1_2)
+    if cls is SquareRootUKF and not fx_noise:  # the smoother draws the first set as the filter does
+        means, covs = g.batch_filter(zs)
+        for a, b in zip(f.rts_smoother(means, covs), g.rts_smoother(means, covs)):
+            np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("fx_noise, hx_noise, built", BUILT_FOR_NO_SET)
+def test_a_points_object_built_for_no_sets_dimension_is_refused_naming_points(fx_noise, hx_noise, built):
+    points = MerweScaledSigmaPoints(built, *MERWE)
+    dims = sorted({2, 2 + (fx_noise or 0), 2 + (hx_noise or 0)})
+    match = rf"^points: .* built for n={built}, .* build it with n={' or n='.join(map(str, dims))}$"
+    for cls in (SquareRootUKF, Fleet):
+        with pytest.raises(ParameterError, match=match):
+            pendulum_noise_filter(points, fx_noise, hx_noise, cls)
+    f = pendulum_noise_filter(MerweScaledWeights(*MERWE), fx_noise, hx_noise)
+    snap = filter_state(f)
+    with pytest.raises(ParameterError, match=match):
+        f.points_fn = points
+    assert_filter_state(f, snap)
+    assert isinstance(f.points_fn, MerweScaledWeights)
+
+
+@pytest.mark.parametrize("built", [2, 3])
+def test_a_second_sets_own_points_object_built_for_its_dimension_draws_as_its_equivalent(built):
+    """``Redrawn(weights=...)`` serves the second set only: here drawn in 2 + hx_noise = 3."""
+    first = MerweScaledWeights(*MERWE)
+    f = pendulum_noise_filter(first, 2, 1, scheme=Redrawn(MerweScaledSigmaPoints(built, *MERWE)))
+    g = pendulum_noise_filter(first, 2, 1, scheme=merwe_equivalent(built, 0, 1)[1])
+    for z in pendulum_zs(SquareRootUKF, 5):
+        for h in (f, g):
+            h.predict()
+            h.update(z)
+        np.testing.assert_array_equal(f.x, g.x)
+        np.testing.assert_array_equal(f.P1_2, g.P1_2)
+
+
+def test_a_second_sets_own_points_object_built_for_another_dimension_is_refused():
+    """Built for 4, the first set's dimension, which the second set's own points do not serve."""
+    with pytest.raises(
+        ParameterError, match=r"^Redrawn\(weights=\.\.\.\): .* n=4, .*build it with n=2 or n=3$"
+    ):
+        pendulum_noise_filter(MerweScaledWeights(), 2, 1, scheme=Redrawn(MerweScaledSigmaPoints(4, *MERWE)))
+
+
+@pytest.mark.parametrize("cls", [SquareRootUKF, Fleet])
+def test_a_points_object_with_no_squkf_equivalent_is_built_for_every_set(cls):
+    # OddPoints: built for n = 2, the dimension of one set, not of the other
+    for fx_noise, hx_noise in ((2, None), (None, 1)):
+        with pytest.raises(
+            ParameterError, match=r"no squkf equivalent \(Merwe or Julier type\) to serve a set"
+        ):
+            pendulum_noise_filter(OddPoints(), fx_noise, hx_noise, cls)
+    f = pendulum_noise_filter(OddPoints(), None, None, cls)  # its own dimension: served as it is
+    f.predict()
+
+
+# -- issue 29, 4. a noise dimension too large to allocate names the noise ----------------------------
+
+
+@pytest.mark.parametrize("which", ["fx_noise", "hx_noise"])
+@pytest.mark.parametrize("cls", [SquareRootUKF, Fleet])
+def test_a_noise_dimension_too_large_to_allocate_is_refused_naming_it(which, cls):
+    with pytest.raises(ParameterError, match=rf"^{which}=10000000 is too large") as info:
+        sizes = (2, 1) if cls is SquareRootUKF else (3, 2, 1)
+        cls(*sizes, PEND_DT, pendulum_hx, pendulum_fx, MerweScaledWeights(), **{which: 10**7})
+    assert "dim_x" not in str(info.value)
 
 
 def test_q_and_r_are_the_noise_covariances():

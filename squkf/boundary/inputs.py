@@ -17,11 +17,13 @@ from ..errors import NonFiniteError, ParameterError, ShapeError
 from ..generators import as_generator, noise_family
 from ..linalg import all_finite
 from ..noise import check_accepts_noise, check_noise_dim
-from ..validate import as_float_array, as_measurements, describe_nonfinite
-from ..weights import as_family
+from ..plan import check_built_for
+from ..validate import as_float_array, as_measurements, describe_nonfinite, note_on_user_error
+from ..weights import FilterpyPoints, as_family
 
 __all__ = [
     "as_state",
+    "call_stack",
     "check_chunk_args",
     "check_sizes",
     "chunk_args",
@@ -37,6 +39,7 @@ __all__ = [
     "refuse_smoother_noise",
     "second_set",
     "sigma_family",
+    "stack_call_note",
     "stacked_shape",
     "with_filter_axis",
 ]
@@ -337,7 +340,9 @@ def evaluate(fn: Callable, sigmas: np.ndarray, args: tuple, kwargs: dict, vector
     return [fn(s, *args) for s in sigmas]
 
 
-def stacked_shape(values, shape: tuple, name: str, copy: bool) -> np.ndarray:
+def stacked_shape(
+    values, shape: tuple, name: str, copy: bool, called: tuple[str, tuple] | None = None
+) -> np.ndarray:
     """A stack's model-function images as a float64 array of the expected shape.
 
     Parameters
@@ -352,6 +357,11 @@ def stacked_shape(values, shape: tuple, name: str, copy: bool) -> np.ndarray:
         may go on writing) or taken as it is (a model function's images,
         read within the chunk's step; the step copies them only if it keeps
         them).
+    called : (str, tuple), optional
+        The model function that returned ``values`` (``"fx"``, ``"hx"``) and
+        the shape ``(k, N, n)`` of the stack of points it was called with;
+        None for values a caller told. A wrong shape then says how a fleet
+        calls its functions (:func:`stack_call_note`).
 
     Returns
     -------
@@ -367,8 +377,67 @@ def stacked_shape(values, shape: tuple, name: str, copy: bool) -> np.ndarray:
     else:
         A = as_float_array(values, name)
     if A.shape != shape:
-        raise ShapeError(f"{name} have shape {A.shape}, expected {shape}")
+        how = "" if called is None else f": {stack_call_note(*called)}, of shape {shape}"
+        raise ShapeError(f"{name} have shape {A.shape}, expected {shape}{how}")
     return A
+
+
+def stack_call_note(fn: str, points: tuple) -> str:
+    """How a fleet calls ``fn`` with the stack of points ``(k, N, n)``: for messages and notes.
+
+    Parameters
+    ----------
+    fn : {"fx", "hx"}
+    points : tuple of int
+        The shape of the stack ``X`` of the call, ``(k, N, n)``.
+
+    Returns
+    -------
+    str
+    """
+    k, N, n = points
+    return (
+        f"a fleet calls {fn} once with the stack X of shape {points} ({k} filters, {N} sigma points each,"
+        f" dim_x={n}; component i of every point is X[..., i], shape {(k, N)}), not once per point,"
+        f" and {fn} returns the stack of their values"
+    )
+
+
+def call_stack(fn: Callable, name: str, X: np.ndarray, noise: np.ndarray | None, args: tuple, kwargs: dict):
+    """A fleet's model function at a stack of points: ``fn(X, *args, **kwargs)``, or ``fn(X, noise, ...)``.
+
+    An exception ``fn`` raises propagates unchanged, with a note saying how
+    it was called (:func:`squkf.validate.note_on_user_error`): a function
+    written for one point fails on a stack.
+
+    Parameters
+    ----------
+    fn : callable
+    name : {"fx", "hx"}
+    X : ndarray, shape (k, N, n)
+        The chunk's points.
+    noise : ndarray, shape (k, N, d), or None
+        Their noise part, with noise entering ``fn`` (``fx_noise``, ``hx_noise``).
+    args, kwargs
+        The rest of the call (``dt``, the chunk's ``fx_args``...).
+
+    Returns
+    -------
+    object
+        What ``fn`` returned.
+    """
+    try:
+        if noise is None:
+            return fn(X, *args, **kwargs)
+        return fn(X, noise, *args, **kwargs)
+    except Exception as exc:
+        note = f"squkf: {stack_call_note(name, X.shape)}"
+        if noise is not None:
+            note += (
+                f"; the noise W ({name}_noise={noise.shape[-1]}) is its second argument, shape {noise.shape}"
+            )
+        note_on_user_error(exc, note)
+        raise
 
 
 def finite_images(A: np.ndarray, name: str, active, fails: dict) -> np.ndarray:
@@ -472,10 +541,18 @@ def sigma_family(points, n: int, fx_noise: int) -> tuple[object, int]:
     family : squkf.weights.SigmaPointFamily
     num : int
         Number of points of the first set.
+
+    Notes
+    -----
+    The dimension a filterpy points object was built for is checked against
+    every set it serves with the plan (:func:`squkf.plan.check_built_for`),
+    which the filter builds next; here only the first set is known.
     """
     family = as_family(points)
+    if isinstance(family, FilterpyPoints) and family.as_native() is None:
+        check_built_for(family, "points", n, fx_noise)  # it serves the first set as it is, or not at all
     try:
-        num = (noise_family(family, n, fx_noise) if fx_noise else family).num_sigmas(n + fx_noise)
+        num = noise_family(family, n, fx_noise).num_sigmas(n + fx_noise)
     except ParameterError:
         raise
     except Exception as exc:  # a user's family that cannot serve this dimension
@@ -500,5 +577,5 @@ def second_set(scheme, n: int, family, hx_noise: int):
     """
     gen = as_generator(scheme)
     if hasattr(gen, "num_sigmas") and not hx_noise:
-        gen.num_sigmas(n, family)  # fails now, not at the first update
+        gen.num_sigmas(n, noise_family(family, n, 0))  # fails now, not at the first update
     return gen

@@ -23,7 +23,7 @@ from ..errors import ParameterError
 from ..gating import Gate, as_gate
 from ..generators import as_generator
 from ..isolate import rows_of
-from ..noise import call_model, noise_points
+from ..noise import noise_points
 from ..plan import Hooks, Plan, build_plan
 from ..validate import check_time_step
 from ..weights import as_family
@@ -138,10 +138,9 @@ class StackedFilter(ModelForm):
 
         def images(rows: slice, X: np.ndarray):
             kw = inputs.chunk_args(kwargs, K, rows)
-            if plan.w_xi is None:  # the points themselves: the step reads only their shape afterwards
-                return self.fx(X, dt, **kw)
-            W = noise_points(plan.w_xi, rows_of(Q, rows, 2), (X.shape[0],))
-            return call_model(self.fx, "fx", self._fx_noise, X, W, (dt,), kw, True)
+            # the points themselves: the step reads only their shape afterwards
+            W = None if plan.w_xi is None else noise_points(plan.w_xi, rows_of(Q, rows, 2), (X.shape[0],))
+            return inputs.call_stack(self.fx, "fx", X, W, (dt,), kw)
 
         return images
 
@@ -151,10 +150,12 @@ class StackedFilter(ModelForm):
 
         def images(rows: slice, sset):
             kw = inputs.chunk_args(kwargs, K, rows)
-            if plan.v_xi is None:
-                return self.hx(sset.sigmas.copy(), **kw)
-            V = noise_points(plan.v_xi, rows_of(R1_2, rows, 2), (sset.sigmas.shape[0],))
-            return call_model(self.hx, "hx", self._hx_noise, sset.sigmas.copy(), V, (), kw, True)
+            V = (
+                None
+                if plan.v_xi is None
+                else noise_points(plan.v_xi, rows_of(R1_2, rows, 2), (sset.sigmas.shape[0],))
+            )
+            return inputs.call_stack(self.hx, "hx", sset.sigmas.copy(), V, (), kw)
 
         return images
 
