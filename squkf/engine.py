@@ -339,26 +339,33 @@ class Engine:
 
     # -- the prediction -------------------------------------------------------------------------
 
-    def ask_predict(self) -> np.ndarray:
-        """Start a step (from any phase): the first sigma-point set of the current estimate, ``(B, N, n)``.
+    def first_set(self) -> np.ndarray:
+        """The first sigma-point set of the current estimate, ``(B, N, n)`` (nothing committed).
 
-        The array is the engine's: read it, never write it (the caller hands out copies).
+        The set the last update drew ahead, or drawn now. The array is the engine's and is
+        used once: the caller may hand it to ``fx`` (which may write on it), never keep it.
         """
-        plan = self.plan
-        X, self._first = self._first, None  # handed to fx, which may write on it: used once
+        X, self._first = self._first, None
         if X is None:
-            first = plan.first
+            first = self.plan.first
             add = self.hooks.state_add
             if add is None:
                 X = sigma_points_from_factor(self.x, self.S, first.xi, None, first.gamma)
             else:  # the hook sees one filter's vectors
                 X = self._block(sigma_points_from_factor(self._one(self.x), self._one(self.S), first.xi, add))
-        self.step_plan = plan
+        return X
+
+    def ask_predict(self) -> np.ndarray:
+        """Start a step (from any phase): :meth:`first_set`, kept as the points of the pending prediction."""
+        X = self.first_set()
+        self.step_plan = self.plan
         self.X = X
         self.phase = PREDICTING
         return X
 
-    def tell_predict(self, F, Q1_2: np.ndarray | None, UT: Callable | None = None, name: str = "fx values") -> None:
+    def tell_predict(
+        self, F, Q1_2: np.ndarray | None, UT: Callable | None = None, name: str = "fx values", points=None
+    ) -> None:
         """Finish the prediction from the first set's images: the prior and the second set, committed.
 
         Parameters
@@ -370,14 +377,19 @@ class Engine:
         UT : callable, optional
         name : str
             How the images are called in messages.
+        points : ndarray, shape (B, N, n), optional
+            The points of a whole prediction (:meth:`first_set`, with no ask pending); default:
+            those of the pending :meth:`ask_predict`.
         """
-        if self.phase != PREDICTING:
-            raise CallSequenceError(
-                f"tell_predict needs a pending ask_predict, but the step is {self.phase!r}"
-                + (" (the prediction was already told)" if self.phase == PRIOR else "")
-            )
-        plan = self.step_plan
-        X = self.X
+        if points is None:
+            if self.phase != PREDICTING:
+                raise CallSequenceError(
+                    f"tell_predict needs a pending ask_predict, but the step is {self.phase!r}"
+                    + (" (the prediction was already told)" if self.phase == PRIOR else "")
+                )
+            plan, X = self.step_plan, self.X
+        else:
+            plan, X = self.plan, points
         assert X is not None
         F = self._images(F, X.shape, name, plan.keeps_propagated)
         hooks = self.hooks
@@ -426,6 +438,7 @@ class Engine:
         if sset is None:
             sset = self._draw_second(plan, mean, S, propagated, Q1_2)
         # commit
+        self.step_plan = plan
         self.x, self.S = mean, S
         self.prior = self.prior_record = (mean, S)
         self.sset = sset
@@ -445,27 +458,29 @@ class Engine:
 
     # -- the update ------------------------------------------------------------------------------
 
-    def ask_update(self) -> np.ndarray:
-        """The second sigma-point set of the pending update, ``(B, N2, n)`` (the engine's array).
+    def pending_update(self) -> tuple[tuple[np.ndarray, np.ndarray], SigmaSet]:
+        """The prior and second set of the update pending for the current estimate (nothing committed).
 
-        After a prediction, the set drawn with it; if the estimate was assigned since (or no
-        prediction precedes), a set drawn from the current estimate alone.
+        After a prediction, its prior and the set drawn with it; if the estimate was assigned since (or
+        no prediction precedes), the estimate and a set drawn from it alone.
         """
         if self.phase == PREDICTING:
             raise CallSequenceError(
                 "ask_update called while a prediction is pending: tell_predict the fx values first"
             )
         prior = self.prior
-        if not (
-            self.phase in (PRIOR, UPDATING) and prior is not None and prior[0] is self.x and prior[1] is self.S
-        ):
-            plan = self.plan
-            self.prior = (self.x, self.S)
+        if self.phase in (PRIOR, UPDATING) and prior is not None and prior[0] is self.x and prior[1] is self.S:
+            return prior, self.sset  # type: ignore[return-value]  # drawn with the prior
+        return (self.x, self.S), self._draw_second(self.plan, self.x, self.S, None, None)
+
+    def ask_update(self) -> np.ndarray:
+        """:meth:`pending_update`, kept as the pending update: its second set, ``(B, N2, n)`` (the engine's)."""
+        prior, sset = self.pending_update()
+        if sset is not self.sset:
             self._propagated = self._Q = None
-            self.sset = self._draw_second(plan, self.x, self.S, None, None)
-            self.step_plan = plan
+        self.prior, self.sset = prior, sset
         self.phase = UPDATING
-        return self.sset.sigmas  # type: ignore[union-attr]  # drawn above or with the prior
+        return sset.sigmas
 
     def tell_update(
         self,
@@ -475,6 +490,7 @@ class Engine:
         R1_2: np.ndarray,
         UT: Callable | None = None,
         name: str = "hx values",
+        pending: tuple | None = None,
     ) -> None:
         """Finish the update from the second set's images and the measurement, through the gate; committed.
 
@@ -490,22 +506,28 @@ class Engine:
             Lower factor of the measurement noise (zeros: none).
         UT : callable, optional
         name : str
+        pending : tuple, optional
+            The prior and set of a whole update (:meth:`pending_update`, with no ask pending);
+            default: those of the pending :meth:`ask_update`.
         """
-        if self.phase != UPDATING:
-            raise CallSequenceError(
-                f"tell_update needs a pending ask_update, but the step is {self.phase!r}"
-                + (" (the update was already told)" if self.phase == IDLE else "")
-            )
-        sset = self.sset
-        assert sset is not None and self.prior is not None
+        if pending is None:
+            if self.phase != UPDATING:
+                raise CallSequenceError(
+                    f"tell_update needs a pending ask_update, but the step is {self.phase!r}"
+                    + (" (the update was already told)" if self.phase == IDLE else "")
+                )
+            pending = (self.prior, self.sset)
+        (xp, Sp), sset = pending
         m = z.shape[-1]
         H = self._images(H, sset.sigmas.shape[:-1] + (m,), name, True)
         if self.single:
             z = z[None]
-        xp, Sp = self.prior
         post, X1 = self._posterior(sset, xp, Sp, H, z, observed, R1_2, UT)
         update = self._gated(post, sset, xp, Sp, H, z, observed, R1_2, UT)
         # commit
+        if sset is not self.sset:
+            self._propagated = self._Q = None
+        self.prior, self.sset = (xp, Sp), sset
         self.x, self.S = update.x, update.S
         self.post_record = (update.x, update.S)
         self.last = update

@@ -159,7 +159,9 @@ class SquareRootUKF:
     [6.0168 0.9937]
     """
 
-    __slots__ = ("_engine", "__dict__", "__weakref__")
+    # the engine and the gain formed from its last update live in slots, not in the __dict__ that a
+    # filterpy Saver copies at each step
+    __slots__ = ("_engine", "_gain_of", "__dict__", "__weakref__")
 
     x = State()
     P = Covariance()
@@ -201,7 +203,8 @@ class SquareRootUKF:
         d = self.__dict__
         d.update(_dim_x=n, _dim_z=m, _dt=dt_, _num_sigmas=num, _fx_noise=fx_noise_, _hx_noise=hx_noise_)
         d.update(_points=points, _family=family, _generator=generator, _plan=plan, _gate=as_gate(gate))
-        d.update(_noise_cache={}, _K=None, _x=None)
+        d.update(_noise_cache={}, _x=None)
+        self._gain_of: tuple = (None, None)  # (the update, its gain) once formed
         self.hx = hx
         self.fx = fx
         self.msqrt = sqrt_fn
@@ -457,16 +460,16 @@ class SquareRootUKF:
 
         Formed once per update; a fresh copy on each read (:ref:`promise-records`).
         """
-        d = self.__dict__
-        K = d["_K"]
-        last = self._last()
-        if K is None or K[0] is not last:
-            K = d["_K"] = (last, self._gain(last))
-        return K[1].copy()
+        last, K = self._gain_of
+        if K is None or last is not self._last():
+            last = self._last()
+            K = self._gain(last)
+            self._gain_of = (last, K)
+        return K.copy()
 
     @K.setter
     def K(self, value):
-        self.__dict__["_K"] = (self._last(), as_float_array(value, "K"))  # read as fresh copies
+        self._gain_of = (self._last(), as_float_array(value, "K"))  # a private copy, read as fresh copies
 
     def _gain(self, last: Update | None) -> np.ndarray:
         n = self._dim_x
@@ -647,9 +650,9 @@ class SquareRootUKF:
         """
         dt = self._dt if dt is None else check_time_step(dt)
         self._take_edits()
-        sigmas = self._engine.ask_predict()[0]  # fx may write on them: the step reads only their shape
-        values = self._model(self.fx if fx is None else fx, "fx", sigmas, (dt,), fx_args, Q, UT)
-        self._told_predict(values, Q, UT)
+        sigmas = self._engine.first_set()  # fx may write on them: the step reads only their shape
+        values = self._model(self.fx if fx is None else fx, "fx", sigmas[0], (dt,), fx_args, Q, UT)
+        self._told_predict(values, Q, UT, sigmas)
 
     def update(self, z, R=None, UT=None, hx=None, **hx_args) -> None:
         """Update the estimate with measurement ``z``: ``x``, ``P`` become the posterior.
@@ -675,9 +678,10 @@ class SquareRootUKF:
             self.__dict__["z"] = np.array([[None] * self._dim_z]).T
             return
         self._take_edits()
-        sigmas = self._engine.ask_update()[0].copy()  # hx gets its own copy: the update reads the set
+        pending = self._engine.pending_update()
+        sigmas = pending[1].sigmas[0].copy()  # hx gets its own copy: the update reads the set
         values = self._model(self.hx if hx is None else hx, "hx", sigmas, (), hx_args, R, UT)
-        self._told_update(values, meas[0], meas[1], R, UT)
+        self._told_update(values, meas[0], meas[1], R, UT, pending)
 
     def compute_process_sigmas(self, dt, fx=None, **fx_args) -> None:
         """Set ``sigmas_f`` to the first set propagated through ``fx`` (state unchanged)."""
@@ -752,21 +756,23 @@ class SquareRootUKF:
         return handed_points(X, xi, factor, ())
 
     @_one_blas_thread
-    def _told_predict(self, values, Q, UT) -> None:
+    def _told_predict(self, values, Q, UT, points=None) -> None:
         """Finish a prediction in the engine (which commits only if it all succeeds)."""
         e = self._engine
+        plan = e.step_plan if points is None else self._plan
         # noise entering fx is in the points: no noise is added to the prior
-        Q1_2 = None if e.step_plan.w_xi is not None else self._noise_factor(Q, "Q", self._dim_x)
-        e.tell_predict(values, Q1_2, UT)
+        Q1_2 = None if plan.w_xi is not None else self._noise_factor(Q, "Q", self._dim_x)
+        e.tell_predict(values, Q1_2, UT, points=points)
         self._stepped()
 
     @_one_blas_thread
-    def _told_update(self, values, z: np.ndarray, observed, R, UT) -> None:
+    def _told_update(self, values, z: np.ndarray, observed, R, UT, pending=None) -> None:
         """Finish an update in the engine (which commits only if it all succeeds)."""
         m = z.shape[0]
         # noise entering hx is in the points: the update adds none
         R1_2 = None if self._plan.v_xi is not None else self._noise_factor(R, "R", m)
-        self._engine.tell_update(values, z, observed, np.zeros((m, m)) if R1_2 is None else R1_2, UT)
+        R1_2 = np.zeros((m, m)) if R1_2 is None else R1_2
+        self._engine.tell_update(values, z, observed, R1_2, UT, pending=pending)
         self.__dict__["z"] = z
         self._stepped()
 
@@ -804,13 +810,13 @@ class SquareRootUKF:
             slot = state["_" + name] = copy.copy(state["_" + name])
             if type(state[name]) is Unformed:
                 state[name] = Unformed(slot.matrix)
-        return state, copy.copy(self._engine)
+        return state, copy.copy(self._engine), self._gain_of
 
     def _restore(self, saved) -> None:
-        state, engine = saved
+        state, engine, gain = saved
         self.__dict__.clear()
         self.__dict__.update(state)
-        self._engine = engine
+        self._engine, self._gain_of = engine, gain
 
     def __copy__(self):
         new = type(self).__new__(type(self))
@@ -824,6 +830,7 @@ class SquareRootUKF:
                 value = value.copy()
             d[key] = value
         new._engine = copy.copy(self._engine)
+        new._gain_of = (new._engine.last, self._gain_of[1])  # never written in place: shared
         new.__dict__.update(d)
         new._rebind()
         return new
@@ -833,6 +840,7 @@ class SquareRootUKF:
         memo[id(self)] = new
         d = copy.deepcopy({k: v for k, v in self.__dict__.items() if type(v) is not Unformed}, memo)
         new._engine = copy.deepcopy(self._engine, memo)
+        new._gain_of = (new._engine.last, copy.deepcopy(self._gain_of[1], memo))
         new.__dict__.update(d)
         new._rebind()
         return new
@@ -840,12 +848,14 @@ class SquareRootUKF:
     def __getstate__(self):
         state = {k: v for k, v in self.__dict__.items() if type(v) is not Unformed}
         state["_noise_cache"] = {}
-        return state, self._engine
+        gain = self._gain_of[1] if self._gain_of[0] is self._engine.last else None
+        return state, self._engine, gain
 
     def __setstate__(self, saved):
-        state, engine = saved
+        state, engine, gain = saved
         self.__dict__.update(state)
         self._engine = engine
+        self._gain_of = (engine.last, gain)
         self._rebind()
 
     def _rebind(self) -> None:

@@ -199,7 +199,7 @@ def test_no_measurement_in_one_dimension(z):
     f.R = 0.1
     f.predict()
     f.update(z)
-    assert f._state.phase == "idle"
+    assert f._engine.phase == "idle"
     np.testing.assert_array_equal(f.x_post, f.x_prior)
     np.testing.assert_array_equal(f.P1_2_post, f.P1_2_prior)
     np.testing.assert_array_equal(f.x, f.x_prior)
@@ -216,7 +216,7 @@ def test_no_measurement(z):
     step(twin, CV_Z[0])
     f.predict()
     f.update(z)
-    assert f._state.phase == "idle"
+    assert f._engine.phase == "idle"
     np.testing.assert_array_equal(f.x_post, f.x_prior)
     np.testing.assert_array_equal(f.P1_2_post, f.P1_2_prior)
     # and the next step is an ordinary one from that prior

@@ -231,7 +231,7 @@ def test_predict_restores_the_step_when_fx_raises():
         ukf.predict(fx=broken)
     assert_filter_state(ukf, snap)
     ukf.predict()
-    assert ukf._state.phase == "prior"
+    assert ukf._engine.phase == "prior"
 
 
 # == the fleet: an invalid edit in place ===========================================================
