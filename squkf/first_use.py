@@ -214,7 +214,7 @@ def _transforms() -> None:
     """squkf.sqrt_unscented_transform and squkf.unscented_transform, with and without hooks."""
     points = MerweScaledWeights()
     S = np.linalg.cholesky(_P0)
-    mean, factor = unscented_transform(_hx, _X0, S, points, np.linalg.cholesky(_R), vectorized=True)
+    unscented_transform(_hx, _X0, S, points, np.linalg.cholesky(_R), vectorized=True)
     unscented_transform(_hx, _X0, S, points, mean_fn=AngleMean([1]), residual_fn=AngleResidual([1]))
     sigmas = SquareRootUKF(3, 2, _DT, _hx, _fx, points).ask_predict()
     Wm, Wc = points.weights(3)
@@ -294,9 +294,8 @@ def precompile() -> Precompiled:
     """
     start = time.perf_counter()
     before = sum(cache.compiled().values())
-    with np.errstate(all="ignore"):
-        for run in WORKLOADS.values():
-            run()
+    for run in WORKLOADS.values():
+        run()
     missing = unreached()
     if missing:
         raise RuntimeError(
