@@ -19,6 +19,7 @@ from .errors import (
     SqukfValueError,
     UnsupportedEnvironmentError,
 )
+from .first_use import Precompiled, precompile
 from .fleet import Fleet, FleetResult, FleetStepError
 from .gating import Gate
 from .generators import Augmented, Propagated, Redrawn, SigmaSet
@@ -55,6 +56,8 @@ __all__ = [
     "SigmaSet",
     "set_num_threads",
     "get_num_threads",
+    "precompile",
+    "Precompiled",
     "SqukfError",
     "SqukfValueError",
     "ShapeError",

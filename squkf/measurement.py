@@ -232,21 +232,24 @@ def measurement_update(
         m = z.shape[-1]
         mo = m if isinstance(cols, slice) else int(np.count_nonzero(cols))
         batch = sigmas_h.shape[:-2]
+        given: np.ndarray | None = None  # the predicted measurement of the hook or the UT
         if UT is None:
-            z_pred = weighted_mean(sigmas_h, rows.Wm, z_mean_fn, "z_mean_fn") if z_hooks else None
+            given = weighted_mean(sigmas_h, rows.Wm, z_mean_fn, "z_mean_fn") if z_hooks else None
         else:
-            z_pred, Sy = UT(sigmas_h, sset.Wm, sset.Wc, R1_2, z_mean_fn, residual_z)
-            z_pred = check_hook_result(z_pred, batch + (m,), "UT")
+            given, Sy = UT(sigmas_h, sset.Wm, sset.Wc, R1_2, z_mean_fn, residual_z)
+            given = check_hook_result(given, batch + (m,), "UT")
             Sy = check_hook_result(Sy, batch + (m, m), "UT")
             if not isinstance(cols, slice):  # the factor of the observed block: its rows, by one QR
                 Sy = observed_noise_factor(Sy, cols)
-        if z_pred is None:  # no hook, no UT: the transform kernel forms the mean too
+        if given is None:  # no hook, no UT: the transform kernel forms the mean too
             z_pred, Sy = transform_factor(sigmas_h, rows, Ro, errno=301)
             H, zref = sigmas_h, z_pred
-        elif residual_z is None:
-            H, zref = sigmas_h[..., cols], z_pred[..., cols]
         else:
-            H, zref = deviations(sigmas_h, z_pred, residual_z, "residual_z")[..., cols], np.zeros(mo)
+            z_pred = given
+            if residual_z is None:
+                H, zref = sigmas_h[..., cols], z_pred[..., cols]
+            else:
+                H, zref = deviations(sigmas_h, z_pred, residual_z, "residual_z")[..., cols], np.zeros(mo)
         y = _innovation(_present(z, z_pred, cols), z_pred, residual_z)[..., cols]
         z_pred = z_pred[..., cols]
         if UT is None and z_hooks:  # the hooks' rows, weighed as the transform weighs them

@@ -67,8 +67,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, types
+from numba import types
 from numba.np.linalg import _LAPACK
+
+from .cache import jit
 
 __all__ = [
     "LAPACK_MIN_COLUMNS",
@@ -84,10 +86,11 @@ __all__ = [
 
 _TINY = float(np.finfo(np.float64).tiny)
 _LOG_2PI = math.log(2.0 * math.pi)
-#: The decorator of every kernel and helper: compiled on first call, cached on disk, releases the GIL.
-kernel = njit(cache=True, nogil=True, error_model="numpy")
+#: The decorator of every kernel and helper: compiled on first call, releases the GIL, cached on disk where
+#: numba has a writable place, else in memory with a warning (:mod:`squkf.kernels.cache`).
+kernel = jit(nogil=True, error_model="numpy")
 #: Inlined into its caller (numba IR), so that it never compiles on its own (:func:`_unfold`).
-_inline = njit(cache=True, nogil=True, error_model="numpy", inline="always")
+_inline = jit(nogil=True, error_model="numpy", inline="always")
 _LANES = 64
 _SCRATCH = 32768  # entries of the largest lane scratch array (keeps a block's arrays in cache)
 
