@@ -45,9 +45,9 @@ from .errors import (
     SqukfError,
 )
 from .generators import SigmaSet, sigma_points_from_factor
-from .linalg import all_finite, tria
+from .linalg import all_finite
 from .measurement import Posterior, measurement_update
-from .plan import Hooks, Plan
+from .plan import IDLE, PREDICTING, PRIOR, UPDATING, Hooks, Plan
 from .rows import RowForm
 from .transform import transform_factor
 from .validate import check_hook_result, check_values, describe_nonfinite
@@ -58,18 +58,14 @@ __all__ = [
     "PRIOR",
     "UPDATING",
     "Engine",
+    "Route",
     "Update",
     "failure",
     "prior_failure",
 ]
 
-IDLE = "idle"
-PREDICTING = "predicting"
-PRIOR = "prior"
-UPDATING = "updating"
 
 _FLOAT64 = np.dtype(np.float64)
-_K = kernels.KERNELS
 
 # kernel status codes (squkf.kernels.phases)
 NOT_FINITE = 305
@@ -178,7 +174,9 @@ def failure(code: int, form: RowForm | None = None, what: str = "update") -> Squ
             errno=303,
         )
     if code == 301:
-        return DowndateError(f"weight {negative} is negative and the innovation factor's downdate failed", 301)
+        return DowndateError(
+            f"weight {negative} is negative and the innovation factor's downdate failed", 301
+        )
     if code == 302:
         return GainError("innovation factor is singular: cannot form the Kalman gain", errno=302)
     if negative and code == 303:
@@ -187,7 +185,9 @@ def failure(code: int, form: RowForm | None = None, what: str = "update") -> Squ
             f"{negative})",
             errno=303,
         )
-    return PosteriorFactorError("the posterior mean or factor is not finite, or its downdate failed", errno=303)
+    return PosteriorFactorError(
+        "the posterior mean or factor is not finite, or its downdate failed", errno=303
+    )
 
 
 def prior_failure(code: int, form: RowForm | None) -> SqukfError:
@@ -202,7 +202,9 @@ def _singular_allowed(status: np.ndarray, S: np.ndarray, R1_2: np.ndarray) -> np
     noise factor ``R1_2`` is rank lost to rounding (an error); from a singular one (an exactly measured
     component) it is right.
     """
-    definite = (np.diagonal(S, 0, -2, -1) != 0).all(axis=-1) & (np.diagonal(R1_2, 0, -2, -1) != 0).all(axis=-1)
+    definite = (np.diagonal(S, 0, -2, -1) != 0).all(axis=-1) & (np.diagonal(R1_2, 0, -2, -1) != 0).all(
+        axis=-1
+    )
     return np.where((status == 304) & ~definite, 0, status)
 
 
@@ -215,7 +217,7 @@ def first_status(status: np.ndarray) -> int:
 
 
 class _ObservedR:
-    """The factor of R's observed block, kept for the last (R, observed) pair: a repeated key forms nothing."""
+    """The factor of R's observed block, kept for the last (R, observed) pair: repeated, nothing is formed."""
 
     __slots__ = ("R", "key", "factor")
 
@@ -225,30 +227,281 @@ class _ObservedR:
         self.factor = None
 
     def of(self, R1_2: np.ndarray, observed: np.ndarray) -> np.ndarray:
+        """``tria(R1_2[observed].T)``: the observed block ``R[obs][:, obs]`` is ``R1_2[obs] R1_2[obs].T``."""
         key = observed.tobytes()
         if self.R is not R1_2 or self.key != key:
-            rows = np.swapaxes(R1_2[..., observed, :], -1, -2)
-            self.factor = tria(rows.copy(order="F") if rows.ndim == 2 else rows.copy())
+            rows = np.ascontiguousarray(np.swapaxes(R1_2[..., observed, :], -1, -2))
+            A = rows[None] if rows.ndim == 2 else rows
+            mo = A.shape[-1]
+            S = np.empty((A.shape[0], mo, mo))
+            kernels.KERNELS.tria(A, S)
+            self.factor = S[0] if rows.ndim == 2 else S
             self.R, self.key = R1_2, key
         return self.factor  # type: ignore[return-value]
 
 
-class Engine:
-    """The step of a block of ``B`` filters of one plan: its state, its pending step, its last records.
+class Route:
+    """One configuration's step for a block of filters, decided once: which kernels run, how.
+
+    The plan's data, the hooks and the gate, and the routes of the updates (:meth:`update_route`,
+    kept per key). Each phase takes a block's arrays and gives its results and a status per filter
+    (0: success; :func:`failure` says the rest); the routes through the hooks or a ``UT`` raise
+    instead (their Python checks are per call). :class:`Engine` (one filter) and
+    :mod:`squkf.stacks` (a fleet's chunks) run a step with them.
 
     Parameters
     ----------
     plan : Plan
     hooks : Hooks
     gate : Gate or None
+    single : bool
+        One filter (a block of one whose hooks, ``UT`` and generator see one filter's arrays, with
+        no batch axis, as filterpy's do).
+    """
+
+    __slots__ = ("plan", "hooks", "gate", "single", "plain_x", "plain_add", "_updates", "_observed_R")
+
+    def __init__(self, plan: Plan, hooks: Hooks, gate, single: bool):
+        self.plan, self.hooks, self.gate, self.single = plan, hooks, gate, single
+        self.plain_x = hooks.x_mean_fn is None and hooks.residual_x is None
+        self.plain_add = hooks.state_add is None
+        self._updates: dict = {}
+        self._observed_R = _ObservedR()
+
+    def __reduce__(self):
+        return (Route, (self.plan, self.hooks, self.gate, self.single))
+
+    def _one(self, a):
+        """``a`` as the hooks, a ``UT`` and a generator see it: one filter's (no batch axis) if single."""
+        return a[0] if self.single and a is not None else a
+
+    def _block(self, a):
+        """One filter's result as a block of one (if single)."""
+        return a[None] if self.single and a is not None else a
+
+    # -- the phases -------------------------------------------------------------------------
+
+    def first_points(self, x: np.ndarray, S: np.ndarray) -> np.ndarray:
+        """The first sigma-point set of ``(x, S)``, ``(B, N, n)``."""
+        first = self.plan.first
+        add = self.hooks.state_add
+        if add is None:
+            return sigma_points_from_factor(x, S, first.xi, None, first.gamma)
+        return self._block(sigma_points_from_factor(self._one(x), self._one(S), first.xi, add))
+
+    def prior(self, F: np.ndarray, Q1_2: np.ndarray | None, UT: Callable | None, draw: bool):
+        """The prior from the first set's images ``F`` ``(B, N, n)``, and its second set where drawn with it.
+
+        Returns
+        -------
+        mean : ndarray, shape (B, n)
+        S : ndarray, shape (B, n, n)
+        status : ndarray of int, shape (B,)
+        sset : SigmaSet or None
+            The second set drawn by the same kernel (``draw`` and a fused route), else None.
+        """
+        plan = self.plan
+        B, N, n = F.shape
+        if UT is None and self.plain_x:
+            fused = plan.fused_draw if (draw and self.plain_add) else None
+            if fused is not None and fused.augmented and Q1_2 is None:
+                fused = None  # the augmented set without noise is the propagated set itself
+            mean, S, status = np.empty((B, n)), np.empty((B, n, n)), np.empty(B, dtype=np.int64)
+            if fused is None:
+                X2 = D2 = kernels.no_set(n)
+                code, xi2, gamma2 = 0, kernels.no_points(n), 0.0
+            else:
+                X2 = np.empty((B, fused.xi.shape[0] + (N if fused.augmented else 0), n))
+                D2 = kernels.no_set(n) if fused.augmented else np.empty(X2.shape)
+                code, xi2, gamma2 = (2 if fused.augmented else 1), fused.xi, fused.gamma
+            kernels.KERNELS.transform(
+                F, kernels.zeros_row(n), kernels.CENTRAL if plan.first.rows.best.central else kernels.MEAN,
+                plan.wm1, plan.scale1, plan.sign1, _noise(Q1_2, n), mean, S, status, code, xi2, gamma2,
+                X2, D2,
+            )  # fmt: skip
+            sset = None
+            if fused is not None:
+                rows = fused.rows
+                offsets = None if fused.augmented else D2
+                sset = SigmaSet(X2, rows.Wm, rows.Wc, fused.exact, offsets, rows, fused.axis)
+            return mean, S, status, sset
+        hooks = self.hooks
+        rows = plan.first.rows
+        Fo = self._one(F)
+        if UT is None:
+            mean, S = transform_factor(
+                Fo,
+                rows,
+                Q1_2,
+                hooks.x_mean_fn,
+                hooks.residual_x,
+                errno=301,
+                hooks=("x_mean_fn", "residual_x"),
+            )
+        else:
+            mean, S = UT(Fo, rows.Wm, rows.Wc, Q1_2, hooks.x_mean_fn, hooks.residual_x)
+            mean = check_hook_result(mean, Fo.shape[:-2] + Fo.shape[-1:], "UT")
+            S = check_hook_result(S, Fo.shape[:-2] + (n, n), "UT")
+        if not (all_finite(mean) and all_finite(S)):
+            raise NonFiniteError("the predicted mean or factor is not finite")
+        return self._block(mean), self._block(S), np.zeros(B, dtype=np.int64), None
+
+    def second_set(self, x, S, propagated, Q1_2) -> SigmaSet:
+        """The generator's second set for ``(x, S)`` (one filter's arrays to a user's generator and hooks)."""
+        plan = self.plan
+        if not self.single:
+            return plan.second.draw(x, S, propagated, Q1_2, self.hooks.state_add)
+        one = self._one
+        s = plan.second.draw(one(x), one(S), one(propagated), Q1_2, self.hooks.state_add)
+        return s._replace(sigmas=s.sigmas[None], offsets=None if s.offsets is None else s.offsets[None])
+
+    def update_route(self, sset: SigmaSet, UT) -> _Joint | None:
+        """The joint-QR route of an update with this set, or None for the general one (hooks, ``UT``).
+
+        Decided once per key (the set's kind, ``UT`` given or not) and kept.
+        """
+        key = (id(sset.rows), sset.moments_exact, sset.offsets is None, sset.axis, UT is None)
+        route = self._updates.get(key, False)
+        if route is False:
+            hooks = self.hooks
+            plain = UT is None and sset.moments_exact and hooks.z_mean_fn is None and hooks.residual_z is None
+            plain = plain and self.plain_x and self.plain_add and sset.rows is not None
+            route = self._updates[key] = _joint_route(sset) if plain else None
+        return route  # type: ignore[return-value]
+
+    def posterior(self, sset, x, S, H, z, observed, R1_2, UT, draw_first: bool):
+        """The update with every measured component (what a gate tests), and the next first set drawn with it.
+
+        Parameters
+        ----------
+        sset : SigmaSet
+        x : ndarray, shape (B, n)
+        S : ndarray, shape (B, n, n)
+            The prior.
+        H : ndarray, shape (B, N2, m)
+        z : ndarray, shape (B, m)
+        observed : ndarray of bool, shape (m,), or None
+        R1_2 : ndarray, shape (m, m) or (B, m, m)
+        UT : callable or None
+        draw_first : bool
+            Draw the next first set from the posterior (the joint route only).
+
+        Returns
+        -------
+        post : Posterior
+        status : ndarray of int, shape (B,)
+        X1 : ndarray, shape (B, N, n), or None
+        """
+        route = self.update_route(sset, UT)
+        B = x.shape[0]
+        if route is None:
+            one = self._one
+            hooks = self.hooks
+            post = measurement_update(
+                one(x), one(S), _one_set(sset) if self.single else sset, one(H), one(z), R1_2,
+                observed=observed, z_mean_fn=hooks.z_mean_fn, residual_x=hooks.residual_x,
+                residual_z=hooks.residual_z, state_add=hooks.state_add, UT=UT,
+            )  # fmt: skip
+            if self.single:
+                post = Posterior(*(a[None] for a in post))
+            return post, np.zeros(B, dtype=np.int64), None
+        Ro = R1_2
+        if observed is not None and not observed.all():
+            H, z = np.ascontiguousarray(H[..., observed]), np.ascontiguousarray(z[..., observed])
+            Ro = self._observed_R.of(R1_2, observed)
+        N, m = H.shape[1:]
+        n = x.shape[-1]
+        zp, y, w, Sy = np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m))
+        L21, dx, xo, So = np.empty((B, n, m)), np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n))
+        ll, ww, status = np.empty(B), np.empty(B), np.empty(B, dtype=np.int64)
+        plan = self.plan
+        draw = draw_first and plan.w_xi is None  # (noise entering fx: the first set has a noise part)
+        X1 = np.empty((B,) + plan.xi1.shape) if draw else kernels.no_set(n)
+        Rs = _stacked(Ro)
+        Xs = kernels.kernel_array(sset.offsets if route.offsets else sset.sigmas)  # (a generator's own)
+        kernels.KERNELS.joint_update(
+            H, kernels.zeros_row(m), Xs,
+            x if route.xref else kernels.zeros_row(n), z, Rs, x, route.mode, route.wm,
+            route.scale, route.sign, route.pair, zp, y, w, Sy, L21, dx, xo, So, ll, ww, status,
+            plan.xi1, plan.gamma1, X1,
+        )  # fmt: skip
+        if status.any():
+            status = _singular_allowed(status, S, Rs)
+        return Posterior(xo, So, y, zp, Sy, L21, w, ll, ww), status, (X1 if draw else None)
+
+    def form_of(self, sset: SigmaSet, UT) -> RowForm | None:
+        """The row form a failed update's status refers to (its negative weights)."""
+        route = self.update_route(sset, UT)
+        return None if route is None else route.form
+
+    def gated(
+        self, post: Posterior, status, sset, x0, S0, H, z, observed, R1_2, UT
+    ) -> tuple[Update, np.ndarray]:
+        """The gate's decision on the tested update, and the update applied (:mod:`squkf.gating`).
+
+        Rejected components are missing: a filter whose whole measurement is rejected keeps its prior
+        (log-likelihood 0), one with some rejected is updated again with the others. A filter whose
+        update failed (``status``) is not decided.
+
+        Returns
+        -------
+        update : Update
+        status : ndarray of int, shape (B,)
+            With the failures of the updates made again.
+        """
+        m = z.shape[-1]
+        gate = self.gate
+        if gate is None:
+            return Update(post.x, post.S, post.y, post.Sy, post.L21, post.log_likelihood, post.nis, observed,
+                          _none_rejected(post.y.shape), None, m), status  # fmt: skip
+        rejected = gate.reject(post.y, post.Sy, post.nis)
+        failed = status != 0
+        if failed.any():
+            rejected = rejected & ~failed[:, None]
+        if not rejected.any():
+            return Update(post.x, post.S, post.y, post.Sy, post.L21, post.log_likelihood, post.nis, observed,
+                          rejected, None, m), status  # fmt: skip
+        n, mo = post.x.shape[-1], post.y.shape[-1]
+        obs_idx = np.arange(m) if observed is None else np.flatnonzero(observed)
+        x, S = post.x.copy(), post.S.copy()
+        ll = np.array(post.log_likelihood, dtype=float)
+        K = _gain(post.Sy, post.L21).copy()
+        none_left = rejected.all(axis=1)
+        x[none_left], S[none_left] = x0[none_left], S0[none_left]
+        ll[none_left], K[none_left] = 0.0, 0.0
+        some = rejected.any(axis=1) & ~none_left
+        if some.any():
+            status = status.copy()
+            patterns, which = np.unique(rejected[some], axis=0, return_inverse=True)
+            some_idx = np.flatnonzero(some)
+            for p, pattern in enumerate(patterns):
+                ix = some_idx[which.reshape(-1) == p]
+                mask = np.zeros(m, dtype=bool)
+                mask[obs_idx[~pattern]] = True
+                R_ix = R1_2[ix] if R1_2.ndim > 2 else R1_2
+                sub = sset._replace(
+                    sigmas=sset.sigmas[ix], offsets=None if sset.offsets is None else sset.offsets[ix]
+                )
+                part, st, _ = self.posterior(sub, x0[ix], S0[ix], H[ix], z[ix], mask, R_ix, UT, False)
+                x[ix], S[ix], ll[ix], status[ix] = part.x, part.S, part.log_likelihood, st
+                Kp = np.zeros((ix.size, n, mo))
+                Kp[:, :, ~pattern] = _gain(part.Sy, part.L21)
+                K[ix] = Kp
+        return Update(x, S, post.y, post.Sy, post.L21, ll, post.nis, observed, rejected, K, m), status
+
+
+class Engine:
+    """One block's step as a state machine: its estimate, its pending step, its last records.
+
+    :class:`squkf.SquareRootUKF` holds one (a block of one, ``single``). A call that fails raises
+    (the first failing filter's :func:`failure`) and leaves the engine as it was.
+
+    Parameters
+    ----------
+    route : Route
     x : ndarray, shape (B, n)
     S : ndarray, shape (B, n, n)
         The initial estimate (kept, not copied: never written in place).
-    single : bool
-        One filter with no batch axis (:class:`squkf.SquareRootUKF`): images, ``z`` and the noise
-        factors are one filter's (``(N, d)``, ``(m,)``, ``(m, m)``), and the hooks, a ``UT`` and a
-        user's generator see one filter's arrays, as filterpy's do. The engine's own arrays are a
-        block of one.
 
     Attributes
     ----------
@@ -256,69 +509,53 @@ class Engine:
     S : ndarray, shape (B, n, n)
         The current estimate (replaced by each step, never written in place).
     phase : str
+    route, step_route : Route
+        The configuration's, and the pending step's (the one its points were drawn with).
     prior : tuple (x, S) or None
-        The last prediction's result (the estimate the pending second set is drawn from).
-    sset : SigmaSet or None
-        The second set of the pending or last update.
+        The estimate the pending second set ``sset`` was drawn from.
+    prior_record, post_record : tuple (x, S)
+        The last prediction's and the last update's results (the estimate before any).
     last : Update or None
         The last update.
-    H : ndarray, shape (B, N2, m), or None
-        The last update's images.
-    shown_f : ndarray or None
-        What filterpy shows as ``sigmas_f``: the second set after a prediction.
-    X : ndarray or None
-        The points handed out by the pending ``ask_predict``.
+    H : ndarray, shape (B, N2, m)
+        The last update's images (zeros before any).
+    shown_f : ndarray
+        What filterpy shows as ``sigmas_f``: the second set after a prediction (zeros before any).
     """
 
     __slots__ = (
-        "plan", "hooks", "gate", "single", "x", "S", "phase", "prior", "sset", "last", "H", "shown_f", "X",
-        "step_plan", "prior_record", "post_record", "_first", "_propagated", "_Q", "_routes", "_observed_R",
-        "_plain_x", "_plain_add",
+        "route", "step_route", "x", "S", "phase", "X", "prior", "sset", "prior_record", "post_record", "last",
+        "H", "shown_f", "_first", "_propagated", "_Q",
     )  # fmt: skip
 
-    def __init__(self, plan: Plan, hooks: Hooks, gate, x: np.ndarray, S: np.ndarray, single: bool = False):
-        self.single = single
+    def __init__(
+        self, route: Route, x: np.ndarray, S: np.ndarray, sigmas_f: np.ndarray, sigmas_h: np.ndarray
+    ):
+        self.route = self.step_route = route
         self.x, self.S = x, S
         self.phase = IDLE
+        self.X: np.ndarray | None = None  # the points handed out by a pending ask_predict
         self.prior: tuple[np.ndarray, np.ndarray] | None = None
         self.sset: SigmaSet | None = None
+        self.prior_record = self.post_record = (x, S)
         self.last: Update | None = None
-        self.H: np.ndarray | None = None
-        self.shown_f: np.ndarray | None = None
-        self.X: np.ndarray | None = None
+        self.H, self.shown_f = sigmas_h, sigmas_f
         self._first: np.ndarray | None = None  # the first set of (x, S), drawn ahead by the last update
         self._propagated: np.ndarray | None = None
         self._Q: np.ndarray | None = None
-        self._observed_R = _ObservedR()
-        self.step_plan = plan
-        self.prior_record = self.post_record = (x, S)
-        self.configure(plan, hooks, gate)
-
-    def records_of_no_step(self, sigmas_f: np.ndarray, sigmas_h: np.ndarray, m: int) -> None:
-        """The records before any step, as filterpy shows them (zeros, the initial estimate)."""
-        self.shown_f, self.H = sigmas_f, sigmas_h
-        self.prior_record = self.post_record = (self.x, self.S)
 
     def __getstate__(self):
-        # the state and the pending step; not the routes' caches, nor the first set drawn ahead
-        skip = ("_routes", "_observed_R", "_first")
-        return {k: getattr(self, k) for k in self.__slots__ if k not in skip}
+        # the state and the pending step, not the first set drawn ahead (a copy draws it again)
+        return {k: getattr(self, k) for k in self.__slots__ if k != "_first"}
 
     def __setstate__(self, state) -> None:
         for k, v in state.items():
             object.__setattr__(self, k, v)
-        self._observed_R = _ObservedR()
-        self._routes = {}
         self._first = None
 
-    # -- configuration ------------------------------------------------------------------------
-
-    def configure(self, plan: Plan, hooks: Hooks, gate) -> None:
-        """A new configuration, its routes decided anew (a pending step keeps the plan it was drawn with)."""
-        self.plan, self.hooks, self.gate = plan, hooks, gate
-        self._routes: dict = {}
-        self._plain_x = hooks.x_mean_fn is None and hooks.residual_x is None
-        self._plain_add = hooks.state_add is None
+    def configure(self, route: Route) -> None:
+        """A new configuration (a pending step keeps the route it was drawn with)."""
+        self.route = route
         self._first = None
 
     def assign(self, x: np.ndarray | None = None, S: np.ndarray | None = None) -> None:
@@ -329,14 +566,6 @@ class Engine:
             self.S = S
         self._first = None
 
-    def _one(self, a):
-        """``a`` as the hooks, a ``UT`` and a generator see it: one filter's (no batch axis) if single."""
-        return a[0] if self.single and a is not None else a
-
-    def _block(self, a):
-        """One filter's result as a block of one (if single)."""
-        return a[None] if self.single and a is not None else a
-
     # -- the prediction -------------------------------------------------------------------------
 
     def first_set(self) -> np.ndarray:
@@ -346,40 +575,33 @@ class Engine:
         used once: the caller may hand it to ``fx`` (which may write on it), never keep it.
         """
         X, self._first = self._first, None
-        if X is None:
-            first = self.plan.first
-            add = self.hooks.state_add
-            if add is None:
-                X = sigma_points_from_factor(self.x, self.S, first.xi, None, first.gamma)
-            else:  # the hook sees one filter's vectors
-                X = self._block(sigma_points_from_factor(self._one(self.x), self._one(self.S), first.xi, add))
-        return X
+        return self.route.first_points(self.x, self.S) if X is None else X
 
     def ask_predict(self) -> np.ndarray:
         """Start a step (from any phase): :meth:`first_set`, kept as the points of the pending prediction."""
         X = self.first_set()
-        self.step_plan = self.plan
+        self.step_route = self.route
         self.X = X
         self.phase = PREDICTING
         return X
 
     def tell_predict(
-        self, F, Q1_2: np.ndarray | None, UT: Callable | None = None, name: str = "fx values", points=None
+        self, F, Q1_2: np.ndarray | None, UT: Callable | None = None, points=None, name: str = "fx values"
     ) -> None:
         """Finish the prediction from the first set's images: the prior and the second set, committed.
 
         Parameters
         ----------
         F : array_like, shape (B, N, n) (single: (N, n))
-            ``fx`` at the points of :meth:`ask_predict` (checked here).
+            ``fx`` at the points (checked here).
         Q1_2 : ndarray, shape (n, n) or (B, n, n), or None
             Lower factor of the additive process noise (None: none added).
         UT : callable, optional
-        name : str
-            How the images are called in messages.
         points : ndarray, shape (B, N, n), optional
             The points of a whole prediction (:meth:`first_set`, with no ask pending); default:
             those of the pending :meth:`ask_predict`.
+        name : str
+            What the images are called in messages.
         """
         if points is None:
             if self.phase != PREDICTING:
@@ -387,74 +609,28 @@ class Engine:
                     f"tell_predict needs a pending ask_predict, but the step is {self.phase!r}"
                     + (" (the prediction was already told)" if self.phase == PRIOR else "")
                 )
-            plan, X = self.step_plan, self.X
+            route, X = self.step_route, self.X
         else:
-            plan, X = self.plan, points
+            route, X = self.route, points
         assert X is not None
-        F = self._images(F, X.shape, name, plan.keeps_propagated)
-        hooks = self.hooks
-        sset = None
-        B, N, n = F.shape
-        if UT is None and self._plain_x:
-            draw = plan.fused_draw if self._plain_add else None
-            if draw is not None and draw.augmented and Q1_2 is None:
-                draw = None  # the augmented set without noise is the propagated set itself
-            mean, S, status = np.empty((B, n)), np.empty((B, n, n)), np.empty(B, dtype=np.int64)
-            if draw is None:
-                X2 = D2 = kernels.no_set(n)
-                code, xi2, gamma2 = 0, kernels.no_points(n), 0.0
-            else:
-                X2 = np.empty((B, draw.xi.shape[0] + (N if draw.augmented else 0), n))
-                D2 = kernels.no_set(n) if draw.augmented else np.empty(X2.shape)
-                code, xi2, gamma2 = (2 if draw.augmented else 1), draw.xi, draw.gamma
-            form = plan.first.rows.best
-            _K.transform(
-                F, kernels.zeros_row(n), kernels.CENTRAL if form.central else kernels.MEAN, plan.wm1,
-                plan.scale1, plan.sign1, _noise(Q1_2, n), mean, S, status, code, xi2, gamma2, X2, D2,
-            )  # fmt: skip
-            bad = first_status(status)
-            if bad:
-                raise prior_failure(bad, form)
-            if draw is not None:
-                rows = draw.rows
-                offsets = None if draw.augmented else D2
-                sset = SigmaSet(X2, rows.Wm, rows.Wc, draw.exact, offsets, rows, draw.axis)
-        else:
-            rows = plan.first.rows
-            Fo, Qo = self._one(F), Q1_2
-            if UT is None:
-                mean, S = transform_factor(
-                    Fo, rows, Qo, hooks.x_mean_fn, hooks.residual_x, errno=301, hooks=("x_mean_fn", "residual_x")
-                )
-            else:
-                mean, S = UT(Fo, rows.Wm, rows.Wc, Qo, hooks.x_mean_fn, hooks.residual_x)
-                shape = Fo.shape
-                mean = check_hook_result(mean, shape[:-2] + shape[-1:], "UT")
-                S = check_hook_result(S, shape[:-2] + (shape[-1], shape[-1]), "UT")
-            if not (all_finite(mean) and all_finite(S)):
-                raise NonFiniteError("the predicted mean or factor is not finite")
-            mean, S = self._block(mean), self._block(S)
+        plan = route.plan
+        F = _images(F, X.shape, name, plan.keeps_propagated, route.single)
+        mean, S, status, sset = route.prior(F, Q1_2, UT, True)
+        if status.any():
+            raise prior_failure(first_status(status), plan.first.rows.best)
         propagated = F if plan.keeps_propagated else None
         if sset is None:
-            sset = self._draw_second(plan, mean, S, propagated, Q1_2)
+            sset = route.second_set(mean, S, propagated, Q1_2)
         # commit
-        self.step_plan = plan
+        self.step_route = route
         self.x, self.S = mean, S
         self.prior = self.prior_record = (mean, S)
         self.sset = sset
         self.shown_f = sset.sigmas
-        self._propagated, self._Q = (propagated, Q1_2) if plan.keeps_propagated else (None, None)
+        self._propagated, self._Q = propagated, Q1_2
         self._first = None
         self.X = None
         self.phase = PRIOR
-
-    def _draw_second(self, plan: Plan, x, S, propagated, Q1_2) -> SigmaSet:
-        """The generator's second set for ``(x, S)`` (one filter's arrays to a user's generator and hooks)."""
-        if not self.single:
-            return plan.second.draw(x, S, propagated, Q1_2, self.hooks.state_add)
-        one = self._one
-        s = plan.second.draw(one(x), one(S), one(propagated), Q1_2, self.hooks.state_add)
-        return s._replace(sigmas=s.sigmas[None], offsets=None if s.offsets is None else s.offsets[None])
 
     # -- the update ------------------------------------------------------------------------------
 
@@ -469,35 +645,38 @@ class Engine:
                 "ask_update called while a prediction is pending: tell_predict the fx values first"
             )
         prior = self.prior
-        if self.phase in (PRIOR, UPDATING) and prior is not None and prior[0] is self.x and prior[1] is self.S:
+        if (
+            self.phase in (PRIOR, UPDATING)
+            and prior is not None
+            and prior[0] is self.x
+            and prior[1] is self.S
+        ):
             return prior, self.sset  # type: ignore[return-value]  # drawn with the prior
-        return (self.x, self.S), self._draw_second(self.plan, self.x, self.S, None, None)
+        return (self.x, self.S), self.route.second_set(self.x, self.S, None, None)
 
     def ask_update(self) -> np.ndarray:
-        """:meth:`pending_update`, kept as the pending update: its second set, ``(B, N2, n)`` (the engine's)."""
+        """:meth:`pending_update`, kept as the pending update: its second set ``(B, N2, n)`` (engine's)."""
         prior, sset = self.pending_update()
-        if sset is not self.sset:
-            self._propagated = self._Q = None
-        self.prior, self.sset = prior, sset
+        self._keep(prior, sset)
         self.phase = UPDATING
         return sset.sigmas
 
+    def _keep(self, prior, sset) -> None:
+        if sset is not self.sset:  # drawn from the estimate alone: no propagated set belongs to it
+            self._propagated = self._Q = None
+            self.step_route = self.route
+        self.prior, self.sset = prior, sset
+
     def tell_update(
-        self,
-        H,
-        z: np.ndarray,
-        observed: np.ndarray | None,
-        R1_2: np.ndarray,
-        UT: Callable | None = None,
-        name: str = "hx values",
-        pending: tuple | None = None,
-    ) -> None:
+        self, H, z: np.ndarray, observed: np.ndarray | None, R1_2: np.ndarray, UT: Callable | None = None,
+        pending: tuple | None = None, name: str = "hx values",
+    ) -> None:  # fmt: skip
         """Finish the update from the second set's images and the measurement, through the gate; committed.
 
         Parameters
         ----------
         H : array_like, shape (B, N2, m) (single: (N2, m))
-            ``hx`` at the points of :meth:`ask_update` (checked here).
+            ``hx`` at the points of the second set (checked here).
         z : ndarray, shape (B, m) (single: (m,))
             The measurement (missing components hold NaN).
         observed : ndarray of bool, shape (m,), or None
@@ -505,10 +684,11 @@ class Engine:
         R1_2 : ndarray, shape (m, m) or (B, m, m)
             Lower factor of the measurement noise (zeros: none).
         UT : callable, optional
-        name : str
         pending : tuple, optional
             The prior and set of a whole update (:meth:`pending_update`, with no ask pending);
             default: those of the pending :meth:`ask_update`.
+        name : str
+            What the images are called in messages.
         """
         if pending is None:
             if self.phase != UPDATING:
@@ -518,16 +698,18 @@ class Engine:
                 )
             pending = (self.prior, self.sset)
         (xp, Sp), sset = pending
-        m = z.shape[-1]
-        H = self._images(H, sset.sigmas.shape[:-1] + (m,), name, True)
-        if self.single:
+        route = self.route
+        H = _images(H, sset.sigmas.shape[:-1] + (z.shape[-1],), name, True, route.single)
+        if route.single:
             z = z[None]
-        post, X1 = self._posterior(sset, xp, Sp, H, z, observed, R1_2, UT)
-        update = self._gated(post, sset, xp, Sp, H, z, observed, R1_2, UT)
+        post, status, X1 = route.posterior(sset, xp, Sp, H, z, observed, R1_2, UT, True)
+        if status.any():
+            raise failure(first_status(status), route.form_of(sset, UT))
+        update, status = route.gated(post, status, sset, xp, Sp, H, z, observed, R1_2, UT)
+        if status.any():
+            raise failure(first_status(status), route.form_of(sset, UT))
         # commit
-        if sset is not self.sset:
-            self._propagated = self._Q = None
-        self.prior, self.sset = (xp, Sp), sset
+        self._keep((xp, Sp), sset)
         self.x, self.S = update.x, update.S
         self.post_record = (update.x, update.S)
         self.last = update
@@ -544,111 +726,6 @@ class Engine:
             )
         self.post_record = (self.x, self.S)
         self.phase = IDLE
-
-    # -- the routes ---------------------------------------------------------------------------
-
-    def update_route(self, sset: SigmaSet, UT) -> _Joint | None:
-        """The joint-QR route of an update with this set, or None for the general one (hooks, ``UT``).
-
-        Decided once per key (the set's kind, ``UT`` given or not) and kept.
-        """
-        key = (id(sset.rows), sset.moments_exact, sset.offsets is None, sset.axis, UT is None)
-        route = self._routes.get(key, False)
-        if route is False:
-            hooks = self.hooks
-            plain = UT is None and sset.moments_exact and hooks.z_mean_fn is None and hooks.residual_z is None
-            route = _joint_route(sset) if plain and self._plain_x and sset.rows is not None else None
-            self._routes[key] = route
-        return route  # type: ignore[return-value]
-
-    def _posterior(self, sset, x, S, H, z, observed, R1_2, UT) -> tuple[Posterior, np.ndarray | None]:
-        """The update with every measured component (what a gate tests), and the first set drawn from it."""
-        route = self.update_route(sset, UT)
-        if route is None or not self._plain_add:
-            one = self._one
-            hooks = self.hooks
-            post = measurement_update(
-                one(x), one(S), _one_set(sset) if self.single else sset, one(H), one(z), R1_2,
-                observed=observed, z_mean_fn=hooks.z_mean_fn, residual_x=hooks.residual_x,
-                residual_z=hooks.residual_z, state_add=hooks.state_add, UT=UT,
-            )  # fmt: skip
-            if self.single:
-                post = Posterior(*(a[None] for a in post))
-            return post, None
-        Ro = R1_2
-        if observed is not None and not observed.all():
-            H, z = np.ascontiguousarray(H[..., observed]), np.ascontiguousarray(z[..., observed])
-            Ro = self._observed_R.of(R1_2, observed)
-        B, N, m = H.shape
-        n = x.shape[-1]
-        zp, y, w, Sy = np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m))
-        L21, dx, xo, So = np.empty((B, n, m)), np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n))
-        ll, ww, status = np.empty(B), np.empty(B), np.empty(B, dtype=np.int64)
-        plan = self.plan
-        draw = plan.w_xi is None  # the next first set drawn ahead (none with noise entering fx)
-        X1 = np.empty((B,) + plan.xi1.shape) if draw else kernels.no_set(n)
-        _K.joint_update(
-            H, kernels.zeros_row(m), sset.offsets if route.offsets else sset.sigmas,
-            x if route.xref else kernels.zeros_row(n), z, _stacked(Ro), x, route.mode, route.wm,
-            route.scale, route.sign, route.pair, zp, y, w, Sy, L21, dx, xo, So, ll, ww, status,
-            plan.xi1, plan.gamma1, X1,
-        )  # fmt: skip
-        bad = first_status(status)
-        if bad:
-            if (status == 304).any():
-                status = _singular_allowed(status, S, _stacked(Ro))
-                bad = first_status(status)
-            if bad:
-                raise failure(bad, route.form)
-        return Posterior(xo, So, y, zp, Sy, L21, w, ll, ww), (X1 if draw else None)
-
-    def _gated(self, post: Posterior, sset, x0, S0, H, z, observed, R1_2, UT) -> Update:
-        """The gate's decision on the tested update, and the update applied (:mod:`squkf.gating`).
-
-        Rejected components are missing: a filter whose whole measurement is rejected keeps its prior
-        (log-likelihood 0), one with some rejected is updated again with the others.
-        """
-        m = z.shape[-1]
-        gate = self.gate
-        if gate is None:
-            rejected = _none_rejected(post.y.shape)
-        else:
-            rejected = gate.reject(post.y, post.Sy, post.nis)
-        if gate is None or not rejected.any():
-            return Update(post.x, post.S, post.y, post.Sy, post.L21, post.log_likelihood, post.nis, observed,
-                          rejected, None, m)  # fmt: skip
-        n, mo = post.x.shape[-1], post.y.shape[-1]
-        obs_idx = np.arange(m) if observed is None else np.flatnonzero(observed)
-        x, S = post.x.copy(), post.S.copy()
-        ll = np.array(post.log_likelihood, dtype=float)
-        K = _gain(post.Sy, post.L21).copy()
-        none_left = rejected.all(axis=1)
-        x[none_left], S[none_left] = x0[none_left], S0[none_left]
-        ll[none_left], K[none_left] = 0.0, 0.0
-        some = rejected.any(axis=1) & ~none_left
-        if some.any():
-            patterns, which = np.unique(rejected[some], axis=0, return_inverse=True)
-            some_idx = np.flatnonzero(some)
-            for p, pattern in enumerate(patterns):
-                ix = some_idx[which.reshape(-1) == p]
-                mask = np.zeros(m, dtype=bool)
-                mask[obs_idx[~pattern]] = True
-                R_ix = R1_2[ix] if R1_2.ndim > 2 else R1_2
-                sub = sset._replace(
-                    sigmas=sset.sigmas[ix], offsets=None if sset.offsets is None else sset.offsets[ix]
-                )
-                part, _ = self._posterior(sub, x0[ix], S0[ix], H[ix], z[ix], mask, R_ix, UT)
-                x[ix], S[ix], ll[ix] = part.x, part.S, part.log_likelihood
-                Kp = np.zeros((ix.size, n, mo))
-                Kp[:, :, ~pattern] = _gain(part.Sy, part.L21)
-                K[ix] = Kp
-        return Update(x, S, post.y, post.Sy, post.L21, ll, post.nis, observed, rejected, K, m)
-
-    def _images(self, values, shape: tuple, name: str, private: bool) -> np.ndarray:
-        """Model images checked against the block's ``shape`` (one filter's, if single); a block."""
-        if self.single:
-            return _images(values, shape[1:], name, private)[None]
-        return _images(values, shape, name, private)
 
 
 def _one_set(sset: SigmaSet) -> SigmaSet:
@@ -688,11 +765,14 @@ def _stacked(a: np.ndarray) -> np.ndarray:
     return kernels.kernel_array(a)
 
 
-def _images(values, shape: tuple, name: str, private: bool) -> np.ndarray:
+def _images(values, shape: tuple, name: str, private: bool, single: bool = False) -> np.ndarray:
     """Model images checked: float64, C-contiguous, of ``shape``, finite (a private copy when ``private``).
 
-    The one check of every image a model function returns or a caller tells.
+    The one check of every image a model function returns or a caller tells. ``shape`` is a
+    block's ``(B, N, d)``; for one filter (``single``) the images are one filter's ``(N, d)``.
     """
+    if single:
+        return _images(values, shape[1:], name, private)[None]
     if (
         type(values) is np.ndarray
         and values.dtype is _FLOAT64

@@ -1,13 +1,12 @@
 """``Fleet``: K independent square-root UKFs with one model, advanced in one array step.
 
 Every filter of a fleet runs the same step as :class:`squkf.SquareRootUKF`
-(the transitions of :mod:`squkf.step` over a plan of :mod:`squkf.plan`), on
-arrays with a leading filter axis: states ``(K, n)``, factors ``(K, n, n)``,
-sigma points ``(K, N, n)``, a chunk of filters at a time (:mod:`squkf.chunks`).
-The model functions are called once per chunk with the points of its
-filters; a function written with ``X[..., i]`` indexing serves a fleet and
-``SquareRootUKF(vectorized=True)`` alike. The step's internals are
-:class:`squkf.boundary.stacked_filter.StackedFilter`, this class's base.
+(the engine's route, :class:`squkf.engine.Route`, over a plan of
+:mod:`squkf.plan`), on arrays with a leading filter axis: states ``(K, n)``,
+factors ``(K, n, n)``, sigma points ``(K, N, n)``, a chunk of filters at a
+time (:mod:`squkf.stacks`). The model functions are called once per chunk
+with the points of its filters; a function written with ``X[..., i]``
+indexing serves a fleet and ``SquareRootUKF(vectorized=True)`` alike.
 
 Failure isolation
 -----------------
@@ -29,33 +28,78 @@ With ``on_error="raise"`` a step with a failing filter instead raises
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
-from . import step as steps
+from . import stacks
+from .batch import model_kwargs, per_step
 from .boundary import inputs
 from .boundary.config import Config, filter_kwargs
+from .boundary.edits import HandOut
 from .boundary.factors import (
     covariance_factors,
     given_noise_factors,
     lower_factors,
+    noise_factors,
+    reset_rows,
 )
-from .boundary.records import FleetResult
-from .boundary.stacked_filter import StackedFilter
+from .boundary.loop import Transaction, annotate_step, check_keep, check_progress, progress_callback
+from .boundary.records import FleetResult, Records, failures_error, new_records
 from .boundary.stacking import filter_of, stacked
-from .errors import FleetStepError, ParameterError
-from .gating import Gate
-from .noise import handed_points
+from .engine import Route
+from .errors import CallSequenceError, FleetStepError, ParameterError
+from .gating import Gate, as_gate
+from .generators import SigmaSet, as_generator
+from .noise import handed_points, noise_points
+from .plan import IDLE, PREDICTING, PRIOR, UPDATING, Hooks, build_plan
 from .smoother import fleet_rts_smoother
+from .stacks import rows_of
 from .ukf import SquareRootUKF
 from .validate import check_time_step
+from .weights import as_family
 
 __all__ = ["Fleet", "FleetResult", "FleetStepError"]
 
+# the internal array behind each attribute handed out for editing in place
+HANDED = {"_x": "x", "_S": "P", "_Q1_2": "Q", "_R1_2": "R"}
+# the hooks: assigning one builds the engine's route again
+_HOOKS = frozenset({"x_mean", "z_mean", "residual_x", "residual_z", "state_add"})
 
-class Fleet(StackedFilter):
+
+def _record(name: str, doc: str, covariance: bool = False) -> property:
+    """A read-only record of the last step: a copy of the array ``name`` (``S @ S.T`` for a covariance)."""
+
+    def read(self) -> np.ndarray:
+        a = getattr(self, name)
+        return a @ np.swapaxes(a, -1, -2) if covariance else a.copy()
+
+    return property(read, doc=doc)
+
+
+class _Pending:
+    """A fleet's pending step: its phase, the points handed out, the prior and what its update reads.
+
+    Plain data, never changed in place (a new one per transition).
+    """
+
+    __slots__ = ("phase", "first", "prior", "propagated", "Q1_2", "sset")
+
+    def __init__(self, phase=IDLE, first=None, prior=None, propagated=None, Q1_2=None, sset=None):
+        self.phase, self.first, self.prior = phase, first, prior
+        self.propagated, self.Q1_2, self.sset = propagated, Q1_2, sset
+
+    def __getstate__(self):
+        return tuple(getattr(self, k) for k in self.__slots__)
+
+    def __setstate__(self, state) -> None:
+        for k, v in zip(self.__slots__, state):
+            object.__setattr__(self, k, v)
+
+
+class Fleet:
     """K independent square-root UKFs with one model and one configuration.
 
     Parameters
@@ -88,14 +132,14 @@ class Fleet(StackedFilter):
         are then w's and v's covariances (shared or per filter).
     chunk : int, optional
         Filters per call of ``fx`` and ``hx``, at most: a step runs a chunk of
-        filters at a time (:mod:`squkf.chunks`), so its temporary arrays stay
+        filters at a time (:mod:`squkf.stacks`), so its temporary arrays stay
         in cache and its memory does not grow with K; the model functions
         get ``(k, N, d)`` points with ``k <= chunk``, and per-filter
         ``fx_args``/``hx_args`` cut to the same filters. On several threads
         (:func:`squkf.set_num_threads`) the chunks are cut evenly between
         them. Default (None): 2048, or 4096 on several threads when each
         thread gets at least four such chunks
-        (:func:`squkf.chunks.default_chunk`). The numbers do not depend on it.
+        (:func:`squkf.stacks.default_chunk`). The numbers do not depend on it.
 
     Attributes
     ----------
@@ -159,8 +203,40 @@ class Fleet(StackedFilter):
         chunk: int | None = None,
     ):
         K, n, m = inputs.check_sizes(n_filters=n_filters, dim_x=dim_x, dim_z=dim_z)
-        hooks = (x_mean_fn, z_mean_fn, residual_x, residual_z, state_add)
-        self._init_stack(K, n, m, dt, hx, fx, points, scheme, hooks, on_error, gate, fx_noise, hx_noise)
+        if on_error not in ("flag", "raise"):
+            raise ParameterError(f"on_error must be 'flag' or 'raise', got on_error={on_error!r}")
+        self._fx_noise, self._hx_noise = inputs.model_noise(fx, hx, fx_noise, hx_noise)
+        self._qd, self._rd = self._fx_noise or n, self._hx_noise or m  # the dimensions of Q and R
+        self._handed = HandOut()  # x, P, Q, R: the arrays handed out, for edits in place
+        self._K, self._n, self._m = K, n, m
+        self._dt = check_time_step(dt)
+        self.hx, self.fx = hx, fx
+        self.points_fn = points
+        self._family = as_family(points)
+        self._generator = as_generator(scheme)
+        self._plan = build_plan(self._family, self._generator, n, self._fx_noise, self._hx_noise)
+        self._route: Route | None = None  # built at the step (the hooks may be assigned until then)
+        self.x_mean, self.z_mean, self.residual_x, self.residual_z = (
+            x_mean_fn,
+            z_mean_fn,
+            residual_x,
+            residual_z,
+        )
+        self.state_add = state_add
+        self.on_error = on_error
+        self._gate = as_gate(gate)
+        self._x = np.zeros((K, n))
+        self._S = np.broadcast_to(np.eye(n), (K, n, n)).copy()
+        self._Q1_2: np.ndarray | None = np.eye(self._qd)
+        self._R1_2: np.ndarray = np.eye(self._rd)
+        self._pending = _Pending()
+        self._failed = np.zeros(K, dtype=bool)
+        self._failure = np.full(K, "", dtype=object)
+        self._x_prior, self._x_post, self._S_prior, self._S_post = self._x, self._x, self._S, self._S
+        self.y = np.zeros((K, m))
+        self._loglik = np.zeros(K)
+        self._nis = np.zeros(K)
+        self._rejected = np.zeros((K, m), dtype=bool)
         self.chunk = chunk
 
     # -- configuration and sizes ----------------------------------------------
@@ -185,6 +261,44 @@ class Fleet(StackedFilter):
         """The second-set generator."""
         return self._generator
 
+    @property
+    def fx_noise(self) -> int | None:
+        """Dimension of the noise ``fx`` takes as its second argument (None: additive noise)."""
+        return self._fx_noise or None
+
+    @property
+    def hx_noise(self) -> int | None:
+        """Dimension of the noise ``hx`` takes as its second argument (None: additive noise)."""
+        return self._hx_noise or None
+
+    @property
+    def gate(self) -> Gate | None:
+        """The outlier gate (None: every measurement is used); assign a probability or a Gate."""
+        return self._gate
+
+    @gate.setter
+    def gate(self, value) -> None:
+        self._gate = as_gate(value)
+        self._route = None
+
+    def _hooks(self) -> Hooks:
+        return Hooks(self.x_mean, self.z_mean, self.residual_x, self.residual_z, self.state_add)
+
+    def _route_now(self) -> Route:
+        """The engine's route of this configuration (built again after a hook or the gate changed)."""
+        route = self._route
+        if route is None:
+            route = self._route = Route(self._plan, self._hooks(), self._gate, single=False)
+        return route
+
+    def __setattr__(self, name: str, value) -> None:
+        object.__setattr__(self, name, value)
+        if name in _HOOKS:
+            object.__setattr__(self, "_route", None)
+        handed = HANDED.get(name)
+        if handed is not None and "_handed" in self.__dict__:  # the value behind it changed
+            self._handed.drop(handed)  # the array handed out is history
+
     # -- state and noise: handed out (edits in place taken by boundary.edits.HandOut) -------
 
     @property
@@ -195,7 +309,7 @@ class Fleet(StackedFilter):
     @x.setter
     def x(self, value):
         self._x = inputs.per_filter(value, "x", self._K, (self._n,))
-        self._state = steps.StepState()
+        self._pending = _Pending()
 
     @property
     def P1_2(self) -> np.ndarray:
@@ -206,7 +320,7 @@ class Fleet(StackedFilter):
     @P1_2.setter
     def P1_2(self, value):
         self._S = lower_factors(value, "P1_2", self._n, self._K)
-        self._state = steps.StepState()
+        self._pending = _Pending()
 
     @property
     def P(self) -> np.ndarray:
@@ -216,7 +330,7 @@ class Fleet(StackedFilter):
     @P.setter
     def P(self, value):
         self._S = covariance_factors(value, "P", self._n, self._K)
-        self._state = steps.StepState()
+        self._pending = _Pending()
 
     @property
     def Q(self) -> np.ndarray:
@@ -229,7 +343,7 @@ class Fleet(StackedFilter):
 
     @Q.setter
     def Q(self, value):
-        S = self._noise(value, "Q", self._qd)
+        S = noise_factors(value, "Q", self._qd, self._K)
         self._Q1_2 = None if S is None or not np.any(S) else S
 
     @property
@@ -249,7 +363,7 @@ class Fleet(StackedFilter):
 
     @R.setter
     def R(self, value):
-        S = self._noise(value, "R", self._rd)
+        S = noise_factors(value, "R", self._rd, self._K)
         self._R1_2 = np.zeros((self._rd, self._rd)) if S is None else S
 
     @property
@@ -263,17 +377,31 @@ class Fleet(StackedFilter):
         S = given_noise_factors(value, "R1_2", self._rd, self._K)
         self._R1_2 = np.zeros((self._rd, self._rd)) if S is None else S
 
+    def _take_edits(self) -> None:
+        """Take the edits in place of ``x``, ``P``, ``Q``, ``R`` through their setters (which may raise)."""
+        if self._handed:
+            self._handed.take(HANDED.values(), lambda name, a: setattr(self, name, a))
+
     @property
     def chunk(self) -> int | None:
-        """Filters per call of ``fx`` and ``hx`` in a step, at most (:mod:`squkf.chunks`); assign to change.
+        """Filters per call of ``fx`` and ``hx`` in a step, at most (:mod:`squkf.stacks`); assign to change.
 
-        None: the library's choice for the thread count (:func:`squkf.chunks.default_chunk`).
+        None: the library's choice for the thread count (:func:`squkf.stacks.default_chunk`).
         """
         return self._chunk
 
     @chunk.setter
     def chunk(self, value) -> None:
-        (self._chunk,) = (None,) if value is None else inputs.check_sizes(chunk=value)
+        self._chunk: int | None = None if value is None else inputs.check_sizes(chunk=value)[0]
+
+    # -- records of the last step (the arrays behind them are never written in place) ------
+
+    x_prior = _record("_x_prior", "States after the last prediction, shape ``(K, dim_x)`` (fresh).")
+    P1_2_prior = _record("_S_prior", "Lower factors after the last prediction, ``(K, n, n)`` (fresh).")
+    P_prior = _record("_S_prior", "Covariances after the last prediction (fresh).", covariance=True)
+    x_post = _record("_x_post", "States after the last update, shape ``(K, dim_x)`` (fresh).")
+    P1_2_post = _record("_S_post", "Lower factors after the last update, ``(K, n, n)`` (fresh).")
+    P_post = _record("_S_post", "Covariances after the last update (fresh).", covariance=True)
 
     @property
     def failed(self) -> np.ndarray:
@@ -319,16 +447,22 @@ class Fleet(StackedFilter):
         x : array_like, shape (dim_x,) or (len(filters), dim_x), optional
         P : array_like, shape (dim_x, dim_x) or (len(filters), dim_x, dim_x), optional
         """
-        self._reset(filters, x, P)
+        self._take_edits()
+        idx = np.flatnonzero(self._failed) if filters is None else np.arange(self._K)[filters]
+        idx = np.atleast_1d(idx)
+        self._x, self._S = reset_rows(x, P, idx, self._x, self._S)
+        self._failed[idx] = False
+        self._failure[idx] = ""
+        self._pending = _Pending()
 
-    # -- the step ---------------------------------------------------------------
+    # -- the step -----------------------------------------------------------------
 
     def ask_predict(self) -> np.ndarray:
         """First half of a prediction: the first sigma-point sets, shape ``(K, N, dim_x)`` (fresh)."""
         self._take_edits()
-        state = steps.ask_predict(self._state, self._plan, self._x, self._S, self.state_add)
-        self._state = state
-        return handed_points(state.sigmas, self._plan.w_xi, self._Q1_2, (self._K,))  # type: ignore[arg-type]
+        X = self._route_now().first_points(self._x, self._S)
+        self._pending = _Pending(PREDICTING, X)
+        return handed_points(X, self._plan.w_xi, self._Q1_2, (self._K,))
 
     def predict(self, dt=None, **fx_args) -> None:
         """Predict every filter one step ahead (flagged filters stay as they are).
@@ -352,17 +486,21 @@ class Fleet(StackedFilter):
     def tell_predict(self, sigmas_f) -> None:
         """Second half of a prediction: ``fx`` at the points from :meth:`ask_predict`, ``(K, N, dim_x)``."""
         self._take_edits()
-        X = self._told(steps.PREDICTING, "tell_predict").sigmas
-        assert X is not None
+        X = self._told(PREDICTING, "tell_predict").first
         F = inputs.stacked_shape(sigmas_f, X.shape, "fx values", copy=False)
         self._predict(lambda rows, X: F[rows], X)
 
     def ask_update(self) -> np.ndarray:
         """First half of an update: the second sigma-point sets, shape ``(K, N2, dim_x)`` (fresh)."""
         self._take_edits()
-        state = steps.ask_update(self._state, self._plan, self._x, self._S, self.state_add)
-        self._state = state
-        return handed_points(state.sigmas, self._plan.v_xi, self._R1_2, (self._K,))  # type: ignore[arg-type]
+        p = self._pending_update()
+        sset = p.sset
+        if sset is None:
+            x, S = p.prior
+            sset = self._route_now().second_set(x, S, p.propagated, p.Q1_2)
+        p = _Pending(UPDATING, None, p.prior, p.propagated, p.Q1_2, sset)
+        self._pending = p
+        return handed_points(p.sset.sigmas, self._plan.v_xi, self._R1_2, (self._K,))
 
     def update(self, z, R=None, **hx_args) -> None:
         """Update every filter with its measurement.
@@ -379,26 +517,123 @@ class Fleet(StackedFilter):
         **hx_args
             Passed to ``hx`` (per-filter arrays as for :meth:`predict`).
         """
-        zz = self._as_measurements(z)
+        zz = inputs.measurements(z, self._K, self._m)
         self._take_edits()
-        R1_2 = self._R1_2 if R is None else self._noise(R, "R", self._rd)
-        pending = steps.pending_update(self._state, self._x, self._S)
-        self._update(pending, self._hx_images(R1_2, hx_args), zz, R1_2)
+        R1_2 = self._R1_2 if R is None else noise_factors(R, "R", self._rd, self._K)
+        self._update(self._pending_update(), self._hx_images(R1_2, hx_args), zz, R1_2)
 
     def tell_update(self, sigmas_h, z, R=None) -> None:
         """Second half of an update: ``hx`` at the points from :meth:`ask_update`, and ``z`` (K, dim_z)."""
-        zz = self._as_measurements(z)
+        zz = inputs.measurements(z, self._K, self._m)
         self._take_edits()
         if self._plan.v_xi is not None and R is not None:
             raise ParameterError(
                 f"with hx_noise the noise is in the sigma points handed out by ask_update: assign fleet.R"
                 f" before asking, not R={R!r:.60} here"
             )
-        R1_2 = self._R1_2 if R is None else self._noise(R, "R", self._rd)
-        state = self._told(steps.UPDATING, "tell_update")
-        shape = state.sset.sigmas.shape[:-1] + (self._m,)  # type: ignore[union-attr]
+        R1_2 = self._R1_2 if R is None else noise_factors(R, "R", self._rd, self._K)
+        p = self._told(UPDATING, "tell_update")
+        sset: SigmaSet = p.sset  # type: ignore[assignment]  # set in phase UPDATING
+        shape = sset.sigmas.shape[:-1] + (self._m,)
         H = inputs.stacked_shape(sigmas_h, shape, "hx values", copy=True)
-        self._update(state, lambda rows, sset: H[rows], zz, R1_2)
+        self._update(p, lambda rows, s: H[rows], zz, R1_2)
+
+    # -- the step's parts -----------------------------------------------------------
+
+    def _fx_images(self, dt: float, fx_args: dict) -> Callable:
+        """``images(rows, X)``: ``fx`` at the first sets ``X`` of the filters ``rows``, arguments cut."""
+        kwargs, K, plan, Q = inputs.with_filter_axis(fx_args, self._K), self._K, self._plan, self._Q1_2
+        fx = self.fx
+
+        def images(rows: slice, X: np.ndarray):
+            kw = inputs.chunk_args(kwargs, K, rows) if kwargs else kwargs
+            # the points themselves: the step reads only their shape afterwards
+            W = None if plan.w_xi is None else noise_points(plan.w_xi, rows_of(Q, rows, 2), (X.shape[0],))
+            return inputs.call_stack(fx, "fx", X, W, (dt,), kw)
+
+        return images
+
+    def _hx_images(self, R1_2: np.ndarray | None, hx_args: dict) -> Callable:
+        """``images(rows, sset)``: ``hx`` at the second sets of the filters ``rows``, arguments cut."""
+        kwargs, K, plan = inputs.with_filter_axis(hx_args, self._K), self._K, self._plan
+        hx = self.hx
+
+        def images(rows: slice, sset):
+            kw = inputs.chunk_args(kwargs, K, rows) if kwargs else kwargs
+            k = sset.sigmas.shape[0]
+            V = None if plan.v_xi is None else noise_points(plan.v_xi, rows_of(R1_2, rows, 2), (k,))
+            return inputs.call_stack(hx, "hx", sset.sigmas.copy(), V, (), kw)
+
+        return images
+
+    def _told(self, phase: str, what: str) -> _Pending:
+        """The pending ask of a ``tell_*`` (phase ``phase``), or a CallSequenceError."""
+        p = self._pending
+        if p.phase != phase:
+            raise CallSequenceError(
+                f"{what} needs a pending {what.replace('tell', 'ask')}, but the step is {p.phase!r}"
+            )
+        return p
+
+    def _pending_update(self) -> _Pending:
+        """The update pending for the current estimate: after a prediction, its prior and what its second
+        set reads; after the estimate was assigned (or with no prediction), the estimate alone."""
+        p = self._pending
+        if p.phase == PREDICTING:
+            raise CallSequenceError(
+                "ask_update called while a prediction is pending: tell_predict the fx values first"
+            )
+        prior = p.prior
+        if p.phase in (PRIOR, UPDATING) and prior is not None and prior[0] is self._x and prior[1] is self._S:
+            return p
+        return _Pending(PRIOR, None, (self._x, self._S))
+
+    def _predict(self, images: Callable, first: np.ndarray | None) -> None:
+        fails: dict[int, str] = {}
+        Q = None if self._plan.w_xi is not None else self._Q1_2  # noise entering fx is in the points already
+        prior = stacks.predict(
+            self._route_now(), self._x, self._S, Q, ~self._failed, images, fails, first, self._chunk
+        )
+        if fails and self.on_error == "raise":
+            raise failures_error(fails)
+        # commit; the second set is drawn by the update, a chunk at a time (memory)
+        self._pending = _Pending(PRIOR, None, (prior.x, prior.S), prior.propagated, Q)
+        self._x, self._S = prior.x, prior.S
+        self._flag(fails)
+        self._x_prior, self._S_prior = prior.x, prior.S  # never written in place: copied when read
+
+    def _flag(self, fails: dict[int, str]) -> None:
+        for k, why in fails.items():
+            self._failed[k] = True
+            self._failure[k] = why
+
+    def _update(self, pending: _Pending, images: Callable, z: np.ndarray, R1_2) -> None:
+        m, fails = self._m, dict[int, str]()
+        active = ~self._failed & ~np.isnan(z).all(axis=1)
+        if self._plan.v_xi is not None:  # noise entering hx is in the points: the update adds none
+            R1_2 = np.zeros((m, m))
+        x, S = pending.prior  # type: ignore[misc]
+        post = stacks.update(
+            self._route_now(), x, S, pending.sset, pending.propagated, pending.Q1_2, z, R1_2, active, images,
+            fails, self._chunk,
+        )  # fmt: skip
+        if fails and self.on_error == "raise":
+            raise failures_error(fails)
+        # commit
+        self._pending = _Pending()
+        self._x, self._S = post.x, post.S
+        self._flag(fails)
+        self._x_post, self._S_post = post.x, post.S  # never written in place: copied when read
+        self.y, self._loglik = post.y, post.log_likelihood
+        self._nis, self._rejected = post.nis, post.rejected
+
+    def _no_update(self) -> None:
+        """The records of a step in which no filter had a measurement, as :meth:`update` would leave them."""
+        K, m = self._K, self._m
+        self._pending = _Pending()
+        self._x_post, self._S_post = self._x, self._S
+        self.y, self._loglik = np.full((K, m), np.nan), np.zeros(K)
+        self._nis, self._rejected = np.zeros(K), np.zeros((K, m), dtype=bool)
 
     # -- many steps ---------------------------------------------------------------
 
@@ -438,14 +673,69 @@ class Fleet(StackedFilter):
             The fleet itself is left after the last step, as after a loop of
             ``predict`` and ``update``; an error leaves it as it was before the call.
         """
-        return self._batch(zs, dts, keep, fx_args, hx_args, progress)
+        check_keep(keep)
+        check_progress(progress)
+        Z = inputs.measurement_series(zs, self._K, self._m)
+        T = Z.shape[1]
+        dt_list = per_step(dts, T, "dts", "dt", default=self._dt, ref="zs")
+        fx_args, hx_args = model_kwargs(fx_args, "fx_args"), model_kwargs(hx_args, "hx_args")
+        records = new_records(keep, self._K, T, self._n, self._m)
+        self._take_edits()
+        bar, callback = progress_callback(progress, T)
+        t = 0
+        try:
+            with self.transaction():  # an error at any step leaves the fleet as it was before the call
+                for t in range(T):
+                    self._step(t, Z[:, t], dt_list[t], fx_args, hx_args, records)
+                    if callback is not None:
+                        callback(t)
+        except BaseException as exc:
+            annotate_step(exc, t, records.so_far(t), True)
+            raise
+        finally:
+            if bar is not None:
+                bar.close()
+        r = records
+        return FleetResult(
+            r.means, r.factors, r.variances, r.loglik, self._failed.copy(), self._x.copy(), self._S.copy(),
+            r.rejected, r.nis,
+        )  # fmt: skip
+
+    def _step(self, t: int, z: np.ndarray, dt: float, fx_args: dict, hx_args: dict, records: Records) -> None:
+        """Step ``t`` of :meth:`batch_filter`, its records kept."""
+        self._take_edits()  # (a progress callback may have edited x, P, Q or R in place)
+        self._predict(self._fx_images(dt, fx_args), None)
+        if np.isnan(z).all():  # no measurement at all: as update() would leave it
+            self._no_update()
+        else:
+            self._take_edits()
+            self._update(self._pending_update(), self._hx_images(self._R1_2, hx_args), z, self._R1_2)
+        records.keep(t, self._x, self._S, self._loglik, self._rejected, self._nis)
+
+    def transaction(self) -> Transaction:
+        """A context manager that puts the fleet back as it was on entry if anything inside raises.
+
+        What ``batch_filter`` runs its steps in (``squkf.boundary.loop.Transaction``).
+        """
+        return Transaction(self._snapshot, self._restore)
+
+    def _snapshot(self) -> tuple[dict, HandOut]:
+        # every array is replaced by the step, never written in place (the flags excepted: copied)
+        state = dict(self.__dict__)
+        state["_failed"], state["_failure"] = self._failed.copy(), self._failure.copy()
+        return state, self._handed.copy()
+
+    def _restore(self, saved: tuple[dict, HandOut]) -> None:
+        state, handed = saved
+        self.__dict__.update(state)
+        self.__dict__["_handed"] = handed  # the arrays handed out stay the caller's, still current
 
     # -- one filter and back --------------------------------------------------------
 
     def __getitem__(self, k: int):
         """Filter ``k`` as a :class:`squkf.SquareRootUKF` (vectorised, with its state and configuration)."""
         k = int(np.arange(self._K)[k])
-        return filter_of(SquareRootUKF, self.configuration(), k, self._x, self._S, self._state.phase)
+        return filter_of(SquareRootUKF, self.configuration(), k, self._x, self._S, self._pending.phase)
 
     def configuration(self) -> Config:
         """The fleet's configuration and noise factors (``squkf.boundary.Config``), edits taken.
@@ -477,7 +767,29 @@ class Fleet(StackedFilter):
             ``Fleet(n_filters=...)`` requires), or is not a valid index of
             the fleet's filters.
         """
-        return self._subset(rows)
+        self._take_edits()
+        try:
+            idx = np.atleast_1d(np.arange(self._K)[rows])
+        except (IndexError, TypeError, ValueError) as exc:
+            raise ParameterError(
+                f"rows is not an index of the {self._K} filters: rows={rows!r:.100} ({exc})"
+            ) from None
+        if idx.size == 0:
+            raise ParameterError(
+                f"rows selects no filter (rows={rows!r:.100}): a fleet has at least one filter"
+            )
+        new = copy.copy(self)
+        new._K = int(idx.size)
+        new._x, new._S = self._x[idx], self._S[idx]
+        new._Q1_2 = rows_of(self._Q1_2, idx, 2)
+        new._R1_2 = rows_of(self._R1_2, idx, 2)  # type: ignore[assignment]
+        new._failed, new._failure = self._failed[idx], self._failure[idx]
+        new._pending = _Pending()
+        new._x_prior, new._x_post = self._x_prior[idx], self._x_post[idx]
+        new._S_prior, new._S_post = self._S_prior[idx], self._S_post[idx]
+        new.y, new._loglik = self.y[idx], self._loglik[idx]
+        new._nis, new._rejected = self._nis[idx], self._rejected[idx]
+        return new
 
     @classmethod
     def from_filters(cls, filters: Sequence[Any], *, on_error: str = "flag") -> Fleet:
@@ -497,6 +809,31 @@ class Fleet(StackedFilter):
         )
         fleet.x, fleet.P1_2, fleet.Q1_2, fleet.R1_2 = x, P1_2, Q1_2, R1_2  # validated by the setters
         return fleet
+
+    def __copy__(self) -> Fleet:
+        new = type(self).__new__(type(self))
+        copies: dict[int, np.ndarray] = {}
+        d = {}
+        for key, v in self.__dict__.items():
+            if isinstance(v, np.ndarray):
+                v = copies.setdefault(id(v), v.copy())
+            d[key] = v
+        # the copy's own arrays handed out, pending edits included
+        d["_handed"] = self._handed.detached()
+        p = self._pending
+        if p.prior is not None:
+            # the pending update is known by the identity of the estimate it was drawn for: the
+            # copy's pending step must belong to the copy's estimate
+            x, S = p.prior
+            prior = (copies.get(id(x), x), copies.get(id(S), S))
+            d["_pending"] = _Pending(p.phase, p.first, prior, p.propagated, p.Q1_2, p.sset)
+        new.__dict__.update(d)
+        return new
+
+    def __deepcopy__(self, memo):
+        new = copy.copy(self)
+        memo[id(self)] = new
+        return new
 
     # -- smoothing --------------------------------------------------------------------
 

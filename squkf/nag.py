@@ -97,11 +97,12 @@ linear model the filter is the Kalman filter (here: means 0.992063 and
 
 from __future__ import annotations
 
+import copy
 import hashlib
 
 import numpy as np
 
-from . import step as steps
+from .engine import Engine, Route
 from .errors import (
     CallSequenceError,
     CommunicationError,
@@ -111,7 +112,7 @@ from .errors import (
     SqukfError,
 )
 from .generators import Augmented, Redrawn
-from .plan import build_plan
+from .plan import Hooks, build_plan
 from .weights import MerweScaledWeights, _real_array, _real_number
 
 __all__ = ["kalman_unscented_state_revcom"]
@@ -348,13 +349,22 @@ def _initial_entry(irevcm, yv, ly, x, st, xt, comm, lx, ropt, mx, my):
     n_max = 4 * mx + 1 if augmented else 2 * mx + 1
     Lx, Ly, S = _check_common(yv, ly, x, st, xt, lx, mx, my, n_max, augmented)
     plan = build_plan(family, generator, mx)
-    machine = steps.ask_predict(steps.StepState(), plan, x.copy(), S)
-    X = machine.sigmas
+    machine = _machine(plan, x.copy(), S, my)
+    X = machine.ask_predict()[0]
     N = X.shape[0]
     # commit
     xt[:mx, :N] = X.T
     _save(comm, machine, plan, mx, my, xt.shape[1], 1, N, x, st, xt, irevcm)
     return 1, N
+
+
+def _machine(plan, x: np.ndarray, S: np.ndarray, my: int) -> Engine:
+    """The step kept between calls: one filter's engine (no hooks, no gate) at the estimate ``(x, S)``."""
+    N = plan.num_sigmas
+    n = x.shape[0]
+    return Engine(
+        Route(plan, Hooks(), None, single=True), x[None], S[None], np.zeros((1, N, n)), np.zeros((1, N, my))
+    )
 
 
 def _save(comm, machine, plan, mx, my, ncap, expect, n, x, st, xt, first_irevcm):
@@ -392,7 +402,7 @@ def _digest_i(ints, machine, family, generator) -> str:
     h = hashlib.sha1()
     _fingerprint(h, tuple(int(v) for v in ints))
     h.update(f"{type(family).__name__}:{family!r}|{type(generator).__name__}:{generator!r}".encode())
-    for name, value in sorted(vars(machine).items()):
+    for name, value in sorted(machine.__getstate__().items()):
         h.update(name.encode())
         _fingerprint(h, value)
     return h.hexdigest()
@@ -408,7 +418,7 @@ def _load(comm, irevcm, x, st, xt, mx, my):
             type(ints) is tuple
             and len(ints) == 6
             and all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) for v in ints)
-            and isinstance(machine, steps.StepState)
+            and isinstance(machine, Engine)
             and type(family) is MerweScaledWeights
             and type(generator) in (Redrawn, Augmented)
             and type(generator.weights) is MerweScaledWeights
@@ -450,7 +460,8 @@ def _load(comm, irevcm, x, st, xt, mx, my):
             "between intermediate exits and re-entries).",
             errno=211,
         )
-    return machine, build_plan(family, generator, mx), ints
+    # a copy: the one kept in comm stays as it is unless this call succeeds
+    return copy.copy(machine), build_plan(family, generator, mx), ints
 
 
 def _read_fxt(fxt, rows: int, n: int, irevcm: int, mx: int, my: int):
@@ -478,23 +489,23 @@ def _re_entry(irevcm, yv, ly, x, st, xt, fxt, comm, lx, mx, my):
     Lx, Ly, _ = _check_common(yv, ly, x, st, xt, lx, mx, my, xt.shape[1], augmented)
     if irevcm == 1:
         F = _read_fxt(fxt, mx, n, 1, mx, my)
-        work, xbar, Sbar = steps.tell_predict(machine, plan, F, Lx, name="fxt (F at the sigma points)")
-        work = steps.ask_update(steps.draw_second_set(work, plan, xbar, Sbar), plan, xbar, Sbar)
-        sset = work.sset
-        N2 = sset.sigmas.shape[0]
+        machine.tell_predict(F, Lx, name="fxt (F at the sigma points)")
+        Y = machine.ask_update()[0]
+        xbar, Sbar = machine.x[0], machine.S[0]
+        N2 = Y.shape[0]
         if N2 > ncap:  # pragma: no cover - guarded by 121/122 at initial entry
             raise ShapeError(f"xt has {ncap} columns, {N2} needed", errno=121)
         # commit
         x[:] = xbar
         _write_lower(st, Sbar, mx)
-        xt[:mx, :N2] = sset.sigmas.T
-        _save(comm, work, plan, mx, my, ncap, 2, N2, x, st, xt, first_irevcm)
+        xt[:mx, :N2] = Y.T
+        _save(comm, machine, plan, mx, my, ncap, 2, N2, x, st, xt, first_irevcm)
         return 2, N2
     H = _read_fxt(fxt, my, n, 2, mx, my)
-    _, post, _ = steps.tell_update(machine, H, yv, Ly, name="fxt (H at the sigma points)")
+    machine.tell_update(H, yv, None, Ly, name="fxt (H at the sigma points)")
     # commit
-    x[:] = post.x
-    _write_lower(st, post.S, mx)
+    x[:] = machine.x[0]
+    _write_lower(st, machine.S[0], mx)
     comm.clear()
     return 3, ncap
 

@@ -22,7 +22,11 @@ from .generators import FusedDraw, Redrawn, UnitSet, noise_family, prepare_secon
 from .kernels import plan_array
 from .weights import FilterpyPoints
 
-__all__ = ["Plan", "Hooks", "build_plan", "check_built_for"]
+__all__ = ["IDLE", "PREDICTING", "PRIOR", "UPDATING", "Plan", "Hooks", "build_plan", "check_built_for"]
+
+#: The phases of a step done in halves (ask/tell): none pending, a prediction asked, its prior told
+#: (the update pending), an update asked.
+IDLE, PREDICTING, PRIOR, UPDATING = "idle", "predicting", "prior", "updating"
 
 
 class Hooks(NamedTuple):
@@ -111,6 +115,12 @@ class Plan:
         if draw is not None:
             draw = draw._replace(xi=plan_array(draw.xi))
         derived(self, "fused_draw", draw)
+
+    def __reduce__(self):
+        # built again when unpickled: its arrays frozen (read-only, as the kernels take them) and derived
+        fx_noise = 0 if self.w_xi is None else self.w_xi.shape[1]
+        hx_noise = 0 if self.v_xi is None else self.v_xi.shape[1]
+        return (build_plan, (self.family, self.generator, self.n, fx_noise, hx_noise))
 
     @property
     def num_sigmas(self) -> int:

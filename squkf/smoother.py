@@ -69,9 +69,9 @@ from .errors import (
     SqukfError,
 )
 from .generators import UnitSet, sigma_points_from_factor
-from .isolate import rows_of, run_isolated
 from .linalg import chol_downdate_columns, kalman_gain, tria
 from .plan import Hooks
+from .stacks import rows_of, run_isolated
 from .transform import deviations, factor_rows, swap_last, transform_factor
 from .validate import as_float_array, call_hook, check_values
 

@@ -28,7 +28,8 @@ from .boundary.edits import Handed
 from .boundary.factors import noise_factor
 from .boundary.loop import Transaction
 from .boundary.records import embed, innovation_inverse
-from .engine import IDLE, Engine, Update
+from .covariance import FactorSlot
+from .engine import Engine, Route, Update
 from .errors import NonFiniteError
 from .gating import Gate, as_gate
 from .generators import sigma_points_from_factor
@@ -163,6 +164,26 @@ class SquareRootUKF:
     # filterpy Saver copies at each step
     __slots__ = ("_engine", "_gain_of", "__dict__", "__weakref__")
 
+    # kept in the __dict__ (filterpy's layout), set in __init__
+    _dim_x: int
+    _dim_z: int
+    _dt: float
+    _num_sigmas: int
+    _fx_noise: int
+    _hx_noise: int
+    _points: object
+    _family: object
+    _generator: object
+    _plan: Plan
+    _gate: Gate | None
+    _noise_cache: dict
+    _P: FactorSlot
+    _Q: FactorSlot
+    _R: FactorSlot
+    hx: Callable
+    fx: Callable
+    vectorized: bool
+
     x = State()
     P = Covariance()
     Q = Covariance()
@@ -216,9 +237,10 @@ class SquareRootUKF:
         self.inv = np.linalg.inv
         # P, Q (the noise's own dimension when it enters fx), R; x = 0; the records of no step yet
         initial(d, n, m, fx_noise_ or n, hx_noise_ or m)
-        x0, S0 = np.zeros((1, n)), np.eye(n)[None]
-        self._engine = Engine(plan, hooks_of(d), d["_gate"], x0, S0, single=True)
-        self._engine.records_of_no_step(np.zeros((1, num, n)), np.zeros((1, num, m)), m)
+        route = Route(plan, hooks_of(d), d["_gate"], single=True)
+        self._engine = Engine(
+            route, np.zeros((1, n)), np.eye(n)[None], np.zeros((1, num, n)), np.zeros((1, num, m))
+        )
         d["x"] = Unformed(self._formed_x)
 
     # -- configuration -----------------------------------------------------
@@ -291,7 +313,7 @@ class SquareRootUKF:
     def _configured(self) -> None:
         """The plan, hooks or gate changed: the engine's routes are decided again."""
         d = self.__dict__
-        self._engine.configure(d["_plan"], hooks_of(d), d["_gate"])
+        self._engine.configure(Route(d["_plan"], hooks_of(d), d["_gate"], single=True))
 
     def _hooks_assigned(self) -> None:
         if "_plan" in self.__dict__:  # (not while __init__ sets the hooks)
@@ -312,7 +334,7 @@ class SquareRootUKF:
     def _covariance_assigned(self, name: str) -> None:
         """An assignment to ``P``, ``Q`` or ``R`` succeeded."""
         if name == "P":
-            self._engine.assign(S=self._P.factor()[None])
+            self._engine.assign(S=self._P.factor()[None])  # type: ignore[index]  # P is never singular
 
     def _take_edits(self) -> None:
         """The edits in place of ``x`` and ``P`` validated and taken into the engine (either may raise)."""
@@ -324,7 +346,7 @@ class SquareRootUKF:
             d["_x"] = Handed(handed.array)
         slot = d["_P"]
         if slot.pending():
-            self._engine.assign(S=slot.factor()[None])
+            self._engine.assign(S=slot.factor()[None])  # type: ignore[index]  # P is never singular
 
     def _stepped(self) -> None:
         """The engine committed a new estimate: ``x`` and ``P`` are formed from it when read."""
@@ -581,7 +603,7 @@ class SquareRootUKF:
         P1_2_prior : ndarray, shape (dim_x, dim_x)
             Fresh arrays.
         """
-        inputs.refuse_noise_args(self._engine.step_plan.w_xi, "Q", Q, UT)
+        inputs.refuse_noise_args(self._engine.step_route.plan.w_xi, "Q", Q, UT)
         self._told_predict(sigmas_f, Q, UT)
         e = self._engine
         return e.x[0].copy(), e.S[0].copy()
@@ -624,7 +646,9 @@ class SquareRootUKF:
         inputs.refuse_noise_args(self._plan.v_xi, "R", R, UT)
         meas = inputs.measurement(z, R, self._dim_z, self._R_dim, self._hx_noise)
         if meas is None:
-            raise NonFiniteError("tell_update needs a measurement, but z holds none (all NaN, masked or None)")
+            raise NonFiniteError(
+                "tell_update needs a measurement, but z holds none (all NaN, masked or None)"
+            )
         self._told_update(sigmas_h, meas[0], meas[1], R, UT)
         e = self._engine
         return e.x[0].copy(), e.S[0].copy()
@@ -741,7 +765,9 @@ class SquareRootUKF:
     def _model(self, fn: Callable, which: str, X: np.ndarray, args: tuple, kwargs: dict, noise=None, UT=None):
         """``fn`` (``"fx"`` or ``"hx"``) at the points ``X``, with noise points if the noise enters it."""
         plan = self._plan
-        xi, name, dim = (plan.w_xi, "Q", self._fx_noise) if which == "fx" else (plan.v_xi, "R", self._hx_noise)
+        xi, name, dim = (
+            (plan.w_xi, "Q", self._fx_noise) if which == "fx" else (plan.v_xi, "R", self._hx_noise)
+        )
         if xi is None:
             if self.vectorized:
                 return fn(X, *args, **kwargs)
@@ -759,7 +785,7 @@ class SquareRootUKF:
     def _told_predict(self, values, Q, UT, points=None) -> None:
         """Finish a prediction in the engine (which commits only if it all succeeds)."""
         e = self._engine
-        plan = e.step_plan if points is None else self._plan
+        plan = e.step_route.plan if points is None else self._plan
         # noise entering fx is in the points: no noise is added to the prior
         Q1_2 = None if plan.w_xi is not None else self._noise_factor(Q, "Q", self._dim_x)
         e.tell_predict(values, Q1_2, UT, points=points)

@@ -9,8 +9,8 @@ import numpy as np
 from .covariance import as_lower_factor
 from .errors import ShapeError
 from .generators import sigma_points_from_factor
-from .step import check_values
 from .transform import deviations, sqrt_unscented_transform
+from .validate import check_values
 from .weights import MerweScaledWeights, as_family
 
 __all__ = ["unscented_transform"]

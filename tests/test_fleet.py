@@ -43,8 +43,8 @@ from models import (
     xy_radar_hx_stacked,
 )
 
-import squkf.chunks
 import squkf.fleet
+import squkf.stacks
 from squkf import (
     Augmented,
     CallSequenceError,
@@ -1020,11 +1020,11 @@ def test_copies_are_independent(how, phase):
 
     def finish(f):
         if phase == "asked-predict":
-            f.tell_predict(cv_fx_stacked(f._state.sigmas, FLEET_DT))
+            f.tell_predict(cv_fx_stacked(f._pending.first, FLEET_DT))
         if phase in ("asked-predict", "told-predict"):
             f.ask_update()
         if phase != "idle":
-            f.tell_update(range_bearing_hx(f._state.sigmas), zs[:, 1])
+            f.tell_update(range_bearing_hx(f._pending.sset.sigmas), zs[:, 1])
 
     finish(fleet)
     finish(clone)
@@ -1066,7 +1066,7 @@ def test_chunks_and_blocks_of_the_core_change_no_bit(monkeypatch, block, scheme)
     """A step runs a chunk of filters at a time (``chunk``), its core a block (chunks.BLOCK): same bits."""
     fleet, _, zs = fleet_batch_setup(K=11, T=6, scheme=scheme)
     whole = copy.deepcopy(fleet).batch_filter(zs)
-    monkeypatch.setattr(squkf.chunks, "BLOCK", block)
+    monkeypatch.setattr(squkf.stacks, "BLOCK", block)
     cut = copy.deepcopy(fleet)
     cut.chunk = block + 1
     blocked = cut.batch_filter(zs)

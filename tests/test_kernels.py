@@ -23,7 +23,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from models import plain_fx, plain_hx, plain_scenario
 
-import squkf.chunks
+import squkf.stacks
 from squkf import Fleet, JulierWeights, MerweScaledWeights, SquareRootUKF, kernels
 from squkf.kernels import phases
 from squkf.linalg import chol_update
@@ -39,7 +39,7 @@ CONFIGS = {
 }
 
 
-def run_fleet(K, config, x0, P0, Q, R, zs, chunk=squkf.chunks.CHUNK):
+def run_fleet(K, config, x0, P0, Q, R, zs, chunk=squkf.stacks.CHUNK):
     fleet = Fleet(K, 4, 2, 0.1, plain_hx, plain_fx, chunk=chunk, **config)
     fleet.x, fleet.P, fleet.Q, fleet.R = x0, P0, Q, R
     out = []
@@ -73,7 +73,7 @@ def test_a_fleet_filter_equals_its_single_filter_bit_for_bit(name):
 
 @pytest.mark.parametrize("name", ["merwe", "merwe-propagated"])
 def test_results_do_not_depend_on_chunk_block_size_or_thread_count(monkeypatch, name):
-    """Chunks of the fleet's step (squkf.chunks), blocks of the isolation, threads: the same bits."""
+    """Chunks of the fleet's step (squkf.stacks), blocks of the isolation, threads: the same bits."""
     K = 300
     x0, P0, Q, R, zs = plain_scenario(K, T=4, seed=1)
     config = CONFIGS[name]
@@ -81,7 +81,7 @@ def test_results_do_not_depend_on_chunk_block_size_or_thread_count(monkeypatch, 
     monkeypatch.setattr(kernels, "MIN_FILTERS_PER_THREAD", 7)  # cut small stacks too
     monkeypatch.setattr(kernels, "usable_cores", lambda: 3)  # three threads, not capped on fewer cores
     for block, chunk, threads in ((64, 1024, 1), (37, 50, 2), (300, 7, 2), (5, 300, 3), (16, 1, 2)):
-        monkeypatch.setattr(squkf.chunks, "BLOCK", block)
+        monkeypatch.setattr(squkf.stacks, "BLOCK", block)
         kernels.set_num_threads(threads)
         try:
             again = run_fleet(K, config, x0, P0, Q, R, zs, chunk=chunk)
@@ -97,7 +97,7 @@ def test_results_do_not_depend_on_chunk_block_size_or_thread_count(monkeypatch, 
 @settings(max_examples=300, deadline=None)
 @given(K=st.integers(1, 20_000), size=st.integers(1, 3000), parts=st.integers(1, 4))
 def test_chunks_cover_the_fleet_in_order_and_share_it_evenly_between_threads(K, size, parts):
-    cut = squkf.chunks.chunks(K, size, parts)
+    cut = squkf.stacks.chunks(K, size, parts)
     assert [c.start for c in cut] == [0] + [c.stop for c in cut[:-1]] and cut[-1].stop == K
     sizes = [c.stop - c.start for c in cut]
     assert min(sizes) >= 1 and max(sizes) <= size

@@ -20,20 +20,21 @@ from squkf import Fleet, MerweScaledWeights, PosteriorFactorError, SquareRootUKF
 def lose_rank(monkeypatch, where):
     """The joint update kernel's posterior factor gets a zero last diagonal entry where ``where(x)``.
 
-    ``where`` maps the prior means ``(..., n)`` to a bool per filter; those filters get the
+    ``where`` maps the prior means ``(B, n)`` to a bool per filter; those filters get the
     kernel's status for a zero on the posterior diagonal (304), as a kernel that found rank
-    lost to rounding reports it.
+    lost to rounding reports it. The kernel is replaced in the engine's table (the one place
+    the engine takes its kernels from).
     """
-    real = kernels.joint_update
+    real = kernels.KERNELS.joint_update
 
-    def joint_update(H, X, z, R1_2, x, *args, **kwargs):
-        u = real(H, X, z, R1_2, x, *args, **kwargs)
-        lost = np.broadcast_to(where(x), u.status.shape)
-        S = u.S.copy()
-        S[..., -1, -1] = np.where(lost, 0.0, S[..., -1, -1])
-        return u._replace(S=S, status=np.where(lost, 304, u.status))
+    def joint_update(*args):
+        real(*args)
+        x, S, status = args[6], args[19], args[22]  # the prior mean, the posterior factor, the status
+        lost = np.broadcast_to(where(x), status.shape)
+        S[lost, -1, -1] = 0.0
+        status[lost] = 304
 
-    monkeypatch.setattr(kernels, "joint_update", joint_update)
+    monkeypatch.setattr(kernels, "KERNELS", kernels.KERNELS._replace(joint_update=joint_update))
 
 
 def test_rank_lost_to_rounding_raises_and_changes_nothing(monkeypatch):

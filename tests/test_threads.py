@@ -22,7 +22,6 @@ from models import plain_fleet, plain_fx
 import squkf
 from squkf import kernels
 from squkf.errors import ParameterError
-from squkf.kernels import phases
 
 #: The process's own core count, kept before the fixture below replaces it for each test.
 REAL_CORES = getattr(kernels, "usable_cores", None)
@@ -222,36 +221,6 @@ def test_a_count_changed_from_another_thread_during_a_step_takes_effect_at_the_n
     fleet.predict()
     assert_same(fleet, expected[1])
     assert thread_names(calls) == {threading.current_thread().name}
-
-
-def test_a_steps_kernel_calls_stay_on_the_threads_it_started_with(monkeypatch):
-    """One chunk on the calling thread, its kernel calls cut between the threads: fx's change waits too."""
-    K = 40  # one chunk; each kernel call cut in two parts (at least 7 filters a part)
-    monkeypatch.setattr(kernels, "MIN_FILTERS_PER_THREAD", 7)
-    expected = serial_predicts(K, 2, None)
-    compiled, ran_on = phases.transform_kernel, []
-
-    def transform_kernel(*args):
-        ran_on.append(threading.current_thread().name)
-        return compiled(*args)
-
-    monkeypatch.setattr(phases, "transform_kernel", transform_kernel)
-    first = FirstCall()
-
-    def fx(X, dt):
-        if first():
-            squkf.set_num_threads(1)
-        return plain_fx(X, dt)
-
-    fleet, _ = plain_fleet(K, fx=fx)
-    squkf.set_num_threads(2)
-    fleet.predict()  # fx is called between the step's sigma points and its transform
-    assert_same(fleet, expected[0])
-    assert len(ran_on) == 2 and thread_names(ran_on) == {"pool"}
-    ran_on.clear()
-    fleet.predict()
-    assert_same(fleet, expected[1])
-    assert ran_on == [threading.current_thread().name]
 
 
 # ---------------------------------------------------------------- NUMBA_DISABLE_JIT

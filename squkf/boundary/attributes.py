@@ -153,7 +153,7 @@ def set_factor(d: dict, name: str, value) -> None:
 
 
 def hooks_of(d: dict) -> Hooks:
-    """The filter's :class:`~squkf.plan.Hooks` from its ``__dict__`` (None where filterpy's default is meant)."""
+    """The filter's :class:`~squkf.plan.Hooks` from its ``__dict__`` (None: filterpy's default)."""
     rx, rz, add = d["residual_x"], d["residual_z"], d["state_add"]
     return Hooks(
         d["x_mean"],

@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from ..plan import Plan
-from ..step import IDLE, PRIOR, CallSequenceError
+from ..errors import CallSequenceError
+from ..plan import IDLE, PRIOR, Plan
 from .config import Config, common_config, filter_kwargs
 
 __all__ = ["check_pending", "filter_of", "stacked"]
@@ -33,7 +33,7 @@ def check_pending(phase: str, plan: Plan, who: str) -> None:
     Parameters
     ----------
     phase : str
-        The step's phase (:data:`squkf.step.IDLE`, ...).
+        The step's phase (:data:`squkf.plan.IDLE`, ...).
     plan : squkf.plan.Plan
     who : str
         For the message, e.g. ``"fleet[3]"`` or ``"filters[1]"``.

@@ -115,7 +115,7 @@ def set_num_threads(n: int) -> None:
 
     A fleet's step hands its chunks to the threads (:func:`thread_map`, model
     functions included; a multiple of ``n`` chunks of near equal sizes:
-    :func:`squkf.chunks.chunks`); any other large stack is cut into ``n`` contiguous
+    :func:`squkf.stacks.chunks`); any other large stack is cut into ``n`` contiguous
     parts, each stepped by one kernel call on its own thread (the kernels
     release the GIL). Each filter's numbers are the same, bit for bit, for
     any thread count. What it takes, its cap at the usable cores, the
@@ -420,6 +420,7 @@ class KernelTable(NamedTuple):
     joint_update: Callable
     downdate_update: Callable
     finite_rows: Callable
+    tria: Callable
 
 
 #: The CPU table: the numba kernels.
@@ -429,6 +430,7 @@ KERNELS = KernelTable(
     phases.joint_update_kernel,
     phases.downdate_update_kernel,
     phases.finite_rows_kernel,
+    phases.tria_kernel,
 )
 
 _NO_NOISE: dict[int, np.ndarray] = {}

@@ -1,8 +1,11 @@
-"""The step (squkf.step, squkf.plan) on stacked arrays: a batch of 3 filters run at once equals each alone.
+"""The engine (squkf.engine, squkf.plan): its contract, and a block of 3 filters equal to each alone.
 
-Every configuration goes through the step's pure transitions (:mod:`squkf.step`) with a plan
-from :func:`squkf.plan.build_plan`, once with a leading batch axis of 3 and once per slice
-without one, and the slices are compared.
+Every configuration goes through the engine's step (:class:`squkf.engine.Engine` over a
+:class:`squkf.engine.Route` of a plan from :func:`squkf.plan.build_plan`), once as a block of 3
+and once per filter as a single filter (no batch axis for its hooks, ``UT`` and generator), and
+the filters are compared. The engine's contract: a call that fails leaves it as it was, the
+default route is two kernel calls a step, a route is decided once per key, and the kernel table
+is read from one place (a second table slots in).
 
 Bit for bit. Every phase's numerics is a compiled kernel (:mod:`squkf.kernels`) that computes
 each filter in its own lane, with the same operations in the same order whatever the other lanes
@@ -21,15 +24,20 @@ from models import heading_fx, l96_fx, l96_hx, xy_radar_hx
 from squkf import (
     Augmented,
     CubatureWeights,
+    GainError,
+    Gate,
     JulierWeights,
     MerweScaledWeights,
+    NonFiniteError,
     Propagated,
     Redrawn,
     SimplexWeights,
+    SquareRootUKF,
+    kernels,
     sqrt_unscented_transform,
 )
-from squkf import step as steps
 from squkf.angles import AngleAdd, AngleMean, AngleResidual
+from squkf.engine import Engine, Route
 from squkf.measurement import measurement_update
 from squkf.plan import Hooks, build_plan
 from squkf.transform import transform_factor
@@ -133,32 +141,38 @@ def apply(fn, sigmas):
     return out.reshape(sigmas.shape[:-1] + out.shape[-1:])
 
 
-def run(plan, model, hooks, UT, x, S, Q1_2, R1_2, zs):
-    """Three predict/update steps through the step transitions; every intermediate result."""
+def engine(plan, hooks, x, S, single, gate=None):
+    """An engine at ``(x, S)``: a block of filters, or one filter (``single``: ``x`` ``(n,)``)."""
+    block = (x[None], S[None]) if single else (x, S)
+    N, n = plan.xi1.shape
+    B = block[0].shape[0]
+    return Engine(Route(plan, hooks, gate, single), *block, np.zeros((B, N, n)), np.zeros((B, N, 1)))
+
+
+def run(plan, model, hooks, UT, x, S, Q1_2, R1_2, zs, single=False):
+    """Three predict/update steps through the engine's halves; every intermediate result."""
+    e = engine(plan, hooks, x, S, single)
+    one = (lambda a: a[0]) if single else (lambda a: a)
     out = []
     for z in zs:
-        state = steps.ask_predict(steps.StepState(), plan, x, S, hooks.state_add)
-        sig_f = state.sigmas
-        state, x, S = steps.tell_predict(state, plan, apply(model.fx, sig_f), Q1_2, hooks, UT)
-        x_prior, S_prior = x, S
-        state = steps.draw_second_set(state, plan, x, S, hooks.state_add)
-        state = steps.ask_update(state, plan, x, S, hooks.state_add)
-        sig_h = state.sigmas
-        state, post, _ = steps.tell_update(state, apply(model.hx, sig_h), z, R1_2, None, hooks, UT)
-        assert state.phase == steps.IDLE
-        x, S = post.x, post.S
+        sig_f = one(e.ask_predict()).copy()
+        e.tell_predict(apply(model.fx, sig_f), Q1_2, UT)
+        x_prior, S_prior = one(e.x), one(e.S)
+        sig_h = one(e.ask_update()).copy()
+        e.tell_update(apply(model.hx, sig_h), z, None, R1_2, UT)
+        assert e.phase == "idle"
+        last = e.last
         out.append(
             dict(
                 sig_f=sig_f,
                 x_prior=x_prior,
                 S_prior=S_prior,
                 sig_h=sig_h,
-                x=post.x,
-                S=post.S,
-                y=post.y,
-                Sy=post.Sy,
-                L21=post.L21,
-                K=post.gain(),
+                x=one(e.x),
+                S=one(e.S),
+                y=one(last.y),
+                Sy=one(last.Sy),
+                L21=one(last.L21),
             )
         )
     return out
@@ -187,6 +201,7 @@ def test_stacked_equals_each_filter_alone(name, noise):
             Q1_2 if noise == "shared" else Q1_2[k],
             R1_2 if noise == "shared" else R1_2[k],
             [z[k] for z in model.zs],
+            single=True,
         )
         for k in range(B)
     ]
@@ -216,3 +231,109 @@ def test_transform_and_measurement_update_stacked():
         assert_slices_equal(SF[k : k + 1], [SF_k], "S")
         for field in ("x", "S", "y", "Sy", "L21", "w"):
             assert_slices_equal(getattr(post, field)[k : k + 1], [getattr(p_k, field)], field)
+
+
+# == the engine's contract ===========================================================================
+
+
+def counting_table(monkeypatch):
+    """The kernel table with each entry wrapped to count its calls (a second table, as a backend gives)."""
+    calls: list[str] = []
+
+    def counted(name, kernel):
+        def call(*args):
+            calls.append(name)
+            return kernel(*args)
+
+        return call
+
+    real = kernels.KERNELS
+    table = kernels.KernelTable(*(counted(name, k) for name, k in zip(real._fields, real)))
+    monkeypatch.setattr(kernels, "KERNELS", table)
+    return calls
+
+
+def merwe_turn_filter(points, scheme, gate=None, vectorized=True):
+    model = TURN
+    fx = (lambda X, dt: np.stack([heading_fx(x) for x in X])) if vectorized else (lambda x, dt: heading_fx(x))
+    hx = (lambda X: np.stack([xy_radar_hx(x) for x in X])) if vectorized else xy_radar_hx
+    f = SquareRootUKF(4, 2, 1.0, hx, fx, points, scheme=scheme, gate=gate, vectorized=vectorized)
+    f.x, f.P1_2, f.Q1_2, f.R1_2 = model.x0[0], model.S0[0], model.Q1_2, model.R1_2
+    return f
+
+
+STEP_CONFIGS = {
+    "merwe": (MerweScaledWeights(alpha=0.5), "redrawn", None),
+    "julier": (JulierWeights(kappa=1.0), "redrawn", None),
+    "simplex": (SimplexWeights(), "redrawn", None),
+    "cubature": (CubatureWeights(), "redrawn", None),
+    "filterpy-points": (MerweScaledSigmaPoints(4, 0.3, 2.0, 0.0), "redrawn", None),
+    "second-family": (MerweScaledWeights(), Redrawn(MerweScaledWeights(alpha=0.4)), None),
+    "augmented": (MerweScaledWeights(alpha=0.5), "augmented", None),
+    "gate": (MerweScaledWeights(alpha=0.5), "redrawn", Gate(0.9999)),
+}
+
+
+@pytest.mark.parametrize("partial", [False, True], ids=["whole-z", "partial-z"])
+@pytest.mark.parametrize("name", list(STEP_CONFIGS))
+def test_a_step_is_two_kernel_calls(monkeypatch, name, partial):
+    """After fx, one kernel gives the prior and the second set; after hx, one the posterior and the next
+    first set: two calls a step, for every family, both schemes, a gate, and a repeated partial z."""
+    points, scheme, gate = STEP_CONFIGS[name]
+    f = merwe_turn_filter(points, scheme, gate)
+    z = xy_radar_hx(TURN.x0[0])
+    if partial:
+        z[1] = np.nan
+    f.predict()
+    f.update(z)  # the first step draws its first set, and the partial z's factor of R is formed once
+    calls = counting_table(monkeypatch)
+    for _ in range(3):
+        f.predict()
+        f.update(z)
+    assert calls == ["transform", "joint_update"] * 3
+    assert not f.rejected.any()
+
+
+def test_the_route_is_decided_once_per_key(monkeypatch):
+    """A repeated key (the set's kind, UT, the observed components) decides nothing; a new one does."""
+    import squkf.engine as engine_module
+
+    made = []
+    real = engine_module._joint_route
+    monkeypatch.setattr(engine_module, "_joint_route", lambda s: made.append(1) or real(s))
+    f = merwe_turn_filter(MerweScaledWeights(alpha=0.5), "redrawn")
+    for _ in range(4):
+        f.predict()
+        f.update(xy_radar_hx(TURN.x0[0]))
+    assert len(made) == 1
+    f.points_fn = JulierWeights()  # a new configuration: its routes are decided anew, once
+    for _ in range(3):
+        f.predict()
+        f.update(xy_radar_hx(TURN.x0[0]))
+    assert len(made) == 2
+
+
+@pytest.mark.parametrize("when", ["prior", "posterior"])
+def test_a_failed_half_leaves_the_engine_as_it_was(when):
+    """A kernel's failure (or a NaN image) raises and commits nothing: the next call works."""
+    plan = build_plan(MerweScaledWeights(alpha=0.5), Redrawn(), 4)
+    e = engine(plan, Hooks(), TURN.x0[0], TURN.S0[0], single=True)
+    X = e.ask_predict()[0]
+    if when == "prior":
+        before = (e.x, e.S, e.phase, e.prior_record)
+        bad = apply(TURN.fx, X)
+        bad[2, 1] = np.nan
+        with pytest.raises(NonFiniteError):
+            e.tell_predict(bad, TURN.Q1_2)
+        assert (e.x, e.S, e.phase, e.prior_record) == before
+        e.tell_predict(apply(TURN.fx, X), TURN.Q1_2)
+        assert e.phase == "prior"
+        return
+    e.tell_predict(apply(TURN.fx, X), TURN.Q1_2)
+    Y = e.ask_update()[0]
+    before = (e.x, e.S, e.phase, e.last, e.post_record)
+    with pytest.raises(GainError):  # no noise and constant images: a singular innovation factor
+        e.tell_update(np.zeros((Y.shape[0], 2)), np.ones(2), None, np.zeros((2, 2)))
+    assert (e.x, e.S, e.phase, e.last, e.post_record) == before
+    e.tell_update(apply(TURN.hx, Y), TURN.zs[0][0], None, TURN.R1_2)
+    assert e.phase == "idle" and e.last is not None

@@ -1,0 +1,541 @@
+"""A fleet's step, a chunk of filters at a time: the engine's route on each chunk, failures flagged alone.
+
+A step of K filters runs chunk by chunk, at most ``Fleet.chunk`` filters each
+(by default :func:`default_chunk`, :data:`CHUNK` on one thread): a chunk's
+first set is drawn, the model is called with the chunk's points, and the
+chunk's prior computed (a prediction); or its second set is drawn, the model
+called, and its posterior computed (an update). Each is a phase of the
+engine's :class:`~squkf.engine.Route` on a block of the chunk's filters, the
+same kernels as one filter's step. The step's temporary arrays are then the
+size of a chunk, not of the fleet, and the chunks can run on the threads of
+:func:`squkf.set_num_threads`. Each filter's arithmetic is its own, so its
+numbers are the same, bit for bit, whatever chunk or thread it is in.
+
+A filter's numerical failure is its own: the kernels report a status per
+filter, and a filter that fails (or whose images are not finite) is flagged
+with the reason a single filter would give (:func:`squkf.engine.failure`),
+keeps its state, and the others go on. The routes through the hooks or a
+``UT`` raise instead; their chunk is then run again a filter at a time
+(:func:`run_isolated`) to find the failing ones.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
+
+from . import kernels
+from .boundary.inputs import finite_images, stacked_shape
+from .engine import Route, failure, prior_failure
+from .errors import NonFiniteError, NotPositiveDefiniteError, SqukfError
+from .generators import SigmaSet
+
+__all__ = [
+    "BLOCK",
+    "CHUNK",
+    "Posteriors",
+    "Prior",
+    "chunks",
+    "default_chunk",
+    "numerical",
+    "predict",
+    "rows_of",
+    "run_isolated",
+    "take_set",
+    "update",
+]
+
+#: Filters per chunk of a fleet's step on one thread (their arrays stay in cache; see the module docstring).
+CHUNK = 2048
+
+#: Filters computed together in one block of a route that raises (bounds the temporary arrays).
+BLOCK = 4096
+
+
+def default_chunk(threads: int, K: int) -> int:
+    """Filters per chunk when the fleet leaves it to the library: :data:`CHUNK`, or twice on threads.
+
+    On several threads what stays serial is the step's Python per chunk,
+    which holds the GIL; chunks twice as large halve it per filter, which
+    pays once every thread has at least four of them. Below that, larger
+    chunks only leave threads idle, and on one thread :data:`CHUNK` is the
+    faster size (``benchmarks/chunk_sizes.py``; the figures in
+    ARCHITECTURE.md, "Measured").
+
+    Parameters
+    ----------
+    threads : int
+        The thread count of :func:`squkf.set_num_threads`.
+    K : int
+        Filters in the step.
+
+    Returns
+    -------
+    int
+    """
+    big = 2 * CHUNK
+    return big if threads > 1 and K >= 4 * threads * big else CHUNK
+
+
+def chunks(K: int, size: int = CHUNK, parts: int = 1) -> list[slice]:
+    """The chunks of ``K`` filters, at most ``size`` each, as slices in order.
+
+    With ``parts == 1``, ``size`` each and the last one shorter. With more
+    parts (the threads they are run on) and more than one chunk, their count
+    is rounded up to a multiple of ``parts`` and their sizes differ by one at
+    most, so that every thread gets as many filters (10^4 filters on two
+    threads: six chunks of 1666 or 1667, not 2048 * 4 + 1808, three on one
+    thread).
+    """
+    count = -(-K // size)
+    if parts > 1 and count > 1:
+        count = min(K, -(-count // parts) * parts)
+        q, r = divmod(K, count)  # the first r chunks get one filter more
+        cuts = [i * q + min(i, r) for i in range(count + 1)]
+        return [slice(lo, hi) for lo, hi in zip(cuts[:-1], cuts[1:])]
+    return [slice(lo, min(lo + size, K)) for lo in range(0, K, size)]
+
+
+def _label(name: str, rows: slice, K: int) -> str:
+    """``name`` as said in a shape error: with the chunk's filters when it is not the whole fleet."""
+    if rows.start == 0 and rows.stop == K:
+        return name
+    return f"{name} of filters {rows.start} to {rows.stop - 1} (one call of {rows.stop - rows.start})"
+
+
+def _map_chunks(
+    one: Callable[[slice], dict[int, str]], K: int, size: int | None, fails: dict[int, str]
+) -> None:
+    """``one`` over the chunks of a step of ``K`` filters, on the threads of :func:`squkf.set_num_threads`.
+
+    The step holds the thread count it starts with (:func:`squkf.kernels.step_threads`):
+    its chunks are cut for it and run on its threads whatever the count is set to meanwhile.
+    """
+    with kernels.step_threads() as threads:
+        cut = chunks(K, default_chunk(threads, K) if size is None else size, threads)
+        for part in kernels.thread_map(one, cut):
+            fails.update(part)
+
+
+def rows_of(a: np.ndarray | None, idx, core: int) -> np.ndarray | None:
+    """``a[idx]`` when ``a`` is per filter (more than ``core`` axes), else ``a`` (shared).
+
+    Parameters
+    ----------
+    a : ndarray, shape (K, *core_shape) or core_shape, or None
+    idx : index array or slice of filters
+    core : int
+        Number of axes of one filter's value (2 for a factor).
+
+    Returns
+    -------
+    ndarray or None
+    """
+    return a if a is None or a.ndim == core else a[idx]
+
+
+def take_set(sset: SigmaSet, idx) -> SigmaSet:
+    """The sigma-point set of the filters ``idx`` (rows of every stacked field)."""
+    offsets = None if sset.offsets is None else sset.offsets[idx]
+    return sset._replace(sigmas=sset.sigmas[idx], offsets=offsets)
+
+
+# -- failures -------------------------------------------------------------------------------
+
+
+def numerical(exc: BaseException) -> bool:
+    """Whether ``exc`` is a failure of one filter's arithmetic (not bad input or a broken model)."""
+    return isinstance(exc, (NotPositiveDefiniteError, NonFiniteError)) or (
+        isinstance(exc, SqukfError) and getattr(exc, "errno", None) in (301, 302, 303)
+    )
+
+
+def _said(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {exc}"
+
+
+def run_isolated(fn: Callable, idx: np.ndarray, K: int, fails: dict[int, str], block: int | None = None):
+    """``fn`` over the filters ``idx`` (of ``K``), a block at a time; after a numerical error, one by one.
+
+    Parameters
+    ----------
+    fn : callable
+        ``fn(rows)`` with ``rows`` an index array or a slice of filters;
+        returns a tuple of arrays with one leading entry per filter. For a
+        failing filter ``k`` it is also called as ``fn(k)`` (no batch axis), to
+        describe the failure by that filter's values alone.
+    idx : ndarray of int
+        The filters to run, in increasing order, each once.
+    K : int
+        How many filters there are (when ``idx`` is all of them, ``fn`` gets slices: views, no copies).
+    fails : dict
+        Filled with ``filter -> reason`` for the filters that failed.
+    block : int, optional
+        Filters per block (default :data:`BLOCK`).
+
+    Returns
+    -------
+    good : ndarray of int
+        The filters that succeeded.
+    results : tuple of ndarray, or None
+        ``fn``'s results over ``good``.
+    """
+    if idx.size == 0:
+        return idx, None
+    size = BLOCK if block is None else block
+    every = idx.size == K  # increasing and distinct in range(K): all of them, in order
+    cuts = list(range(0, idx.size, size)) + [idx.size]
+    goods, parts = [], []
+    for lo, hi in zip(cuts[:-1], cuts[1:]):
+        good, res = _block(fn, idx[lo:hi], slice(lo, hi) if every else None, fails)
+        if res is not None:
+            goods.append(good)
+            parts.append(res)
+    if not parts:
+        return np.array([], dtype=int), None
+    if len(parts) == 1:
+        return goods[0], parts[0]
+    joined = tuple(np.concatenate([p[i] for p in parts]) for i in range(len(parts[0])))
+    return np.concatenate(goods), joined
+
+
+def _describe(fn: Callable, k: int, exc: SqukfError) -> str:
+    """Why filter ``k`` failed, in the words of that filter alone (``fn(k)``: no batch axis), as
+    ``SquareRootUKF`` would say it; otherwise ``exc`` as it is."""
+    try:
+        fn(k)
+    except SqukfError as alone:
+        if type(alone) is type(exc):
+            return _said(alone)
+    except Exception:  # noqa: BLE001  # fn may need a batch axis: keep the stack's own words
+        pass
+    return _said(exc)
+
+
+def _block(fn: Callable, idx: np.ndarray, rows: slice | None, fails: dict[int, str]):
+    try:
+        return idx, fn(idx if rows is None else rows)
+    except SqukfError as exc:
+        if not numerical(exc):
+            raise
+    good, parts = [], []
+    for k in idx.tolist():
+        try:
+            parts.append(fn(np.array([k])))
+            good.append(k)
+        except SqukfError as exc:
+            if not numerical(exc):
+                raise
+            fails.setdefault(k, _describe(fn, k, exc))
+    if not good:
+        return np.array([], dtype=int), None
+    return np.array(good), tuple(np.concatenate([p[i] for p in parts]) for i in range(len(parts[0])))
+
+
+def _flag(
+    status: np.ndarray, on: np.ndarray, found: dict[int, str], reason: Callable[[int], SqukfError]
+) -> np.ndarray:
+    """The filters ``on`` whose ``status`` is a success; the others added to ``found`` with their reason."""
+    bad = on & (status != 0)
+    for k in np.flatnonzero(bad).tolist():
+        found.setdefault(k, _said(reason(int(status[k]))))
+    return on & ~bad
+
+
+# -- the prediction -------------------------------------------------------------------------------
+
+
+class Prior(NamedTuple):
+    """The priors of a fleet's prediction (fresh arrays).
+
+    Attributes
+    ----------
+    x : ndarray, shape (K, n)
+    S : ndarray, shape (K, n, n)
+        A failing or inactive filter keeps its estimate.
+    propagated : ndarray, shape (K, N, n), or None
+        The first sets' images, when the plan's second set reads them.
+    """
+
+    x: np.ndarray
+    S: np.ndarray
+    propagated: np.ndarray | None
+
+
+def predict(
+    route: Route,
+    x: np.ndarray,
+    S: np.ndarray,
+    Q1_2: np.ndarray | None,
+    active: np.ndarray,
+    images: Callable[[slice, np.ndarray], object],
+    fails: dict[int, str],
+    first: np.ndarray | None = None,
+    size: int | None = None,
+) -> Prior:
+    """The prediction of a stack of filters, a chunk at a time, failing filters flagged alone.
+
+    Parameters
+    ----------
+    route : Route
+        The fleet's (``single`` False).
+    x : ndarray, shape (K, n)
+    S : ndarray, shape (K, n, n)
+    Q1_2 : ndarray, shape (d, d) or (K, d, d), or None
+        Additive process noise factor, shared or per filter (None: none added).
+    active : ndarray of bool, shape (K,)
+        The filters to step (the others keep their estimate).
+    images : callable
+        ``images(rows, X)``: the model at the first sets ``X`` ``(k, N, n)`` of
+        the filters ``rows`` (a slice), shape ``(k, N, n)``.
+    fails : dict
+        Filled with ``filter -> reason`` for the filters that fail.
+    first : ndarray, shape (K, N, n), optional
+        The first sets already handed out (``ask_predict``); default: drawn per chunk.
+    size : int, optional
+        Filters per chunk, at most (default: :func:`default_chunk` of the thread count and ``K``).
+
+    Returns
+    -------
+    Prior
+    """
+    K = x.shape[0]
+    plan = route.plan
+    x_new, S_new = np.empty_like(x), np.empty_like(S)
+    propagated = np.empty((K,) + plan.xi1.shape) if plan.keeps_propagated else None
+    form = plan.first.rows.best
+
+    def one(rows: slice) -> dict[int, str]:
+        found: dict[int, str] = {}
+        xs, Ss = x[rows], S[rows]
+        X = route.first_points(xs, Ss) if first is None else first[rows]
+        F = stacked_shape(images(rows, X), X.shape, _label("fx values", rows, K), False, ("fx", X.shape))
+        F = kernels.kernel_array(F)  # (a model's array of another layout: copied once, as the kernels take it)
+        on = active[rows]
+        finite = finite_images(F, "fx values", on, found)
+        if not finite.all():
+            F = np.where(finite[:, None, None], F, X)  # a failing filter's rows: harmless stand-ins
+        Qr = rows_of(Q1_2, rows, 2)
+        xo, So = x_new[rows], S_new[rows]
+        if route.plain_x:
+            mean, Sm, status, _ = route.prior(F, Qr, None, False)
+            good = _flag(status, on & finite, found, lambda c: prior_failure(c, form))
+            if good.all():
+                xo[...], So[...] = mean, Sm
+            else:
+                xo[...], So[...] = xs, Ss
+                xo[good], So[good] = mean[good], Sm[good]
+        else:  # the hooks raise: the chunk is run again a filter at a time to find the failing ones
+
+            def prior(ix):
+                r, ix = _one_or_all(route, ix)  # one filter (an int): as a single filter says its failure
+                mean, Sm, _, _ = r.prior(F[ix], rows_of(Qr, ix, 2), None, False)
+                return mean, Sm
+
+            good_ix, res = run_isolated(prior, np.flatnonzero(on & finite), xs.shape[0], found)
+            xo[...], So[...] = xs, Ss
+            if res is not None:
+                xo[good_ix], So[good_ix] = res
+        if propagated is not None:
+            propagated[rows] = F
+        return {rows.start + i: why for i, why in found.items()}
+
+    _map_chunks(one, K, size, fails)
+    return Prior(x_new, S_new, propagated)
+
+
+# -- the update ------------------------------------------------------------------------------
+
+
+class Posteriors(NamedTuple):
+    """The records of a fleet's update (fresh arrays; a filter not updated keeps its prior).
+
+    Attributes
+    ----------
+    x : ndarray, shape (K, n)
+    S : ndarray, shape (K, n, n)
+    y : ndarray, shape (K, m)
+        Innovations (NaN where a component was missing or the filter not updated).
+    log_likelihood, nis : ndarray, shape (K,)
+        (The Mahalanobis distance is ``sqrt(nis)``.)
+    rejected : ndarray of bool, shape (K, m)
+    """
+
+    x: np.ndarray
+    S: np.ndarray
+    y: np.ndarray
+    log_likelihood: np.ndarray
+    nis: np.ndarray
+    rejected: np.ndarray
+
+
+def update(
+    route: Route,
+    x: np.ndarray,
+    S: np.ndarray,
+    sset: SigmaSet | None,
+    propagated: np.ndarray | None,
+    Q1_2: np.ndarray | None,
+    z: np.ndarray,
+    R1_2: np.ndarray,
+    active: np.ndarray,
+    images: Callable[[slice, SigmaSet], object],
+    fails: dict[int, str],
+    size: int | None = None,
+) -> Posteriors:
+    """The update of a stack of filters, a chunk at a time, failing filters flagged alone.
+
+    Parameters
+    ----------
+    route : Route
+    x : ndarray, shape (K, n)
+    S : ndarray, shape (K, n, n)
+        The priors.
+    sset : SigmaSet or None
+        Their second sets ``(K, N2, n)`` (handed out by ``ask_update``), or None
+        to draw them here a chunk at a time.
+    propagated : ndarray, shape (K, N, n), or None
+        The prediction's images, for a second set that reads them.
+    Q1_2 : ndarray or None
+        The prediction's process-noise factor (for the augmented set).
+    z : ndarray, shape (K, m)
+        Measurements, NaN where missing.
+    R1_2 : ndarray, shape (m, m) or (K, m, m)
+        Measurement noise factor, shared or per filter.
+    active : ndarray of bool, shape (K,)
+        The filters to update (the others keep their prior, with no innovation).
+    images : callable
+        ``images(rows, sset)``: the model at the second sets ``sset`` of the
+        filters ``rows`` (a slice), shape ``(k, N2, m)``.
+    fails, size
+        As for :func:`predict`.
+
+    Returns
+    -------
+    Posteriors
+    """
+    K, m = z.shape
+    z = kernels.kernel_array(z)  # (one step's column of a run's measurements)
+    out = Posteriors(
+        np.empty_like(x), np.empty_like(S), np.empty((K, m)), np.empty(K), np.empty(K),
+        np.empty((K, m), dtype=bool),
+    )  # fmt: skip
+    observed = ~np.isnan(z)
+
+    def one(rows: slice) -> dict[int, str]:
+        found: dict[int, str] = {}
+        xs, Ss = x[rows], S[rows]
+        if sset is not None:
+            s = take_set(sset, rows)
+        else:
+            prop = None if propagated is None else propagated[rows]
+            s = route.second_set(xs, Ss, prop, rows_of(Q1_2, rows, 2))
+        shape = s.sigmas.shape[:-1] + (m,)
+        H = stacked_shape(images(rows, s), shape, _label("hx values", rows, K), False, ("hx", s.sigmas.shape))
+        H = kernels.kernel_array(H)
+        on = active[rows]
+        finite = finite_images(H, "hx values", on, found)
+        records = _posteriors(route, s, xs, Ss, H, z[rows], observed[rows], rows_of(R1_2, rows, 2),
+                              on & finite, found)  # fmt: skip
+        for whole, part in zip(out, records):
+            whole[rows] = part
+        return {rows.start + i: why for i, why in found.items()}
+
+    _map_chunks(one, K, size, fails)
+    return out
+
+
+def _posteriors(route: Route, sset, x0, S0, H, z, observed, R1_2, todo, found) -> tuple:
+    """A chunk's gated updates, grouped by their missing components; a filter no update reaches keeps its
+    prior, with no innovation and no likelihood. The records ``x, S, y, loglik, nis, rejected``."""
+    k, m = z.shape
+    if todo.all() and observed.all():  # the usual case: every filter, every component, one group
+        groups: list[tuple[np.ndarray | slice, np.ndarray | None]] = [(slice(None), None)]
+    else:
+        todo_idx = np.flatnonzero(todo)
+        patterns, which = np.unique(observed[todo], axis=0, return_inverse=True)
+        which = which.reshape(-1)
+        groups = [(todo_idx[which == p], None if obs.all() else obs) for p, obs in enumerate(patterns)]
+    records = None
+    for ix, mask in groups:
+        part = _gated_group(route, sset, x0, S0, H, z, R1_2, ix, mask, found)
+        if isinstance(ix, slice) and part[6].all():
+            return part[:6]  # every filter, all measured, all good: the kernels' arrays as they are
+        if records is None:
+            records = (
+                x0.copy(), S0.copy(), np.full((k, m), np.nan), np.zeros(k), np.zeros(k),
+                np.zeros((k, m), dtype=bool),
+            )  # fmt: skip
+        x, S, y, ll, nis, rej = records
+        good = part[6]
+        gi = np.arange(k)[ix][good]
+        x[gi], S[gi] = part[0][good], part[1][good]
+        ll[gi], nis[gi] = part[3][good], part[4][good]
+        if mask is None:
+            y[gi], rej[gi] = part[2][good], part[5][good]
+        else:
+            cols = np.ix_(gi, np.flatnonzero(mask))
+            y[cols], rej[cols] = part[2][good], part[5][good]
+    if records is None:
+        return (
+            x0.copy(), S0.copy(), np.full((k, m), np.nan), np.zeros(k), np.zeros(k),
+            np.zeros((k, m), dtype=bool),
+        )  # fmt: skip
+    return records
+
+
+def _gated_group(route: Route, sset, x0, S0, H, z, R1_2, ix, mask, found):
+    """The gated update of the filters ``ix`` of a chunk (one pattern of missing components ``mask``).
+
+    Returns ``x, S, y, loglik, nis, rejected`` over ``ix`` and the mask of the filters that succeeded.
+    """
+    s = sset if isinstance(ix, slice) else take_set(sset, ix)
+    xi, Si, Hi, zi, Ri = x0[ix], S0[ix], H[ix], z[ix], rows_of(R1_2, ix, 2)
+    B = xi.shape[0]
+    found_rows: dict[int, str] = {}
+    if route.update_route(s, None) is not None:  # the kernels report each filter's failure
+        post, status, _ = route.posterior(s, xi, Si, Hi, zi, mask, Ri, None, False)
+        upd, status = route.gated(post, status, s, xi, Si, Hi, zi, mask, Ri, None)
+        form = route.form_of(s, None)
+        good = _flag(status, np.ones(B, dtype=bool), found_rows, lambda c: failure(c, form))
+        _renumber(found_rows, ix, found)
+        return upd.x, upd.S, upd.y, upd.log_likelihood, upd.nis, upd.rejected, good
+
+    def posterior(j):  # the hooks or a generator's set raise: a filter at a time after a failure
+        r, j = _one_or_all(route, j)
+        sub, Rj = take_set(s, j), rows_of(Ri, j, 2)
+        post, _, _ = r.posterior(sub, xi[j], Si[j], Hi[j], zi[j], mask, Rj, None, False)
+        ok = np.zeros(xi[j].shape[0], dtype=np.int64)
+        upd, _ = r.gated(post, ok, sub, xi[j], Si[j], Hi[j], zi[j], mask, Rj, None)
+        return upd.x, upd.S, upd.y, upd.log_likelihood, upd.nis, upd.rejected
+
+    good_idx, res = run_isolated(posterior, np.arange(B), B, found_rows)
+    _renumber(found_rows, ix, found)
+    n = xi.shape[-1]
+    mo = Hi.shape[-1] if mask is None else int(mask.sum())
+    full = (np.zeros((B, n)), np.zeros((B, n, n)), np.zeros((B, mo)), np.zeros(B), np.zeros(B),
+            np.zeros((B, mo), dtype=bool))  # fmt: skip
+    good = np.zeros(B, dtype=bool)
+    good[good_idx] = True
+    if res is not None:
+        for a, r in zip(full, res):
+            a[good_idx] = r
+    return (*full, good)
+
+
+def _one_or_all(route: Route, ix):
+    """The route and rows for ``ix``: a filter alone (an int, :func:`run_isolated` describing its failure)
+    runs as a single filter's block of one, so that its hooks see its own arrays and its error reads as
+    that filter's; a slice or index array runs as it is."""
+    if isinstance(ix, (int, np.integer)):
+        return Route(route.plan, route.hooks, route.gate, single=True), slice(int(ix), int(ix) + 1)
+    return route, ix
+
+
+def _renumber(found_rows: dict[int, str], ix, found: dict[int, str]) -> None:
+    """Failures of a group's filters (numbered within the group) as the chunk's."""
+    for j, why in found_rows.items():
+        k = j if isinstance(ix, slice) else int(ix[j])
+        found.setdefault(k, why)
