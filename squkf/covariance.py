@@ -165,6 +165,7 @@ class FactorSlot:
         self.semidefinite = semidefinite
         self._factor = factor
         self._view: Handed | None = None  # the matrix handed out, and its record when it matched the factor
+        self._assigned: np.ndarray | None = None  # the matrix assigned, handed out when first read
 
     def detached(self) -> FactorSlot:
         """A copy for an independent filter: the factor shared (never changed in place), the matrix copied.
@@ -176,6 +177,8 @@ class FactorSlot:
         new = copy.copy(self)
         if new._view is not None:
             new._view = new._view.copy()  # pending edits stay pending in the copy
+        if new._assigned is not None:
+            new._assigned = new._assigned.copy()
         return new
 
     def _size(self) -> int:
@@ -216,9 +219,12 @@ class FactorSlot:
         ``(dim, dim)``, or ``(1,)`` when a 1-element vector was assigned (:meth:`set_matrix`).
         """
         if self._view is None:
-            S = self._factor
-            n = self._size()
-            self._view = Handed(S @ S.T if S is not None else np.zeros((n, n)))
+            A = self._assigned
+            if A is None:
+                S = self._factor
+                A = S @ S.T if S is not None else np.zeros((self._size(),) * 2)
+            # handed out from now on: edits in place are looked for at each use of the factor
+            self._view, self._assigned = Handed(A), None
         return self._view.array
 
     def set_matrix(self, value) -> None:
@@ -233,29 +239,29 @@ class FactorSlot:
         if value is None:
             if not self.semidefinite:
                 raise SqukfValueError(f"{self.name} cannot be None")
-            self._factor, self._view = None, None
+            self._factor, self._view, self._assigned = None, None, None
             return
         A = as_matrix(value, self.name, self.dim)
         S = self._factor_of(A)
         if np.ndim(value) == 1:  # a 1-element vector (dimension 1): handed out as assigned, as filterpy
             A = A.reshape(1)  # does, so that ``R[0]`` is a number; edits in place still reach it
-        self._factor, self._view = S, Handed(A)
+        self._factor, self._view, self._assigned = S, None, A
 
     def set_factor(self, value) -> None:
         """Assign from a lower-triangular factor (validated; a copy is kept)."""
         if value is None and self.semidefinite:
-            self._factor, self._view = None, None
+            self._factor, self._view, self._assigned = None, None, None
             return
         S: np.ndarray | None = as_lower_factor(
             value, f"{self.name}1_2", self.dim, singular_ok=self.semidefinite
         )
         if self.semidefinite and not np.any(S):
             S = None
-        self._factor, self._view = S, None
+        self._factor, self._view, self._assigned = S, None, None
 
     def set_trusted_factor(self, S: np.ndarray) -> None:
         """Install a factor computed by the filter itself (no validation; not copied)."""
-        self._factor, self._view = S, None
+        self._factor, self._view, self._assigned = S, None, None
 
     def factor_or_zeros(self) -> np.ndarray:
         """The factor, with an absent (zero) covariance shown as zeros."""

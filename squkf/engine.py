@@ -35,7 +35,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import kernels
+from . import blas, kernels
 from .errors import (
     CallSequenceError,
     DowndateError,
@@ -69,6 +69,7 @@ _FLOAT64 = np.dtype(np.float64)
 
 # kernel status codes (squkf.kernels.phases)
 NOT_FINITE = 305
+NOT_FINITE_IMAGES = 306
 
 
 class Update(NamedTuple):
@@ -259,7 +260,10 @@ class Route:
         no batch axis, as filterpy's do).
     """
 
-    __slots__ = ("plan", "hooks", "gate", "single", "plain_x", "plain_add", "_updates", "_observed_R")
+    __slots__ = (
+        "plan", "hooks", "gate", "single", "plain_x", "plain_add", "_updates", "_observed_R", "_zeros",
+        "_noise",
+    )  # fmt: skip
 
     def __init__(self, plan: Plan, hooks: Hooks, gate, single: bool):
         self.plan, self.hooks, self.gate, self.single = plan, hooks, gate, single
@@ -267,6 +271,10 @@ class Route:
         self.plain_add = hooks.state_add is None
         self._updates: dict = {}
         self._observed_R = _ObservedR()
+        self._zeros: dict[
+            int, np.ndarray
+        ] = {}  # a shared row of zeros per size (a reference the kernels read)
+        self._noise: dict[int, tuple] = {}  # per noise factor given: (that array, as the kernels take it)
 
     def __reduce__(self):
         return (Route, (self.plan, self.hooks, self.gate, self.single))
@@ -279,6 +287,26 @@ class Route:
         """One filter's result as a block of one (if single)."""
         return a[None] if self.single and a is not None else a
 
+    def zeros(self, d: int) -> np.ndarray:
+        """A shared row of zeros ``(1, d)``, made once."""
+        z = self._zeros.get(d)
+        if z is None:
+            z = self._zeros[d] = kernels.zeros_row(d)
+        return z
+
+    def stacked(self, factor: np.ndarray, which: int) -> np.ndarray:
+        """A noise factor ``(d, d)`` (or ``(B, d, d)``) as the kernels take it, ``(1 or B, d, d)``.
+
+        Kept for the last factor given as ``which`` (0: the process noise, 1: the measurement's):
+        the filter's own factor, given again at every step, is stacked once.
+        """
+        kept = self._noise.get(which)
+        if kept is not None and kept[0] is factor:
+            return kept[1]
+        st = kernels.kernel_array(factor[None] if factor.ndim == 2 else factor)
+        self._noise[which] = (factor, st)
+        return st
+
     # -- the phases -------------------------------------------------------------------------
 
     def first_points(self, x: np.ndarray, S: np.ndarray) -> np.ndarray:
@@ -289,8 +317,14 @@ class Route:
             return sigma_points_from_factor(x, S, first.xi, None, first.gamma)
         return self._block(sigma_points_from_factor(self._one(x), self._one(S), first.xi, add))
 
-    def prior(self, F: np.ndarray, Q1_2: np.ndarray | None, UT: Callable | None, draw: bool):
+    def prior(
+        self, F: np.ndarray, Q1_2: np.ndarray | None, UT: Callable | None, draw: bool, name: str = "fx values"
+    ):
         """The prior from the first set's images ``F`` ``(B, N, n)``, and its second set where drawn with it.
+
+        ``F`` is checked finite: in the kernel on the plain route (no ``x_mean_fn``/``residual_x``,
+        no ``UT``: status 306 for a filter whose images are not finite), here on the others (before
+        the hooks see them; ``name`` says what they are).
 
         Returns
         -------
@@ -314,10 +348,10 @@ class Route:
                 X2 = np.empty((B, fused.xi.shape[0] + (N if fused.augmented else 0), n))
                 D2 = kernels.no_set(n) if fused.augmented else np.empty(X2.shape)
                 code, xi2, gamma2 = (2 if fused.augmented else 1), fused.xi, fused.gamma
+            noise = kernels.no_noise(n) if Q1_2 is None else self.stacked(Q1_2, 0)
             kernels.KERNELS.transform(
-                F, kernels.zeros_row(n), kernels.CENTRAL if plan.first.rows.best.central else kernels.MEAN,
-                plan.wm1, plan.scale1, plan.sign1, _noise(Q1_2, n), mean, S, status, code, xi2, gamma2,
-                X2, D2,
+                F, self.zeros(n), plan.mode1, plan.wm1, plan.scale1, plan.sign1, noise, mean, S, status,
+                code, xi2, gamma2, X2, D2,
             )  # fmt: skip
             sset = None
             if fused is not None:
@@ -328,6 +362,8 @@ class Route:
         hooks = self.hooks
         rows = plan.first.rows
         Fo = self._one(F)
+        if not all_finite(Fo):
+            raise NonFiniteError(describe_nonfinite(Fo, name))
         if UT is None:
             mean, S = transform_factor(
                 Fo,
@@ -369,7 +405,7 @@ class Route:
             route = self._updates[key] = _joint_route(sset) if plain else None
         return route  # type: ignore[return-value]
 
-    def posterior(self, sset, x, S, H, z, observed, R1_2, UT, draw_first: bool):
+    def posterior(self, sset, x, S, H, z, observed, R1_2, UT, draw_first: bool, name: str = "hx values"):
         """The update with every measured component (what a gate tests), and the next first set drawn with it.
 
         Parameters
@@ -379,6 +415,8 @@ class Route:
         S : ndarray, shape (B, n, n)
             The prior.
         H : ndarray, shape (B, N2, m)
+            Checked finite: in the kernel on the joint route (status 306), here on the others (before
+            the hooks see them; ``name`` says what they are).
         z : ndarray, shape (B, m)
         observed : ndarray of bool, shape (m,), or None
         R1_2 : ndarray, shape (m, m) or (B, m, m)
@@ -388,46 +426,65 @@ class Route:
 
         Returns
         -------
-        post : Posterior
+        update : Update
+            As tested (no component rejected).
         status : ndarray of int, shape (B,)
         X1 : ndarray, shape (B, N, n), or None
         """
-        route = self.update_route(sset, UT)
+        route = self._updates.get(
+            (id(sset.rows), sset.moments_exact, sset.offsets is None, sset.axis, UT is None)
+        )
+        if route is None:
+            route = self.update_route(sset, UT)
         B = x.shape[0]
+        m_all = z.shape[-1]
         if route is None:
             one = self._one
             hooks = self.hooks
+            Ho = one(H)
+            if not all_finite(Ho):
+                raise NonFiniteError(describe_nonfinite(Ho, name))
             post = measurement_update(
-                one(x), one(S), _one_set(sset) if self.single else sset, one(H), one(z), R1_2,
+                one(x), one(S), _one_set(sset) if self.single else sset, Ho, one(z), R1_2,
                 observed=observed, z_mean_fn=hooks.z_mean_fn, residual_x=hooks.residual_x,
                 residual_z=hooks.residual_z, state_add=hooks.state_add, UT=UT,
             )  # fmt: skip
             if self.single:
                 post = Posterior(*(a[None] for a in post))
-            return post, np.zeros(B, dtype=np.int64), None
+            none = _none_rejected(post.y.shape)
+            update = Update(post.x, post.S, post.y, post.Sy, post.L21, post.log_likelihood, post.nis, observed,
+                            none, None, m_all)  # fmt: skip
+            return update, np.zeros(B, dtype=np.int64), None
         Ro = R1_2
+        whole = None
         if observed is not None and not observed.all():
+            whole = H  # (a missing component's images count too: all of them are checked finite)
             H, z = np.ascontiguousarray(H[..., observed]), np.ascontiguousarray(z[..., observed])
             Ro = self._observed_R.of(R1_2, observed)
-        N, m = H.shape[1:]
-        n = x.shape[-1]
+        m = H.shape[2]
+        n = x.shape[1]
         zp, y, w, Sy = np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m))
         L21, dx, xo, So = np.empty((B, n, m)), np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n))
         ll, ww, status = np.empty(B), np.empty(B), np.empty(B, dtype=np.int64)
         plan = self.plan
         draw = draw_first and plan.w_xi is None  # (noise entering fx: the first set has a noise part)
         X1 = np.empty((B,) + plan.xi1.shape) if draw else kernels.no_set(n)
-        Rs = _stacked(Ro)
-        Xs = kernels.kernel_array(sset.offsets if route.offsets else sset.sigmas)  # (a generator's own)
+        Rs = self.stacked(Ro, 1)
+        Xs = sset.offsets if route.offsets else sset.sigmas
+        f = Xs.flags
+        if not (f.c_contiguous and f.writeable and Xs.dtype is _FLOAT64):  # a user generator's set
+            Xs = kernels.kernel_array(Xs)
         kernels.KERNELS.joint_update(
-            H, kernels.zeros_row(m), Xs,
-            x if route.xref else kernels.zeros_row(n), z, Rs, x, route.mode, route.wm,
+            H, self.zeros(m), Xs, x if route.xref else self.zeros(n), z, Rs, x, route.mode, route.wm,
             route.scale, route.sign, route.pair, zp, y, w, Sy, L21, dx, xo, So, ll, ww, status,
             plan.xi1, plan.gamma1, X1,
         )  # fmt: skip
-        if status.any():
+        if whole is not None:
+            status[~np.isfinite(whole).reshape(B, -1).all(axis=1)] = NOT_FINITE_IMAGES
+        if np.count_nonzero(status):
             status = _singular_allowed(status, S, Rs)
-        return Posterior(xo, So, y, zp, Sy, L21, w, ll, ww), status, (X1 if draw else None)
+        update = Update(xo, So, y, Sy, L21, ll, ww, observed, _none_rejected(y.shape), None, m_all)
+        return update, status, (X1 if draw else None)
 
     def form_of(self, sset: SigmaSet, UT) -> RowForm | None:
         """The row form a failed update's status refers to (its negative weights)."""
@@ -435,7 +492,7 @@ class Route:
         return None if route is None else route.form
 
     def gated(
-        self, post: Posterior, status, sset, x0, S0, H, z, observed, R1_2, UT
+        self, post: Update, status, sset, x0, S0, H, z, observed, R1_2, UT
     ) -> tuple[Update, np.ndarray]:
         """The gate's decision on the tested update, and the update applied (:mod:`squkf.gating`).
 
@@ -452,15 +509,13 @@ class Route:
         m = z.shape[-1]
         gate = self.gate
         if gate is None:
-            return Update(post.x, post.S, post.y, post.Sy, post.L21, post.log_likelihood, post.nis, observed,
-                          _none_rejected(post.y.shape), None, m), status  # fmt: skip
+            return post, status
         rejected = gate.reject(post.y, post.Sy, post.nis)
         failed = status != 0
         if failed.any():
             rejected = rejected & ~failed[:, None]
         if not rejected.any():
-            return Update(post.x, post.S, post.y, post.Sy, post.L21, post.log_likelihood, post.nis, observed,
-                          rejected, None, m), status  # fmt: skip
+            return post._replace(rejected=rejected), status
         n, mo = post.x.shape[-1], post.y.shape[-1]
         obs_idx = np.arange(m) if observed is None else np.flatnonzero(observed)
         x, S = post.x.copy(), post.S.copy()
@@ -614,23 +669,36 @@ class Engine:
             route, X = self.route, points
         assert X is not None
         plan = route.plan
-        F = _images(F, X.shape, name, plan.keeps_propagated, route.single)
-        mean, S, status, sset = route.prior(F, Q1_2, UT, True)
-        if status.any():
-            raise prior_failure(first_status(status), plan.first.rows.best)
-        propagated = F if plan.keeps_propagated else None
-        if sset is None:
-            sset = route.second_set(mean, S, propagated, Q1_2)
+        keep = plan.keeps_propagated
+        F = _images(F, X.shape, name, keep, route.single)
+        limit = blas.MIN_DIM
+        if limit is not None and plan.n >= limit:
+            with blas.one_blas_thread():
+                done = self._prior(route, F, Q1_2, UT, name)
+        else:
+            done = self._prior(route, F, Q1_2, UT, name)
         # commit
+        mean, S, sset = done
         self.step_route = route
         self.x, self.S = mean, S
         self.prior = self.prior_record = (mean, S)
         self.sset = sset
         self.shown_f = sset.sigmas
-        self._propagated, self._Q = propagated, Q1_2
+        self._propagated, self._Q = (F, Q1_2) if keep else (None, Q1_2)
         self._first = None
         self.X = None
         self.phase = PRIOR
+
+    @staticmethod
+    def _prior(route: Route, F, Q1_2, UT, name: str) -> tuple:
+        """The numerics of a prediction: the prior and its second set (nothing committed)."""
+        mean, S, status, sset = route.prior(F, Q1_2, UT, True, name)
+        if np.count_nonzero(status):
+            code = first_status(status)
+            raise _described(code, F, status, name) or prior_failure(code, route.plan.first.rows.best)
+        if sset is None:
+            sset = route.second_set(mean, S, F if route.plan.keeps_propagated else None, Q1_2)
+        return mean, S, sset
 
     # -- the update ------------------------------------------------------------------------------
 
@@ -702,20 +770,37 @@ class Engine:
         H = _images(H, sset.sigmas.shape[:-1] + (z.shape[-1],), name, True, route.single)
         if route.single:
             z = z[None]
-        post, status, X1 = route.posterior(sset, xp, Sp, H, z, observed, R1_2, UT, True)
-        if status.any():
-            raise failure(first_status(status), route.form_of(sset, UT))
-        update, status = route.gated(post, status, sset, xp, Sp, H, z, observed, R1_2, UT)
-        if status.any():
-            raise failure(first_status(status), route.form_of(sset, UT))
+        limit = blas.MIN_DIM
+        if limit is not None and route.plan.n >= limit:
+            with blas.one_blas_thread():
+                update, X1 = self._posterior(route, sset, xp, Sp, H, z, observed, R1_2, UT, name)
+        else:
+            update, X1 = self._posterior(route, sset, xp, Sp, H, z, observed, R1_2, UT, name)
         # commit
-        self._keep((xp, Sp), sset)
+        if sset is not self.sset:  # drawn from the estimate alone: no propagated set belongs to it
+            self._propagated = self._Q = None
+            self.step_route = route
+        self.prior, self.sset = (xp, Sp), sset
         self.x, self.S = update.x, update.S
         self.post_record = (update.x, update.S)
         self.last = update
         self.H = H
-        self._first = X1 if update.x is post.x else None  # a gate's change: not the set's posterior
+        self._first = X1
         self.phase = IDLE
+
+    @staticmethod
+    def _posterior(route: Route, sset, xp, Sp, H, z, observed, R1_2, UT, name: str) -> tuple:
+        """The numerics of an update through the gate, and the next first set (nothing committed)."""
+        tested, status, X1 = route.posterior(sset, xp, Sp, H, z, observed, R1_2, UT, True, name)
+        if np.count_nonzero(status):
+            code = first_status(status)
+            raise _described(code, H, status, name) or failure(code, route.form_of(sset, UT))
+        if route.gate is None:
+            return tested, X1
+        update, status = route.gated(tested, status, sset, xp, Sp, H, z, observed, R1_2, UT)
+        if np.count_nonzero(status):
+            raise failure(first_status(status), route.form_of(sset, UT))
+        return update, (X1 if update.x is tested.x else None)  # a gate's change: not the set's posterior
 
     def skip_update(self) -> None:
         """End the step without a measurement: the estimate stays, and the last update's records too."""
@@ -765,24 +850,30 @@ def _stacked(a: np.ndarray) -> np.ndarray:
     return kernels.kernel_array(a)
 
 
-def _images(values, shape: tuple, name: str, private: bool, single: bool = False) -> np.ndarray:
-    """Model images checked: float64, C-contiguous, of ``shape``, finite (a private copy when ``private``).
+def _described(code: int, images: np.ndarray, status: np.ndarray, name: str) -> SqukfError | None:
+    """The error of images that are not finite (status 306), in the words of the first such filter."""
+    if code != NOT_FINITE_IMAGES:
+        return None
+    k = int(np.flatnonzero(status == NOT_FINITE_IMAGES)[0])
+    return NonFiniteError(describe_nonfinite(images[k], name))
 
-    The one check of every image a model function returns or a caller tells. ``shape`` is a
+
+def _images(values, shape: tuple, name: str, private: bool, single: bool = False) -> np.ndarray:
+    """Model images as the kernels take them: float64, C-contiguous, of ``shape`` (a private copy when
+    ``private``); finite or not (the route checks that: :meth:`Route.prior`, :meth:`Route.posterior`).
+
+    The one reading of every image a model function returns or a caller tells. ``shape`` is a
     block's ``(B, N, d)``; for one filter (``single``) the images are one filter's ``(N, d)``.
     """
-    if single:
-        return _images(values, shape[1:], name, private)[None]
+    want = shape[1:] if single else shape
     if (
         type(values) is np.ndarray
         and values.dtype is _FLOAT64
-        and values.shape == shape
+        and values.shape == want
         and values.flags.c_contiguous
         and values.flags.writeable
     ):
         A = values.copy() if private else values
-        if not all_finite(A):
-            raise NonFiniteError(describe_nonfinite(A, name))
-        return A
-    A = check_values(values, shape, name)
-    return np.ascontiguousarray(A)
+    else:
+        A = np.ascontiguousarray(check_values(values, want, name, finite=False))
+    return A[None] if single else A

@@ -19,7 +19,7 @@ import numpy as np
 
 from .errors import ParameterError
 from .generators import FusedDraw, Redrawn, UnitSet, noise_family, prepare_second_set
-from .kernels import plan_array
+from .kernels import CENTRAL, MEAN, plan_array
 from .weights import FilterpyPoints
 
 __all__ = ["IDLE", "PREDICTING", "PRIOR", "UPDATING", "Plan", "Hooks", "build_plan", "check_built_for"]
@@ -76,6 +76,8 @@ class Plan:
         The first set's unit points (state part).
     gamma1 : float
         Non-zero for axis points (the offsets in O(n^2)).
+    mode1 : int
+        The prediction's row form (``CENTRAL`` or ``MEAN``, :mod:`squkf.kernels`).
     wm1, scale1, sign1 : ndarray, shape (N,)
         The first set's mean weights and its best row form (:mod:`squkf.rows`):
         the prediction's transform.
@@ -94,6 +96,7 @@ class Plan:
     keeps_propagated: bool = field(init=False)
     xi1: np.ndarray = field(init=False)
     gamma1: float = field(init=False)
+    mode1: int = field(init=False)
     wm1: np.ndarray = field(init=False)
     scale1: np.ndarray = field(init=False)
     sign1: np.ndarray = field(init=False)
@@ -107,6 +110,7 @@ class Plan:
         form = first.rows.best
         derived(self, "xi1", plan_array(first.xi))
         derived(self, "gamma1", 0.0 if first.gamma is None else float(first.gamma))
+        derived(self, "mode1", CENTRAL if form.central else MEAN)
         derived(self, "wm1", plan_array(first.rows.Wm))
         derived(self, "scale1", plan_array(form.scale))
         derived(self, "sign1", plan_array(form.sign))

@@ -28,9 +28,10 @@ import numpy as np
 
 from . import kernels
 from .boundary.inputs import finite_images, stacked_shape
-from .engine import Route, failure, prior_failure
+from .engine import Route, failure
 from .errors import NonFiniteError, NotPositiveDefiniteError, SqukfError
 from .generators import SigmaSet
+from .validate import describe_nonfinite
 
 __all__ = [
     "BLOCK",
@@ -234,13 +235,34 @@ def _block(fn: Callable, idx: np.ndarray, rows: slice | None, fails: dict[int, s
     return np.array(good), tuple(np.concatenate([p[i] for p in parts]) for i in range(len(parts[0])))
 
 
-def _flag(
-    status: np.ndarray, on: np.ndarray, found: dict[int, str], reason: Callable[[int], SqukfError]
-) -> np.ndarray:
-    """The filters ``on`` whose ``status`` is a success; the others added to ``found`` with their reason."""
+def _flag(status: np.ndarray, on: np.ndarray, found: dict[int, str], form, what: str, images, name: str):
+    """The filters ``on`` whose ``status`` is a success; the others added to ``found`` with their reason,
+    in a single filter's words (:func:`squkf.engine.failure`; images that are not finite described by
+    their own rows).
+
+    Parameters
+    ----------
+    status : ndarray of int, shape (B,)
+    on : ndarray of bool, shape (B,)
+    found : dict
+    form : RowForm or None
+        The rows the kernel's status refers to.
+    what : {"prior", "update"}
+    images : ndarray, shape (B, N, d)
+    name : str
+        What the images are called.
+
+    Returns
+    -------
+    ndarray of bool, shape (B,)
+    """
     bad = on & (status != 0)
     for k in np.flatnonzero(bad).tolist():
-        found.setdefault(k, _said(reason(int(status[k]))))
+        code = int(status[k])
+        exc = (
+            NonFiniteError(describe_nonfinite(images[k], name)) if code == 306 else failure(code, form, what)
+        )
+        found.setdefault(k, _said(exc))
     return on & ~bad
 
 
@@ -312,22 +334,22 @@ def predict(
         xs, Ss = x[rows], S[rows]
         X = route.first_points(xs, Ss) if first is None else first[rows]
         F = stacked_shape(images(rows, X), X.shape, _label("fx values", rows, K), False, ("fx", X.shape))
-        F = kernels.kernel_array(F)  # (a model's array of another layout: copied once, as the kernels take it)
+        F = kernels.kernel_array(
+            F
+        )  # (a model's array of another layout: copied once, as the kernels take it)
         on = active[rows]
-        finite = finite_images(F, "fx values", on, found)
-        if not finite.all():
-            F = np.where(finite[:, None, None], F, X)  # a failing filter's rows: harmless stand-ins
         Qr = rows_of(Q1_2, rows, 2)
         xo, So = x_new[rows], S_new[rows]
-        if route.plain_x:
+        if route.plain_x:  # the kernel checks the images and reports each filter's failure
             mean, Sm, status, _ = route.prior(F, Qr, None, False)
-            good = _flag(status, on & finite, found, lambda c: prior_failure(c, form))
+            good = _flag(status, on, found, form, "prior", F, "fx values")
             if good.all():
                 xo[...], So[...] = mean, Sm
             else:
                 xo[...], So[...] = xs, Ss
                 xo[good], So[good] = mean[good], Sm[good]
         else:  # the hooks raise: the chunk is run again a filter at a time to find the failing ones
+            finite = finite_images(F, "fx values", on, found)
 
             def prior(ix):
                 r, ix = _one_or_all(route, ix)  # one filter (an int): as a single filter says its failure
@@ -436,9 +458,9 @@ def update(
         H = stacked_shape(images(rows, s), shape, _label("hx values", rows, K), False, ("hx", s.sigmas.shape))
         H = kernels.kernel_array(H)
         on = active[rows]
-        finite = finite_images(H, "hx values", on, found)
-        records = _posteriors(route, s, xs, Ss, H, z[rows], observed[rows], rows_of(R1_2, rows, 2),
-                              on & finite, found)  # fmt: skip
+        if route.update_route(s, None) is None:  # the hooks raise: non-finite images flagged first
+            on = on & finite_images(H, "hx values", on, found)
+        records = _posteriors(route, s, xs, Ss, H, z[rows], observed[rows], rows_of(R1_2, rows, 2), on, found)
         for whole, part in zip(out, records):
             whole[rows] = part
         return {rows.start + i: why for i, why in found.items()}
@@ -499,7 +521,7 @@ def _gated_group(route: Route, sset, x0, S0, H, z, R1_2, ix, mask, found):
         post, status, _ = route.posterior(s, xi, Si, Hi, zi, mask, Ri, None, False)
         upd, status = route.gated(post, status, s, xi, Si, Hi, zi, mask, Ri, None)
         form = route.form_of(s, None)
-        good = _flag(status, np.ones(B, dtype=bool), found_rows, lambda c: failure(c, form))
+        good = _flag(status, np.ones(B, dtype=bool), found_rows, form, "update", Hi, "hx values")
         _renumber(found_rows, ix, found)
         return upd.x, upd.S, upd.y, upd.log_likelihood, upd.nis, upd.rejected, good
 

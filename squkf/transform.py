@@ -144,7 +144,7 @@ def _raise_status(
 ) -> None:
     """The exception for the first failed filter of a transform kernel's ``status`` (nothing if none)."""
     bad = status.ravel()
-    bad = bad[(bad != 0) & (bad != 305)]  # 305, a result not finite: the caller's own check says it
+    bad = bad[(bad != 0) & (bad != 305) & (bad != 306)]  # not finite: the callers' own checks say it
     if bad.size == 0:
         return
     code = int(bad.flat[0])

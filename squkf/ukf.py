@@ -19,16 +19,16 @@ from collections.abc import Callable
 
 import numpy as np
 
-from . import blas, smoother
+from . import smoother
 from .batch import batch_filter
 from .boundary import inputs
-from .boundary.attributes import COVARIANCES, Covariance, Hook, State, Unformed, hooks_of, initial, set_factor
+from .boundary.attributes import NOISES, Covariance, Estimate, Hook, Unformed, hooks_of, initial, set_factor
 from .boundary.config import Config
 from .boundary.edits import Handed
 from .boundary.factors import noise_factor
 from .boundary.loop import Transaction
 from .boundary.records import embed, innovation_inverse
-from .covariance import FactorSlot
+from .covariance import FactorSlot, as_lower_factor
 from .engine import Engine, Route, Update
 from .errors import NonFiniteError
 from .gating import Gate, as_gate
@@ -42,7 +42,6 @@ from .validate import as_float_array, check_time_step, check_values
 __all__ = ["SquareRootUKF"]
 
 _LOG_TINY = math.log(sys.float_info.min)
-_one_blas_thread = blas.one_thread_method(lambda self: self._dim_x)
 
 # what repr shows, in order
 _SHOWN = (
@@ -162,7 +161,7 @@ class SquareRootUKF:
 
     # the engine and the gain formed from its last update live in slots, not in the __dict__ that a
     # filterpy Saver copies at each step
-    __slots__ = ("_engine", "_gain_of", "__dict__", "__weakref__")
+    __slots__ = ("_engine", "_gain_of", "_unformed", "__dict__", "__weakref__")
 
     # kept in the __dict__ (filterpy's layout), set in __init__
     _dim_x: int
@@ -177,15 +176,14 @@ class SquareRootUKF:
     _plan: Plan
     _gate: Gate | None
     _noise_cache: dict
-    _P: FactorSlot
     _Q: FactorSlot
     _R: FactorSlot
     hx: Callable
     fx: Callable
     vectorized: bool
 
-    x = State()
-    P = Covariance()
+    x = Estimate()
+    P = Estimate()
     Q = Covariance()
     R = Covariance()
     x_mean = Hook()
@@ -241,7 +239,7 @@ class SquareRootUKF:
         self._engine = Engine(
             route, np.zeros((1, n)), np.eye(n)[None], np.zeros((1, num, n)), np.zeros((1, num, m))
         )
-        d["x"] = Unformed(self._formed_x)
+        self._rebind()
 
     # -- configuration -----------------------------------------------------
 
@@ -325,36 +323,50 @@ class SquareRootUKF:
         """``x`` as handed out: a copy of the estimate."""
         return self._engine.x[0].copy()
 
-    def _assign_state(self, x: np.ndarray) -> None:
+    def _formed_P(self) -> np.ndarray:
+        """``P`` as handed out: the estimate's covariance, formed from its factor."""
+        S = self._engine.S[0]
+        return S @ S.T
+
+    def _stepped(self) -> None:
+        """The engine has a new estimate: ``x`` and ``P`` are formed from it when read."""
+        d = self.__dict__
+        d["x"], d["P"] = self._unformed
+        d["_x"] = d["_Ph"] = None
+
+    def _assign_x(self, value) -> None:
         """``x = value``, validated: the engine's estimate, ``x`` formed again when read."""
+        x = inputs.as_state(value, "x", self._dim_x)
         self._engine.assign(x=x[None])
         d = self.__dict__
-        d["x"], d["_x"] = Unformed(self._formed_x), None
+        d["x"], d["_x"] = self._unformed[0], None
 
-    def _covariance_assigned(self, name: str) -> None:
-        """An assignment to ``P``, ``Q`` or ``R`` succeeded."""
-        if name == "P":
-            self._engine.assign(S=self._P.factor()[None])  # type: ignore[index]  # P is never singular
+    def _assign_P(self, value) -> None:
+        """``P = value``, validated and factored once; handed out as assigned (a copy)."""
+        slot = FactorSlot("P", self._dim_x, semidefinite=False, factor=None)
+        slot.set_matrix(value)
+        self._engine.assign(S=slot.factor()[None])  # type: ignore[index]  # P is never singular
+        d = self.__dict__
+        P = d["P"] = slot.matrix()
+        d["_Ph"] = Handed(P)
 
     def _take_edits(self) -> None:
-        """The edits in place of ``x`` and ``P`` validated and taken into the engine (either may raise)."""
+        """The edits in place of ``x`` and ``P`` validated and taken into the engine (either may raise).
+
+        Each array stays handed out, with a fresh record; an invalid edit raises and stays pending.
+        """
         d = self.__dict__
         handed = d["_x"]
         if handed is not None and handed.edited():
             x = inputs.as_state(handed.array, "x", self._dim_x)
             self._engine.assign(x=x[None])
             d["_x"] = Handed(handed.array)
-        slot = d["_P"]
-        if slot.pending():
+        handed = d["_Ph"]
+        if handed is not None and handed.edited():
+            slot = FactorSlot("P", self._dim_x, semidefinite=False, factor=None)
+            slot.set_matrix(handed.array)
             self._engine.assign(S=slot.factor()[None])  # type: ignore[index]  # P is never singular
-
-    def _stepped(self) -> None:
-        """The engine committed a new estimate: ``x`` and ``P`` are formed from it when read."""
-        d = self.__dict__
-        e = self._engine
-        d["_P"].set_trusted_factor(e.S[0])
-        d["x"], d["_x"] = Unformed(self._formed_x), None
-        d["P"] = Unformed(d["_P"].matrix)
+            d["_Ph"] = Handed(handed.array)
 
     @property
     def P1_2(self) -> np.ndarray:
@@ -364,8 +376,10 @@ class SquareRootUKF:
 
     @P1_2.setter
     def P1_2(self, value):
-        set_factor(self.__dict__, "P", value)
-        self._covariance_assigned("P")
+        S = as_lower_factor(value, "P1_2", self._dim_x, singular_ok=False)
+        self._engine.assign(S=S[None])
+        d = self.__dict__
+        d["P"], d["_Ph"] = self._unformed[1], None
 
     @property
     def Q1_2(self) -> np.ndarray:
@@ -388,6 +402,17 @@ class SquareRootUKF:
     def _noise_factor(self, value, name: str, dim: int) -> np.ndarray | None:
         """Lower factor of ``Q`` or ``R`` (``value`` for this call, else the attribute's); None: zero."""
         return noise_factor(value, name, dim, self.__dict__["_" + name].factor, self._noise_cache)
+
+    def _Q1_2(self, Q) -> np.ndarray | None:
+        """The prediction's process-noise factor: this call's ``Q``, else the filter's (None: none added)."""
+        if Q is None:
+            return self._Q.factor()  # of the state's dimension: the slot's fixed size
+        return self._noise_factor(Q, "Q", self._dim_x)
+
+    def _R1_2(self, R, m: int) -> np.ndarray:
+        """The update's measurement-noise factor ``(m, m)``: this call's ``R``, else the filter's."""
+        S = self._R.factor() if (R is None and m == self._dim_z) else self._noise_factor(R, "R", m)
+        return np.zeros((m, m)) if S is None else S
 
     # -- the records of the last prediction and update (formed when read) --------------------
 
@@ -603,9 +628,12 @@ class SquareRootUKF:
         P1_2_prior : ndarray, shape (dim_x, dim_x)
             Fresh arrays.
         """
-        inputs.refuse_noise_args(self._engine.step_route.plan.w_xi, "Q", Q, UT)
-        self._told_predict(sigmas_f, Q, UT)
         e = self._engine
+        w_xi = e.step_route.plan.w_xi
+        inputs.refuse_noise_args(w_xi, "Q", Q, UT)
+        # noise entering fx is in the points: no noise is added to the prior
+        e.tell_predict(sigmas_f, None if w_xi is not None else self._Q1_2(Q), UT)
+        self._stepped()
         return e.x[0].copy(), e.S[0].copy()
 
     def ask_update(self) -> np.ndarray:
@@ -649,8 +677,14 @@ class SquareRootUKF:
             raise NonFiniteError(
                 "tell_update needs a measurement, but z holds none (all NaN, masked or None)"
             )
-        self._told_update(sigmas_h, meas[0], meas[1], R, UT)
+        z, observed = meas
         e = self._engine
+        m = z.shape[0]
+        # noise entering hx is in the points: the update adds none
+        R1_2 = np.zeros((m, m)) if self._plan.v_xi is not None else self._R1_2(R, m)
+        e.tell_update(sigmas_h, z, observed, R1_2, UT)
+        self.__dict__["z"] = z
+        self._stepped()
         return e.x[0].copy(), e.S[0].copy()
 
     # -- filterpy's methods ---------------------------------------------------
@@ -673,10 +707,24 @@ class SquareRootUKF:
             Passed to ``fx``.
         """
         dt = self._dt if dt is None else check_time_step(dt)
-        self._take_edits()
-        sigmas = self._engine.first_set()  # fx may write on them: the step reads only their shape
-        values = self._model(self.fx if fx is None else fx, "fx", sigmas[0], (dt,), fx_args, Q, UT)
-        self._told_predict(values, Q, UT, sigmas)
+        d = self.__dict__
+        if d["_x"] is not None or d["_Ph"] is not None:  # handed out since the step: edits are taken
+            self._take_edits()
+        e = self._engine
+        sigmas = e.first_set()  # fx may write on them: the step reads only their shape
+        fx = self.fx if fx is None else fx
+        if self._plan.w_xi is None:
+            values = (
+                fx(sigmas[0], dt, **fx_args)
+                if self.vectorized
+                else self._per_point(fx, sigmas[0], dt, fx_args)
+            )
+            Q1_2 = self._Q.factor() if Q is None else self._Q1_2(Q)
+        else:  # noise entering fx is in the points: no noise is added to the prior
+            values, Q1_2 = self._model(fx, "fx", sigmas[0], (dt,), fx_args, Q, UT), None
+        e.tell_predict(values, Q1_2, UT, sigmas)
+        d["x"], d["P"] = self._unformed  # the new estimate: x and P formed from it when read
+        d["_x"] = d["_Ph"] = None
 
     def update(self, z, R=None, UT=None, hx=None, **hx_args) -> None:
         """Update the estimate with measurement ``z``: ``x``, ``P`` become the posterior.
@@ -696,16 +744,31 @@ class SquareRootUKF:
             Passed to ``hx``.
         """
         meas = inputs.measurement(z, R, self._dim_z, self._R_dim, self._hx_noise)
-        if meas is None:  # no measurement: the prior stays, and the last update's records
+        d = self.__dict__
+        if d["_x"] is not None or d["_Ph"] is not None:  # handed out since the step: edits are taken
             self._take_edits()
-            self._engine.skip_update()
-            self.__dict__["z"] = np.array([[None] * self._dim_z]).T
+        e = self._engine
+        if meas is None:  # no measurement: the prior stays, and the last update's records
+            e.skip_update()
+            d["z"] = np.array([[None] * self._dim_z]).T
             return
-        self._take_edits()
-        pending = self._engine.pending_update()
+        z, observed = meas
+        pending = e.pending_update()
         sigmas = pending[1].sigmas[0].copy()  # hx gets its own copy: the update reads the set
-        values = self._model(self.hx if hx is None else hx, "hx", sigmas, (), hx_args, R, UT)
-        self._told_update(values, meas[0], meas[1], R, UT, pending)
+        hx = self.hx if hx is None else hx
+        if self._plan.v_xi is None:
+            values = hx(sigmas, **hx_args) if self.vectorized else self._per_point(hx, sigmas, None, hx_args)
+            m = z.shape[0]
+            R1_2 = self._R1_2(R, m) if (R is not None or m != self._dim_z) else self._R.factor()
+            if R1_2 is None:
+                R1_2 = np.zeros((m, m))
+        else:  # noise entering hx is in the points: the update adds none
+            values = self._model(hx, "hx", sigmas, (), hx_args, R, UT)
+            R1_2 = np.zeros((z.shape[0],) * 2)
+        e.tell_update(values, z, observed, R1_2, UT, pending)
+        d["z"] = z
+        d["x"], d["P"] = self._unformed
+        d["_x"] = d["_Ph"] = None
 
     def compute_process_sigmas(self, dt, fx=None, **fx_args) -> None:
         """Set ``sigmas_f`` to the first set propagated through ``fx`` (state unchanged)."""
@@ -781,26 +844,9 @@ class SquareRootUKF:
         factor = None if xi is None else self._noise_factor(None, name, xi.shape[1])
         return handed_points(X, xi, factor, ())
 
-    @_one_blas_thread
-    def _told_predict(self, values, Q, UT, points=None) -> None:
-        """Finish a prediction in the engine (which commits only if it all succeeds)."""
-        e = self._engine
-        plan = e.step_route.plan if points is None else self._plan
-        # noise entering fx is in the points: no noise is added to the prior
-        Q1_2 = None if plan.w_xi is not None else self._noise_factor(Q, "Q", self._dim_x)
-        e.tell_predict(values, Q1_2, UT, points=points)
-        self._stepped()
-
-    @_one_blas_thread
-    def _told_update(self, values, z: np.ndarray, observed, R, UT, pending=None) -> None:
-        """Finish an update in the engine (which commits only if it all succeeds)."""
-        m = z.shape[0]
-        # noise entering hx is in the points: the update adds none
-        R1_2 = None if self._plan.v_xi is not None else self._noise_factor(R, "R", m)
-        R1_2 = np.zeros((m, m)) if R1_2 is None else R1_2
-        self._engine.tell_update(values, z, observed, R1_2, UT, pending=pending)
-        self.__dict__["z"] = z
-        self._stepped()
+    def _per_point(self, fn: Callable, X: np.ndarray, dt, kwargs: dict):
+        """``fn`` at each point of ``X``, ``fx(x, dt)`` (or with no ``dt`` ``hx(x)``), as filterpy calls it."""
+        return inputs.evaluate(fn, X, () if dt is None else (dt,), kwargs, False)
 
     def _R_dim(self) -> int:
         return self._R.factor_or_zeros().shape[0]
@@ -832,7 +878,7 @@ class SquareRootUKF:
         # the engine's arrays are replaced by each step, never changed in place: a shallow copy keeps
         # them; the covariance slots, whose matrices the caller may edit in place, are copied
         state = dict(self.__dict__)
-        for name in COVARIANCES:
+        for name in NOISES:
             slot = state["_" + name] = copy.copy(state["_" + name])
             if type(state[name]) is Unformed:
                 state[name] = Unformed(slot.matrix)
@@ -850,7 +896,7 @@ class SquareRootUKF:
         for key, value in self.__dict__.items():
             if isinstance(value, np.ndarray):
                 value = value.copy()
-            elif key in ("_P", "_Q", "_R"):
+            elif key in ("_Q", "_R"):
                 value = value.detached()  # the factor shared, the matrix handed out copied
             elif isinstance(value, Handed):
                 value = value.copy()
@@ -885,17 +931,18 @@ class SquareRootUKF:
         self._rebind()
 
     def _rebind(self) -> None:
-        """After a copy: ``x`` and the matrices formed from the copy's own engine and slots."""
+        """After construction or a copy: ``x``, ``P``, ``Q``, ``R`` formed from this filter's own engine and
+        slots, the arrays handed out (``_x``, ``_Ph``) its own."""
+        self._unformed = (Unformed(self._formed_x), Unformed(self._formed_P))
         d = self.__dict__
-        if "x" not in d or type(d["x"]) is Unformed:
-            d["x"], d["_x"] = Unformed(self._formed_x), None
-        if d["_x"] is not None:  # the array handed out is the copy's own
-            d["x"] = d["_x"].array
-        for name in COVARIANCES:
-            if name not in d or type(d[name]) is Unformed:
-                d[name] = Unformed(d["_" + name].matrix)
+        for k, (name, record) in enumerate((("x", "_x"), ("P", "_Ph"))):
+            handed = d.get(record)
+            if handed is None:
+                d[name], d[record] = self._unformed[k], None
             else:
-                d[name] = d["_" + name].matrix()
+                d[name] = handed.array
+        for name in NOISES:
+            d[name] = Unformed(d["_" + name].matrix)
 
     def __repr__(self) -> str:
         from filterpy.common import pretty_str

@@ -105,7 +105,9 @@ def as_measurements(value, name: str) -> np.ndarray:
     return as_float_array(value, name)
 
 
-def check_values(values, shape: tuple[int, ...], name: str, private: bool = True) -> np.ndarray:
+def check_values(
+    values, shape: tuple[int, ...], name: str, private: bool = True, finite: bool = True
+) -> np.ndarray:
     """Validate the images of a sigma-point set returned by the caller.
 
     Parameters
@@ -123,6 +125,9 @@ def check_values(values, shape: tuple[int, ...], name: str, private: bool = True
         Return a private copy (the default). With False a float64 array is
         returned as it is (maybe the caller's own): for values read within
         the call only, never kept.
+    finite : bool
+        Refuse values that are not finite (the default); False leaves that to
+        the caller (a kernel that reports it per filter).
 
     Returns
     -------
@@ -145,7 +150,7 @@ def check_values(values, shape: tuple[int, ...], name: str, private: bool = True
             arr = None  # per-point values of different shapes (ragged): read one by one below
     if arr is None or arr.shape != shape:
         arr = _as_rows(values, arr, shape, name)
-    if not all_finite(arr):
+    if finite and not all_finite(arr):
         raise NonFiniteError(describe_nonfinite(arr, name))
     return arr
 

@@ -3,13 +3,13 @@
 filterpy's ``Saver`` deep-copies a filter's ``__dict__`` at each step, so the
 arrays a caller reads and may edit in place (``x``, ``P``, ``Q``, ``R``) and the
 hooks live there, behind data descriptors (not properties, whose values a
-``Saver`` would keep by reference). After a step, ``x`` and ``P`` are
-:class:`Unformed` there: formed from the filter's estimate when read (or when
-a ``Saver`` copies the ``__dict__``), and handed out as the same array until
-the next step, so that an edit in place is seen at the next call
-(:class:`~squkf.boundary.edits.Handed`). The truth behind ``P``, ``Q``, ``R`` is
-a :class:`~squkf.covariance.FactorSlot` (``_P``, ``_Q``, ``_R``), the truth
-behind ``x`` the engine's estimate.
+``Saver`` would keep by reference). Until read, an array is :class:`Unformed`
+there: formed when read (or when a ``Saver`` copies the ``__dict__``), and then
+handed out as the same array until the value behind it changes, with a record
+(:class:`~squkf.boundary.edits.Handed`) by which an edit in place is seen at
+the next call. The truth behind ``x`` and ``P`` is the engine's estimate (the
+records ``_x`` and ``_Ph``), the truth behind ``Q`` and ``R`` a
+:class:`~squkf.covariance.FactorSlot` (``_Q``, ``_R``).
 """
 
 from __future__ import annotations
@@ -21,11 +21,10 @@ import numpy as np
 from ..covariance import FactorSlot
 from ..plan import Hooks
 from .edits import Handed
-from .inputs import as_state
 
-__all__ = ["COVARIANCES", "Covariance", "Hook", "State", "Unformed", "hooks_of", "initial", "set_factor"]
+__all__ = ["NOISES", "Covariance", "Estimate", "Hook", "Unformed", "hooks_of", "initial", "set_factor"]
 
-COVARIANCES = ("P", "Q", "R")
+NOISES = ("Q", "R")
 
 
 class Unformed:
@@ -78,32 +77,30 @@ class Covariance:
         d = obj.__dict__
         slot = d[self.slot]
         slot.set_matrix(value)
-        d[self.name] = slot.matrix()
-        obj._covariance_assigned(self.name)
+        d[self.name] = Unformed(slot.matrix)
 
 
-class State:
-    """``x``: the state vector kept in the instance's ``__dict__`` (see :class:`Covariance`).
-
-    Formed from the filter's estimate when first read after a step, and handed
-    out as the same array (with its record, ``_x``) until the next one.
-    """
+class Estimate:
+    """``x`` or ``P``: formed from the filter's estimate when first read after a step, and handed out
+    as the same array (with its record, ``_x`` or ``_Ph``) until the next one; an assignment is
+    validated by the filter (``_assign_x``, ``_assign_P``). See :class:`Covariance`."""
 
     def __set_name__(self, owner, name: str):
         self.name = name
+        self.record = "_x" if name == "x" else "_Ph"
 
     def __get__(self, obj, owner=None):
         if obj is None:
             return self
         d = obj.__dict__
-        value = d["x"]
+        value = d[self.name]
         if type(value) is Unformed:
             value = value.form()
-            d["x"], d["_x"] = value, Handed(value)
+            d[self.name], d[self.record] = value, Handed(value)
         return value
 
     def __set__(self, obj, value):
-        obj._assign_state(as_state(value, "x", obj.dim_x))
+        getattr(obj, "_assign_" + self.name)(value)
 
 
 class Hook:
@@ -127,7 +124,7 @@ class Hook:
 
 
 def initial(d: dict, n: int, m: int, q: int, r: int) -> None:
-    """Fill a new filter's ``__dict__``: ``P``, ``Q``, ``R`` identities (``x`` is the engine's, zero).
+    """Fill a new filter's ``__dict__``: ``Q``, ``R`` identities (``x`` and ``P`` are the engine's).
 
     Parameters
     ----------
@@ -137,19 +134,17 @@ def initial(d: dict, n: int, m: int, q: int, r: int) -> None:
     q, r : int
         The dimensions of ``Q`` and ``R`` (the noise's own when it enters ``fx``, ``hx``).
     """
-    d["_P"] = FactorSlot("P", n, semidefinite=False, factor=np.eye(n))
-    d["_Q"] = FactorSlot("Q", q, semidefinite=True, factor=np.eye(q))
-    d["_R"] = FactorSlot("R", r, semidefinite=True, factor=np.eye(r))
-    for name in COVARIANCES:
-        d[name] = d["_" + name].matrix()
+    for name, dim in (("Q", q), ("R", r)):
+        slot = d["_" + name] = FactorSlot(name, dim, semidefinite=True, factor=np.eye(dim))
+        d[name] = Unformed(slot.matrix)
     d["z"] = np.array([[None] * m]).T
 
 
 def set_factor(d: dict, name: str, value) -> None:
-    """Assign ``P1_2``, ``Q1_2`` or ``R1_2`` (``name``: ``"P"``, ``"Q"``, ``"R"``), validated."""
+    """Assign ``Q1_2`` or ``R1_2`` (``name``: ``"Q"``, ``"R"``), validated."""
     slot = d["_" + name]
     slot.set_factor(value)
-    d[name] = slot.matrix()
+    d[name] = Unformed(slot.matrix)
 
 
 def hooks_of(d: dict) -> Hooks:

@@ -7,6 +7,7 @@ images) is :mod:`squkf.validate`'s.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -20,6 +21,8 @@ from ..noise import check_accepts_noise, check_noise_dim
 from ..plan import check_built_for
 from ..validate import as_float_array, as_measurements, describe_nonfinite, note_on_user_error
 from ..weights import FilterpyPoints, as_family
+
+_FLOAT64 = np.dtype(np.float64)
 
 __all__ = [
     "as_state",
@@ -148,7 +151,13 @@ def measurement(
     """
     if z is None:
         return None
-    arr = as_measurements(z, "z")
+    if type(z) is np.ndarray and z.dtype is _FLOAT64 and z.shape == (dim_z,):  # the usual z: read as it is
+        arr = z.copy()
+        s = np.vdot(arr, arr)  # a NaN or an infinity makes it NaN or inf (and so may a huge value)
+        if math.isfinite(s):
+            return arr, None
+    else:
+        arr = as_measurements(z, "z")
     if arr.ndim != 1:
         if arr.ndim == 0:
             arr = arr.reshape(1)

@@ -26,9 +26,12 @@ zero rows are left out.
 
 Status codes per filter: 0 success; in :func:`transform_kernel`, ``r + 1``
 when the downdate of negative row ``r`` failed and ``-(r + 1)`` when the
-factor was already singular before it; in the updates, g13ej's 301 (the
-innovation factor's downdate failed), 302 (singular innovation factor),
-303 (the posterior could not be formed).
+factor was already singular before it, 305 for a result that is not finite;
+in the updates, g13ej's 301 (the innovation factor's downdate failed), 302
+(singular innovation factor), 303 (the posterior could not be formed), 304
+(the posterior factor has a zero on its diagonal); 306 in both for images
+(the points transformed, the measurement function's values) that are not
+finite.
 
 Lanes
 -----
@@ -306,6 +309,21 @@ def _load_points(P, k0, nb, Pl):
         for l in range(d):
             for b in range(nb):
                 Pl[i, l, b] = Q[b, i, l]
+
+
+@kernel
+def _finite_lanes(Pl, N, d, nb, acc):
+    """``acc[b] == 0`` exactly when lane ``b``'s ``N x d`` values are all finite (a NaN sum otherwise).
+
+    ``x * 0`` is 0 for a finite ``x`` and NaN for an infinity or a NaN: one branch-free sum a lane,
+    which the lane loop vectorises.
+    """
+    for b in range(nb):
+        acc[b] = 0.0
+    for i in range(N):
+        for l in range(d):
+            for b in range(nb):
+                acc[b] += Pl[i, l, b] * 0.0
 
 
 @kernel
@@ -732,8 +750,9 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status, draw
     the next sigma-point set (a prediction's second set: the step's prior and its set in one call).
 
     ``S[k] @ S[k].T = sum_r sign[r] scale[r]**2 D_r D_r^T + noise[k] @ noise[k].T``
-    with the rows ``D_r`` of form ``mode`` (module docstring). ``status[k]`` is 305 when the mean
-    or the factor is not finite (and nothing else failed).
+    with the rows ``D_r`` of form ``mode`` (module docstring). ``status[k]`` is 306 when ``P[k]``
+    holds a value that is not finite, else 305 when the mean or the factor is not finite (and
+    nothing else failed).
 
     Parameters
     ----------
@@ -779,9 +798,11 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status, draw
     V = np.empty((6, nl))
     fl = np.empty(nl, dtype=np.int64)
     st = np.empty(nl, dtype=np.int64)
+    fin = np.empty(nl)
     for k0 in range(0, B, nl):
         nb = min(nl, B - k0)
         _load_points(P, k0, nb, Pl)
+        _finite_lanes(Pl, N, d, nb, fin)
         if mode == 2:
             _load_vector(ref, k0, nb, ml)
         _deviations(Pl, N, d, nb, mode, wm, ml)
@@ -794,7 +815,8 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status, draw
                 good = good and math.isfinite(ml[l, b])
                 for j in range(l + 1):
                     good = good and math.isfinite(At[l, j, b])
-            status[k0 + b] = st[b] if (st[b] != 0 or good) else 305
+            code = st[b] if (st[b] != 0 or good) else 305
+            status[k0 + b] = code if fin[b] == 0.0 else 306
         _store_lower(At, _unfold(0), d, k0, nb, S)
     if draw == 1:
         points_kernel(mean, S, xi2, gamma2, X2, D2)
@@ -913,7 +935,7 @@ def joint_update_kernel(
     ll, ww : ndarray, shape (B,)
         The log-likelihood of the measurement and the squared Mahalanobis distance ``w.w``.
     status : ndarray of int64, shape (B,)
-        Outputs.
+        Outputs (306 when ``H[k]`` holds a value that is not finite).
     xi1 : ndarray, shape (N1, n)
         Unit points of the set drawn from the posterior.
     gamma1 : float
@@ -945,9 +967,11 @@ def joint_update_kernel(
     st = np.empty(nl, dtype=np.int64)
     half = (N - 1) // 2
     Zt = np.empty((m, half + 1 + m if pair != 0.0 else 1, nl))
+    fin = np.empty(nl)
     for k0 in range(0, B, nl):
         nb = min(nl, B - k0)
         _load_points(H, k0, nb, Hl)
+        _finite_lanes(Hl, N, m, nb, fin)
         _load_points(X, k0, nb, Xl)
         if mode == 2:
             _load_vector(zref, k0, nb, zl)
@@ -975,7 +999,7 @@ def joint_update_kernel(
         _load_vector(x, k0, nb, xl)
         _finish(L, m, n, xl, xr, st, k0, nb, dx, xpost)
         for b in range(nb):
-            status[k0 + b] = st[b]
+            status[k0 + b] = st[b] if fin[b] == 0.0 else 306
             zk, yk, wk, Lk = zp[k0 + b], y[k0 + b], w[k0 + b], L21[k0 + b]
             for l in range(m):
                 zk[l] = zl[l, b]

@@ -1,0 +1,124 @@
+"""The Python a filter's step runs in squkf's own files: calls, depth and modules per step.
+
+    python benchmarks/python_per_step.py            # the table, and the issue's targets
+    python benchmarks/python_per_step.py --calls    # also every function called, with its count
+
+One ``SquareRootUKF`` ``predict()`` + ``update(z)`` of the g13ej robot (``benchmarks/models.py``,
+Merwe(1, 2, 0), the redrawn second set), in steady state (after warm-up steps), traced with
+``sys.setprofile``:
+
+* calls: the ``call`` events whose code lives under the ``squkf/`` package, comprehensions and
+  generators included (a model function of the benchmark is not squkf's);
+* depth: the most squkf frames on the stack at once, the public method counting as 1;
+* modules: how many of squkf's modules the step enters.
+
+Vectorised and per point (where each model evaluation is one more call of the step's own, the
+comprehension that calls it aside). Counts, not times: they do not depend on the machine's load.
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+from models import Robot  # noqa: E402
+
+import squkf  # noqa: E402
+
+ROOT = os.path.dirname(os.path.abspath(squkf.__file__)) + os.sep
+TARGETS = {"calls": 50, "depth": 5, "modules": 8}
+
+
+def robot_filter(vectorized: bool) -> tuple[squkf.SquareRootUKF, list[np.ndarray]]:
+    sc = Robot()
+    if vectorized:
+
+        def fx(X, dt):
+            th = X[..., 2]
+            return np.stack([X[..., 0] + np.cos(th) * sc.t1, X[..., 1] + np.sin(th) * sc.t1, th + sc.t3], -1)
+
+        def hx(X):
+            return np.stack([sc.Delta - X[..., 0] * sc.cA - X[..., 1] * sc.sA, X[..., 2] - sc.A], -1)
+
+    else:
+        fx, hx = sc.fx, sc.hx
+    f = squkf.SquareRootUKF(
+        3, 2, sc.dt, hx, fx, squkf.MerweScaledWeights(sc.alpha, sc.beta, sc.kappa), vectorized=vectorized
+    )
+    f.x, f.P, f.Q, f.R = sc.x0, sc.P0, sc.Q, sc.R
+    _, zs = sc.simulate(50, 1)
+    return f, [np.asarray(z, dtype=float) for z in zs]
+
+
+def trace_step(f, z) -> dict:
+    """One predict + update, traced: the squkf calls, their deepest nesting and the modules entered."""
+    depth = 0
+    deepest = 0
+    calls: collections.Counter = collections.Counter()
+    modules: set[str] = set()
+
+    def profile(frame, event, arg):
+        nonlocal depth, deepest
+        if event not in ("call", "return"):
+            return
+        code = frame.f_code
+        if not code.co_filename.startswith(ROOT):
+            return
+        if event == "call":
+            depth += 1
+            deepest = max(deepest, depth)
+            module = code.co_filename[len(ROOT) :].removesuffix(".py").replace(os.sep, ".")
+            calls[(module, code.co_name)] += 1
+            modules.add(module)
+        else:
+            depth -= 1
+
+    sys.setprofile(profile)
+    try:
+        f.predict()
+        f.update(z)
+    finally:
+        sys.setprofile(None)
+    # predict and update are each the public method at depth 1
+    return {"calls": sum(calls.values()), "depth": deepest, "modules": len(modules), "by_function": calls}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--calls", action="store_true", help="list every function called")
+    args = parser.parse_args()
+    print(f"Python {sys.version.split()[0]}, numpy {np.__version__}; squkf at {ROOT}")
+    print()
+    print("| route | squkf calls per step | deepest squkf frames | squkf modules entered |")
+    print("|---|---|---|---|")
+    found = {}
+    for vectorized in (True, False):
+        f, zs = robot_filter(vectorized)
+        for z in zs[:10]:  # steady state: the routes decided, the kernels loaded
+            f.predict()
+            f.update(z)
+        r = trace_step(f, zs[10])
+        name = "vectorised" if vectorized else "per point"
+        found[name] = r
+        print(f"| {name} | {r['calls']} | {r['depth']} | {r['modules']} |")
+    print()
+    v = found["vectorised"]
+    for key, limit in TARGETS.items():
+        print(f"- {key}: {v[key]} (target <= {limit}: {'met' if v[key] <= limit else 'not met'})")
+    if args.calls:
+        for name, r in found.items():
+            print(f"\n{name}:")
+            for (module, fn), count in sorted(r["by_function"].items(), key=lambda kv: -kv[1]):
+                print(f"  {count:4d}  {module}.{fn}")
+
+
+if __name__ == "__main__":
+    main()
