@@ -452,8 +452,8 @@ class Route:
             if self.single:
                 post = Posterior(*(a[None] for a in post))
             none = _none_rejected(post.y.shape)
-            update = Update(post.x, post.S, post.y, post.Sy, post.L21, post.log_likelihood, post.nis, observed,
-                            none, None, m_all)  # fmt: skip
+            ll, nis = post.log_likelihood, post.nis
+            update = Update(post.x, post.S, post.y, post.Sy, post.L21, ll, nis, observed, none, None, m_all)
             return update, np.zeros(B, dtype=np.int64), None
         Ro = R1_2
         whole = None

@@ -845,7 +845,7 @@ class SquareRootUKF:
         return handed_points(X, xi, factor, ())
 
     def _per_point(self, fn: Callable, X: np.ndarray, dt, kwargs: dict):
-        """``fn`` at each point of ``X``, ``fx(x, dt)`` (or with no ``dt`` ``hx(x)``), as filterpy calls it."""
+        """``fn`` at each point of ``X``: ``fx(x, dt)``, or ``hx(x)`` with no ``dt``, as filterpy calls it."""
         return inputs.evaluate(fn, X, () if dt is None else (dt,), kwargs, False)
 
     def _R_dim(self) -> int:
