@@ -29,6 +29,7 @@ whole call succeeded, so a call that fails leaves it as it was. Its phases
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable
 from typing import NamedTuple
@@ -241,6 +242,63 @@ class _ObservedR:
         return self.factor  # type: ignore[return-value]
 
 
+class Buffers:
+    """A block's output arrays, allocated once per shape and used again: two sets of each, in turn.
+
+    A call takes the set that no committed record holds (:meth:`take`), and :meth:`commit` makes it the
+    one they hold once the whole call succeeded; a call that fails (:meth:`abandon`) leaves the other
+    set, and everything that reads it, as it was.
+    """
+
+    __slots__ = ("sets", "taken")
+
+    def __init__(self):
+        self.sets: dict[tuple, list] = {}  # key -> [set 0, set 1, the set to write next]
+        self.taken: list[list] = []
+
+    def take(self, key: tuple, make: Callable[[], tuple]) -> tuple:
+        """The set of ``key`` to write now (``make()`` builds one, twice, on the first call)."""
+        pair = self.sets.get(key)
+        if pair is None:
+            pair = self.sets[key] = [make(), make(), 0]
+        self.taken.append(pair)
+        return pair[pair[2]]
+
+    def commit(self) -> None:
+        """The sets taken since the last call hold the committed records now: the next call writes the others."""
+        for pair in self.taken:
+            pair[2] ^= 1
+        self.taken.clear()
+
+    def abandon(self) -> None:
+        """A call failed: the sets it took are written again by the next one."""
+        self.taken.clear()
+
+
+def _prior_out(B: int, n: int, N2: int, offsets: bool) -> Callable[[], tuple]:
+    """The prediction kernel's outputs: mean, factor, status, the second set and its offsets."""
+
+    def make() -> tuple:
+        X2 = np.empty((B, N2, n))
+        D2 = np.empty(X2.shape) if offsets else kernels.no_set(n)
+        return np.empty((B, n)), np.empty((B, n, n)), np.empty(B, dtype=np.int64), X2, D2
+
+    return make
+
+
+def _posterior_out(B: int, n: int, m: int, N1: int) -> Callable[[], tuple]:
+    """The update kernel's outputs (as its arguments), and the next first set (``N1`` points, 0: none)."""
+
+    def make() -> tuple:
+        return (
+            np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m)), np.empty((B, n, m)),
+            np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B),
+            np.empty(B, dtype=np.int64), np.empty((B, N1, n)) if N1 else kernels.no_set(n),
+        )  # fmt: skip
+
+    return make
+
+
 class Route:
     """One configuration's step for a block of filters, decided once: which kernels run, how.
 
@@ -318,13 +376,20 @@ class Route:
         return self._block(sigma_points_from_factor(self._one(x), self._one(S), first.xi, add))
 
     def prior(
-        self, F: np.ndarray, Q1_2: np.ndarray | None, UT: Callable | None, draw: bool, name: str = "fx values"
+        self,
+        F: np.ndarray,
+        Q1_2: np.ndarray | None,
+        UT: Callable | None,
+        draw: bool,
+        name: str = "fx values",
+        buffers: Buffers | None = None,
     ):
         """The prior from the first set's images ``F`` ``(B, N, n)``, and its second set where drawn with it.
 
         ``F`` is checked finite: in the kernel on the plain route (no ``x_mean_fn``/``residual_x``,
         no ``UT``: status 306 for a filter whose images are not finite), here on the others (before
-        the hooks see them; ``name`` says what they are).
+        the hooks see them; ``name`` says what they are). The results are written into ``buffers``'
+        arrays where given (else new ones).
 
         Returns
         -------
@@ -340,14 +405,13 @@ class Route:
             fused = plan.fused_draw if (draw and self.plain_add) else None
             if fused is not None and fused.augmented and Q1_2 is None:
                 fused = None  # the augmented set without noise is the propagated set itself
-            mean, S, status = np.empty((B, n)), np.empty((B, n, n)), np.empty(B, dtype=np.int64)
             if fused is None:
-                X2 = D2 = kernels.no_set(n)
-                code, xi2, gamma2 = 0, kernels.no_points(n), 0.0
+                code, xi2, gamma2, N2, offsets = 0, kernels.no_points(n), 0.0, 0, False
             else:
-                X2 = np.empty((B, fused.xi.shape[0] + (N if fused.augmented else 0), n))
-                D2 = kernels.no_set(n) if fused.augmented else np.empty(X2.shape)
                 code, xi2, gamma2 = (2 if fused.augmented else 1), fused.xi, fused.gamma
+                N2, offsets = fused.xi.shape[0] + (N if fused.augmented else 0), not fused.augmented
+            make = _prior_out(B, n, N2, offsets)
+            mean, S, status, X2, D2 = make() if buffers is None else buffers.take((0, B, n, N2, offsets), make)
             noise = kernels.no_noise(n) if Q1_2 is None else self.stacked(Q1_2, 0)
             kernels.KERNELS.transform(
                 F, self.zeros(n), plan.mode1, plan.wm1, plan.scale1, plan.sign1, noise, mean, S, status,
@@ -405,7 +469,10 @@ class Route:
             route = self._updates[key] = _joint_route(sset) if plain else None
         return route  # type: ignore[return-value]
 
-    def posterior(self, sset, x, S, H, z, observed, R1_2, UT, draw_first: bool, name: str = "hx values"):
+    def posterior(
+        self, sset, x, S, H, z, observed, R1_2, UT, draw_first: bool, name: str = "hx values",
+        buffers: Buffers | None = None,
+    ):  # fmt: skip
         """The update with every measured component (what a gate tests), and the next first set drawn with it.
 
         Parameters
@@ -423,6 +490,10 @@ class Route:
         UT : callable or None
         draw_first : bool
             Draw the next first set from the posterior (the joint route only).
+        name : str
+            What the images are called in messages.
+        buffers : Buffers, optional
+            Where the kernel's results are written (default: new arrays).
 
         Returns
         -------
@@ -463,12 +534,12 @@ class Route:
             Ro = self._observed_R.of(R1_2, observed)
         m = H.shape[2]
         n = x.shape[1]
-        zp, y, w, Sy = np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m))
-        L21, dx, xo, So = np.empty((B, n, m)), np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n))
-        ll, ww, status = np.empty(B), np.empty(B), np.empty(B, dtype=np.int64)
         plan = self.plan
         draw = draw_first and plan.w_xi is None  # (noise entering fx: the first set has a noise part)
-        X1 = np.empty((B,) + plan.xi1.shape) if draw else kernels.no_set(n)
+        N1 = plan.xi1.shape[0] if draw else 0
+        make = _posterior_out(B, n, m, N1)
+        out = make() if buffers is None else buffers.take((1, B, n, m, N1), make)
+        zp, y, w, Sy, L21, dx, xo, So, ll, ww, status, X1 = out
         Rs = self.stacked(Ro, 1)
         Xs = sset.offsets if route.offsets else sset.sigmas
         f = Xs.flags
@@ -476,8 +547,7 @@ class Route:
             Xs = kernels.kernel_array(Xs)
         kernels.KERNELS.joint_update(
             H, self.zeros(m), Xs, x if route.xref else self.zeros(n), z, Rs, x, route.mode, route.wm,
-            route.scale, route.sign, route.pair, zp, y, w, Sy, L21, dx, xo, So, ll, ww, status,
-            plan.xi1, plan.gamma1, X1,
+            route.scale, route.sign, route.pair, *out[:11], plan.xi1, plan.gamma1, X1,
         )  # fmt: skip
         if whole is not None:
             status[~np.isfinite(whole).reshape(B, -1).all(axis=1)] = NOT_FINITE_IMAGES
@@ -580,7 +650,7 @@ class Engine:
 
     __slots__ = (
         "route", "step_route", "x", "S", "phase", "X", "prior", "sset", "prior_record", "post_record", "last",
-        "H", "shown_f", "_first", "_propagated", "_Q",
+        "H", "shown_f", "_first", "_propagated", "_Q", "_buffers",
     )  # fmt: skip
 
     def __init__(
@@ -598,15 +668,32 @@ class Engine:
         self._first: np.ndarray | None = None  # the first set of (x, S), drawn ahead by the last update
         self._propagated: np.ndarray | None = None
         self._Q: np.ndarray | None = None
+        self._buffers = Buffers()
+
+    # the state and the pending step; not the buffers (scratch), nor the first set drawn ahead
+    _SCRATCH = ("_first", "_buffers")
 
     def __getstate__(self):
-        # the state and the pending step, not the first set drawn ahead (a copy draws it again)
-        return {k: getattr(self, k) for k in self.__slots__ if k != "_first"}
+        return {k: getattr(self, k) for k in self.__slots__ if k not in self._SCRATCH}
 
     def __setstate__(self, state) -> None:
         for k, v in state.items():
             object.__setattr__(self, k, v)
         self._first = None
+        self._buffers = Buffers()
+
+    def __copy__(self) -> Engine:
+        """An independent engine: the state's arrays copied (the buffers they live in are this engine's,
+        written again by its later steps), the configuration shared."""
+        new = Engine.__new__(Engine)
+        memo: dict[int, object] = {}
+        new.__setstate__({k: _detached(v, memo) for k, v in self.__getstate__().items()})
+        return new
+
+    def __deepcopy__(self, memo) -> Engine:
+        new = copy.copy(self)
+        memo[id(self)] = new
+        return new
 
     def configure(self, route: Route) -> None:
         """A new configuration (a pending step keeps the route it was drawn with)."""
@@ -671,13 +758,16 @@ class Engine:
         plan = route.plan
         keep = plan.keeps_propagated
         F = _images(F, X.shape, name, keep, route.single)
+        buffers = self._buffers
+        buffers.abandon()
         limit = blas.MIN_DIM
         if limit is not None and plan.n >= limit:
             with blas.one_blas_thread():
-                done = self._prior(route, F, Q1_2, UT, name)
+                done = self._prior(route, F, Q1_2, UT, name, buffers)
         else:
-            done = self._prior(route, F, Q1_2, UT, name)
+            done = self._prior(route, F, Q1_2, UT, name, buffers)
         # commit
+        buffers.commit()
         mean, S, sset = done
         self.step_route = route
         self.x, self.S = mean, S
@@ -690,9 +780,9 @@ class Engine:
         self.phase = PRIOR
 
     @staticmethod
-    def _prior(route: Route, F, Q1_2, UT, name: str) -> tuple:
+    def _prior(route: Route, F, Q1_2, UT, name: str, buffers: Buffers) -> tuple:
         """The numerics of a prediction: the prior and its second set (nothing committed)."""
-        mean, S, status, sset = route.prior(F, Q1_2, UT, True, name)
+        mean, S, status, sset = route.prior(F, Q1_2, UT, True, name, buffers)
         if np.count_nonzero(status):
             code = first_status(status)
             raise _described(code, F, status, name) or prior_failure(code, route.plan.first.rows.best)
@@ -770,13 +860,16 @@ class Engine:
         H = _images(H, sset.sigmas.shape[:-1] + (z.shape[-1],), name, True, route.single)
         if route.single:
             z = z[None]
+        buffers = self._buffers
+        buffers.abandon()
         limit = blas.MIN_DIM
         if limit is not None and route.plan.n >= limit:
             with blas.one_blas_thread():
-                update, X1 = self._posterior(route, sset, xp, Sp, H, z, observed, R1_2, UT, name)
+                update, X1 = self._posterior(route, sset, xp, Sp, H, z, observed, R1_2, UT, name, buffers)
         else:
-            update, X1 = self._posterior(route, sset, xp, Sp, H, z, observed, R1_2, UT, name)
+            update, X1 = self._posterior(route, sset, xp, Sp, H, z, observed, R1_2, UT, name, buffers)
         # commit
+        buffers.commit()
         if sset is not self.sset:  # drawn from the estimate alone: no propagated set belongs to it
             self._propagated = self._Q = None
             self.step_route = route
@@ -789,9 +882,9 @@ class Engine:
         self.phase = IDLE
 
     @staticmethod
-    def _posterior(route: Route, sset, xp, Sp, H, z, observed, R1_2, UT, name: str) -> tuple:
+    def _posterior(route: Route, sset, xp, Sp, H, z, observed, R1_2, UT, name: str, buffers: Buffers) -> tuple:
         """The numerics of an update through the gate, and the next first set (nothing committed)."""
-        tested, status, X1 = route.posterior(sset, xp, Sp, H, z, observed, R1_2, UT, True, name)
+        tested, status, X1 = route.posterior(sset, xp, Sp, H, z, observed, R1_2, UT, True, name, buffers)
         if np.count_nonzero(status):
             code = first_status(status)
             raise _described(code, H, status, name) or failure(code, route.form_of(sset, UT))
@@ -809,7 +902,8 @@ class Engine:
                 "update without a measurement called while a prediction is pending: "
                 "tell_predict the fx values first"
             )
-        self.post_record = (self.x, self.S)
+        # the record's own copies: the estimate may live in the buffers the next prediction writes
+        self.post_record = (self.x.copy(), self.S.copy())
         self.phase = IDLE
 
 
@@ -877,3 +971,19 @@ def _images(values, shape: tuple, name: str, private: bool, single: bool = False
     else:
         A = np.ascontiguousarray(check_values(values, want, name, finite=False))
     return A[None] if single else A
+
+
+def _detached(value, memo: dict[int, object]):
+    """``value`` with every writeable array in it copied (read-only ones, a plan's, shared), identity kept:
+    an array referenced twice is one copy."""
+    if isinstance(value, np.ndarray):
+        if not value.flags.writeable:
+            return value
+        done = memo.get(id(value))
+        if done is None:
+            done = memo[id(value)] = value.copy()
+        return done
+    if isinstance(value, tuple):
+        items = [_detached(v, memo) for v in value]
+        return type(value)(*items) if hasattr(value, "_fields") else tuple(items)
+    return value
