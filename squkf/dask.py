@@ -44,7 +44,7 @@ except ImportError as exc:  # say which extra brings them
     ) from exc
 
 from .batch import model_kwargs, per_step
-from .boundary import inputs
+from .boundary import checks
 from .boundary.loop import KEEP
 from .errors import ParameterError, ShapeError
 from .fleet import Fleet, FleetResult
@@ -208,7 +208,7 @@ def batch_filter(
         Z = Z.rechunk({1: -1, 2: -1})
     Z = da.ma.filled(Z.astype(float), np.nan)  # masked chunks: missing where masked, as Fleet.batch_filter
     for name, args in (("fx_args", fx_args), ("hx_args", hx_args)):
-        inputs.check_chunk_args(args, name, K, Z.chunks[0])
+        checks.check_chunk_args(args, name, K, Z.chunks[0])
     n = fleet.dim_x
     blocks = Z.to_delayed().reshape(-1)
     fields: dict[str, list] = {f: [] for f in _FIELDS}
@@ -217,7 +217,7 @@ def batch_filter(
         # each task carries only its chunk's filters (not the whole template): a worker holds a few chunks
         chunk = fleet.subset(slice(lo, lo + size))
         rows = slice(lo, lo + size)
-        fx_rows, hx_rows = inputs.chunk_args(fx_args, K, rows), inputs.chunk_args(hx_args, K, rows)
+        fx_rows, hx_rows = checks.chunk_args(fx_args, K, rows), checks.chunk_args(hx_args, K, rows)
         options = {"keep": keep, "dts": dts, "fx_args": fx_rows, "hx_args": hx_rows}
         part = dask.delayed(_run_chunk, pure=True)(chunk, block, options)
         shapes = {

@@ -265,7 +265,7 @@ class Buffers:
         return pair[pair[2]]
 
     def commit(self) -> None:
-        """The sets taken since the last call hold the committed records now: the next call writes the others."""
+        """The sets taken since the last call hold the committed records now: the next writes the others."""
         for pair in self.taken:
             pair[2] ^= 1
         self.taken.clear()
@@ -406,12 +406,13 @@ class Route:
             if fused is not None and fused.augmented and Q1_2 is None:
                 fused = None  # the augmented set without noise is the propagated set itself
             if fused is None:
-                code, xi2, gamma2, N2, offsets = 0, kernels.no_points(n), 0.0, 0, False
+                code, xi2, gamma2, N2, with_offsets = 0, kernels.no_points(n), 0.0, 0, False
             else:
                 code, xi2, gamma2 = (2 if fused.augmented else 1), fused.xi, fused.gamma
-                N2, offsets = fused.xi.shape[0] + (N if fused.augmented else 0), not fused.augmented
-            make = _prior_out(B, n, N2, offsets)
-            mean, S, status, X2, D2 = make() if buffers is None else buffers.take((0, B, n, N2, offsets), make)
+                N2, with_offsets = fused.xi.shape[0] + (N if fused.augmented else 0), not fused.augmented
+            make = _prior_out(B, n, N2, with_offsets)
+            key = (0, B, n, N2, with_offsets)
+            mean, S, status, X2, D2 = make() if buffers is None else buffers.take(key, make)
             noise = kernels.no_noise(n) if Q1_2 is None else self.stacked(Q1_2, 0)
             kernels.KERNELS.transform(
                 F, self.zeros(n), plan.mode1, plan.wm1, plan.scale1, plan.sign1, noise, mean, S, status,
@@ -882,7 +883,7 @@ class Engine:
         self.phase = IDLE
 
     @staticmethod
-    def _posterior(route: Route, sset, xp, Sp, H, z, observed, R1_2, UT, name: str, buffers: Buffers) -> tuple:
+    def _posterior(route: Route, sset, xp, Sp, H, z, observed, R1_2, UT, name: str, buffers: Buffers):
         """The numerics of an update through the gate, and the next first set (nothing committed)."""
         tested, status, X1 = route.posterior(sset, xp, Sp, H, z, observed, R1_2, UT, True, name, buffers)
         if np.count_nonzero(status):

@@ -36,19 +36,18 @@ import numpy as np
 
 from . import stacks
 from .batch import model_kwargs, per_step
-from .boundary import inputs
-from .boundary.config import Config, filter_kwargs
-from .boundary.edits import HandOut
-from .boundary.factors import (
+from .boundary import checks
+from .boundary.checks import (
     covariance_factors,
     given_noise_factors,
     lower_factors,
     noise_factors,
     reset_rows,
 )
+from .boundary.config import Config, filter_kwargs, filter_of, stacked
+from .boundary.covariance import HandOut
 from .boundary.loop import Transaction, annotate_step, check_keep, check_progress, progress_callback
 from .boundary.records import FleetResult, Records, failures_error, new_records
-from .boundary.stacking import filter_of, stacked
 from .engine import Route
 from .errors import CallSequenceError, FleetStepError, ParameterError
 from .gating import Gate, as_gate
@@ -202,10 +201,10 @@ class Fleet:
         hx_noise: int | None = None,
         chunk: int | None = None,
     ):
-        K, n, m = inputs.check_sizes(n_filters=n_filters, dim_x=dim_x, dim_z=dim_z)
+        K, n, m = checks.check_sizes(n_filters=n_filters, dim_x=dim_x, dim_z=dim_z)
         if on_error not in ("flag", "raise"):
             raise ParameterError(f"on_error must be 'flag' or 'raise', got on_error={on_error!r}")
-        self._fx_noise, self._hx_noise = inputs.model_noise(fx, hx, fx_noise, hx_noise)
+        self._fx_noise, self._hx_noise = checks.model_noise(fx, hx, fx_noise, hx_noise)
         self._qd, self._rd = self._fx_noise or n, self._hx_noise or m  # the dimensions of Q and R
         self._handed = HandOut()  # x, P, Q, R: the arrays handed out, for edits in place
         self._K, self._n, self._m = K, n, m
@@ -308,7 +307,7 @@ class Fleet:
 
     @x.setter
     def x(self, value):
-        self._x = inputs.per_filter(value, "x", self._K, (self._n,))
+        self._x = checks.per_filter(value, "x", self._K, (self._n,))
         self._pending = _Pending()
 
     @property
@@ -392,7 +391,7 @@ class Fleet:
 
     @chunk.setter
     def chunk(self, value) -> None:
-        self._chunk: int | None = None if value is None else inputs.check_sizes(chunk=value)[0]
+        self._chunk: int | None = None if value is None else checks.check_sizes(chunk=value)[0]
 
     # -- records of the last step (the arrays behind them are never written in place) ------
 
@@ -487,7 +486,7 @@ class Fleet:
         """Second half of a prediction: ``fx`` at the points from :meth:`ask_predict`, ``(K, N, dim_x)``."""
         self._take_edits()
         X = self._told(PREDICTING, "tell_predict").first
-        F = inputs.stacked_shape(sigmas_f, X.shape, "fx values", copy=False)
+        F = checks.stacked_shape(sigmas_f, X.shape, "fx values", copy=False)
         self._predict(lambda rows, X: F[rows], X)
 
     def ask_update(self) -> np.ndarray:
@@ -517,14 +516,14 @@ class Fleet:
         **hx_args
             Passed to ``hx`` (per-filter arrays as for :meth:`predict`).
         """
-        zz = inputs.measurements(z, self._K, self._m)
+        zz = checks.measurements(z, self._K, self._m)
         self._take_edits()
         R1_2 = self._R1_2 if R is None else noise_factors(R, "R", self._rd, self._K)
         self._update(self._pending_update(), self._hx_images(R1_2, hx_args), zz, R1_2)
 
     def tell_update(self, sigmas_h, z, R=None) -> None:
         """Second half of an update: ``hx`` at the points from :meth:`ask_update`, and ``z`` (K, dim_z)."""
-        zz = inputs.measurements(z, self._K, self._m)
+        zz = checks.measurements(z, self._K, self._m)
         self._take_edits()
         if self._plan.v_xi is not None and R is not None:
             raise ParameterError(
@@ -535,34 +534,34 @@ class Fleet:
         p = self._told(UPDATING, "tell_update")
         sset: SigmaSet = p.sset  # type: ignore[assignment]  # set in phase UPDATING
         shape = sset.sigmas.shape[:-1] + (self._m,)
-        H = inputs.stacked_shape(sigmas_h, shape, "hx values", copy=True)
+        H = checks.stacked_shape(sigmas_h, shape, "hx values", copy=True)
         self._update(p, lambda rows, s: H[rows], zz, R1_2)
 
     # -- the step's parts -----------------------------------------------------------
 
     def _fx_images(self, dt: float, fx_args: dict) -> Callable:
         """``images(rows, X)``: ``fx`` at the first sets ``X`` of the filters ``rows``, arguments cut."""
-        kwargs, K, plan, Q = inputs.with_filter_axis(fx_args, self._K), self._K, self._plan, self._Q1_2
+        kwargs, K, plan, Q = checks.with_filter_axis(fx_args, self._K), self._K, self._plan, self._Q1_2
         fx = self.fx
 
         def images(rows: slice, X: np.ndarray):
-            kw = inputs.chunk_args(kwargs, K, rows) if kwargs else kwargs
+            kw = checks.chunk_args(kwargs, K, rows) if kwargs else kwargs
             # the points themselves: the step reads only their shape afterwards
             W = None if plan.w_xi is None else noise_points(plan.w_xi, rows_of(Q, rows, 2), (X.shape[0],))
-            return inputs.call_stack(fx, "fx", X, W, (dt,), kw)
+            return checks.call_stack(fx, "fx", X, W, (dt,), kw)
 
         return images
 
     def _hx_images(self, R1_2: np.ndarray | None, hx_args: dict) -> Callable:
         """``images(rows, sset)``: ``hx`` at the second sets of the filters ``rows``, arguments cut."""
-        kwargs, K, plan = inputs.with_filter_axis(hx_args, self._K), self._K, self._plan
+        kwargs, K, plan = checks.with_filter_axis(hx_args, self._K), self._K, self._plan
         hx = self.hx
 
         def images(rows: slice, sset):
-            kw = inputs.chunk_args(kwargs, K, rows) if kwargs else kwargs
+            kw = checks.chunk_args(kwargs, K, rows) if kwargs else kwargs
             k = sset.sigmas.shape[0]
             V = None if plan.v_xi is None else noise_points(plan.v_xi, rows_of(R1_2, rows, 2), (k,))
-            return inputs.call_stack(hx, "hx", sset.sigmas.copy(), V, (), kw)
+            return checks.call_stack(hx, "hx", sset.sigmas.copy(), V, (), kw)
 
         return images
 
@@ -675,7 +674,7 @@ class Fleet:
         """
         check_keep(keep)
         check_progress(progress)
-        Z = inputs.measurement_series(zs, self._K, self._m)
+        Z = checks.measurement_series(zs, self._K, self._m)
         T = Z.shape[1]
         dt_list = per_step(dts, T, "dts", "dt", default=self._dt, ref="zs")
         fx_args, hx_args = model_kwargs(fx_args, "fx_args"), model_kwargs(hx_args, "hx_args")
@@ -879,5 +878,5 @@ class Fleet:
         FleetStepError
             With ``on_error="raise"``, if some filters failed numerically.
         """
-        inputs.refuse_smoother_noise(self._fx_noise, "fleet")
+        checks.refuse_smoother_noise(self._fx_noise, "fleet")
         return fleet_rts_smoother(self, result, dts=dts, fx_args=fx_args)

@@ -27,7 +27,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import kernels
-from .boundary.inputs import finite_images, stacked_shape
+from .boundary.checks import finite_images, stacked_shape
 from .engine import Route, failure
 from .errors import NonFiniteError, NotPositiveDefiniteError, SqukfError
 from .generators import SigmaSet

@@ -1,26 +1,150 @@
-"""A covariance carried as its lower factor but readable and writable as a matrix.
+"""Covariances carried as factors, read and written as matrices, and edits in place of what is handed out.
 
-filterpy code reads and writes covariances as matrices, in place as often as
-not (``ukf.Q[2:4, 2:4] = ...``, ``ukf.P *= 10``). A :class:`FactorSlot` keeps
-the factor as the truth and hands out the matrix on demand; the matrix it
-handed out is remembered (:class:`squkf.boundary.edits.Handed`), and if the
-caller has changed it in place by the next time the factor is needed, the
-changed matrix is validated and factored (once). Nothing is formed or compared while nobody reads the
-matrix.
+filterpy code reads and writes a filter's arrays as matrices, and edits them
+in place as often as it assigns them (``ukf.P *= 10``, ``ukf.Q[2:4, 2:4] = ...``,
+``fleet.x[3] = ...``, also over several statements). Three pieces, one idea:
+
+- :class:`Handed` and :class:`HandOut`: an array handed out is kept with a
+  record of it (shape, dtype, bytes); at the next call that needs the value
+  behind it, an array that no longer matches its record was edited, and is
+  given to the attribute's validating setter, as an assignment would be (if
+  that raises, nothing changes and the edit stays pending).
+- :class:`FactorSlot`: a covariance (``Q``, ``R`` of one filter) held as its
+  lower factor, the truth, and handed out as a matrix formed when read;
+  :func:`as_matrix` and :func:`as_lower_factor` validate what is assigned.
+- one filter's attributes in its ``__dict__``, as filterpy keeps them
+  (filterpy's ``Saver`` deep-copies the ``__dict__``): data descriptors
+  (:class:`Estimate` for ``x`` and ``P``, :class:`Covariance` for ``Q`` and
+  ``R``, :class:`Hook`), and :class:`Unformed`, an array not formed since the
+  value behind it changed.
 """
 
 from __future__ import annotations
 
 import copy
+import functools
+from collections.abc import Callable, Iterable
 
 import numpy as np
 
-from .boundary.edits import Handed
-from .errors import NonFiniteError, NotPositiveDefiniteError, ShapeError, SqukfValueError
-from .linalg import all_finite, factor_covariance
-from .validate import as_float_array
+from ..errors import NonFiniteError, NotPositiveDefiniteError, ShapeError, SqukfValueError
+from ..linalg import all_finite, factor_covariance
+from ..plan import Hooks
+from ..validate import as_float_array
 
-__all__ = ["FactorSlot", "as_matrix", "as_lower_factor"]
+__all__ = [
+    "as_lower_factor",
+    "as_matrix",
+    "Covariance",
+    "Estimate",
+    "FactorSlot",
+    "Handed",
+    "HandOut",
+    "Hook",
+    "hooks_of",
+    "initial",
+    "NOISES",
+    "set_factor",
+    "Unformed",
+]
+
+
+class Handed:
+    """An array handed out for editing in place, with its record when handed out (or last taken).
+
+    Immutable apart from the array itself: taking an edit makes a new record.
+
+    Parameters
+    ----------
+    array : ndarray
+        The array as the caller holds it (not copied).
+    """
+
+    __slots__ = ("array", "_record")
+
+    def __init__(self, array: np.ndarray):
+        self.array = array
+        self._record = (array.shape, array.dtype, array.tobytes())
+
+    def edited(self) -> bool:
+        """Whether the array was changed in place (values, shape or dtype) since its record."""
+        a = self.array
+        shape, dtype, data = self._record
+        return a.shape != shape or a.dtype != dtype or a.tobytes() != data
+
+    def take(self, assign: Callable[[np.ndarray], object]) -> Handed:
+        """``self`` if not edited, else ``assign(array)`` (validating; may raise) and a fresh record.
+
+        Parameters
+        ----------
+        assign : callable
+            The attribute's validating setter, given the edited array.
+
+        Returns
+        -------
+        Handed
+            The record to keep: ``self`` (unchanged, or if ``assign`` raised
+            nothing is returned and the edit stays pending) or a new one.
+        """
+        if not self.edited():
+            return self
+        assign(self.array)
+        return Handed(self.array)
+
+    def copy(self) -> Handed:
+        """The same record over a copy of the array (an edit pending here is pending in the copy)."""
+        new = Handed.__new__(Handed)
+        new.array, new._record = self.array.copy(), self._record
+        return new
+
+
+class HandOut:
+    """The arrays of named attributes handed out, each until the value behind it changes (:class:`Handed`).
+
+    ``array(name, form)`` hands out ``form()`` once and then the same array;
+    ``drop(name)`` forgets it (the value changed: the array is history);
+    ``take(assign)`` gives each edited array to ``assign(name, array)``.
+    """
+
+    __slots__ = ("_held",)
+
+    def __init__(self, held: dict[str, Handed] | None = None):
+        self._held: dict[str, Handed] = {} if held is None else held
+
+    def array(self, name: str, form: Callable[[], np.ndarray]) -> np.ndarray:
+        """The array handed out for ``name``, formed by ``form()`` if none is."""
+        held = self._held.get(name)
+        if held is None:
+            held = self._held[name] = Handed(form())
+        return held.array
+
+    def drop(self, name: str) -> None:
+        """The value behind ``name`` changed: the array handed out is no longer its."""
+        self._held.pop(name, None)
+
+    def take(self, names: Iterable[str], assign: Callable[[str, np.ndarray], object]) -> None:
+        """Take the edits in place, in the order of ``names``, through ``assign(name, array)``.
+
+        ``assign`` validates (as an assignment) and may raise: the edits not
+        yet taken stay pending. The array stays handed out after its edit is
+        taken, even when ``assign`` dropped it.
+        """
+        held = self._held
+        for name in names:
+            h = held.get(name)
+            if h is not None:
+                held[name] = h.take(functools.partial(assign, name))
+
+    def copy(self) -> HandOut:
+        """The records as they are now (the arrays the same): what a transaction puts back."""
+        return HandOut(dict(self._held))
+
+    def detached(self) -> HandOut:
+        """An independent copy: each array copied, pending edits kept (:meth:`Handed.copy`)."""
+        return HandOut({name: h.copy() for name, h in self._held.items()})
+
+    def __bool__(self) -> bool:
+        return bool(self._held)
 
 
 def as_matrix(value, name: str, dim: int | None) -> np.ndarray:
@@ -270,3 +394,138 @@ class FactorSlot:
             n = self._size()
             return np.zeros((n, n))
         return S
+
+
+NOISES = ("Q", "R")
+
+
+class Unformed:
+    """Stands in the ``__dict__`` for an array nobody has read since the step changed it.
+
+    Reading the attribute forms it (:class:`Covariance`, :class:`State`); a deep
+    copy of the ``__dict__`` (what filterpy's ``Saver`` takes) gets the array
+    itself, so a saved history holds arrays, formed only when saved.
+
+    Parameters
+    ----------
+    form : callable
+        ``form()``: the array as it would be handed out now.
+    """
+
+    __slots__ = ("form",)
+
+    def __init__(self, form: Callable[[], np.ndarray]):
+        self.form = form
+
+    def __deepcopy__(self, memo):
+        return self.form().copy()
+
+    def __copy__(self):
+        return self.form().copy()
+
+
+class Covariance:
+    """``P``, ``Q`` or ``R``: a matrix kept in the instance's ``__dict__``, backed by a factor slot.
+
+    Not a ``property``, on purpose: filterpy's ``Saver`` deep-copies the
+    instance's ``__dict__`` (so a saved matrix is a copy, as for filterpy's
+    own filters) but would keep a property's value by reference.
+    """
+
+    def __set_name__(self, owner, name: str):
+        self.name = name
+        self.slot = "_" + name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        d = obj.__dict__
+        value = d[self.name]
+        if type(value) is Unformed:
+            value = d[self.name] = d[self.slot].matrix()
+        return value
+
+    def __set__(self, obj, value):
+        d = obj.__dict__
+        slot = d[self.slot]
+        slot.set_matrix(value)
+        d[self.name] = Unformed(slot.matrix)
+
+
+class Estimate:
+    """``x`` or ``P``: formed from the filter's estimate when first read after a step, and handed out
+    as the same array (with its record, ``_x`` or ``_Ph``) until the next one; an assignment is
+    validated by the filter (``_assign_x``, ``_assign_P``). See :class:`Covariance`."""
+
+    def __set_name__(self, owner, name: str):
+        self.name = name
+        self.record = "_x" if name == "x" else "_Ph"
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        d = obj.__dict__
+        value = d[self.name]
+        if type(value) is Unformed:
+            value = value.form()
+            d[self.name], d[self.record] = value, Handed(value)
+        return value
+
+    def __set__(self, obj, value):
+        getattr(obj, "_assign_" + self.name)(value)
+
+
+class Hook:
+    """A hook (``residual_x``, ``state_add``, ...) kept in the instance's ``__dict__``, as filterpy's.
+
+    Setting one tells the filter (``_hooks_assigned``), which builds its
+    :class:`~squkf.plan.Hooks` again.
+    """
+
+    def __set_name__(self, owner, name: str):
+        self.name = name
+
+    def __get__(self, obj, owner=None):
+        if obj is None:
+            return self
+        return obj.__dict__[self.name]
+
+    def __set__(self, obj, value):
+        obj.__dict__[self.name] = value
+        obj._hooks_assigned()
+
+
+def initial(d: dict, n: int, m: int, q: int, r: int) -> None:
+    """Fill a new filter's ``__dict__``: ``Q``, ``R`` identities (``x`` and ``P`` are the engine's).
+
+    Parameters
+    ----------
+    d : dict
+    n, m : int
+        State and measurement dimensions.
+    q, r : int
+        The dimensions of ``Q`` and ``R`` (the noise's own when it enters ``fx``, ``hx``).
+    """
+    for name, dim in (("Q", q), ("R", r)):
+        slot = d["_" + name] = FactorSlot(name, dim, semidefinite=True, factor=np.eye(dim))
+        d[name] = Unformed(slot.matrix)
+    d["z"] = np.array([[None] * m]).T
+
+
+def set_factor(d: dict, name: str, value) -> None:
+    """Assign ``Q1_2`` or ``R1_2`` (``name``: ``"Q"``, ``"R"``), validated."""
+    slot = d["_" + name]
+    slot.set_factor(value)
+    d[name] = Unformed(slot.matrix)
+
+
+def hooks_of(d: dict) -> Hooks:
+    """The filter's :class:`~squkf.plan.Hooks` from its ``__dict__`` (None: filterpy's default)."""
+    rx, rz, add = d["residual_x"], d["residual_z"], d["state_add"]
+    return Hooks(
+        d["x_mean"],
+        d["z_mean"],
+        None if rx is np.subtract else rx,
+        None if rz is np.subtract else rz,
+        None if add is np.add else add,
+    )
