@@ -286,6 +286,15 @@ def _prior_out(B: int, n: int, N2: int, offsets: bool) -> Callable[[], tuple]:
     return make
 
 
+def _points_out(B: int, N: int, n: int, offsets: bool) -> Callable[[], tuple]:
+    """A set of points ``(B, N, n)`` and their offsets (or no array for them)."""
+
+    def make() -> tuple:
+        return np.empty((B, N, n)), np.empty((B, N, n)) if offsets else kernels.no_set(n)
+
+    return make
+
+
 def _posterior_out(B: int, n: int, m: int, N1: int) -> Callable[[], tuple]:
     """The update kernel's outputs (as its arguments), and the next first set (``N1`` points, 0: none)."""
 
@@ -367,13 +376,18 @@ class Route:
 
     # -- the phases -------------------------------------------------------------------------
 
-    def first_points(self, x: np.ndarray, S: np.ndarray) -> np.ndarray:
-        """The first sigma-point set of ``(x, S)``, ``(B, N, n)``."""
-        first = self.plan.first
+    def first_points(self, x: np.ndarray, S: np.ndarray, buffers: Buffers | None = None) -> np.ndarray:
+        """The first sigma-point set of ``(x, S)``, ``(B, N, n)`` (in ``buffers``' array where given)."""
+        plan = self.plan
         add = self.hooks.state_add
-        if add is None:
-            return sigma_points_from_factor(x, S, first.xi, None, first.gamma)
-        return self._block(sigma_points_from_factor(self._one(x), self._one(S), first.xi, add))
+        if add is not None:  # the hook sees one filter's vectors (a filter of a block at a time)
+            first = plan.first
+            return self._block(sigma_points_from_factor(self._one(x), self._one(S), first.xi, add))
+        B, n = x.shape
+        make = _points_out(B, plan.xi1.shape[0], n, False)
+        X = make()[0] if buffers is None else buffers.take((2, B, plan.xi1.shape[0], n), make)[0]
+        kernels.KERNELS.points(x, S, plan.xi1, plan.gamma1, X, kernels.no_set(n))
+        return X
 
     def prior(
         self,
@@ -383,13 +397,15 @@ class Route:
         draw: bool,
         name: str = "fx values",
         buffers: Buffers | None = None,
+        out: tuple | None = None,
     ):
         """The prior from the first set's images ``F`` ``(B, N, n)``, and its second set where drawn with it.
 
         ``F`` is checked finite: in the kernel on the plain route (no ``x_mean_fn``/``residual_x``,
         no ``UT``: status 306 for a filter whose images are not finite), here on the others (before
-        the hooks see them; ``name`` says what they are). The results are written into ``buffers``'
-        arrays where given (else new ones).
+        the hooks see them; ``name`` says what they are). The results are written into ``out``
+        (``mean, S, status`` and the second set's points and offsets, where given) or ``buffers``'
+        arrays (else new ones).
 
         Returns
         -------
@@ -411,8 +427,11 @@ class Route:
                 code, xi2, gamma2 = (2 if fused.augmented else 1), fused.xi, fused.gamma
                 N2, with_offsets = fused.xi.shape[0] + (N if fused.augmented else 0), not fused.augmented
             make = _prior_out(B, n, N2, with_offsets)
-            key = (0, B, n, N2, with_offsets)
-            mean, S, status, X2, D2 = make() if buffers is None else buffers.take(key, make)
+            if out is not None:
+                mean, S, status, X2, D2 = out
+            else:
+                key = (0, B, n, N2, with_offsets)
+                mean, S, status, X2, D2 = make() if buffers is None else buffers.take(key, make)
             noise = kernels.no_noise(n) if Q1_2 is None else self.stacked(Q1_2, 0)
             kernels.KERNELS.transform(
                 F, self.zeros(n), plan.mode1, plan.wm1, plan.scale1, plan.sign1, noise, mean, S, status,
@@ -447,9 +466,21 @@ class Route:
             raise NonFiniteError("the predicted mean or factor is not finite")
         return self._block(mean), self._block(S), np.zeros(B, dtype=np.int64), None
 
-    def second_set(self, x, S, propagated, Q1_2) -> SigmaSet:
-        """The generator's second set for ``(x, S)`` (one filter's arrays to a user's generator and hooks)."""
+    def second_set(self, x, S, propagated, Q1_2, buffers: Buffers | None = None) -> SigmaSet:
+        """The generator's second set for ``(x, S)`` (one filter's arrays to a user's generator and hooks).
+
+        A redrawn set is drawn by the points kernel with its offsets (in ``buffers``' arrays where given).
+        """
         plan = self.plan
+        fused = plan.fused_draw
+        if fused is not None and not fused.augmented and self.plain_add:
+            B, n = x.shape
+            N2 = fused.xi.shape[0]
+            make = _points_out(B, N2, n, True)
+            X2, D2 = make() if buffers is None else buffers.take((3, B, N2, n), make)
+            kernels.KERNELS.points(x, S, fused.xi, fused.gamma, X2, D2)
+            rows = fused.rows
+            return SigmaSet(X2, rows.Wm, rows.Wc, fused.exact, D2, rows, fused.axis)
         if not self.single:
             return plan.second.draw(x, S, propagated, Q1_2, self.hooks.state_add)
         one = self._one
@@ -472,7 +503,7 @@ class Route:
 
     def posterior(
         self, sset, x, S, H, z, observed, R1_2, UT, draw_first: bool, name: str = "hx values",
-        buffers: Buffers | None = None,
+        buffers: Buffers | None = None, out: tuple | None = None,
     ):  # fmt: skip
         """The update with every measured component (what a gate tests), and the next first set drawn with it.
 
@@ -495,6 +526,9 @@ class Route:
             What the images are called in messages.
         buffers : Buffers, optional
             Where the kernel's results are written (default: new arrays).
+        out : tuple, optional
+            The kernel's outputs themselves, as its arguments (``zp, y, w, Sy, L21, dx, x, S, loglik,
+            nis, status, X1``), on the joint route: a fleet writes into its step's arrays.
 
         Returns
         -------
@@ -538,8 +572,9 @@ class Route:
         plan = self.plan
         draw = draw_first and plan.w_xi is None  # (noise entering fx: the first set has a noise part)
         N1 = plan.xi1.shape[0] if draw else 0
-        make = _posterior_out(B, n, m, N1)
-        out = make() if buffers is None else buffers.take((1, B, n, m, N1), make)
+        if out is None:
+            make = _posterior_out(B, n, m, N1)
+            out = make() if buffers is None else buffers.take((1, B, n, m, N1), make)
         zp, y, w, Sy, L21, dx, xo, So, ll, ww, status, X1 = out
         Rs = self.stacked(Ro, 1)
         Xs = sset.offsets if route.offsets else sset.sigmas
@@ -658,7 +693,7 @@ class Engine:
         self, route: Route, x: np.ndarray, S: np.ndarray, sigmas_f: np.ndarray, sigmas_h: np.ndarray
     ):
         self.route = self.step_route = route
-        self.x, self.S = x, S
+        self.x, self.S = kernels.kernel_array(x), kernels.kernel_array(S)
         self.phase = IDLE
         self.X: np.ndarray | None = None  # the points handed out by a pending ask_predict
         self.prior: tuple[np.ndarray, np.ndarray] | None = None
@@ -704,9 +739,9 @@ class Engine:
     def assign(self, x: np.ndarray | None = None, S: np.ndarray | None = None) -> None:
         """A new estimate from the caller (validated; kept): the sets drawn for the old one are dropped."""
         if x is not None:
-            self.x = x
+            self.x = kernels.kernel_array(x)  # (as the kernels take it: a factor from LAPACK is in F order)
         if S is not None:
-            self.S = S
+            self.S = kernels.kernel_array(S)
         self._first = None
 
     # -- the prediction -------------------------------------------------------------------------

@@ -48,7 +48,7 @@ from .boundary.config import Config, filter_kwargs, filter_of, stacked
 from .boundary.covariance import HandOut
 from .boundary.loop import Transaction, annotate_step, check_keep, check_progress, progress_callback
 from .boundary.records import FleetResult, Records, failures_error, new_records
-from .engine import Route
+from .engine import Buffers, Route
 from .errors import CallSequenceError, FleetStepError, ParameterError
 from .gating import Gate, as_gate
 from .generators import SigmaSet, as_generator
@@ -229,6 +229,7 @@ class Fleet:
         self._Q1_2: np.ndarray | None = np.eye(self._qd)
         self._R1_2: np.ndarray = np.eye(self._rd)
         self._pending = _Pending()
+        self._buffers = Buffers()  # the step's (K, ...) results, two sets used in turn
         self._failed = np.zeros(K, dtype=bool)
         self._failure = np.full(K, "", dtype=object)
         self._x_prior, self._x_post, self._S_prior, self._S_post = self._x, self._x, self._S, self._S
@@ -590,11 +591,14 @@ class Fleet:
     def _predict(self, images: Callable, first: np.ndarray | None) -> None:
         fails: dict[int, str] = {}
         Q = None if self._plan.w_xi is not None else self._Q1_2  # noise entering fx is in the points already
+        buffers = self._buffers
+        buffers.abandon()
         prior = stacks.predict(
-            self._route_now(), self._x, self._S, Q, ~self._failed, images, fails, first, self._chunk
+            self._route_now(), self._x, self._S, Q, ~self._failed, images, fails, first, self._chunk, buffers
         )
         if fails and self.on_error == "raise":
             raise failures_error(fails)
+        buffers.commit()
         # commit; the second set is drawn by the update, a chunk at a time (memory)
         self._pending = _Pending(PRIOR, None, (prior.x, prior.S), prior.propagated, Q)
         self._x, self._S = prior.x, prior.S
@@ -612,12 +616,15 @@ class Fleet:
         if self._plan.v_xi is not None:  # noise entering hx is in the points: the update adds none
             R1_2 = np.zeros((m, m))
         x, S = pending.prior  # type: ignore[misc]
+        buffers = self._buffers
+        buffers.abandon()
         post = stacks.update(
             self._route_now(), x, S, pending.sset, pending.propagated, pending.Q1_2, z, R1_2, active, images,
-            fails, self._chunk,
+            fails, self._chunk, buffers,
         )  # fmt: skip
         if fails and self.on_error == "raise":
             raise failures_error(fails)
+        buffers.commit()
         # commit
         self._pending = _Pending()
         self._x, self._S = post.x, post.S
@@ -630,7 +637,8 @@ class Fleet:
         """The records of a step in which no filter had a measurement, as :meth:`update` would leave them."""
         K, m = self._K, self._m
         self._pending = _Pending()
-        self._x_post, self._S_post = self._x, self._S
+        # the record's own copies: the estimate may live in the arrays the next prediction writes
+        self._x_post, self._S_post = self._x.copy(), self._S.copy()
         self.y, self._loglik = np.full((K, m), np.nan), np.zeros(K)
         self._nis, self._rejected = np.zeros(K), np.zeros((K, m), dtype=bool)
 
@@ -718,16 +726,16 @@ class Fleet:
         """
         return Transaction(self._snapshot, self._restore)
 
-    def _snapshot(self) -> tuple[dict, HandOut]:
-        # every array is replaced by the step, never written in place (the flags excepted: copied)
-        state = dict(self.__dict__)
-        state["_failed"], state["_failure"] = self._failed.copy(), self._failure.copy()
-        return state, self._handed.copy()
+    def _snapshot(self) -> tuple[Fleet, HandOut]:
+        # a copy: the step's results live in buffers that later steps write again
+        return copy.copy(self), self._handed.copy()
 
-    def _restore(self, saved: tuple[dict, HandOut]) -> None:
-        state, handed = saved
-        self.__dict__.update(state)
+    def _restore(self, saved: tuple[Fleet, HandOut]) -> None:
+        before, handed = saved
+        buffers = self._buffers
+        self.__dict__.update(before.__dict__)
         self.__dict__["_handed"] = handed  # the arrays handed out stay the caller's, still current
+        self.__dict__["_buffers"] = buffers
 
     # -- one filter and back --------------------------------------------------------
 
@@ -822,12 +830,23 @@ class Fleet:
         p = self._pending
         if p.prior is not None:
             # the pending update is known by the identity of the estimate it was drawn for: the
-            # copy's pending step must belong to the copy's estimate
+            # copy's pending step must belong to the copy's estimate, and its own propagated set
             x, S = p.prior
             prior = (copies.get(id(x), x), copies.get(id(S), S))
-            d["_pending"] = _Pending(p.phase, p.first, prior, p.propagated, p.Q1_2, p.sset)
+            propagated = None if p.propagated is None else p.propagated.copy()
+            d["_pending"] = _Pending(p.phase, p.first, prior, propagated, p.Q1_2, p.sset)
+        d["_buffers"] = Buffers()  # the copy's own (scratch: not copied)
         new.__dict__.update(d)
         return new
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        del state["_buffers"]  # scratch: not pickled
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self.__dict__["_buffers"] = Buffers()
 
     def __deepcopy__(self, memo):
         new = copy.copy(self)

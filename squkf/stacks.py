@@ -21,6 +21,7 @@ keeps its state, and the others go on. The routes through the hooks or a
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -28,7 +29,7 @@ import numpy as np
 
 from . import kernels
 from .boundary.checks import finite_images, stacked_shape
-from .engine import Route, failure
+from .engine import Buffers, Route, failure
 from .errors import NonFiniteError, NotPositiveDefiniteError, SqukfError
 from .generators import SigmaSet
 from .validate import describe_nonfinite
@@ -118,6 +119,23 @@ def _map_chunks(
         cut = chunks(K, default_chunk(threads, K) if size is None else size, threads)
         for part in kernels.thread_map(one, cut):
             fails.update(part)
+
+
+_local = threading.local()
+
+
+def _scratch() -> Buffers:
+    """This thread's chunk arrays (points, the kernels' outputs a chunk does not keep), made once per shape
+    and used by each chunk in turn (nothing of a chunk's outlives it; never committed)."""
+    scratch = getattr(_local, "scratch", None)
+    if scratch is None:
+        scratch = _local.scratch = Buffers()
+    return scratch
+
+
+def _results(buffers: Buffers | None, key: tuple, make: Callable[[], tuple]) -> tuple:
+    """A step's ``(K, ...)`` results: in ``buffers``' spare set (the fleet's, committed with the step), else new."""
+    return make() if buffers is None else buffers.take(key, make)
 
 
 def rows_of(a: np.ndarray | None, idx, core: int) -> np.ndarray | None:
@@ -296,6 +314,7 @@ def predict(
     fails: dict[int, str],
     first: np.ndarray | None = None,
     size: int | None = None,
+    buffers: Buffers | None = None,
 ) -> Prior:
     """The prediction of a stack of filters, a chunk at a time, failing filters flagged alone.
 
@@ -318,21 +337,30 @@ def predict(
         The first sets already handed out (``ask_predict``); default: drawn per chunk.
     size : int, optional
         Filters per chunk, at most (default: :func:`default_chunk` of the thread count and ``K``).
+    buffers : Buffers, optional
+        The fleet's: the results are written into its spare set (the caller commits it).
 
     Returns
     -------
     Prior
     """
-    K = x.shape[0]
+    K, n = x.shape
     plan = route.plan
-    x_new, S_new = np.empty_like(x), np.empty_like(S)
-    propagated = np.empty((K,) + plan.xi1.shape) if plan.keeps_propagated else None
+    N = plan.xi1.shape[0]
+    keep = plan.keeps_propagated
+
+    def make() -> tuple:
+        return np.empty((K, n)), np.empty((K, n, n)), np.empty((K, N, n)) if keep else None
+
+    x_new, S_new, propagated = _results(buffers, (4, K, n, N, keep), make)
     form = plan.first.rows.best
+    none = kernels.no_set(n)
 
     def one(rows: slice) -> dict[int, str]:
         found: dict[int, str] = {}
-        xs, Ss = x[rows], S[rows]
-        X = route.first_points(xs, Ss) if first is None else first[rows]
+        xs, Ss = kernels.kernel_array(x[rows]), kernels.kernel_array(S[rows])
+        scratch = _scratch()
+        X = route.first_points(xs, Ss, scratch) if first is None else first[rows]
         F = stacked_shape(images(rows, X), X.shape, _label("fx values", rows, K), False, ("fx", X.shape))
         F = kernels.kernel_array(
             F
@@ -341,13 +369,13 @@ def predict(
         Qr = rows_of(Q1_2, rows, 2)
         xo, So = x_new[rows], S_new[rows]
         if route.plain_x:  # the kernel checks the images and reports each filter's failure
-            mean, Sm, status, _ = route.prior(F, Qr, None, False)
+            k = xs.shape[0]
+            status = scratch.take((5, k), lambda: (np.empty(k, dtype=np.int64),))[0]
+            route.prior(F, Qr, None, False, out=(xo, So, status, none, none))  # into the step's results
             good = _flag(status, on, found, form, "prior", F, "fx values")
-            if good.all():
-                xo[...], So[...] = mean, Sm
-            else:
-                xo[...], So[...] = xs, Ss
-                xo[good], So[good] = mean[good], Sm[good]
+            if not good.all():  # a failing or inactive filter keeps its estimate
+                bad = ~good
+                xo[bad], So[bad] = xs[bad], Ss[bad]
         else:  # the hooks raise: the chunk is run again a filter at a time to find the failing ones
             finite = finite_images(F, "fx values", on, found)
 
@@ -406,6 +434,7 @@ def update(
     images: Callable[[slice, SigmaSet], object],
     fails: dict[int, str],
     size: int | None = None,
+    buffers: Buffers | None = None,
 ) -> Posteriors:
     """The update of a stack of filters, a chunk at a time, failing filters flagged alone.
 
@@ -431,7 +460,7 @@ def update(
     images : callable
         ``images(rows, sset)``: the model at the second sets ``sset`` of the
         filters ``rows`` (a slice), shape ``(k, N2, m)``.
-    fails, size
+    fails, size, buffers
         As for :func:`predict`.
 
     Returns
@@ -439,34 +468,67 @@ def update(
     Posteriors
     """
     K, m = z.shape
+    n = x.shape[1]
     z = kernels.kernel_array(z)  # (one step's column of a run's measurements)
-    out = Posteriors(
-        np.empty_like(x), np.empty_like(S), np.empty((K, m)), np.empty(K), np.empty(K),
-        np.empty((K, m), dtype=bool),
-    )  # fmt: skip
+
+    def make() -> tuple:
+        return (
+            np.empty((K, n)), np.empty((K, n, n)), np.empty((K, m)), np.empty(K), np.empty(K),
+            np.empty((K, m), dtype=bool),
+        )  # fmt: skip
+
+    out = Posteriors(*_results(buffers, (5, K, n, m), make))
     observed = ~np.isnan(z)
 
     def one(rows: slice) -> dict[int, str]:
         found: dict[int, str] = {}
-        xs, Ss = x[rows], S[rows]
+        xs, Ss = kernels.kernel_array(x[rows]), kernels.kernel_array(S[rows])
+        scratch = _scratch()
         if sset is not None:
             s = take_set(sset, rows)
         else:
             prop = None if propagated is None else propagated[rows]
-            s = route.second_set(xs, Ss, prop, rows_of(Q1_2, rows, 2))
+            s = route.second_set(xs, Ss, prop, rows_of(Q1_2, rows, 2), scratch)
         shape = s.sigmas.shape[:-1] + (m,)
         H = stacked_shape(images(rows, s), shape, _label("hx values", rows, K), False, ("hx", s.sigmas.shape))
         H = kernels.kernel_array(H)
         on = active[rows]
-        if route.update_route(s, None) is None:  # the hooks raise: non-finite images flagged first
+        zr, obs, Rr = z[rows], observed[rows], rows_of(R1_2, rows, 2)
+        plain = route.update_route(s, None) is not None
+        if plain and obs.all() and route.gate is None:  # the usual case: the kernel writes the step's arrays
+            _whole_chunk(route, s, xs, Ss, H, zr, Rr, on, found, [a[rows] for a in out], scratch)
+            return {rows.start + i: why for i, why in found.items()}
+        if not plain:  # the hooks raise: non-finite images flagged first
             on = on & finite_images(H, "hx values", on, found)
-        records = _posteriors(route, s, xs, Ss, H, z[rows], observed[rows], rows_of(R1_2, rows, 2), on, found)
+        records = _posteriors(route, s, xs, Ss, H, zr, obs, Rr, on, found)
         for whole, part in zip(out, records):
             whole[rows] = part
         return {rows.start + i: why for i, why in found.items()}
 
     _map_chunks(one, K, size, fails)
     return out
+
+
+def _whole_chunk(route: Route, sset, x0, S0, H, z, R1_2, on, found, out: list, scratch: Buffers) -> None:
+    """A chunk's update with every component measured and no gate, the joint kernel writing the step's
+    arrays ``out`` (``x, S, y, loglik, nis, rejected`` rows) directly; a failing or inactive filter keeps its
+    prior, with no innovation and no likelihood."""
+    x, S, y, ll, nis, rejected = out
+    k, m = z.shape
+    n = x0.shape[1]
+    zp, w, Sy, L21, dx, status = scratch.take(
+        (6, k, n, m),
+        lambda: (np.empty((k, m)), np.empty((k, m)), np.empty((k, m, m)), np.empty((k, n, m)),
+                 np.empty((k, n)), np.empty(k, dtype=np.int64)),
+    )  # fmt: skip
+    kernel_out = (zp, y, w, Sy, L21, dx, x, S, ll, nis, status, kernels.no_set(n))
+    _, status, _ = route.posterior(sset, x0, S0, H, z, None, R1_2, None, False, out=kernel_out)
+    good = _flag(status, on, found, route.form_of(sset, None), "update", H, "hx values")
+    rejected[...] = False
+    if not good.all():
+        bad = ~good
+        x[bad], S[bad] = x0[bad], S0[bad]
+        y[bad], ll[bad], nis[bad] = np.nan, 0.0, 0.0
 
 
 def _posteriors(route: Route, sset, x0, S0, H, z, observed, R1_2, todo, found) -> tuple:
