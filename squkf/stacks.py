@@ -134,7 +134,7 @@ def _scratch() -> Buffers:
 
 
 def _results(buffers: Buffers | None, key: tuple, make: Callable[[], tuple]) -> tuple:
-    """A step's ``(K, ...)`` results: ``buffers``' spare set (the fleet's, committed with the step), or new."""
+    """A step's ``(K, ...)``: ``buffers``' spare set (the fleet's, committed with the step), or new arrays."""
     return make() if buffers is None else buffers.take(key, make)
 
 
