@@ -299,7 +299,7 @@ class Fleet:
         if handed is not None and "_handed" in self.__dict__:  # the value behind it changed
             self._handed.drop(handed)  # the array handed out is history
 
-    # -- state and noise: handed out (edits in place taken by boundary.edits.HandOut) -------
+    # -- state and noise: handed out (edits in place taken by boundary.covariance.HandOut) -------
 
     @property
     def x(self) -> np.ndarray:

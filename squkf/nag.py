@@ -1,6 +1,6 @@
 """g13ej's own calling sequence: ``kalman_unscented_state_revcom``.
 
-A thin adapter over the step transitions of :mod:`squkf.step` (the same core as
+A thin adapter over one filter's engine (:class:`squkf.engine.Engine`, the same core as
 :class:`squkf.SquareRootUKF`) with the argument order of NAG's Python
 interface (``naginterfaces.library.tsa.kalman_unscented_state_revcom``)::
 

@@ -59,7 +59,7 @@ class Config(NamedTuple):
         Lower factors of ``Q`` and ``R``: ``(d, d)``, or ``(K, d, d)`` per filter
         of a fleet; ``Q1_2`` None when there is no process noise.
     step : str
-        The phase of one filter's pending ask/tell step (``squkf.step.IDLE``,
+        The phase of one filter's pending ask/tell step (``squkf.plan.IDLE``,
         ...), which ``Fleet.from_filters`` checks; a fleet's is left idle
         (``fleet[k]`` checks the fleet's own).
     """
