@@ -252,15 +252,16 @@ class Buffers:
 
     __slots__ = ("sets", "taken")
 
-    def __init__(self):
-        self.sets: dict[tuple, list] = {}  # key -> [set 0, set 1, the set to write next]
+    def __init__(self) -> None:
+        self.sets: dict[tuple, list] = {}  # (make, *args) -> [set 0, set 1, the set to write next]
         self.taken: list[list] = []
 
-    def take(self, key: tuple, make: Callable[[], tuple]) -> tuple:
-        """The set of ``key`` to write now (``make()`` builds one, twice, on the first call)."""
+    def take(self, make: Callable[..., tuple], *args) -> tuple:
+        """The set ``make(*args)`` to write now (made twice, on the first call with these arguments)."""
+        key = (make, *args)
         pair = self.sets.get(key)
         if pair is None:
-            pair = self.sets[key] = [make(), make(), 0]
+            pair = self.sets[key] = [make(*args), make(*args), 0]
         self.taken.append(pair)
         return pair[pair[2]]
 
@@ -275,37 +276,39 @@ class Buffers:
         self.taken.clear()
 
 
-def _prior_out(B: int, n: int, N2: int, offsets: bool) -> Callable[[], tuple]:
+class Scratch(Buffers):
+    """Arrays no result outlives (a fleet chunk's points and statuses): one set per shape, never committed."""
+
+    __slots__ = ()
+
+    def take(self, make: Callable[..., tuple], *args) -> tuple:
+        """The set ``make(*args)``, made on the first call with these arguments."""
+        key = (make, *args)
+        made = self.sets.get(key)
+        if made is None:
+            made = self.sets[key] = make(*args)  # type: ignore[assignment]
+        return made  # type: ignore[return-value]
+
+
+def _prior_out(B: int, n: int, N2: int, offsets: bool) -> tuple:
     """The prediction kernel's outputs: mean, factor, status, the second set and its offsets."""
-
-    def make() -> tuple:
-        X2 = np.empty((B, N2, n))
-        D2 = np.empty(X2.shape) if offsets else kernels.no_set(n)
-        return np.empty((B, n)), np.empty((B, n, n)), np.empty(B, dtype=np.int64), X2, D2
-
-    return make
+    X2 = np.empty((B, N2, n))
+    D2 = np.empty(X2.shape) if offsets else kernels.no_set(n)
+    return np.empty((B, n)), np.empty((B, n, n)), np.empty(B, dtype=np.int64), X2, D2
 
 
-def _points_out(B: int, N: int, n: int, offsets: bool) -> Callable[[], tuple]:
+def _points_out(B: int, N: int, n: int, offsets: bool) -> tuple:
     """A set of points ``(B, N, n)`` and their offsets (or no array for them)."""
-
-    def make() -> tuple:
-        return np.empty((B, N, n)), np.empty((B, N, n)) if offsets else kernels.no_set(n)
-
-    return make
+    return np.empty((B, N, n)), np.empty((B, N, n)) if offsets else kernels.no_set(n)
 
 
-def _posterior_out(B: int, n: int, m: int, N1: int) -> Callable[[], tuple]:
+def _posterior_out(B: int, n: int, m: int, N1: int) -> tuple:
     """The update kernel's outputs (as its arguments), and the next first set (``N1`` points, 0: none)."""
-
-    def make() -> tuple:
-        return (
-            np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m)), np.empty((B, n, m)),
-            np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B),
-            np.empty(B, dtype=np.int64), np.empty((B, N1, n)) if N1 else kernels.no_set(n),
-        )  # fmt: skip
-
-    return make
+    return (
+        np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m)), np.empty((B, n, m)),
+        np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B),
+        np.empty(B, dtype=np.int64), np.empty((B, N1, n)) if N1 else kernels.no_set(n),
+    )  # fmt: skip
 
 
 class Route:
@@ -328,14 +331,15 @@ class Route:
     """
 
     __slots__ = (
-        "plan", "hooks", "gate", "single", "plain_x", "plain_add", "_updates", "_observed_R", "_zeros",
-        "_noise",
+        "plan", "hooks", "gate", "single", "plain_x", "plain_add", "no_set", "_updates", "_observed_R",
+        "_zeros", "_noise",
     )  # fmt: skip
 
     def __init__(self, plan: Plan, hooks: Hooks, gate, single: bool):
         self.plan, self.hooks, self.gate, self.single = plan, hooks, gate, single
         self.plain_x = hooks.x_mean_fn is None and hooks.residual_x is None
         self.plain_add = hooks.state_add is None
+        self.no_set = kernels.no_set(plan.n)  # a kernel's set output when it draws none
         self._updates: dict = {}
         self._observed_R = _ObservedR()
         self._zeros: dict[
@@ -384,9 +388,9 @@ class Route:
             first = plan.first
             return self._block(sigma_points_from_factor(self._one(x), self._one(S), first.xi, add))
         B, n = x.shape
-        make = _points_out(B, plan.xi1.shape[0], n, False)
-        X = make()[0] if buffers is None else buffers.take((2, B, plan.xi1.shape[0], n), make)[0]
-        kernels.KERNELS.points(x, S, plan.xi1, plan.gamma1, X, kernels.no_set(n))
+        N = plan.xi1.shape[0]
+        X = (_points_out(B, N, n, False) if buffers is None else buffers.take(_points_out, B, N, n, False))[0]
+        kernels.KERNELS.points(x, S, plan.xi1, plan.gamma1, X, self.no_set)
         return X
 
     def prior(
@@ -426,12 +430,12 @@ class Route:
             else:
                 code, xi2, gamma2 = (2 if fused.augmented else 1), fused.xi, fused.gamma
                 N2, with_offsets = fused.xi.shape[0] + (N if fused.augmented else 0), not fused.augmented
-            make = _prior_out(B, n, N2, with_offsets)
             if out is not None:
                 mean, S, status, X2, D2 = out
+            elif buffers is None:
+                mean, S, status, X2, D2 = _prior_out(B, n, N2, with_offsets)
             else:
-                key = (0, B, n, N2, with_offsets)
-                mean, S, status, X2, D2 = make() if buffers is None else buffers.take(key, make)
+                mean, S, status, X2, D2 = buffers.take(_prior_out, B, n, N2, with_offsets)
             noise = kernels.no_noise(n) if Q1_2 is None else self.stacked(Q1_2, 0)
             kernels.KERNELS.transform(
                 F, self.zeros(n), plan.mode1, plan.wm1, plan.scale1, plan.sign1, noise, mean, S, status,
@@ -476,8 +480,9 @@ class Route:
         if fused is not None and not fused.augmented and self.plain_add:
             B, n = x.shape
             N2 = fused.xi.shape[0]
-            make = _points_out(B, N2, n, True)
-            X2, D2 = make() if buffers is None else buffers.take((3, B, N2, n), make)
+            X2, D2 = (
+                _points_out(B, N2, n, True) if buffers is None else buffers.take(_points_out, B, N2, n, True)
+            )
             kernels.KERNELS.points(x, S, fused.xi, fused.gamma, X2, D2)
             rows = fused.rows
             return SigmaSet(X2, rows.Wm, rows.Wc, fused.exact, D2, rows, fused.axis)
@@ -573,8 +578,9 @@ class Route:
         draw = draw_first and plan.w_xi is None  # (noise entering fx: the first set has a noise part)
         N1 = plan.xi1.shape[0] if draw else 0
         if out is None:
-            make = _posterior_out(B, n, m, N1)
-            out = make() if buffers is None else buffers.take((1, B, n, m, N1), make)
+            out = (
+                _posterior_out(B, n, m, N1) if buffers is None else buffers.take(_posterior_out, B, n, m, N1)
+            )
         zp, y, w, Sy, L21, dx, xo, So, ll, ww, status, X1 = out
         Rs = self.stacked(Ro, 1)
         Xs = sset.offsets if route.offsets else sset.sigmas

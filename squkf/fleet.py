@@ -45,7 +45,7 @@ from .boundary.checks import (
     reset_rows,
 )
 from .boundary.config import Config, filter_kwargs, filter_of, stacked
-from .boundary.covariance import HandOut
+from .boundary.covariance import HandOut, Hook
 from .boundary.loop import Transaction, annotate_step, check_keep, check_progress, progress_callback
 from .boundary.records import FleetResult, Records, failures_error, new_records
 from .engine import Buffers, Route
@@ -64,8 +64,6 @@ __all__ = ["Fleet", "FleetResult", "FleetStepError"]
 
 # the internal array behind each attribute handed out for editing in place
 HANDED = {"_x": "x", "_S": "P", "_Q1_2": "Q", "_R1_2": "R"}
-# the hooks: assigning one builds the engine's route again
-_HOOKS = frozenset({"x_mean", "z_mean", "residual_x", "residual_z", "state_add"})
 
 
 def _record(name: str, doc: str, covariance: bool = False) -> property:
@@ -96,6 +94,9 @@ class _Pending:
     def __setstate__(self, state) -> None:
         for k, v in zip(self.__slots__, state):
             object.__setattr__(self, k, v)
+
+
+_IDLE_STEP = _Pending()  # no step pending (a _Pending is never changed in place)
 
 
 class Fleet:
@@ -228,7 +229,7 @@ class Fleet:
         self._S = np.broadcast_to(np.eye(n), (K, n, n)).copy()
         self._Q1_2: np.ndarray | None = np.eye(self._qd)
         self._R1_2: np.ndarray = np.eye(self._rd)
-        self._pending = _Pending()
+        self._pending = _IDLE_STEP
         self._buffers = Buffers()  # the step's (K, ...) results, two sets used in turn
         self._failed = np.zeros(K, dtype=bool)
         self._failure = np.full(K, "", dtype=object)
@@ -291,13 +292,15 @@ class Fleet:
             route = self._route = Route(self._plan, self._hooks(), self._gate, single=False)
         return route
 
-    def __setattr__(self, name: str, value) -> None:
-        object.__setattr__(self, name, value)
-        if name in _HOOKS:
-            object.__setattr__(self, "_route", None)
-        handed = HANDED.get(name)
-        if handed is not None and "_handed" in self.__dict__:  # the value behind it changed
-            self._handed.drop(handed)  # the array handed out is history
+    # the hooks: assigning one builds the engine's route again (at the next step)
+    x_mean = Hook()
+    z_mean = Hook()
+    residual_x = Hook()
+    residual_z = Hook()
+    state_add = Hook()
+
+    def _hooks_assigned(self) -> None:
+        self._route = None
 
     # -- state and noise: handed out (edits in place taken by boundary.covariance.HandOut) -------
 
@@ -309,7 +312,8 @@ class Fleet:
     @x.setter
     def x(self, value):
         self._x = checks.per_filter(value, "x", self._K, (self._n,))
-        self._pending = _Pending()
+        self._handed.drop("x")  # the array handed out is history
+        self._pending = _IDLE_STEP
 
     @property
     def P1_2(self) -> np.ndarray:
@@ -320,7 +324,8 @@ class Fleet:
     @P1_2.setter
     def P1_2(self, value):
         self._S = lower_factors(value, "P1_2", self._n, self._K)
-        self._pending = _Pending()
+        self._handed.drop("P")
+        self._pending = _IDLE_STEP
 
     @property
     def P(self) -> np.ndarray:
@@ -330,7 +335,8 @@ class Fleet:
     @P.setter
     def P(self, value):
         self._S = covariance_factors(value, "P", self._n, self._K)
-        self._pending = _Pending()
+        self._handed.drop("P")
+        self._pending = _IDLE_STEP
 
     @property
     def Q(self) -> np.ndarray:
@@ -345,6 +351,7 @@ class Fleet:
     def Q(self, value):
         S = noise_factors(value, "Q", self._qd, self._K)
         self._Q1_2 = None if S is None or not np.any(S) else S
+        self._handed.drop("Q")
 
     @property
     def Q1_2(self) -> np.ndarray:
@@ -355,6 +362,7 @@ class Fleet:
     @Q1_2.setter
     def Q1_2(self, value):
         self._Q1_2 = given_noise_factors(value, "Q1_2", self._qd, self._K)
+        self._handed.drop("Q")
 
     @property
     def R(self) -> np.ndarray:
@@ -365,6 +373,7 @@ class Fleet:
     def R(self, value):
         S = noise_factors(value, "R", self._rd, self._K)
         self._R1_2 = np.zeros((self._rd, self._rd)) if S is None else S
+        self._handed.drop("R")
 
     @property
     def R1_2(self) -> np.ndarray:
@@ -376,10 +385,11 @@ class Fleet:
     def R1_2(self, value):
         S = given_noise_factors(value, "R1_2", self._rd, self._K)
         self._R1_2 = np.zeros((self._rd, self._rd)) if S is None else S
+        self._handed.drop("R")
 
     def _take_edits(self) -> None:
         """Take the edits in place of ``x``, ``P``, ``Q``, ``R`` through their setters (which may raise)."""
-        if self._handed:
+        if self._handed.held:
             self._handed.take(HANDED.values(), lambda name, a: setattr(self, name, a))
 
     @property
@@ -451,16 +461,17 @@ class Fleet:
         idx = np.flatnonzero(self._failed) if filters is None else np.arange(self._K)[filters]
         idx = np.atleast_1d(idx)
         self._x, self._S = reset_rows(x, P, idx, self._x, self._S)
+        self._handed.drop("x", "P")
         self._failed[idx] = False
         self._failure[idx] = ""
-        self._pending = _Pending()
+        self._pending = _IDLE_STEP
 
     # -- the step -----------------------------------------------------------------
 
     def ask_predict(self) -> np.ndarray:
         """First half of a prediction: the first sigma-point sets, shape ``(K, N, dim_x)`` (fresh)."""
         self._take_edits()
-        X = self._route_now().first_points(self._x, self._S)
+        X = (self._route or self._route_now()).first_points(self._x, self._S)
         self._pending = _Pending(PREDICTING, X)
         return handed_points(X, self._plan.w_xi, self._Q1_2, (self._K,))
 
@@ -480,7 +491,8 @@ class Fleet:
             cut to the filters of each call.
         """
         dt = self._dt if dt is None else check_time_step(dt)
-        self._take_edits()
+        if self._handed.held:
+            self._take_edits()
         self._predict(self._fx_images(dt, fx_args), None)
 
     def tell_predict(self, sigmas_f) -> None:
@@ -497,7 +509,7 @@ class Fleet:
         sset = p.sset
         if sset is None:
             x, S = p.prior
-            sset = self._route_now().second_set(x, S, p.propagated, p.Q1_2)
+            sset = (self._route or self._route_now()).second_set(x, S, p.propagated, p.Q1_2)
         p = _Pending(UPDATING, None, p.prior, p.propagated, p.Q1_2, sset)
         self._pending = p
         return handed_points(p.sset.sigmas, self._plan.v_xi, self._R1_2, (self._K,))
@@ -518,7 +530,8 @@ class Fleet:
             Passed to ``hx`` (per-filter arrays as for :meth:`predict`).
         """
         zz = checks.measurements(z, self._K, self._m)
-        self._take_edits()
+        if self._handed.held:
+            self._take_edits()
         R1_2 = self._R1_2 if R is None else noise_factors(R, "R", self._rd, self._K)
         self._update(self._pending_update(), self._hx_images(R1_2, hx_args), zz, R1_2)
 
@@ -542,7 +555,8 @@ class Fleet:
 
     def _fx_images(self, dt: float, fx_args: dict) -> Callable:
         """``images(rows, X)``: ``fx`` at the first sets ``X`` of the filters ``rows``, arguments cut."""
-        kwargs, K, plan, Q = checks.with_filter_axis(fx_args, self._K), self._K, self._plan, self._Q1_2
+        kwargs = checks.with_filter_axis(fx_args, self._K) if fx_args else fx_args
+        K, plan, Q = self._K, self._plan, self._Q1_2
         fx = self.fx
 
         def images(rows: slice, X: np.ndarray):
@@ -555,7 +569,8 @@ class Fleet:
 
     def _hx_images(self, R1_2: np.ndarray | None, hx_args: dict) -> Callable:
         """``images(rows, sset)``: ``hx`` at the second sets of the filters ``rows``, arguments cut."""
-        kwargs, K, plan = checks.with_filter_axis(hx_args, self._K), self._K, self._plan
+        kwargs = checks.with_filter_axis(hx_args, self._K) if hx_args else hx_args
+        K, plan = self._K, self._plan
         hx = self.hx
 
         def images(rows: slice, sset):
@@ -593,8 +608,9 @@ class Fleet:
         Q = None if self._plan.w_xi is not None else self._Q1_2  # noise entering fx is in the points already
         buffers = self._buffers
         buffers.abandon()
+        route = self._route or self._route_now()
         prior = stacks.predict(
-            self._route_now(), self._x, self._S, Q, ~self._failed, images, fails, first, self._chunk, buffers
+            route, self._x, self._S, Q, ~self._failed, images, fails, first, self._chunk, buffers
         )
         if fails and self.on_error == "raise":
             raise failures_error(fails)
@@ -602,7 +618,10 @@ class Fleet:
         # commit; the second set is drawn by the update, a chunk at a time (memory)
         self._pending = _Pending(PRIOR, None, (prior.x, prior.S), prior.propagated, Q)
         self._x, self._S = prior.x, prior.S
-        self._flag(fails)
+        if self._handed.held:
+            self._handed.drop("x", "P")
+        if fails:
+            self._flag(fails)
         self._x_prior, self._S_prior = prior.x, prior.S  # never written in place: copied when read
 
     def _flag(self, fails: dict[int, str]) -> None:
@@ -618,17 +637,21 @@ class Fleet:
         x, S = pending.prior  # type: ignore[misc]
         buffers = self._buffers
         buffers.abandon()
+        route = self._route or self._route_now()
         post = stacks.update(
-            self._route_now(), x, S, pending.sset, pending.propagated, pending.Q1_2, z, R1_2, active, images,
+            route, x, S, pending.sset, pending.propagated, pending.Q1_2, z, R1_2, active, images,
             fails, self._chunk, buffers,
         )  # fmt: skip
         if fails and self.on_error == "raise":
             raise failures_error(fails)
         buffers.commit()
         # commit
-        self._pending = _Pending()
+        self._pending = _IDLE_STEP
         self._x, self._S = post.x, post.S
-        self._flag(fails)
+        if self._handed.held:
+            self._handed.drop("x", "P")
+        if fails:
+            self._flag(fails)
         self._x_post, self._S_post = post.x, post.S  # never written in place: copied when read
         self.y, self._loglik = post.y, post.log_likelihood
         self._nis, self._rejected = post.nis, post.rejected
@@ -636,7 +659,7 @@ class Fleet:
     def _no_update(self) -> None:
         """The records of a step in which no filter had a measurement, as :meth:`update` would leave them."""
         K, m = self._K, self._m
-        self._pending = _Pending()
+        self._pending = _IDLE_STEP
         # the record's own copies: the estimate may live in the arrays the next prediction writes
         self._x_post, self._S_post = self._x.copy(), self._S.copy()
         self.y, self._loglik = np.full((K, m), np.nan), np.zeros(K)
@@ -790,8 +813,9 @@ class Fleet:
         new._x, new._S = self._x[idx], self._S[idx]
         new._Q1_2 = rows_of(self._Q1_2, idx, 2)
         new._R1_2 = rows_of(self._R1_2, idx, 2)  # type: ignore[assignment]
+        new._handed = HandOut()  # the arrays handed out are this fleet's
         new._failed, new._failure = self._failed[idx], self._failure[idx]
-        new._pending = _Pending()
+        new._pending = _IDLE_STEP
         new._x_prior, new._x_post = self._x_prior[idx], self._x_post[idx]
         new._S_prior, new._S_post = self._S_prior[idx], self._S_post[idx]
         new.y, new._loglik = self.y[idx], self._loglik[idx]

@@ -29,7 +29,7 @@ import numpy as np
 
 from . import kernels
 from .boundary.checks import finite_images, stacked_shape
-from .engine import Buffers, Route, failure
+from .engine import Buffers, Route, Scratch, failure
 from .errors import NonFiniteError, NotPositiveDefiniteError, SqukfError
 from .generators import SigmaSet
 from .validate import describe_nonfinite
@@ -112,30 +112,68 @@ def _map_chunks(
 ) -> None:
     """``one`` over the chunks of a step of ``K`` filters, on the threads of :func:`squkf.set_num_threads`.
 
-    The step holds the thread count it starts with (:func:`squkf.kernels.step_threads`):
+    The step holds the thread count it starts with (:func:`squkf.kernels.enter_step`):
     its chunks are cut for it and run on its threads whatever the count is set to meanwhile.
     """
-    with kernels.step_threads() as threads:
-        cut = chunks(K, default_chunk(threads, K) if size is None else size, threads)
-        for part in kernels.thread_map(one, cut):
+    held, own = kernels.enter_step()
+    try:
+        threads = held.n
+        if size is None:
+            size = CHUNK if threads == 1 else default_chunk(threads, K)
+        if K <= size:  # one chunk: on this thread
+            found = one(slice(0, K))
+            if found:
+                fails.update(found)
+            return
+        for part in kernels.thread_map(one, chunks(K, size, threads)):
             fails.update(part)
+    finally:
+        kernels.exit_step(held, own)
 
 
 _local = threading.local()
 
 
-def _scratch() -> Buffers:
+def _scratch() -> Scratch:
     """This thread's chunk arrays (points, the kernels' outputs a chunk does not keep), made once per shape
-    and used by each chunk in turn (nothing of a chunk's outlives it; never committed)."""
+    and used by each chunk in turn (nothing of a chunk's outlives it)."""
     scratch = getattr(_local, "scratch", None)
     if scratch is None:
-        scratch = _local.scratch = Buffers()
+        scratch = _local.scratch = Scratch()
     return scratch
 
 
-def _results(buffers: Buffers | None, key: tuple, make: Callable[[], tuple]) -> tuple:
-    """A step's ``(K, ...)``: ``buffers``' spare set (the fleet's, committed with the step), or new arrays."""
-    return make() if buffers is None else buffers.take(key, make)
+def _prior_results(K: int, n: int, N: int, keep: bool) -> tuple:
+    """A fleet prediction's ``(K, ...)`` results: means, factors, the images where the update reads them."""
+    return np.empty((K, n)), np.empty((K, n, n)), np.empty((K, N, n)) if keep else None
+
+
+def _update_results(K: int, n: int, m: int) -> tuple:
+    """A fleet update's ``(K, ...)`` results, as :class:`Posteriors` holds them."""
+    return (
+        np.empty((K, n)), np.empty((K, n, n)), np.empty((K, m)), np.empty(K), np.empty(K),
+        np.empty((K, m), dtype=bool),
+    )  # fmt: skip
+
+
+def _as_kernels_take(x: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The estimates as the kernels take them (float64, C-contiguous, writeable): so are their chunks."""
+    fx, fS = x.flags, S.flags
+    if fx.c_contiguous and fx.writeable and fS.c_contiguous and fS.writeable and x.dtype == S.dtype == float:
+        return x, S
+    return kernels.kernel_array(x), kernels.kernel_array(S)
+
+
+def _statuses(k: int) -> tuple:
+    return (np.empty(k, dtype=np.int64),)
+
+
+def _chunk_update(k: int, n: int, m: int) -> tuple:
+    """The joint kernel's outputs a chunk does not keep: ``zp, w, Sy, L21, dx, status``."""
+    return (
+        np.empty((k, m)), np.empty((k, m)), np.empty((k, m, m)), np.empty((k, n, m)), np.empty((k, n)),
+        np.empty(k, dtype=np.int64),
+    )  # fmt: skip
 
 
 def rows_of(a: np.ndarray | None, idx, core: int) -> np.ndarray | None:
@@ -345,32 +383,32 @@ def predict(
     Prior
     """
     K, n = x.shape
+    x, S = _as_kernels_take(x, S)
     plan = route.plan
     N = plan.xi1.shape[0]
     keep = plan.keeps_propagated
 
-    def make() -> tuple:
-        return np.empty((K, n)), np.empty((K, n, n)), np.empty((K, N, n)) if keep else None
-
-    x_new, S_new, propagated = _results(buffers, (4, K, n, N, keep), make)
+    if buffers is None:
+        x_new, S_new, propagated = _prior_results(K, n, N, keep)
+    else:
+        x_new, S_new, propagated = buffers.take(_prior_results, K, n, N, keep)
     form = plan.first.rows.best
-    none = kernels.no_set(n)
+    none = route.no_set
 
     def one(rows: slice) -> dict[int, str]:
         found: dict[int, str] = {}
-        xs, Ss = kernels.kernel_array(x[rows]), kernels.kernel_array(S[rows])
-        scratch = _scratch()
+        xs, Ss = x[rows], S[rows]  # (the fleet's own C-contiguous arrays: their rows are as the kernels take)
+        scratch = getattr(_local, "scratch", None) or _scratch()
         X = route.first_points(xs, Ss, scratch) if first is None else first[rows]
-        F = stacked_shape(images(rows, X), X.shape, _label("fx values", rows, K), False, ("fx", X.shape))
-        F = kernels.kernel_array(
-            F
-        )  # (a model's array of another layout: copied once, as the kernels take it)
+        label = "fx values" if rows.stop - rows.start == K else _label("fx values", rows, K)
+        F = stacked_shape(images(rows, X), X.shape, label, False, ("fx", X.shape))
+        F = kernels.kernel_array(F)  # (a model's array of another layout: copied once, as kernels take it)
         on = active[rows]
-        Qr = rows_of(Q1_2, rows, 2)
+        Qr = Q1_2 if Q1_2 is None or Q1_2.ndim == 2 else Q1_2[rows]
         xo, So = x_new[rows], S_new[rows]
         if route.plain_x:  # the kernel checks the images and reports each filter's failure
             k = xs.shape[0]
-            status = scratch.take((5, k), lambda: (np.empty(k, dtype=np.int64),))[0]
+            status = scratch.take(_statuses, k)[0]
             route.prior(F, Qr, None, False, out=(xo, So, status, none, none))  # into the step's results
             good = _flag(status, on, found, form, "prior", F, "fx values")
             if not good.all():  # a failing or inactive filter keeps its estimate
@@ -390,7 +428,7 @@ def predict(
                 xo[good_ix], So[good_ix] = res
         if propagated is not None:
             propagated[rows] = F
-        return {rows.start + i: why for i, why in found.items()}
+        return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
 
     _map_chunks(one, K, size, fails)
     return Prior(x_new, S_new, propagated)
@@ -470,58 +508,51 @@ def update(
     K, m = z.shape
     n = x.shape[1]
     z = kernels.kernel_array(z)  # (one step's column of a run's measurements)
+    x, S = _as_kernels_take(x, S)
 
-    def make() -> tuple:
-        return (
-            np.empty((K, n)), np.empty((K, n, n)), np.empty((K, m)), np.empty(K), np.empty(K),
-            np.empty((K, m), dtype=bool),
-        )  # fmt: skip
-
-    out = Posteriors(*_results(buffers, (5, K, n, m), make))
+    results = _update_results(K, n, m) if buffers is None else buffers.take(_update_results, K, n, m)
+    out = Posteriors(*results)
     observed = ~np.isnan(z)
 
     def one(rows: slice) -> dict[int, str]:
         found: dict[int, str] = {}
-        xs, Ss = kernels.kernel_array(x[rows]), kernels.kernel_array(S[rows])
-        scratch = _scratch()
+        xs, Ss = x[rows], S[rows]  # (the fleet's own C-contiguous arrays: their rows are as the kernels take)
+        scratch = getattr(_local, "scratch", None) or _scratch()
         if sset is not None:
             s = take_set(sset, rows)
         else:
             prop = None if propagated is None else propagated[rows]
             s = route.second_set(xs, Ss, prop, rows_of(Q1_2, rows, 2), scratch)
         shape = s.sigmas.shape[:-1] + (m,)
-        H = stacked_shape(images(rows, s), shape, _label("hx values", rows, K), False, ("hx", s.sigmas.shape))
-        H = kernels.kernel_array(H)
+        label = "hx values" if rows.stop - rows.start == K else _label("hx values", rows, K)
+        H = kernels.kernel_array(stacked_shape(images(rows, s), shape, label, False, ("hx", s.sigmas.shape)))
         on = active[rows]
-        zr, obs, Rr = z[rows], observed[rows], rows_of(R1_2, rows, 2)
+        zr, obs, Rr = z[rows], observed[rows], R1_2 if R1_2.ndim == 2 else R1_2[rows]
         plain = route.update_route(s, None) is not None
-        if plain and obs.all() and route.gate is None:  # the usual case: the kernel writes the step's arrays
-            _whole_chunk(route, s, xs, Ss, H, zr, Rr, on, found, [a[rows] for a in out], scratch)
-            return {rows.start + i: why for i, why in found.items()}
+        if plain and route.gate is None and obs.all():  # the usual case: the kernel writes the step's arrays
+            part = out if rows.stop - rows.start == K else [a[rows] for a in out]
+            _whole_chunk(route, s, xs, Ss, H, zr, Rr, on, found, part, scratch)
+            return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
         if not plain:  # the hooks raise: non-finite images flagged first
             on = on & finite_images(H, "hx values", on, found)
         records = _posteriors(route, s, xs, Ss, H, zr, obs, Rr, on, found)
-        for whole, part in zip(out, records):
-            whole[rows] = part
-        return {rows.start + i: why for i, why in found.items()}
+        for record, rows_record in zip(out, records):
+            record[rows] = rows_record
+        return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
 
     _map_chunks(one, K, size, fails)
     return out
 
 
-def _whole_chunk(route: Route, sset, x0, S0, H, z, R1_2, on, found, out: list, scratch: Buffers) -> None:
+def _whole_chunk(route: Route, sset, x0, S0, H, z, R1_2, on, found, out, scratch: Scratch) -> None:
     """A chunk's update with every component measured and no gate, the joint kernel writing the step's
     arrays ``out`` (``x, S, y, loglik, nis, rejected`` rows) directly; a failing or inactive filter keeps its
     prior, with no innovation and no likelihood."""
     x, S, y, ll, nis, rejected = out
     k, m = z.shape
     n = x0.shape[1]
-    zp, w, Sy, L21, dx, status = scratch.take(
-        (6, k, n, m),
-        lambda: (np.empty((k, m)), np.empty((k, m)), np.empty((k, m, m)), np.empty((k, n, m)),
-                 np.empty((k, n)), np.empty(k, dtype=np.int64)),
-    )  # fmt: skip
-    kernel_out = (zp, y, w, Sy, L21, dx, x, S, ll, nis, status, kernels.no_set(n))
+    zp, w, Sy, L21, dx, status = scratch.take(_chunk_update, k, n, m)
+    kernel_out = (zp, y, w, Sy, L21, dx, x, S, ll, nis, status, route.no_set)
     _, status, _ = route.posterior(sset, x0, S0, H, z, None, R1_2, None, False, out=kernel_out)
     good = _flag(status, on, found, route.form_of(sset, None), "update", H, "hx values")
     rejected[...] = False

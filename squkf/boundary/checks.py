@@ -217,7 +217,10 @@ def measurements(z, K: int, m: int, name: str = "z") -> np.ndarray:
             f"{name} is None: a fleet's step needs a ({K}, {m}) array"
             " (NaN rows for filters without a measurement)"
         )
-    zz = as_measurements(z, name)
+    if type(z) is np.ndarray and z.dtype == np.float64 and z.shape == (K, m):
+        zz = z.copy()  # (the usual step: read as it is, into the step's own copy)
+    else:
+        zz = as_measurements(z, name)
     if zz.shape == (K,) and m == 1:
         zz = zz[:, None]
     if zz.shape != (K, m):

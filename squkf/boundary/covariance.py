@@ -102,25 +102,28 @@ class HandOut:
     """The arrays of named attributes handed out, each until the value behind it changes (:class:`Handed`).
 
     ``array(name, form)`` hands out ``form()`` once and then the same array;
-    ``drop(name)`` forgets it (the value changed: the array is history);
+    ``drop(*names)`` forgets them (the values changed: the arrays are history);
     ``take(assign)`` gives each edited array to ``assign(name, array)``.
+    ``held`` maps each name handed out to its :class:`Handed` (empty: nothing is).
     """
 
-    __slots__ = ("_held",)
+    __slots__ = ("held",)
 
     def __init__(self, held: dict[str, Handed] | None = None):
-        self._held: dict[str, Handed] = {} if held is None else held
+        self.held: dict[str, Handed] = {} if held is None else held
 
     def array(self, name: str, form: Callable[[], np.ndarray]) -> np.ndarray:
         """The array handed out for ``name``, formed by ``form()`` if none is."""
-        held = self._held.get(name)
+        held = self.held.get(name)
         if held is None:
-            held = self._held[name] = Handed(form())
+            held = self.held[name] = Handed(form())
         return held.array
 
-    def drop(self, name: str) -> None:
-        """The value behind ``name`` changed: the array handed out is no longer its."""
-        self._held.pop(name, None)
+    def drop(self, *names: str) -> None:
+        """The values behind ``names`` changed: the arrays handed out are no longer theirs."""
+        held = self.held
+        for name in names:
+            held.pop(name, None)
 
     def take(self, names: Iterable[str], assign: Callable[[str, np.ndarray], object]) -> None:
         """Take the edits in place, in the order of ``names``, through ``assign(name, array)``.
@@ -129,7 +132,7 @@ class HandOut:
         yet taken stay pending. The array stays handed out after its edit is
         taken, even when ``assign`` dropped it.
         """
-        held = self._held
+        held = self.held
         for name in names:
             h = held.get(name)
             if h is not None:
@@ -137,14 +140,11 @@ class HandOut:
 
     def copy(self) -> HandOut:
         """The records as they are now (the arrays the same): what a transaction puts back."""
-        return HandOut(dict(self._held))
+        return HandOut(dict(self.held))
 
     def detached(self) -> HandOut:
         """An independent copy: each array copied, pending edits kept (:meth:`Handed.copy`)."""
-        return HandOut({name: h.copy() for name, h in self._held.items()})
-
-    def __bool__(self) -> bool:
-        return bool(self._held)
+        return HandOut({name: h.copy() for name, h in self.held.items()})
 
 
 def as_matrix(value, name: str, dim: int | None) -> np.ndarray:
