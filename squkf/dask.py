@@ -69,13 +69,14 @@ def worker_environ() -> dict[str, Any]:
     set (65536: freed memory goes back to the system soon). Under glibc,
     setting it also fixes the size from which ``malloc`` maps fresh pages for
     every allocation at 128 KiB, where glibc would otherwise raise it as a
-    program reuses larger blocks. The fleet's step works on blocks of 4096
-    filters whose temporaries are about 1 MB each, so in such a worker each of
-    them is a new mapping, zero-filled page by page: filtering runs about 1.6
-    times slower than in a plain process (measured in
-    ``benchmarks/dask_bench.py``). Adding ``MALLOC_MMAP_THRESHOLD_`` (16 MiB,
-    :data:`MMAP_THRESHOLD`) serves them from the heap again; the trimming
-    stays. Other allocators ignore both variables.
+    program reuses larger blocks. A model function's arrays for a chunk of
+    2048 filters are larger than that, so in such a worker each of them is a
+    new mapping, zero-filled page by page at every step; a fleet left to
+    choose its chunk then cuts smaller chunks to keep them under the threshold
+    (:func:`squkf.stacks.default_chunk`). Adding ``MALLOC_MMAP_THRESHOLD_``
+    (16 MiB, :data:`MMAP_THRESHOLD`) serves them from the heap again, and the
+    chunks keep their full size; the trimming stays. Other allocators ignore
+    both variables.
 
     Returns
     -------

@@ -396,7 +396,8 @@ class Fleet:
     def chunk(self) -> int | None:
         """Filters per call of ``fx`` and ``hx`` in a step, at most (:mod:`squkf.stacks`); assign to change.
 
-        None: the library's choice for the thread count (:func:`squkf.stacks.default_chunk`).
+        None: the library's choice for the thread count and the allocator's setting
+        (:func:`squkf.stacks.default_chunk`).
         """
         return self._chunk
 

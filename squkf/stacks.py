@@ -21,8 +21,10 @@ keeps its state, and the others go on. The routes through the hooks or a
 
 from __future__ import annotations
 
+import os
+import sys
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import NamedTuple
 
 import numpy as np
@@ -55,8 +57,45 @@ CHUNK = 2048
 #: Filters computed together in one block of a route that raises (bounds the temporary arrays).
 BLOCK = 4096
 
+#: The fewest filters per chunk the default gives (below it, the step's Python per chunk would dominate).
+MIN_CHUNK = 64
 
-def default_chunk(threads: int, K: int) -> int:
+
+def fixed_mmap_threshold(environ: Mapping[str, str] = os.environ) -> int | None:
+    """glibc's mmap threshold in bytes when the environment fixes it, else None.
+
+    Setting ``MALLOC_TRIM_THRESHOLD_`` (as ``distributed`` does for a Dask
+    worker, 65536) or ``MALLOC_MMAP_THRESHOLD_`` stops glibc from raising its
+    mmap threshold as a program frees large blocks: every array of at least
+    the threshold (128 KiB unless ``MALLOC_MMAP_THRESHOLD_`` says otherwise)
+    is then mapped on allocation and unmapped when freed, its pages faulted
+    in anew each time. A model function's arrays of a chunk are made and
+    freed at every step, so :func:`default_chunk` keeps them under it.
+
+    Parameters
+    ----------
+    environ : mapping, optional
+        The environment read (default: this process's).
+
+    Returns
+    -------
+    int or None
+    """
+    if not sys.platform.startswith("linux"):
+        return None
+    mmap = environ.get("MALLOC_MMAP_THRESHOLD_")
+    if mmap is not None:
+        try:
+            return max(int(mmap), 0)
+        except ValueError:
+            return None
+    return 128 * 1024 if "MALLOC_TRIM_THRESHOLD_" in environ else None
+
+
+_MMAP_THRESHOLD = fixed_mmap_threshold()
+
+
+def default_chunk(threads: int, K: int, row_bytes: int = 0) -> int:
     """Filters per chunk when the fleet leaves it to the library: :data:`CHUNK`, or twice on threads.
 
     On several threads what stays serial is the step's Python per chunk,
@@ -66,19 +105,32 @@ def default_chunk(threads: int, K: int) -> int:
     faster size (``benchmarks/chunk_sizes.py``; the figures in
     ARCHITECTURE.md, "Measured").
 
+    Where the environment fixes glibc's mmap threshold
+    (:func:`fixed_mmap_threshold`: a Dask worker), a chunk is cut so that
+    its largest array per call of the model, ``row_bytes`` per filter, stays
+    under it (at least :data:`MIN_CHUNK` filters): a larger one is mapped
+    and faulted in at every call (``benchmarks/fleet.py`` measures the
+    difference).
+
     Parameters
     ----------
     threads : int
         The thread count of :func:`squkf.set_num_threads`.
     K : int
         Filters in the step.
+    row_bytes : int, optional
+        Bytes per filter of the largest array a model call makes (its points
+        or images); 0: not known.
 
     Returns
     -------
     int
     """
     big = 2 * CHUNK
-    return big if threads > 1 and K >= 4 * threads * big else CHUNK
+    size = big if threads > 1 and K >= 4 * threads * big else CHUNK
+    if _MMAP_THRESHOLD is not None and row_bytes:
+        size = min(size, max(MIN_CHUNK, (_MMAP_THRESHOLD - 1) // row_bytes))
+    return size
 
 
 def chunks(K: int, size: int = CHUNK, parts: int = 1) -> list[slice]:
@@ -108,7 +160,7 @@ def _label(name: str, rows: slice, K: int) -> str:
 
 
 def _map_chunks(
-    one: Callable[[slice], dict[int, str]], K: int, size: int | None, fails: dict[int, str]
+    one: Callable[[slice], dict[int, str]], K: int, size: int | None, fails: dict[int, str], row_bytes: int
 ) -> None:
     """``one`` over the chunks of a step of ``K`` filters, on the threads of :func:`squkf.set_num_threads`.
 
@@ -119,7 +171,7 @@ def _map_chunks(
     try:
         threads = held.n
         if size is None:
-            size = CHUNK if threads == 1 else default_chunk(threads, K)
+            size = CHUNK if threads == 1 and _MMAP_THRESHOLD is None else default_chunk(threads, K, row_bytes)
         if K <= size:  # one chunk: on this thread
             found = one(slice(0, K))
             if found:
@@ -154,6 +206,14 @@ def _update_results(K: int, n: int, m: int) -> tuple:
         np.empty((K, n)), np.empty((K, n, n)), np.empty((K, m)), np.empty(K), np.empty(K),
         np.empty((K, m), dtype=bool),
     )  # fmt: skip
+
+
+def _second_size(plan) -> int:
+    """Points in a second set, as far as the plan knows them (a user's generator: as many as the first)."""
+    fused, N = plan.fused_draw, plan.xi1.shape[0]
+    if fused is None:
+        return N
+    return fused.xi.shape[0] + (N if fused.augmented else 0)
 
 
 def _as_kernels_take(x: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -430,7 +490,7 @@ def predict(
             propagated[rows] = F
         return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
 
-    _map_chunks(one, K, size, fails)
+    _map_chunks(one, K, size, fails, 8 * N * n)
     return Prior(x_new, S_new, propagated)
 
 
@@ -540,7 +600,8 @@ def update(
             record[rows] = rows_record
         return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
 
-    _map_chunks(one, K, size, fails)
+    row_bytes = 0 if _MMAP_THRESHOLD is None else 8 * _second_size(route.plan) * max(n, m)
+    _map_chunks(one, K, size, fails, row_bytes)
     return out
 
 
