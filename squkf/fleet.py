@@ -618,14 +618,14 @@ class Fleet:
         buffers.commit()
         # commit; the second set is drawn by the update, a chunk at a time (memory)
         self._pending = _Pending(PRIOR, None, (prior.x, prior.S), prior.propagated, Q)
-        self._x, self._S = prior.x, prior.S
-        if self._handed.held:
-            self._handed.drop("x", "P")
-        if fails:
-            self._flag(fails)
+        self._stepped(prior.x, prior.S, fails)
         self._x_prior, self._S_prior = prior.x, prior.S  # never written in place: copied when read
 
-    def _flag(self, fails: dict[int, str]) -> None:
+    def _stepped(self, x: np.ndarray, S: np.ndarray, fails: dict[int, str]) -> None:
+        """A half step's commit: the new estimate (the arrays handed out for it are history), flags."""
+        self._x, self._S = x, S
+        if self._handed.held:
+            self._handed.drop("x", "P")
         for k, why in fails.items():
             self._failed[k] = True
             self._failure[k] = why
@@ -648,11 +648,7 @@ class Fleet:
         buffers.commit()
         # commit
         self._pending = _IDLE_STEP
-        self._x, self._S = post.x, post.S
-        if self._handed.held:
-            self._handed.drop("x", "P")
-        if fails:
-            self._flag(fails)
+        self._stepped(post.x, post.S, fails)
         self._x_post, self._S_post = post.x, post.S  # never written in place: copied when read
         self.y, self._loglik = post.y, post.log_likelihood
         self._nis, self._rejected = post.nis, post.rejected

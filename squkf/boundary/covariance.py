@@ -147,6 +147,29 @@ class HandOut:
         return HandOut({name: h.copy() for name, h in self.held.items()})
 
 
+def _finite_square(value, name: str, dim: int | None) -> np.ndarray:
+    """``value`` as a finite square float64 matrix of size ``dim``: a scalar is ``value * I``, a 1-element
+    array a 1x1 matrix when ``dim`` allows; a longer 1-D array is a ShapeError (``np.diag`` is meant)."""
+    A = as_float_array(value, name)
+    if A.ndim == 1 and A.shape[0] == 1 and dim in (None, 1):
+        A = A.reshape(1, 1)
+    if A.ndim == 0 and dim is not None:
+        if not np.isfinite(A):
+            raise NonFiniteError(f"{name} is not finite: {float(A)!r}")
+        A = A * np.eye(dim)
+    if A.ndim == 1 and A.shape[0] > 1:
+        raise ShapeError(
+            f"{name} is a 1-D array of length {A.shape[0]}, not a matrix: for a diagonal one"
+            f" use np.diag({name})"
+        )
+    if A.ndim != 2 or A.shape[0] != A.shape[1] or (dim is not None and A.shape[0] != dim):
+        want = f"({dim}, {dim})" if dim is not None else "square"
+        raise ShapeError(f"{name} has shape {A.shape}, expected {want}")
+    if not np.all(np.isfinite(A)):
+        raise NonFiniteError(f"{name} contains NaN or inf: {A!r}")
+    return A
+
+
 def as_matrix(value, name: str, dim: int | None) -> np.ndarray:
     """Validate a covariance given as a matrix (or a scalar meaning ``value * I``).
 
@@ -169,23 +192,7 @@ def as_matrix(value, name: str, dim: int | None) -> np.ndarray:
     ------
     ShapeError, NonFiniteError, SqukfValueError (not symmetric)
     """
-    A = as_float_array(value, name)
-    if A.ndim == 1 and A.shape[0] == 1 and dim in (None, 1):
-        A = A.reshape(1, 1)
-    if A.ndim == 0 and dim is not None:
-        if not np.isfinite(A):
-            raise NonFiniteError(f"{name} is not finite: {float(A)!r}")
-        A = A * np.eye(dim)
-    if A.ndim == 1 and A.shape[0] > 1:
-        raise ShapeError(
-            f"{name} is a 1-D array of length {A.shape[0]}; a covariance is a matrix: "
-            f"for a diagonal one use np.diag({name})"
-        )
-    if A.ndim != 2 or A.shape[0] != A.shape[1] or (dim is not None and A.shape[0] != dim):
-        want = f"({dim}, {dim})" if dim is not None else "square"
-        raise ShapeError(f"{name} has shape {A.shape}, expected {want}")
-    if not np.all(np.isfinite(A)):
-        raise NonFiniteError(f"{name} contains NaN or inf: {A!r}")
+    A = _finite_square(value, name, dim)
     scale = float(np.max(np.abs(A))) if A.size else 0.0
     asym = float(np.max(np.abs(A - A.T))) if A.size else 0.0
     if asym > 1e-9 * scale:
@@ -221,18 +228,7 @@ def as_lower_factor(value, name: str, dim: int | None, singular_ok: bool) -> np.
     float64's range: read as a matrix it would hold inf), SqukfValueError (not
     lower triangular), NotPositiveDefiniteError (zero on the diagonal)
     """
-    S = as_float_array(value, name)
-    if S.ndim == 1 and S.shape[0] == 1 and dim in (None, 1):
-        S = S.reshape(1, 1)
-    if S.ndim == 0 and dim is not None:
-        if not np.isfinite(S):
-            raise NonFiniteError(f"{name} is not finite: {float(S)!r}")
-        S = S * np.eye(dim)
-    if S.ndim != 2 or S.shape[0] != S.shape[1] or (dim is not None and S.shape[0] != dim):
-        want = f"({dim}, {dim})" if dim is not None else "square"
-        raise ShapeError(f"{name} has shape {S.shape}, expected {want}")
-    if not np.all(np.isfinite(S)):
-        raise NonFiniteError(f"{name} contains NaN or inf: {S!r}")
+    S = _finite_square(value, name, dim)
     upper = np.triu(S, 1)
     if np.any(upper != 0):
         i, j = np.argwhere(upper != 0)[0]
