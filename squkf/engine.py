@@ -265,6 +265,24 @@ class Buffers:
         self.taken.append(pair)
         return pair[pair[2]]
 
+    def spare(self, held: tuple, make: Callable[..., tuple], *args) -> tuple:
+        """A set ``make(*args)`` none of whose arrays is one of ``held`` (what committed records hold now).
+
+        For results that records hold in turn (a fleet's prior and posterior estimates): the first set
+        made for these arguments that nothing holds, else a new one. A failed call leaves the records on
+        their own sets, so nothing is committed or abandoned: as many sets as records hold, and one more.
+        """
+        key = ("spare", make, *args)
+        made = self.sets.get(key)
+        if made is None:
+            made = self.sets[key] = []
+        for candidate in made:
+            if not any(a is h for a in candidate for h in held):
+                return candidate
+        candidate = make(*args)
+        made.append(candidate)
+        return candidate
+
     def commit(self) -> None:
         """The sets taken since the last call hold the committed records now: the next writes the others."""
         for pair in self.taken:

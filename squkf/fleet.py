@@ -611,7 +611,17 @@ class Fleet:
         buffers.abandon()
         route = self._route or self._route_now()
         prior = stacks.predict(
-            route, self._x, self._S, Q, ~self._failed, images, fails, first, self._chunk, buffers
+            route,
+            self._x,
+            self._S,
+            Q,
+            ~self._failed,
+            images,
+            fails,
+            first,
+            self._chunk,
+            buffers,
+            self._held(),
         )
         if fails and self.on_error == "raise":
             raise failures_error(fails)
@@ -620,6 +630,10 @@ class Fleet:
         self._pending = _Pending(PRIOR, None, (prior.x, prior.S), prior.propagated, Q)
         self._stepped(prior.x, prior.S, fails)
         self._x_prior, self._S_prior = prior.x, prior.S  # never written in place: copied when read
+
+    def _held(self) -> tuple:
+        """The arrays the records hold: what a step must not write (its results go to spare buffers)."""
+        return self._x, self._S, self._x_prior, self._S_prior, self._x_post, self._S_post
 
     def _stepped(self, x: np.ndarray, S: np.ndarray, fails: dict[int, str]) -> None:
         """A half step's commit: the new estimate (the arrays handed out for it are history), flags."""
@@ -641,7 +655,7 @@ class Fleet:
         route = self._route or self._route_now()
         post = stacks.update(
             route, x, S, pending.sset, pending.propagated, pending.Q1_2, z, R1_2, active, images,
-            fails, self._chunk, buffers,
+            fails, self._chunk, buffers, self._held(),
         )  # fmt: skip
         if fails and self.on_error == "raise":
             raise failures_error(fails)
@@ -704,6 +718,8 @@ class Fleet:
         check_progress(progress)
         Z = checks.measurement_series(zs, self._K, self._m)
         T = Z.shape[1]
+        # step-major: each step's (K, m) contiguous, read by the kernels as it is (no copy per step)
+        Z = np.ascontiguousarray(np.swapaxes(Z, 0, 1))
         dt_list = per_step(dts, T, "dts", "dt", default=self._dt, ref="zs")
         fx_args, hx_args = model_kwargs(fx_args, "fx_args"), model_kwargs(hx_args, "hx_args")
         records = new_records(keep, self._K, T, self._n, self._m)
@@ -713,7 +729,7 @@ class Fleet:
         try:
             with self.transaction():  # an error at any step leaves the fleet as it was before the call
                 for t in range(T):
-                    self._step(t, Z[:, t], dt_list[t], fx_args, hx_args, records)
+                    self._step(t, Z[t], dt_list[t], fx_args, hx_args, records)
                     if callback is not None:
                         callback(t)
         except BaseException as exc:

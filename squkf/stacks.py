@@ -195,17 +195,19 @@ def _scratch() -> Scratch:
     return scratch
 
 
-def _prior_results(K: int, n: int, N: int, keep: bool) -> tuple:
-    """A fleet prediction's ``(K, ...)`` results: means, factors, the images where the update reads them."""
-    return np.empty((K, n)), np.empty((K, n, n)), np.empty((K, N, n)) if keep else None
+def _estimates(K: int, n: int) -> tuple:
+    """A step's new estimates ``(K, n)``, ``(K, n, n)``: the prediction's and the update's in turn."""
+    return np.empty((K, n)), np.empty((K, n, n))
 
 
-def _update_results(K: int, n: int, m: int) -> tuple:
-    """A fleet update's ``(K, ...)`` results, as :class:`Posteriors` holds them."""
-    return (
-        np.empty((K, n)), np.empty((K, n, n)), np.empty((K, m)), np.empty(K), np.empty(K),
-        np.empty((K, m), dtype=bool),
-    )  # fmt: skip
+def _propagated(K: int, N: int, n: int) -> tuple:
+    """A prediction's images where the update reads them, ``(K, N, n)``."""
+    return (np.empty((K, N, n)),)
+
+
+def _update_records(K: int, m: int) -> tuple:
+    """A fleet update's records besides the estimate: ``y``, log-likelihoods, NIS, ``rejected``."""
+    return np.empty((K, m)), np.empty(K), np.empty(K), np.empty((K, m), dtype=bool)
 
 
 def _second_size(plan) -> int:
@@ -413,6 +415,7 @@ def predict(
     first: np.ndarray | None = None,
     size: int | None = None,
     buffers: Buffers | None = None,
+    held: tuple = (),
 ) -> Prior:
     """The prediction of a stack of filters, a chunk at a time, failing filters flagged alone.
 
@@ -436,7 +439,10 @@ def predict(
     size : int, optional
         Filters per chunk, at most (default: :func:`default_chunk` of the thread count and ``K``).
     buffers : Buffers, optional
-        The fleet's: the results are written into its spare set (the caller commits it).
+        The fleet's: the results are written into its spare sets (the caller commits them), the
+        estimates into a set none of whose arrays is one of ``held`` (:meth:`Buffers.spare`).
+    held : tuple of ndarray
+        The arrays the fleet's records hold (its estimate, prior and posterior).
 
     Returns
     -------
@@ -449,9 +455,11 @@ def predict(
     keep = plan.keeps_propagated
 
     if buffers is None:
-        x_new, S_new, propagated = _prior_results(K, n, N, keep)
+        x_new, S_new = _estimates(K, n)
+        propagated = _propagated(K, N, n)[0] if keep else None
     else:
-        x_new, S_new, propagated = buffers.take(_prior_results, K, n, N, keep)
+        x_new, S_new = buffers.spare(held, _estimates, K, n)
+        propagated = buffers.take(_propagated, K, N, n)[0] if keep else None
     form = plan.first.rows.best
     none = route.no_set
 
@@ -533,6 +541,7 @@ def update(
     fails: dict[int, str],
     size: int | None = None,
     buffers: Buffers | None = None,
+    held: tuple = (),
 ) -> Posteriors:
     """The update of a stack of filters, a chunk at a time, failing filters flagged alone.
 
@@ -558,7 +567,7 @@ def update(
     images : callable
         ``images(rows, sset)``: the model at the second sets ``sset`` of the
         filters ``rows`` (a slice), shape ``(k, N2, m)``.
-    fails, size, buffers
+    fails, size, buffers, held
         As for :func:`predict`.
 
     Returns
@@ -570,8 +579,10 @@ def update(
     z = kernels.kernel_array(z)  # (one step's column of a run's measurements)
     x, S = _as_kernels_take(x, S)
 
-    results = _update_results(K, n, m) if buffers is None else buffers.take(_update_results, K, n, m)
-    out = Posteriors(*results)
+    if buffers is None:
+        out = Posteriors(*_estimates(K, n), *_update_records(K, m))
+    else:
+        out = Posteriors(*buffers.spare(held, _estimates, K, n), *buffers.take(_update_records, K, m))
     observed = ~np.isnan(z)
 
     def one(rows: slice) -> dict[int, str]:

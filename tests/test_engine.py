@@ -357,8 +357,8 @@ def _array_ids(sets) -> set[int]:
 
 def test_a_steady_step_allocates_its_buffers_once():
     """The block's outputs are made once per configuration and size and used again: after the first
-    steps, neither a filter's buffers nor a fleet's (nor its chunks' scratch) make a new array, and
-    nothing is kept per step."""
+    steps, neither a filter's buffers nor a fleet's (nor its chunks' scratch) make a new array,
+    nothing is kept per step, and a fleet keeps no more estimates than its records need."""
     import squkf.stacks as stacks
 
     def fx(X, dt):  # any leading axes: the filter's points and the fleet's stack of them
@@ -386,3 +386,7 @@ def test_a_steady_step_allocates_its_buffers_once():
     after = (_array_ids(f._engine._buffers.sets), _array_ids(fleet._buffers.sets), _array_ids(scratch.sets))
     assert after == before and all(before)
     assert f._engine._buffers.taken == [] and fleet._buffers.taken == [] and scratch.taken == []
+    # the fleet's estimates in three sets, as many as a step held before the engine: the posterior it
+    # starts from, the prior it keeps as a record, and the new one
+    estimates = [sets for key, sets in fleet._buffers.sets.items() if key[0] == "spare"]
+    assert [len(sets) for sets in estimates] == [3]
