@@ -55,7 +55,20 @@ def test_quick_benchmark_writes_results(tmp_path):
         if row.startswith("| ") and "---" not in row and "part" not in row
     }
     whole = cells.pop("whole step")
-    assert len(cells) == 7 and abs(sum(cells.values()) - whole) < 0.5
+    assert len(cells) == 5 and abs(sum(cells.values()) - whole) < 0.5
+    # the Python per step: both routes counted, each target judged on its count
+    python = text.split("## Python per step")[1].split("##")[0]
+    for route in ("vectorised", "per point"):
+        row = next(line for line in python.splitlines() if line.startswith(f"| {route} |"))
+        calls, depth, modules = (int(c) for c in row.strip("|").split("|")[1:])
+        assert calls > 0 and 1 <= depth <= calls and 1 <= modules <= calls
+        verdict = next(line for line in python.splitlines() if line.startswith(f"- {route}:"))
+        assert f"calls {calls} (<= 50: {'met' if calls <= 50 else 'not met'})" in verdict
+    # the targets of the single filter, each with its ratio (Lorenz-96 is not run with --quick)
+    targets = text.split("## Targets")[1].split("##")[0]
+    for sc in ("g13ej robot n=3", "coordinated turn n=5"):
+        assert f"| {sc} | per-point | filterpy UKF | <= 0.35 |" in targets
+        assert f"| {sc} | vectorised | filterpy UKF | <= 0.2 |" in targets
     assert (tmp_path / "scaling.png").stat().st_size > 1000
     assert (tmp_path / "failure_map.png").stat().st_size > 1000
 
