@@ -5,6 +5,7 @@
     python benchmarks/fleet.py --skip dynamax   # without the JAX peer
     python benchmarks/fleet.py --Ks 10000 --models n4 --out DIR   # one K of one model
     python benchmarks/fleet.py --cores 2  # the main tables with two CPUs (default: one)
+    python benchmarks/fleet.py --ref REV  # the step's peak memory against REV's (default 0cdce8e)
 
 Two models: a 2-D constant-velocity target seen by a range-bearing sensor
 (n = 4, m = 2) and five independent 2-D oscillators seen through cubic sensors
@@ -59,6 +60,20 @@ Memory, two measures of one fleet ``predict`` + ``update`` (a warm step):
   temporaries of the step before do not hide this one's. This sees
   everything, numba's arrays included; the memory target is judged on it.
 
+Against an earlier revision (``--ref``, by default 0cdce8e, the revision
+before the engine; none with ``--quick``): the same peak RSS of a step, of
+this squkf and of that revision's package (taken from git,
+:func:`against_revision.revision_folder`), in fresh subprocesses at the
+largest K, interleaved (three runs each, medians).
+
+Under a Dask worker's allocator setting: ``Fleet.batch_filter(keep="means")``
+(n = 4, K = 12,500, T = 40; one untimed run first) in fresh subprocesses
+pinned to one CPU, started with ``MALLOC_TRIM_THRESHOLD_=65536`` (what dask's
+nanny sets) and without it, none of glibc's other ``MALLOC_*`` variables set,
+interleaved over five pairs; the median and range of the pairs' ratios of
+wall-clock time, and the same for the ``--ref`` revision. Like the two-thread
+runs, these run before this process calls dynamax.
+
 Accuracy: on a separate, untimed run, the fleet's estimates are compared with
 the loop of ``SquareRootUKF`` (the same filter: RMSE equal to 1e-9 or the run
 fails), with filterpy and with dynamax (the largest difference of an estimate
@@ -105,7 +120,7 @@ def _parse(argv):
     )
     ap.add_argument("--no-malloc-trim", action="store_true", help="no MALLOC_TRIM_THRESHOLD_ comparison")
     ap.add_argument("--rss-child", nargs=2, metavar=("MODEL", "K"), help=argparse.SUPPRESS)
-    ap.add_argument("--rss-ref", metavar="FOLDER", help=argparse.SUPPRESS)
+    ap.add_argument("--ref-folder", metavar="FOLDER", help=argparse.SUPPRESS)
     ap.add_argument("--malloc-child", nargs=3, metavar=("MODEL", "K", "T"), help=argparse.SUPPRESS)
     ap.add_argument("--threads-child", action="store_true", help=argparse.SUPPRESS)
     return ap.parse_args(argv)
@@ -535,7 +550,7 @@ def fleet_rss(mkey: str, K: int, ref: Path | None = None) -> dict:
     import subprocess
 
     cmd = [sys.executable, str(Path(__file__).resolve()), "--rss-child", mkey, str(K), "--cores", "1"]
-    cmd += [] if ref is None else ["--rss-ref", str(ref)]
+    cmd += [] if ref is None else ["--ref-folder", str(ref)]
     p = subprocess.run(cmd, capture_output=True, text=True)
     if p.returncode:
         raise RuntimeError(f"RSS subprocess failed:\n{p.stderr[-3000:]}")
@@ -570,17 +585,22 @@ def rss_against(mkey: str, K: int, rev: str, reps: int, log) -> dict:
     return out
 
 
-def malloc_child(model, K: int, T: int, seed: int) -> dict:
+def malloc_child(model, K: int, T: int, seed: int, lib=None) -> dict:
     """In this (fresh) process: ``Fleet.batch_filter(keep="means")`` timed, after one untimed run.
 
-    Returns the timed run's wall-clock, user and system seconds, and the allocator setting seen.
+    ``lib``: the package whose ``Fleet`` is timed (default: this squkf). Returns the timed run's
+    wall-clock, user and system seconds, and the allocator setting seen.
     """
     import resource
 
+    import squkf
+
+    lib = squkf if lib is None else lib
     _, zs = simulate(model, K, T, seed)
 
     def run():
-        f = Fleet(K, model.n, model.m, model.dt, model.hx, model.fx, points())
+        pts = lib.MerweScaledWeights(ALPHA, BETA, KAPPA)
+        f = lib.Fleet(K, model.n, model.m, model.dt, model.hx, model.fx, pts)
         f.x, f.P, f.Q, f.R = model.x0, model.P0, model.Q, model.R
         return f.batch_filter(zs, keep="means")
 
@@ -596,16 +616,10 @@ def malloc_child(model, K: int, T: int, seed: int) -> dict:
     }
 
 
-def malloc_trim(quick: bool, log) -> dict:
-    """``malloc_child`` with ``MALLOC_TRIM_THRESHOLD_`` unset and set to dask's 65536, interleaved.
-
-    Each run is a fresh subprocess (glibc reads the variable at start) pinned to one CPU, started
-    with none of glibc's ``MALLOC_*`` settings but the one compared. Returns the medians of each
-    side's seconds, the median and range of the per-pair ratios of wall-clock time (set / unset).
-    """
+def _malloc_runs(K: int, T: int, reps: int, folder: Path | None) -> dict:
+    """``reps`` interleaved pairs of ``malloc_child`` runs, unset and set; their medians and ratios."""
     import subprocess
 
-    K, T, reps = (500, 4, 2) if quick else (12_500, 40, 5)
     runs: dict[str, list] = {"unset": [], "set": []}
     for r in range(reps):
         for which in ("unset", "set") if r % 2 == 0 else ("set", "unset"):
@@ -613,19 +627,44 @@ def malloc_trim(quick: bool, log) -> dict:
             if which == "set":
                 env["MALLOC_TRIM_THRESHOLD_"] = DASK_TRIM
             cmd = [sys.executable, str(Path(__file__).resolve()), "--malloc-child", "n4", str(K), str(T)]
-            p = subprocess.run(cmd + ["--cores", "1"], env=env, capture_output=True, text=True)
+            cmd += ["--cores", "1"] + ([] if folder is None else ["--ref-folder", str(folder)])
+            p = subprocess.run(cmd, env=env, capture_output=True, text=True)
             if p.returncode:
                 raise RuntimeError(f"MALLOC_TRIM_THRESHOLD_ subprocess failed:\n{p.stderr[-3000:]}")
             runs[which].append(json.loads(p.stdout.strip().splitlines()[-1]))
     ratios = [s["wall_s"] / u["wall_s"] for u, s in zip(runs["unset"], runs["set"])]
-    out = {"K": K, "T": T, "reps": reps, "runs": runs, "ratio": float(np.median(ratios))}
-    out["range"] = [float(min(ratios)), float(max(ratios))]
+    out = {"runs": runs, "ratio": float(np.median(ratios)), "range": [float(min(ratios)), float(max(ratios))]}
     for which, rs in runs.items():
         out[which] = {key: float(np.median([r[key] for r in rs])) for key in ("wall_s", "user_s", "sys_s")}
+    return out
+
+
+def malloc_trim(quick: bool, log, rev: str | None = None) -> dict:
+    """``malloc_child`` with ``MALLOC_TRIM_THRESHOLD_`` unset and set to dask's 65536, interleaved.
+
+    Each run is a fresh subprocess (glibc reads the variable at start) pinned to one CPU, started
+    with none of glibc's ``MALLOC_*`` settings but the one compared. Returns the medians of each
+    side's seconds, the median and range of the per-pair ratios of wall-clock time (set / unset),
+    and with ``rev`` the same of that revision's package (``ref``), measured after this one's.
+    """
+    import subprocess
+
+    K, T, reps = (500, 4, 2) if quick else (12_500, 40, 5)
+    out = {"K": K, "T": T, "reps": reps, **_malloc_runs(K, T, reps, None)}
     log(
         f"MALLOC_TRIM_THRESHOLD_={DASK_TRIM} over unset, K={K:,}, T={T}: {out['ratio']:.3f}x "
         f"({out['range'][0]:.3f}-{out['range'][1]:.3f}, {reps} pairs)"
     )
+    if rev is not None:
+        from against_revision import revision_folder
+
+        try:
+            folder = revision_folder(rev)
+        except (subprocess.CalledProcessError, OSError) as exc:
+            out["ref"] = {"rev": rev, "why": f"{rev} could not be taken from git ({type(exc).__name__})"}
+            return out
+        out["ref"] = {"rev": rev, **_malloc_runs(K, T, reps, folder)}
+        log(f"  at {rev}: {out['ref']['ratio']:.3f}x")
     return out
 
 
@@ -925,11 +964,11 @@ def malloc_section(results: dict) -> list[str]:
     if not mt or "why" in mt:
         return lines + [f"Not measured: {(mt or {}).get('why', 'not run')}.", ""]
     unset, trim = mt["unset"], mt["set"]
-    return lines + [
-        f'`Fleet.batch_filter(keep="means")`, K = {mt["K"]:,}, T = {mt["T"]}, one thread, timed after one '
-        "untimed run in fresh subprocesses pinned to one CPU, started with none of glibc's `MALLOC_*` "
-        f"variables (unset) or with `MALLOC_TRIM_THRESHOLD_={DASK_TRIM}` alone (set), the two "
-        f"interleaved over {mt['reps']} pairs; medians.",
+    lines += [
+        f'`Fleet.batch_filter(keep="means")`, K = {mt["K"]:,}, T = {mt["T"]}, one thread, timed after '
+        "one untimed run in fresh subprocesses pinned to one CPU, started with none of glibc's "
+        f"`MALLOC_*` variables (unset) or with `MALLOC_TRIM_THRESHOLD_={DASK_TRIM}` alone (set), the "
+        f"two interleaved over {mt['reps']} pairs; medians.",
         "",
         "| | wall s | user s | system s |",
         "|---|---|---|---|",
@@ -938,6 +977,23 @@ def malloc_section(results: dict) -> list[str]:
         "",
         f"Set over unset, wall-clock time: **{mt['ratio']:.3f}x** (median of the pairs' ratios; range "
         f"{mt['range'][0]:.3f}-{mt['range'][1]:.3f}).",
+        "",
+    ]
+    return lines + _malloc_ref_lines(mt.get("ref"))
+
+
+def _malloc_ref_lines(ref: dict | None) -> list[str]:
+    """The same comparison of the reference revision's package, measured after this one's."""
+    if not ref:
+        return []
+    if "why" in ref:
+        return [f"At {ref['rev']}: not measured ({ref['why']}).", ""]
+    unset, trim = ref["unset"], ref["set"]
+    return [
+        f"The same at {ref['rev']} (its `squkf` package, measured after this one's): wall "
+        f"{unset['wall_s']:.3g} s unset, {trim['wall_s']:.3g} s set (system {unset['sys_s']:.3g} s, "
+        f"{trim['sys_s']:.3g} s); set over unset **{ref['ratio']:.3f}x** "
+        f"(range {ref['range'][0]:.3f}-{ref['range'][1]:.3f}).",
         "",
     ]
 
@@ -1034,18 +1090,25 @@ def plot(out: Path, results: dict) -> None:
     plt.close(fig)
 
 
+def _ref_package(folder: str | None):
+    """``squkf_ref`` from ``folder`` (:func:`against_revision.revision_folder`), or None (this squkf)."""
+    if folder is None:
+        return None
+    sys.path.insert(0, folder)
+    import squkf_ref
+
+    return squkf_ref
+
+
 def main(args) -> int:
     models = {"n4": ConstantVelocity, "n10": Oscillators}
     if args.rss_child:
-        lib = None
-        if args.rss_ref:
-            sys.path.insert(0, args.rss_ref)
-            import squkf_ref as lib
+        lib = _ref_package(args.ref_folder)
         print(json.dumps(rss_child(models[args.rss_child[0]](), int(args.rss_child[1]), 7, lib)))
         return 0
     if args.malloc_child:
         mkey, K, T = args.malloc_child
-        print(json.dumps(malloc_child(models[mkey](), int(K), int(T), 3)))
+        print(json.dumps(malloc_child(models[mkey](), int(K), int(T), 3, _ref_package(args.ref_folder))))
         return 0
     if args.threads_child:
         print(json.dumps(two_threads_child(args)))
@@ -1094,12 +1157,12 @@ def main(args) -> int:
     else:
         two = {"control": control[0], "rows": two_threads(args, log)}
     # timed subprocesses on this process's CPU: before it calls dynamax too (XLA's workers spin)
-    results["malloc_trim"] = (
-        {"why": "--no-malloc-trim"} if args.no_malloc_trim else malloc_trim(args.quick, log)
-    )
-    ok = True
     ref = args.ref or (None if args.quick else REF)
     ref = None if ref == "none" else ref
+    results["malloc_trim"] = (
+        {"why": "--no-malloc-trim"} if args.no_malloc_trim else malloc_trim(args.quick, log, ref)
+    )
+    ok = True
     for i, mkey in enumerate(args.models):
         model = models[mkey]()
         log(f"{model.name}")

@@ -102,6 +102,27 @@ def test_quick_fleet_benchmark(tmp_path):
         assert abs(acc["fleet"]["rmse"] - acc["filterpy"]["rmse"]) <= 1e-6 * acc["fleet"]["rmse"]
         if "dynamax" in results["impls"]:
             assert abs(acc["fleet"]["rmse"] - acc["dynamax"]["rmse"]) <= 1e-4 * acc["fleet"]["rmse"]
+        # each ratio's spread over the repetitions holds its median
+        for row in res["timing"].values():
+            for name in set(row) & {"loop", "filterpy", "dynamax"}:
+                lo, hi = row[name]["speedup_range"]
+                assert lo <= row[name]["speedup"] <= hi
+    # Fleet.batch_filter with a Dask worker's MALLOC_TRIM_THRESHOLD_ and without, in pairs of processes
+    trim = results["malloc_trim"]
+    assert [r["trim"] for r in trim["runs"]["set"]] == ["65536"] * trim["reps"]
+    assert [r["trim"] for r in trim["runs"]["unset"]] == [None] * trim["reps"]
+    ratios = [s["wall_s"] / u["wall_s"] for u, s in zip(trim["runs"]["unset"], trim["runs"]["set"])]
+    assert trim["range"] == [min(ratios), max(ratios)] and min(ratios) <= trim["ratio"] <= max(ratios)
+    assert f"**{trim['ratio']:.3f}x**" in text.split("## MALLOC_TRIM_THRESHOLD_=65536")[1]
+    # every fleet target of issue 30 is reported, measured or not
+    reported = [t["target"] for t in results["targets"]]
+    for start in (
+        "K = 10^4, one thread: fleet's time <= 0.5x",
+        "K = 10^5: two threads >= 1.6x",
+        "K = 10^5: one fleet step's peak memory no higher than at",
+        "MALLOC_TRIM_THRESHOLD_=65536",
+    ):
+        assert any(t.startswith(start) for t in reported), start
 
 
 def test_quick_dask_benchmark_writes_results(tmp_path):
