@@ -1,5 +1,7 @@
 """Lower bounds for the library's own time per step, measured on this machine.
 
+    python benchmarks/floor.py              # check the inlined step against SquareRootUKF, bit for bit
+
 Two references, neither of them a filter anyone should use:
 
 - ``qr_ms``: the two QR factorisations a square-root step needs (the prior's
@@ -22,6 +24,8 @@ the checks of what the model functions and the caller bring, and the rest.
 
 from __future__ import annotations
 
+import argparse
+import sys
 import time
 from types import SimpleNamespace
 
@@ -47,7 +51,7 @@ def qr_ms(n: int, m: int, N: int, reps: int = 300) -> float:
     return 1e3 * float(np.median(times))
 
 
-def _library_filter(sc, fx, hx, vectorized: bool):
+def library_filter(sc, fx, hx, vectorized: bool):
     """The ``SquareRootUKF`` of scenario ``sc`` (default scheme), set up as the benchmark's."""
     from squkf import MerweScaledWeights, SquareRootUKF
 
@@ -129,7 +133,7 @@ class InlineStep:
 
     def __init__(self, sc, fx, hx, vectorized: bool):
         # the plan, the noise factors and the initial factor are the library's, taken once
-        self.r = fused_route(_library_filter(sc, fx, hx, vectorized))
+        self.r = fused_route(library_filter(sc, fx, hx, vectorized))
         self.fx, self.hx, self.vec, self.dt = fx, hx, vectorized, sc.dt
         self.z = np.empty((1, sc.dim_z))
 
@@ -188,7 +192,7 @@ def step_profile(sc, reps: int = 1000) -> dict[str, float]:
     :class:`InlineStep` calls them); the facade's and engine's share is what
     remains of the whole step's time.
     """
-    from squkf.boundary import inputs
+    from squkf.boundary import checks
     from squkf.engine import _images
 
     n, m = sc.dim_x, sc.dim_z
@@ -200,7 +204,7 @@ def step_profile(sc, reps: int = 1000) -> dict[str, float]:
     def hx(X):
         return X.dot(C.T)
 
-    f = _library_filter(sc, fx, hx, True)
+    f = library_filter(sc, fx, hx, True)
     z = hx(sc.x0[None])[0] + 0.1
 
     def step():
@@ -224,7 +228,7 @@ def step_profile(sc, reps: int = 1000) -> dict[str, float]:
             lambda: (
                 _images(F[0], shape_f, "fx values", False, True),
                 _images(H[0], shape_h, "hx values", True, True),
-                inputs.measurement(z, None, m, f._R_dim, 0),
+                checks.measurement(z, None, m, f._R_dim, 0),
             ),
             reps,
         ),
@@ -234,3 +238,40 @@ def step_profile(sc, reps: int = 1000) -> dict[str, float]:
     )
     parts["whole step"] = total
     return parts
+
+
+def same_as_library(sc, vectorized: bool, steps: int) -> bool:
+    """Whether :class:`InlineStep` and ``SquareRootUKF`` give the same ``x`` and ``P1_2``, bit for bit,
+    at every one of ``steps`` steps of scenario ``sc``."""
+    fx, hx = (sc.fx_vec, sc.hx_vec) if vectorized else (sc.fx, sc.hx)
+    f, g = library_filter(sc, fx, hx, vectorized), InlineStep(sc, fx, hx, vectorized)
+    _, zs = sc.simulate(steps, 1)
+    for z in zs:
+        f.predict()
+        f.update(z)
+        g.step(z)
+        if not (np.array_equal(f.x, g.x) and np.array_equal(np.asarray(f.P1_2), g.S)):
+            return False
+    return True
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description="The inlined step against SquareRootUKF, bit for bit")
+    ap.add_argument("--steps", type=int, default=50)
+    args = ap.parse_args(argv)
+    from models import SCENARIOS
+
+    print("| scenario | model functions | inlined step and SquareRootUKF |")
+    print("|---|---|---|")
+    ok = True
+    for sc in SCENARIOS():
+        for vectorized in (True, False):
+            same = same_as_library(sc, vectorized, args.steps)
+            ok &= same
+            kind = "vectorised" if vectorized else "per point"
+            print(f"| {sc.name} | {kind} | {'the same, bit for bit' if same else 'DIFFERENT'} |")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -73,6 +73,20 @@ def test_quick_benchmark_writes_results(tmp_path):
     assert (tmp_path / "failure_map.png").stat().st_size > 1000
 
 
+def test_inlined_reference_is_the_library_step_bit_for_bit():
+    """benchmarks/floor.py's floor drives the library's kernels as its default route does."""
+    res = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "floor.py"), "--steps", "10"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    rows = [line for line in res.stdout.splitlines() if line.startswith("| ") and "scenario" not in line]
+    assert len(rows) == 6, res.stdout + res.stderr  # three scenarios, vectorised and per point
+    assert all(row.endswith("| the same, bit for bit |") for row in rows), res.stdout
+    assert res.returncode == 0
+
+
 def test_quick_fleet_benchmark(tmp_path):
     subprocess.run(
         [sys.executable, str(ROOT / "benchmarks" / "fleet.py"), "--quick", "--out", str(tmp_path)],
