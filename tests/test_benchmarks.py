@@ -7,6 +7,7 @@ fleet matching the loop) and benchmarks/dask_bench.py (on a LocalCluster).
 from __future__ import annotations
 
 import json
+import math
 import re
 import subprocess
 import sys
@@ -107,6 +108,12 @@ def test_quick_fleet_benchmark(tmp_path):
         for row in res["timing"].values():
             assert row["fleet"]["us"] > 0 and row["loop"]["us"] > 0 and row["filterpy"]["us"] > 0
         assert all(m["peak_MB"] > 0 for m in res["memory"].values())
+        # three steps measured: each one's peak RSS growth and the fleet's peak RSS (the memory target's)
+        rss = res["rss"]
+        assert all(
+            rss[f"step{t}_peak_MB"] >= 0 and math.isfinite(rss[f"step{t}_total_MB"]) for t in (1, 2, 3)
+        )
+        assert f"| {rss['step3_total_MB']:.3g} |" in text.split("## Peak memory of one fleet step")[1]
         acc = res["accuracy"]
         # the fleet and the loop of SquareRootUKF are the same filters: same RMSE, same estimates
         assert acc["fleet_equals_loop"] is True
