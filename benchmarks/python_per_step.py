@@ -12,8 +12,9 @@ Merwe(1, 2, 0), the redrawn second set), in steady state (after warm-up steps), 
 * depth: the most squkf frames on the stack at once, the public method counting as 1;
 * modules: how many of squkf's modules the step enters.
 
-Vectorised and per point (where each model evaluation is one more call of the step's own, the
-comprehension that calls it aside). Counts, not times: they do not depend on the machine's load.
+Vectorised and per point. The issue's per-point targets are the vectorised ones plus one call per
+model evaluation; a model function's calls are not counted here (it is not squkf's code), so the
+same limits apply to the counts shown. Counts, not times: they do not depend on the machine's load.
 """
 
 from __future__ import annotations
@@ -91,28 +92,45 @@ def trace_step(f, z) -> dict:
     return {"calls": sum(calls.values()), "depth": deepest, "modules": len(modules), "by_function": calls}
 
 
+def measure(steps: int = 10) -> dict[str, dict]:
+    """``trace_step`` of the vectorised and the per-point robot filter after ``steps`` warm-up steps."""
+    found = {}
+    for vectorized in (True, False):
+        f, zs = robot_filter(vectorized)
+        for z in zs[:steps]:  # steady state: the routes decided, the kernels loaded
+            f.predict()
+            f.update(z)
+        found["vectorised" if vectorized else "per point"] = trace_step(f, zs[steps])
+    return found
+
+
+def table(found: dict[str, dict]) -> list[str]:
+    """The counts as a markdown table, and each target of the vectorised step beside its count."""
+    lines = [
+        "| route | squkf calls per step | deepest squkf frames | squkf modules entered |",
+        "|---|---|---|---|",
+    ]
+    lines += [f"| {name} | {r['calls']} | {r['depth']} | {r['modules']} |" for name, r in found.items()]
+    lines.append("")
+    # per point the target adds one call per model evaluation, and the model functions are not
+    # squkf's files: the counts above do not include them, so the limits are the same
+    for name, r in found.items():
+        reached = ", ".join(
+            f"{key} {r[key]} (<= {limit}: {'met' if r[key] <= limit else 'not met'})"
+            for key, limit in TARGETS.items()
+        )
+        lines.append(f"- {name}: {reached}")
+    return lines
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--calls", action="store_true", help="list every function called")
     args = parser.parse_args()
     print(f"Python {sys.version.split()[0]}, numpy {np.__version__}; squkf at {ROOT}")
     print()
-    print("| route | squkf calls per step | deepest squkf frames | squkf modules entered |")
-    print("|---|---|---|---|")
-    found = {}
-    for vectorized in (True, False):
-        f, zs = robot_filter(vectorized)
-        for z in zs[:10]:  # steady state: the routes decided, the kernels loaded
-            f.predict()
-            f.update(z)
-        r = trace_step(f, zs[10])
-        name = "vectorised" if vectorized else "per point"
-        found[name] = r
-        print(f"| {name} | {r['calls']} | {r['depth']} | {r['modules']} |")
-    print()
-    v = found["vectorised"]
-    for key, limit in TARGETS.items():
-        print(f"- {key}: {v[key]} (target <= {limit}: {'met' if v[key] <= limit else 'not met'})")
+    found = measure()
+    print("\n".join(table(found)))
     if args.calls:
         for name, r in found.items():
             print(f"\n{name}:")
