@@ -66,6 +66,7 @@ def _parse(argv):
         "rewrite their sections of results.md, leaving the other tables as they are",
     )
     ap.add_argument("--replot", action="store_true", help="redraw the figures from figures.json only")
+    ap.add_argument("--ref", default="0cdce8e", help="the fleet's Python per chunk: its reference")
     return ap.parse_args(argv)
 
 
@@ -82,6 +83,7 @@ from floor import inline_impls, qr_ms, step_profile  # noqa: E402
 from machine import cpu_name  # noqa: E402
 from models import SCENARIOS, Lorenz96, near_singular  # noqa: E402
 from peers import implementations  # noqa: E402
+from python_per_step import fleet_calls, fleet_table, reference_fleet_calls  # noqa: E402
 from python_per_step import measure as python_per_step  # noqa: E402
 from python_per_step import table as python_per_step_table  # noqa: E402
 
@@ -344,10 +346,13 @@ def python_section(found) -> list[str]:
         f"Counted with `sys.setprofile` on Python {platform.python_version()}, in steady state: the calls "
         "of code in squkf's files, the most squkf frames on the stack at once (the public method "
         "counting as 1) and squkf's modules entered, in one predict + update. The model functions are "
-        "not squkf's code and are not counted.",
+        "not squkf's code and are not counted. A fleet's step of one chunk, counted the same way, "
+        "beside the revision the issue compares it with (`--ref`; not in a quick run).",
         "",
     ]
-    return lines + python_per_step_table(found) + [""]
+    fleet = fleet_table(found["fleet"], found.get("fleet ref"), found["ref"])
+    singles = {name: r for name, r in found.items() if name in ("vectorised", "per point")}
+    return lines + python_per_step_table(singles) + [""] + fleet + [""]
 
 
 def write_results(
@@ -667,7 +672,11 @@ def main() -> int:
     swept = sweep(impls, P0s, size["sweep"])
     qr = {sc.name: qr_ms(sc.dim_x, sc.dim_z, 2 * sc.dim_x + 1) for sc in scenarios}
     profile = {sc.name: step_profile(sc, 200 if args.quick else 2000) for sc in scenarios}
-    pycalls = python_per_step()
+    import squkf
+
+    pycalls: dict = {**python_per_step(), "fleet": fleet_calls(squkf), "ref": args.ref}
+    if not args.quick:
+        pycalls["fleet ref"] = reference_fleet_calls(args.ref)
     write_results(
         Path(args.out),
         table, scale, size["dims"], swept, P0s, skipped, impls, threaded, qr, profile, large, pycalls,

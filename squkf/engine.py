@@ -276,8 +276,9 @@ class Buffers:
         made = self.sets.get(key)
         if made is None:
             made = self.sets[key] = []
+        held_ids = set(map(id, held))
         for candidate in made:
-            if not any(a is h for a in candidate for h in held):
+            if held_ids.isdisjoint(map(id, candidate)):
                 return candidate
         candidate = make(*args)
         made.append(candidate)
