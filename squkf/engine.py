@@ -13,14 +13,18 @@ routes (hooks, a user's ``UT`` or generator, the propagated set) are the same
 kernels driven with the hooks' rows (:mod:`squkf.transform`,
 :mod:`squkf.measurement`).
 
-Which route a call takes is decided once per key (the plan, the hooks, ``UT``
-given or not, the measurement's length and its observed components) and kept
-in the engine (:meth:`Engine.update_route`), so a repeated key decides nothing.
+Which route a call takes is decided once per key (the plan and the hooks fix
+the :class:`Route`; the second set's kind and ``UT`` given or not, its update
+route, kept by :meth:`Route.update_route`; the observed components, the factor
+of their ``R``, kept while they repeat), so a repeated key decides nothing.
 A kernel reports a status per filter; :func:`failure` turns one into squkf's
 exception, the one wording of both faces.
 
-An :class:`Engine` computes into new arrays and assigns them only when the
-whole call succeeded, so a call that fails leaves it as it was. Its phases
+An :class:`Engine` computes into its :class:`Buffers`, arrays allocated once
+per shape, two sets used in turn: a call writes the set no committed record
+holds and makes it the committed one only when the whole call succeeded, so a
+call that fails leaves the engine, and every record handed out from it, as it
+was. Its phases
 (``ask_*`` and ``tell_*`` are the halves of a prediction and an update)::
 
     idle --ask_predict--> predicting --tell_predict--> prior
@@ -330,6 +334,10 @@ def _posterior_out(B: int, n: int, m: int, N1: int) -> tuple:
     )  # fmt: skip
 
 
+#: Update routes a Route keeps, at most (one per kind of second set it has seen).
+_KEPT_ROUTES = 32
+
+
 class Route:
     """One configuration's step for a block of filters, decided once: which kernels run, how.
 
@@ -514,16 +522,23 @@ class Route:
     def update_route(self, sset: SigmaSet, UT) -> _Joint | None:
         """The joint-QR route of an update with this set, or None for the general one (hooks, ``UT``).
 
-        Decided once per key (the set's kind, ``UT`` given or not) and kept.
+        Decided once per key (the set's weight rows, its kind, ``UT`` given or not) and kept. The rows
+        are known by identity and kept with their route: a user's generator that makes new rows at
+        every draw gets its own route each time (the kept ones are dropped when they are many).
         """
-        key = (id(sset.rows), sset.moments_exact, sset.offsets is None, sset.axis, UT is None)
-        route = self._updates.get(key, False)
-        if route is False:
-            hooks = self.hooks
-            plain = UT is None and sset.moments_exact and hooks.z_mean_fn is None and hooks.residual_z is None
-            plain = plain and self.plain_x and self.plain_add and sset.rows is not None
-            route = self._updates[key] = _joint_route(sset) if plain else None
-        return route  # type: ignore[return-value]
+        rows = sset.rows
+        key = (id(rows), sset.moments_exact, sset.offsets is None, sset.axis, UT is None)
+        kept = self._updates.get(key)
+        if kept is not None and kept[0] is rows:
+            return kept[1]
+        hooks = self.hooks
+        plain = UT is None and sset.moments_exact and hooks.z_mean_fn is None and hooks.residual_z is None
+        plain = plain and self.plain_x and self.plain_add and rows is not None
+        route = _joint_route(sset) if plain else None
+        if len(self._updates) >= _KEPT_ROUTES:
+            self._updates.clear()
+        self._updates[key] = (rows, route)
+        return route
 
     def posterior(
         self, sset, x, S, H, z, observed, R1_2, UT, draw_first: bool, name: str = "hx values",
@@ -561,11 +576,7 @@ class Route:
         status : ndarray of int, shape (B,)
         X1 : ndarray, shape (B, N, n), or None
         """
-        route = self._updates.get(
-            (id(sset.rows), sset.moments_exact, sset.offsets is None, sset.axis, UT is None)
-        )
-        if route is None:
-            route = self.update_route(sset, UT)
+        route = self.update_route(sset, UT)
         B = x.shape[0]
         m_all = z.shape[-1]
         if route is None:

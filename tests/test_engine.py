@@ -32,6 +32,7 @@ from squkf import (
     NonFiniteError,
     Propagated,
     Redrawn,
+    SigmaSet,
     SimplexWeights,
     SquareRootUKF,
     kernels,
@@ -390,3 +391,42 @@ def test_a_steady_step_allocates_its_buffers_once():
     # starts from, the prior it keeps as a record, and the new one
     estimates = [sets for key, sets in fleet._buffers.sets.items() if key[0] == "spare"]
     assert [len(sets) for sets in estimates] == [3]
+
+
+class _VaryingWeights:
+    """A user's generator whose weights change from draw to draw (an exact set with no rows of its own)."""
+
+    def __init__(self, seed: int):
+        self.rng = np.random.default_rng(seed)
+
+    def second_set(self, x, S, *, family, propagated=None, Q1_2=None, state_add=None):
+        weights = MerweScaledWeights(alpha=float(self.rng.choice([0.3, 0.6, 1.0])), beta=2.0)
+        n = x.shape[0]
+        return SigmaSet(x + weights.unit_sigma_points(n) @ S.T, *weights.weights(n), moments_exact=True)
+
+
+def test_a_kept_update_route_is_never_another_sets():
+    """Routes are kept per set kind, its rows known by identity: rows made afresh at every draw (whose
+    ids Python reuses) never run with an earlier set's weights, and the kept routes stay few."""
+
+    def fx(x, dt):
+        return np.array([x[0] + dt * x[1], x[1]])
+
+    def hx(x):
+        return np.array([np.hypot(x[0], 2.0)])
+
+    kept, fresh = (
+        SquareRootUKF(2, 1, 1.0, hx, fx, MerweScaledWeights(), scheme=_VaryingWeights(1)) for _ in "ab"
+    )
+    for f in (kept, fresh):
+        f.x, f.R, f.Q = [0.0, 1.0], [[0.01]], 0.1 * np.eye(2)
+    for t in range(300):
+        z = [np.hypot(t * 1.0, 2.0) + 0.3 * np.sin(t)]
+        for f in (kept, fresh):
+            f.predict()
+        fresh._engine.route._updates.clear()  # decided anew: the oracle
+        for f in (kept, fresh):
+            f.update(z)
+        np.testing.assert_array_equal(kept.x, fresh.x)
+        np.testing.assert_array_equal(kept.P1_2, fresh.P1_2)
+    assert len(kept._engine.route._updates) <= 32
