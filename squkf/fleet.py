@@ -871,7 +871,11 @@ class Fleet:
             x, S = p.prior
             prior = (copies.get(id(x), x), copies.get(id(S), S))
             propagated = None if p.propagated is None else p.propagated.copy()
-            d["_pending"] = _Pending(p.phase, p.first, prior, propagated, p.Q1_2, p.sset)
+            sset = p.sset
+            if sset is not None:  # its arrays may be the original's buffers (the propagated set's are)
+                offsets = None if sset.offsets is None else sset.offsets.copy()
+                sset = sset._replace(sigmas=sset.sigmas.copy(), offsets=offsets)
+            d["_pending"] = _Pending(p.phase, p.first, prior, propagated, p.Q1_2, sset)
         d["_buffers"] = Buffers()  # the copy's own (scratch: not copied)
         new.__dict__.update(d)
         return new

@@ -24,18 +24,21 @@ from models import (
     CV_Z,
     FILTER_STATE,
     assert_filter_state,
+    assert_fleet_state,
     assert_same_estimate,
     ct_hx,
     cv3_zs,
     cv_filter,
     cv_fx,
     filter_state,
+    fleet_state,
     linear_pair,
     make_cv3_fleet,
     near_filter,
     near_measurements,
     one_d,
     one_d_filterpy,
+    positions_hx,
     step,
 )
 
@@ -267,6 +270,60 @@ def test_copy_mid_step_finishes_the_step(kind, where):
     step(ref, CV_Z[2])
     assert_same_estimate(c, ref)
     assert_same_estimate(f, ref)
+
+
+@pytest.mark.parametrize("kind", ["copy", "deepcopy", "pickle"])
+@pytest.mark.parametrize(("scheme", "Q"), [("propagated", 1e-3), ("augmented", 0.0), ("redrawn", 1e-3)])
+def test_a_fleet_copied_mid_update_is_its_own(kind, scheme, Q):
+    """A fleet copied between ask_update and tell_update finishes its update as the original would have,
+    however the original steps meanwhile (the pending second set may be the prediction's images, which
+    live in the original's buffers)."""
+    zs = cv3_zs(4)
+
+    def asked():
+        fl = make_cv3_fleet(scheme=scheme)
+        fl.Q = Q * np.eye(4)
+        fl.predict()
+        return fl, fl.ask_update()
+
+    ref, Y = asked()
+    ref.tell_update(positions_hx(Y), zs[:, 0])
+    f, Y = asked()
+    c = {"copy": copy.copy, "deepcopy": copy.deepcopy, "pickle": lambda a: pickle.loads(pickle.dumps(a))}[
+        kind
+    ](f)
+    f.tell_update(positions_hx(Y), zs[:, 0])
+    for t in (1, 2):  # the original goes on, writing its buffers
+        f.predict()
+        f.update(zs[:, t])
+    c.tell_update(positions_hx(Y), zs[:, 0])
+    assert_fleet_state(c, fleet_state(ref))
+
+
+def test_a_fleet_batch_filter_that_fails_keeps_the_pending_update():
+    """The transaction of batch_filter puts back the fleet with its pending second set as it was."""
+    zs = cv3_zs(3)
+    ref = make_cv3_fleet(scheme="propagated")
+    ref.predict()
+    Y = ref.ask_update()
+    ref.tell_update(positions_hx(Y), zs[:, 0])
+    f = make_cv3_fleet(scheme="propagated")
+    f.predict()
+    Y = f.ask_update()
+    calls = []
+
+    def fails_at_the_second_update(X):
+        calls.append(1)
+        if len(calls) == 2:
+            raise RuntimeError("hx fails")
+        return positions_hx(X)
+
+    f.hx = fails_at_the_second_update
+    with pytest.raises(RuntimeError, match="hx fails"):
+        f.batch_filter(zs)
+    f.hx = positions_hx
+    f.tell_update(positions_hx(Y), zs[:, 0])
+    assert_fleet_state(f, fleet_state(ref))
 
 
 # -- Saver -----------------------------------------------------------------------------------
