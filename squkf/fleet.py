@@ -234,7 +234,7 @@ class Fleet:
         self._failed = np.zeros(K, dtype=bool)
         self._failure = np.full(K, "", dtype=object)
         self._x_prior, self._x_post, self._S_prior, self._S_post = self._x, self._x, self._S, self._S
-        self.y = np.zeros((K, m))
+        self._y = np.zeros((K, m))
         self._loglik = np.zeros(K)
         self._nis = np.zeros(K)
         self._rejected = np.zeros((K, m), dtype=bool)
@@ -438,6 +438,11 @@ class Fleet:
     def mahalanobis(self) -> np.ndarray:
         """Mahalanobis distance of each filter's last innovation, shape ``(K,)``."""
         return np.sqrt(self._nis)
+
+    @property
+    def y(self) -> np.ndarray:
+        """Innovations of the last update, shape ``(K, dim_z)``, NaN where nothing was measured (a copy)."""
+        return self._y.copy()
 
     @property
     def nis(self) -> np.ndarray:
@@ -664,7 +669,7 @@ class Fleet:
         self._pending = _IDLE_STEP
         self._stepped(post.x, post.S, fails)
         self._x_post, self._S_post = post.x, post.S  # never written in place: copied when read
-        self.y, self._loglik = post.y, post.log_likelihood
+        self._y, self._loglik = post.y, post.log_likelihood
         self._nis, self._rejected = post.nis, post.rejected
 
     def _no_update(self) -> None:
@@ -673,7 +678,7 @@ class Fleet:
         self._pending = _IDLE_STEP
         # the record's own copies: the estimate may live in the arrays the next prediction writes
         self._x_post, self._S_post = self._x.copy(), self._S.copy()
-        self.y, self._loglik = np.full((K, m), np.nan), np.zeros(K)
+        self._y, self._loglik = np.full((K, m), np.nan), np.zeros(K)
         self._nis, self._rejected = np.zeros(K), np.zeros((K, m), dtype=bool)
 
     # -- many steps ---------------------------------------------------------------
@@ -831,7 +836,7 @@ class Fleet:
         new._pending = _IDLE_STEP
         new._x_prior, new._x_post = self._x_prior[idx], self._x_post[idx]
         new._S_prior, new._S_post = self._S_prior[idx], self._S_post[idx]
-        new.y, new._loglik = self.y[idx], self._loglik[idx]
+        new._y, new._loglik = self._y[idx], self._loglik[idx]
         new._nis, new._rejected = self._nis[idx], self._rejected[idx]
         return new
 

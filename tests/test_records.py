@@ -300,6 +300,29 @@ def test_a_fleet_copied_mid_update_is_its_own(kind, scheme, Q):
     assert_fleet_state(c, fleet_state(ref))
 
 
+#: Every array a fleet hands out as a record or its state.
+FLEET_RECORDS = (
+    "x", "P", "P1_2", "Q", "R", "x_prior", "P_prior", "P1_2_prior", "x_post", "P_post", "P1_2_post", "y",
+    "log_likelihood", "likelihood", "mahalanobis", "nis", "rejected", "failed", "failure",
+)  # fmt: skip
+
+
+@pytest.mark.parametrize("scheme", ["redrawn", "augmented", "propagated"])
+def test_a_fleets_records_are_the_callers(scheme):
+    """What a fleet hands out is never written by its later steps (its buffers are used in turn)."""
+    zs = cv3_zs(4)
+    fl = make_cv3_fleet(scheme=scheme)
+    fl.predict()
+    fl.update(zs[:, 0])
+    kept = {name: getattr(fl, name) for name in FLEET_RECORDS}
+    copies = {name: a.copy() for name, a in kept.items()}
+    for t in (1, 2, 3):
+        fl.predict()
+        fl.update(zs[:, t])
+    for name, a in kept.items():
+        np.testing.assert_array_equal(a, copies[name], err_msg=name)
+
+
 def test_a_fleet_batch_filter_that_fails_keeps_the_pending_update():
     """The transaction of batch_filter puts back the fleet with its pending second set as it was."""
     zs = cv3_zs(3)
