@@ -892,13 +892,18 @@ class SquareRootUKF:
             slot = state["_" + name] = copy.copy(state["_" + name])
             if type(state[name]) is Unformed:
                 state[name] = Unformed(slot.matrix)
-        return state, copy.copy(self._engine), self._gain_of
+        return state, copy.copy(self._engine), self._kept_gain()
 
     def _restore(self, saved) -> None:
         state, engine, gain = saved
         self.__dict__.clear()
         self.__dict__.update(state)
-        self._engine, self._gain_of = engine, gain
+        self._engine, self._gain_of = engine, (engine.last, gain)
+
+    def _kept_gain(self) -> np.ndarray | None:
+        """The gain formed (or assigned) for the last update, or None where none is (never written in place)."""
+        last, K = self._gain_of
+        return K if last is self._engine.last else None
 
     def __copy__(self):
         new = type(self).__new__(type(self))
@@ -912,7 +917,7 @@ class SquareRootUKF:
                 value = value.copy()
             d[key] = value
         new._engine = copy.copy(self._engine)
-        new._gain_of = (new._engine.last, self._gain_of[1])  # never written in place: shared
+        new._gain_of = (new._engine.last, self._kept_gain())  # never written in place: shared
         new.__dict__.update(d)
         new._rebind()
         return new
@@ -921,17 +926,21 @@ class SquareRootUKF:
         new = type(self).__new__(type(self))
         memo[id(self)] = new
         d = copy.deepcopy({k: v for k, v in self.__dict__.items() if type(v) is not Unformed}, memo)
-        new._engine = copy.deepcopy(self._engine, memo)
-        new._gain_of = (new._engine.last, copy.deepcopy(self._gain_of[1], memo))
+        engine = new._engine = copy.deepcopy(self._engine, memo)
+        new._gain_of = (engine.last, copy.deepcopy(self._kept_gain(), memo))
         new.__dict__.update(d)
+        # the copy's routes run the copy's own hooks (the pending step's route too: it is the copy's)
+        pending_own_route = engine.step_route is engine.route
+        new._configured()
+        if pending_own_route:
+            engine.step_route = engine.route
         new._rebind()
         return new
 
     def __getstate__(self):
         state = {k: v for k, v in self.__dict__.items() if type(v) is not Unformed}
         state["_noise_cache"] = {}
-        gain = self._gain_of[1] if self._gain_of[0] is self._engine.last else None
-        return state, self._engine, gain
+        return state, self._engine, self._kept_gain()
 
     def __setstate__(self, saved):
         state, engine, gain = saved

@@ -45,6 +45,7 @@ from models import (
 from squkf import (
     JulierWeights,
     MerweScaledWeights,
+    NonFiniteError,
     SquareRootUKF,
 )
 
@@ -347,6 +348,55 @@ def test_a_fleet_batch_filter_that_fails_keeps_the_pending_update():
     f.hx = positions_hx
     f.tell_update(positions_hx(Y), zs[:, 0])
     assert_fleet_state(f, fleet_state(ref))
+
+
+class _CountingResidual:
+    """A hook with a state of its own: it counts its calls."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def __call__(self, a, b):
+        self.calls += 1
+        return a - b
+
+
+@pytest.mark.parametrize("where", ["idle", "after ask_update"])
+def test_a_deep_copy_steps_with_its_own_hooks(where):
+    f = cv_filter(residual_z=_CountingResidual())
+    step(f, CV_Z[0])
+    Y = None
+    if where == "after ask_update":
+        f.predict()
+        Y = f.ask_update()
+    g = copy.deepcopy(f)
+    assert g.residual_z is not f.residual_z
+    calls = f.residual_z.calls
+    if Y is not None:
+        g.tell_update([ct_hx(s) for s in Y], CV_Z[1])
+    step(g, CV_Z[2])
+    assert f.residual_z.calls == calls and g.residual_z.calls > calls
+
+
+@pytest.mark.parametrize("kind", ["copy", "deepcopy", "pickle"])
+def test_a_copy_has_the_gain_of_its_last_update(kind):
+    """The gain formed for an earlier update is never handed out for a later one, copied or not."""
+    f = cv_filter()
+    step(f, CV_Z[0])
+    _ = f.K  # formed for the first update, and kept
+    step(f, CV_Z[1])
+    c = _copies(f)[kind]
+    np.testing.assert_array_equal(c.K, f.K)
+
+
+def test_a_failed_batch_filter_keeps_an_assigned_gain():
+    f = cv_filter()
+    step(f, CV_Z[0])
+    f.K = np.full((4, 2), 7.0)
+    zs = [CV_Z[1], CV_Z[2], np.array([np.inf, 0.0])]
+    with pytest.raises(NonFiniteError):
+        f.batch_filter(zs)
+    np.testing.assert_array_equal(f.K, np.full((4, 2), 7.0))
 
 
 # -- Saver -----------------------------------------------------------------------------------
