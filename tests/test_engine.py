@@ -430,3 +430,73 @@ def test_a_kept_update_route_is_never_another_sets():
         np.testing.assert_array_equal(kept.x, fresh.x)
         np.testing.assert_array_equal(kept.P1_2, fresh.P1_2)
     assert len(kept._engine.route._updates) <= 32
+
+
+def _every_route(f_hooks, fleet):
+    """Steps through every kind of route: the default and the hooks', each scheme, a gate, a partial z,
+    a user's UT, the smoother, a fleet, and squkf.linalg; returns their numbers."""
+    from squkf.linalg import chol_update, solve_lower, tria
+
+    out = []
+    z = xy_radar_hx(TURN.x0[0])
+    partial = z.copy()
+    partial[1] = np.nan
+    for scheme in ("redrawn", "augmented", "propagated"):
+        for gate in (None, Gate(0.9999)):
+            f = merwe_turn_filter(MerweScaledWeights(alpha=0.5), scheme, gate)
+            for zz in (z, partial):
+                f.predict()
+                f.update(zz)
+            f.predict(UT=sqrt_unscented_transform)
+            f.update(z, UT=sqrt_unscented_transform)
+            out += [f.x, f.P1_2]
+    g = f_hooks()
+    means, covariances = g.batch_filter([z, partial, z])[:2]
+    xs, Ps, _ = g.rts_smoother(means, covariances)
+    out += [xs, Ps]
+    fleet.predict()
+    fleet.update(np.tile(z, (3, 1)))
+    out += [fleet.x, fleet.P1_2]
+    S = TURN.S0[0]
+    out += [tria(np.ones((4, 6))), solve_lower(S, np.ones(4)), chol_update(S, 0.1 * np.ones(4))]
+    return out
+
+
+def test_every_route_reads_the_kernel_table(monkeypatch):
+    """The seam: with the numba kernels reachable only through the installed table, every route runs
+    (a second backend's table serves them all) and gives the same numbers."""
+    from squkf.kernels import phases
+
+    def hooked():
+        f = SquareRootUKF(
+            4, 2, 1.0, xy_radar_hx, lambda x, dt: heading_fx(x), MerweScaledWeights(alpha=0.5),
+            residual_z=np.subtract, x_mean_fn=AngleMean([2]),
+        )  # fmt: skip
+        f.x, f.P1_2, f.Q1_2, f.R1_2 = TURN.x0[0], TURN.S0[0], TURN.Q1_2, TURN.R1_2
+        return f
+
+    def fleet():
+        def fx(X, dt):
+            return np.apply_along_axis(heading_fx, -1, X)
+
+        def hx(X):
+            return np.apply_along_axis(xy_radar_hx, -1, X)
+
+        f = SquareRootUKF(
+            4, 2, 1.0, hx, fx, MerweScaledWeights(alpha=0.5), vectorized=True, residual_z=np.subtract
+        )
+        f.x, f.P1_2, f.Q1_2, f.R1_2 = TURN.x0[0], TURN.S0[0], TURN.Q1_2, TURN.R1_2
+        return Fleet.from_filters([f, f, f])
+
+    expected = _every_route(hooked, fleet())  # (and every kernel compiled or loaded)
+    real = kernels.KERNELS
+    table = kernels.KernelTable(*real)  # the same kernels, reachable only here
+    for name in real._fields:
+
+        def gone(*args, _name=name):
+            raise AssertionError(f"{_name} called around the kernel table")
+
+        monkeypatch.setattr(phases, f"{name}_kernel", gone)
+    monkeypatch.setattr(kernels, "KERNELS", table)
+    for a, b in zip(_every_route(hooked, fleet()), expected):
+        np.testing.assert_array_equal(a, b)

@@ -425,7 +425,10 @@ class KernelTable(NamedTuple):
 
     Each entry takes C-contiguous float64 stacks with the filter axis first and writes its
     results into the outputs it is given (:mod:`squkf.kernels.phases` documents the arguments).
-    A second table (another backend) gives the same entries with the same arguments.
+    A second table (another backend) gives the same entries with the same arguments. Every
+    numerical route reads the table when it runs (the engine, and the wrappers below, which
+    the hooks' routes, the smoother and :mod:`squkf.linalg` call), so the table installed as
+    :data:`KERNELS` serves them all.
     """
 
     points: Callable
@@ -434,6 +437,8 @@ class KernelTable(NamedTuple):
     downdate_update: Callable
     finite_rows: Callable
     tria: Callable
+    solve: Callable
+    chol_update: Callable
 
 
 #: The CPU table: the numba kernels.
@@ -444,6 +449,8 @@ KERNELS = KernelTable(
     phases.downdate_update_kernel,
     phases.finite_rows_kernel,
     phases.tria_kernel,
+    phases.solve_kernel,
+    phases.chol_update_kernel,
 )
 
 _NO_NOISE: dict[int, np.ndarray] = {}
@@ -485,7 +492,7 @@ def tria(rows: np.ndarray) -> np.ndarray:
     k, n = rows.shape[-2:]
     A = _stack(rows, batch, 2)
     S = np.empty((A.shape[0], n, n))
-    _call(phases.tria_kernel, A.shape[0], A, S)
+    _call(KERNELS.tria, A.shape[0], A, S)
     return _unstack(S, batch)
 
 
@@ -512,7 +519,7 @@ def solve_lower(L: np.ndarray, b: np.ndarray, trans: bool = False) -> tuple[np.n
     Y = _stack(B_, batch, 2)
     X = np.empty(Y.shape)
     ok = np.empty(Y.shape[0], dtype=np.bool_)
-    _call(phases.solve_kernel, Y.shape[0], _shared(L, batch, 2), Y, 1 if trans else 0, X, ok)
+    _call(KERNELS.solve, Y.shape[0], _shared(L, batch, 2), Y, 1 if trans else 0, X, ok)
     X = _unstack(X, batch)
     return (X[..., 0] if vector else X), _unstack(ok, batch)
 
@@ -537,7 +544,7 @@ def chol_update(S: np.ndarray, v: np.ndarray, sign: float) -> tuple[np.ndarray, 
     L = _stack(S, batch, 2)
     out = np.empty(L.shape)
     fail = np.empty(L.shape[0], dtype=np.int64)
-    _call(phases.chol_update_kernel, L.shape[0], L, _stack(v, batch, 1), float(sign), out, fail)
+    _call(KERNELS.chol_update, L.shape[0], L, _stack(v, batch, 1), float(sign), out, fail)
     return _unstack(out, batch), _unstack(fail, batch)
 
 
@@ -568,7 +575,7 @@ def sigma_points(x: np.ndarray, S: np.ndarray, xi: np.ndarray, gamma: float = 0.
     X = np.empty((Ss.shape[0], N, n))
     dX = np.empty(X.shape if offsets else (0, N, n))
     _call(
-        phases.points_kernel,
+        KERNELS.points,
         Ss.shape[0],
         _shared(x, batch, 1),
         Ss,
@@ -594,7 +601,7 @@ def finite_rows(A: np.ndarray) -> np.ndarray:
     """
     rows = kernel_array(A.reshape(A.shape[0], -1))
     ok = np.empty(rows.shape[0], dtype=np.bool_)
-    _call(phases.finite_rows_kernel, rows.shape[0], rows, ok)
+    _call(KERNELS.finite_rows, rows.shape[0], rows, ok)
     return ok
 
 
@@ -641,7 +648,7 @@ def transform(
     status = np.empty(B, dtype=np.int64)
     nothing = no_set(d)
     _call(
-        phases.transform_kernel,
+        KERNELS.transform,
         B,
         Ps,
         R,
@@ -745,7 +752,7 @@ def joint_update(
     out += [np.empty((B, n, m)), np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n))]
     out += [np.empty(B), np.empty(B), np.empty(B, dtype=np.int64)]
     _call(
-        phases.joint_update_kernel,
+        KERNELS.joint_update,
         B,
         Hs,
         zeros_row(m) if zref is None else _shared(zref, batch, 1),
@@ -810,7 +817,7 @@ def downdate_update(
     ys = _stack(y, batch, 1)
     Sys = _stack(Sy, batch, 2)
     _call(
-        phases.downdate_update_kernel,
+        KERNELS.downdate_update,
         B,
         Hs,
         _shared(z_pred, batch, 1),
