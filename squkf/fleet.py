@@ -180,6 +180,9 @@ class Fleet:
     array([ 0.5,  0. , -0.5])
     """
 
+    # the step's buffers live outside __dict__: a Saver's rows (and a transaction's snapshot) never see them
+    __slots__ = ("_buffers", "__dict__", "__weakref__")
+
     def __init__(
         self,
         n_filters: int,
@@ -230,7 +233,7 @@ class Fleet:
         self._Q1_2: np.ndarray | None = np.eye(self._qd)
         self._R1_2: np.ndarray = np.eye(self._rd)
         self._pending = _IDLE_STEP
-        self._buffers = Buffers()  # the step's (K, ...) results, two sets used in turn
+        self._buffers = Buffers()  # the step's (K, ...) results, used in turn
         self._failed = np.zeros(K, dtype=bool)
         self._failure = np.full(K, "", dtype=object)
         self._x_prior, self._x_post, self._S_prior, self._S_post = self._x, self._x, self._S, self._S
@@ -773,10 +776,8 @@ class Fleet:
 
     def _restore(self, saved: tuple[Fleet, HandOut]) -> None:
         before, handed = saved
-        buffers = self._buffers
         self.__dict__.update(before.__dict__)
         self.__dict__["_handed"] = handed  # the arrays handed out stay the caller's, still current
-        self.__dict__["_buffers"] = buffers
 
     # -- one filter and back --------------------------------------------------------
 
@@ -881,18 +882,16 @@ class Fleet:
                 offsets = None if sset.offsets is None else sset.offsets.copy()
                 sset = sset._replace(sigmas=sset.sigmas.copy(), offsets=offsets)
             d["_pending"] = _Pending(p.phase, p.first, prior, propagated, p.Q1_2, sset)
-        d["_buffers"] = Buffers()  # the copy's own (scratch: not copied)
+        new._buffers = Buffers()  # the copy's own (not copied: nothing of them outlives a step)
         new.__dict__.update(d)
         return new
 
     def __getstate__(self) -> dict:
-        state = dict(self.__dict__)
-        del state["_buffers"]  # scratch: not pickled
-        return state
+        return dict(self.__dict__)  # not the buffers
 
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
-        self.__dict__["_buffers"] = Buffers()
+        self._buffers = Buffers()
 
     def __deepcopy__(self, memo):
         new = copy.copy(self)

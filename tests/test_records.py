@@ -477,6 +477,39 @@ def test_a_savers_history_has_the_same_keys_and_no_engine_buffer():
     np.testing.assert_array_equal(s.K[3], K3)
 
 
+def test_a_fleets_saver_rows_hold_no_engine_buffer():
+    """A Saver on a fleet: no row is (or shares memory with) the arrays its later steps write."""
+    zs = cv3_zs(4)
+    fl = make_cv3_fleet()
+    s = Saver(fl)
+    for t in range(2):
+        fl.predict()
+        fl.update(zs[:, t])
+        s.save()
+    saved = {
+        key: [np.array(row, copy=True) for row in s[key] if isinstance(row, np.ndarray)] for key in s.keys
+    }
+    assert saved["x"] and saved["P_post"] and "_buffers" not in s.keys
+    buffers = [
+        a
+        for sets in fl._buffers.sets.values()
+        for group in sets
+        for a in (group if isinstance(group, (list, tuple)) else [group])
+        if isinstance(a, np.ndarray)
+    ]
+    for key in s.keys:
+        for row in s[key]:
+            if isinstance(row, np.ndarray) and row.size:
+                assert not any(np.shares_memory(row, a) for a in buffers), key
+    for t in (2, 3):
+        fl.predict()
+        fl.update(zs[:, t])
+    for key, rows in saved.items():
+        kept = [row for row in s[key] if isinstance(row, np.ndarray)]
+        for a, b in zip(kept, rows):
+            np.testing.assert_array_equal(a, b, err_msg=key)
+
+
 def test_a_pickle_is_no_larger_than_before_the_engine():
     """Copies and pickles carry the state and a half-done step, not the engine's buffers (the sizes of
     these pickles at 0cdce8e: 6673, 7359 and 7369 bytes, a fleet's 5722)."""
