@@ -1002,20 +1002,6 @@ def _none_rejected(shape: tuple) -> np.ndarray:
     return a
 
 
-def _noise(Q1_2: np.ndarray | None, n: int) -> np.ndarray:
-    """A noise factor as the transform kernel takes it: ``(1 or B, n, q)``, ``q = 0`` for none."""
-    if Q1_2 is None:
-        return kernels.no_noise(n)
-    return _stacked(Q1_2)
-
-
-def _stacked(a: np.ndarray) -> np.ndarray:
-    """A shared ``(d, d)`` factor as a stack of one, or a per-filter stack as it is (float64, C order)."""
-    if a.ndim == 2:
-        a = a[None]
-    return kernels.kernel_array(a)
-
-
 def _described(code: int, images: np.ndarray, status: np.ndarray, name: str) -> SqukfError | None:
     """The error of images that are not finite (status 306), in the words of the first such filter."""
     if code != NOT_FINITE_IMAGES:

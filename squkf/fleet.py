@@ -408,7 +408,7 @@ class Fleet:
     def chunk(self, value) -> None:
         self._chunk: int | None = None if value is None else checks.check_sizes(chunk=value)[0]
 
-    # -- records of the last step (the arrays behind them are never written in place) ------
+    # -- records of the last step (the buffers behind them are not written while a record holds them) --
 
     x_prior = _record("_x_prior", "States after the last prediction, shape ``(K, dim_x)`` (fresh).")
     P1_2_prior = _record("_S_prior", "Lower factors after the last prediction, ``(K, n, n)`` (fresh).")
@@ -637,7 +637,7 @@ class Fleet:
         # commit; the second set is drawn by the update, a chunk at a time (memory)
         self._pending = _Pending(PRIOR, None, (prior.x, prior.S), prior.propagated, Q)
         self._stepped(prior.x, prior.S, fails)
-        self._x_prior, self._S_prior = prior.x, prior.S  # never written in place: copied when read
+        self._x_prior, self._S_prior = prior.x, prior.S  # not written while held (_held): copied when read
 
     def _held(self) -> tuple:
         """The arrays the records hold: what a step must not write (its results go to spare buffers)."""
@@ -671,7 +671,7 @@ class Fleet:
         # commit
         self._pending = _IDLE_STEP
         self._stepped(post.x, post.S, fails)
-        self._x_post, self._S_post = post.x, post.S  # never written in place: copied when read
+        self._x_post, self._S_post = post.x, post.S  # not written while held (_held): copied when read
         self._y, self._loglik = post.y, post.log_likelihood
         self._nis, self._rejected = post.nis, post.rejected
 

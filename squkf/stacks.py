@@ -388,7 +388,7 @@ def _flag(status: np.ndarray, on: np.ndarray, found: dict[int, str], form, what:
 
 
 class Prior(NamedTuple):
-    """The priors of a fleet's prediction (fresh arrays).
+    """The priors of a fleet's prediction (in the fleet's buffers where given, else new arrays).
 
     Attributes
     ----------
@@ -506,7 +506,8 @@ def predict(
 
 
 class Posteriors(NamedTuple):
-    """The records of a fleet's update (fresh arrays; a filter not updated keeps its prior).
+    """The records of a fleet's update (in the fleet's buffers where given, else new arrays; a filter not
+    updated keeps its prior).
 
     Attributes
     ----------

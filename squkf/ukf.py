@@ -244,7 +244,7 @@ class SquareRootUKF:
         self.vectorized = bool(vectorized)
         self.inv = np.linalg.inv
         # P, Q (the noise's own dimension when it enters fx), R; x = 0; the records of no step yet
-        initial(d, n, m, fx_noise_ or n, hx_noise_ or m)
+        initial(d, m, fx_noise_ or n, hx_noise_ or m)
         route = Route(plan, hooks_of(d), d["_gate"], single=True)
         self._engine = Engine(
             route, np.zeros((1, n)), np.eye(n)[None], np.zeros((1, num, n)), np.zeros((1, num, m))
@@ -461,12 +461,12 @@ class SquareRootUKF:
     @property
     def sigmas_f(self) -> np.ndarray:
         """The second set after a prediction (filterpy's ``sigmas_f``), ``(N2, dim_x)`` (a fresh array)."""
-        return self._engine.shown_f[0].copy()  # type: ignore[index]  # set by records_of_no_step
+        return self._engine.shown_f[0].copy()
 
     @property
     def sigmas_h(self) -> np.ndarray:
         """``hx`` at the second set in the last update, ``(N2, dim_z)`` (a fresh array)."""
-        return self._engine.H[0].copy()  # type: ignore[index]  # set by records_of_no_step
+        return self._engine.H[0].copy()
 
     @property
     def y(self) -> np.ndarray:
@@ -729,7 +729,7 @@ class SquareRootUKF:
                 if self.vectorized
                 else self._per_point(fx, sigmas[0], dt, fx_args)
             )
-            Q1_2 = self._Q.factor() if Q is None else self._Q1_2(Q)
+            Q1_2 = self._Q1_2(Q)
         else:  # noise entering fx is in the points: no noise is added to the prior
             values, Q1_2 = self._model(fx, "fx", sigmas[0], (dt,), fx_args, Q, UT), None
         e.tell_predict(values, Q1_2, UT, sigmas)
@@ -768,10 +768,7 @@ class SquareRootUKF:
         hx = self.hx if hx is None else hx
         if self._plan.v_xi is None:
             values = hx(sigmas, **hx_args) if self.vectorized else self._per_point(hx, sigmas, None, hx_args)
-            m = z.shape[0]
-            R1_2 = self._R1_2(R, m) if (R is not None or m != self._dim_z) else self._R.factor()
-            if R1_2 is None:
-                R1_2 = np.zeros((m, m))
+            R1_2 = self._R1_2(R, z.shape[0])
         else:  # noise entering hx is in the points: the update adds none
             values = self._model(hx, "hx", sigmas, (), hx_args, R, UT)
             R1_2 = np.zeros((z.shape[0],) * 2)
@@ -901,7 +898,7 @@ class SquareRootUKF:
         self._engine, self._gain_of = engine, (engine.last, gain)
 
     def _kept_gain(self) -> np.ndarray | None:
-        """The gain formed (or assigned) for the last update, or None where none is (never written in place)."""
+        """The gain formed (or assigned) for the last update, or None (never written in place)."""
         last, K = self._gain_of
         return K if last is self._engine.last else None
 

@@ -398,7 +398,7 @@ NOISES = ("Q", "R")
 class Unformed:
     """Stands in the ``__dict__`` for an array nobody has read since the step changed it.
 
-    Reading the attribute forms it (:class:`Covariance`, :class:`State`); a deep
+    Reading the attribute forms it (:class:`Covariance`, :class:`Estimate`); a deep
     copy of the ``__dict__`` (what filterpy's ``Saver`` takes) gets the array
     itself, so a saved history holds arrays, formed only when saved.
 
@@ -491,14 +491,14 @@ class Hook:
         obj._hooks_assigned()
 
 
-def initial(d: dict, n: int, m: int, q: int, r: int) -> None:
-    """Fill a new filter's ``__dict__``: ``Q``, ``R`` identities (``x`` and ``P`` are the engine's).
+def initial(d: dict, m: int, q: int, r: int) -> None:
+    """Fill a new filter's ``__dict__``: ``Q``, ``R`` identities, ``z`` (``x`` and ``P`` are the engine's).
 
     Parameters
     ----------
     d : dict
-    n, m : int
-        State and measurement dimensions.
+    m : int
+        Measurement dimension.
     q, r : int
         The dimensions of ``Q`` and ``R`` (the noise's own when it enters ``fx``, ``hx``).
     """
