@@ -89,9 +89,13 @@ __all__ = [
 
 _TINY = float(np.finfo(np.float64).tiny)
 _LOG_2PI = math.log(2.0 * math.pi)
-#: The decorator of every kernel and helper: compiled on first call, releases the GIL, cached on disk where
-#: numba has a writable place, else in memory with a warning (:mod:`squkf.kernels.cache`).
-kernel = jit(nogil=True, error_model="numpy")
+#: The decorator of every kernel: compiled on first call, releases the GIL, cached on disk where numba has a
+#: writable place, else in memory with a warning (:mod:`squkf.kernels.cache`). No C-callable wrapper: a
+#: kernel is called from Python or from another kernel, never through a C pointer (the wrapper would only
+#: add compile time).
+kernel = jit(nogil=True, error_model="numpy", no_cfunc_wrapper=True)
+#: The decorator of every helper: a kernel called only from other kernels, so with no Python wrapper either.
+_helper = jit(nogil=True, error_model="numpy", no_cfunc_wrapper=True, no_cpython_wrapper=True)
 #: Inlined into its caller (numba IR), so that it never compiles on its own (:func:`_unfold`).
 _inline = jit(nogil=True, error_model="numpy", inline="always")
 _LANES = 64
@@ -114,7 +118,7 @@ _geqrf = _LAPACK().numba_ez_geqrf(types.float64)
 _KIND = ord("d")
 
 
-@kernel
+@_helper
 def _tria_lapack(At, c, r, nb):
     """``tria_lanes`` for wide matrices: one ``dgeqrf`` per lane, then each row of R made non-negative."""
     tau = np.empty(max(1, min(r, c)))
@@ -130,7 +134,7 @@ def _tria_lapack(At, c, r, nb):
                 At[l, j, b] = s * F[j + l * r]
 
 
-@kernel
+@_helper
 def tria_lanes(At, c, r, nb, V):
     """Householder QR of ``nb`` row matrices ``A`` (``r x c``) held transposed.
 
@@ -202,7 +206,7 @@ def tria_lanes(At, c, r, nb, V):
             At[j, j, b] = V[5, b]
 
 
-@kernel
+@_helper
 def solve_lower_lanes(L, y, n, nb, trans):
     """Solve ``L w = y`` (or ``L.T w = y``) in place for lower-triangular ``L``, on lanes.
 
@@ -232,7 +236,7 @@ def solve_lower_lanes(L, y, n, nb, trans):
                 y[i, b] /= L[i, i, b]
 
 
-@kernel
+@_helper
 def chol_update_lanes(L, v, n, nb, sign, fail, V):
     """Rank-1 update (``sign > 0``) or downdate of lower factors in place, in O(n^2), on lanes.
 
@@ -280,14 +284,14 @@ def chol_update_lanes(L, v, n, nb, sign, fail, V):
                 v[i, b] = V[0, b] * v[i, b] - V[1, b] * Lik
 
 
-@kernel
+@_helper
 def _lanes(size, B):
     """Lanes per block for a scratch matrix of ``size`` entries per filter: 64 at most, and no
     more than the ``B`` filters there are (one filter's scratch is then contiguous)."""
     return max(1, min(_LANES, _SCRATCH // max(size, 1), B))
 
 
-@kernel
+@_helper
 def _source(mode, r, N):
     """Where row ``r`` of a form lives in the deviation buffer (central: ``mu`` in slot 0)."""
     if mode == 0:
@@ -300,7 +304,7 @@ def _source(mode, r, N):
 # sets stay a loop per filter (contiguous rows: faster there, measured).
 
 
-@kernel
+@_helper
 def _load_points(P, k0, nb, Pl):
     """``Pl[i, l, b] = P[k0 + b, i, l]`` (point-major: one filter's points are copied as they are)."""
     N, d = P.shape[1], P.shape[2]
@@ -311,7 +315,7 @@ def _load_points(P, k0, nb, Pl):
                 Pl[i, l, b] = Q[b, i, l]
 
 
-@kernel
+@_helper
 def _finite_lanes(Pl, N, d, nb, acc):
     """``acc[b] == 0`` exactly when lane ``b``'s ``N x d`` values are all finite (a NaN sum otherwise).
 
@@ -326,7 +330,7 @@ def _finite_lanes(Pl, N, d, nb, acc):
                 acc[b] += Pl[i, l, b] * 0.0
 
 
-@kernel
+@_helper
 def _load_vector(a, k0, nb, al):
     """``al[l, b] = a[k0 + b, l]``, or ``a[0, l]`` for a shared ``a``."""
     if a.shape[0] == 1:
@@ -341,7 +345,7 @@ def _load_vector(a, k0, nb, al):
             al[l, b] = Q[b, l]
 
 
-@kernel
+@_helper
 def _load_matrix(a, k0, nb, al):
     """``al[i, j, b] = a[k0 + b, i, j]``, or ``a[0, i, j]`` for a shared ``a``."""
     if a.shape[0] == 1:
@@ -358,7 +362,7 @@ def _load_matrix(a, k0, nb, al):
                 al[i, j, b] = Q[b, i, j]
 
 
-@kernel
+@_helper
 def _store_lower(L, i0, n, k0, nb, out):
     """``out[k0 + b] = tril(L[i0:i0 + n, i0:i0 + n, b])``, a diagonal block of the lanes' factors."""
     Q = out[k0 : k0 + nb]
@@ -372,7 +376,7 @@ def _store_lower(L, i0, n, k0, nb, out):
                     Q[b, i, j] = 0.0
 
 
-@kernel
+@_helper
 def _deviations(Pl, N, d, nb, mode, wm, mean):
     """The rows of a form in place in ``Pl`` (``N x d x nb``) and the mean in ``mean`` (``d x nb``).
 
@@ -413,7 +417,7 @@ def _deviations(Pl, N, d, nb, mode, wm, mean):
                     Pl[i, l, b] -= mean[l, b]
 
 
-@kernel
+@_helper
 def _state_rows(Xl, N, n, nb, mode, wm, xref):
     """State rows in place in ``Xl`` (``N x n x nb``): central (mode 0), ``X - xref`` (1), as given (2)."""
     if mode == 0:
@@ -437,7 +441,7 @@ def _state_rows(Xl, N, n, nb, mode, wm, xref):
                     Xl[i, l, b] -= xref[l, b]
 
 
-@kernel
+@_helper
 def _factor_lanes(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, fl, st):
     """Factor weighted rows and a noise factor in place in ``At`` (``L = At`` below its diagonal).
 
@@ -606,7 +610,7 @@ def chol_update_kernel(L, v, sign, out, fail):
         _store_lower(Ll, _unfold(0), n, k0, nb, out)
 
 
-@kernel
+@_helper
 def _offsets(Sl, xi, N, n, nb, Dl):
     """The offsets ``Dl[i, l, b] = (xi[i] @ S_b.T)[l]`` of :func:`points_kernel` (``S_b = Sl[:, :, b]``),
     point-major, so that one filter's offsets are its output's rows."""
@@ -620,7 +624,7 @@ def _offsets(Sl, xi, N, n, nb, Dl):
                     Dl[i, l, b] += c * Sl[l, j, b]
 
 
-@kernel
+@_helper
 def _axis_points(x, S, gamma, X, dX, offsets):
     """:func:`points_kernel` for axis points, one filter at a time: the columns of its factor, times
     ``+/- gamma``, straight into its rows. Each point is its centre plus its offset, ``x + s`` and
@@ -718,7 +722,7 @@ def finite_rows_kernel(A, ok):
         ok[k] = special == 0
 
 
-@kernel
+@_helper
 def _augmented_set(F, noise, xi, gamma, X2):
     """``X2[k] = [F[k]; F[k, 0] + xi @ noise[k].T]``: g13ej's augmented second set (``noise``, shape
     ``(B or 1, d, q)``, the process noise's lower factor; with ``q == 0`` the set is ``F`` alone)."""
@@ -824,7 +828,7 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status, draw
         _augmented_set(P, noise, xi2, gamma2, X2)
 
 
-@kernel
+@_helper
 def _paired_rows(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V):
     """The rotated joint rows of axis points (``joint_update_kernel``'s ``pair``) into ``At``.
 
@@ -1014,7 +1018,7 @@ def joint_update_kernel(
         points_kernel(xpost, Spost, xi1, gamma1, X1, np.empty((0, X1.shape[1], n)))
 
 
-@kernel
+@_helper
 def _likelihood(Sy, w, m, k0, nb, ll, ww):
     """``ww = w.w`` and the Gaussian log-likelihood ``-(m log 2 pi + 2 sum log|Sy_ii| + w.w) / 2``."""
     for b in range(nb):
@@ -1027,7 +1031,7 @@ def _likelihood(Sy, w, m, k0, nb, ll, ww):
         ll[k0 + b] = -0.5 * (m * _LOG_2PI + 2.0 * logdet + s)
 
 
-@kernel
+@_helper
 def _innovation(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
     """From the innovation factor: g13ej's 302 unless ``Sy`` is regular, ``w = Sy^-1 y``, the
     likelihood, and ``dx = L21 w`` with ``L21`` the rows ``r0 .. r0 + n`` of its buffer."""
@@ -1049,7 +1053,7 @@ def _innovation(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
                 dxl[l, b] += L21[r0 + l, j, b] * wl[j, b]
 
 
-@kernel
+@_helper
 def _finish(L, i0, n, xl, dxl, st, k0, nb, dx, xpost):
     """``xpost = x + dx``; 303 unless it and the posterior factor ``L[i0:, i0:]`` are finite.
 
