@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import io
 import os
+import shutil
 import subprocess
 import sys
 import tarfile
@@ -34,18 +35,48 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 
-def load_revision(rev: str, where: Path):
-    """Import the ``squkf`` package of git revision ``rev`` as ``squkf_ref``."""
+def _extract(rev: str, where: Path) -> None:
+    """The ``squkf`` package of git revision ``rev`` as ``where/squkf_ref``."""
     data = subprocess.run(
         ["git", "archive", rev, "squkf"], cwd=HERE.parent, check=True, capture_output=True
     ).stdout
     with tarfile.open(fileobj=io.BytesIO(data)) as tar:
         tar.extractall(where, filter="data")
     (where / "squkf").rename(where / "squkf_ref")
+
+
+def load_revision(rev: str, where: Path):
+    """Import the ``squkf`` package of git revision ``rev`` as ``squkf_ref``."""
+    _extract(rev, where)
     sys.path.insert(0, str(where))
     import squkf_ref
 
     return squkf_ref
+
+
+def revision_folder(rev: str) -> Path:
+    """A folder holding ``squkf_ref``, the ``squkf`` package of ``rev``, extracted once per commit.
+
+    It is kept in the system's temporary folder under the commit's name, so that numba's cache of
+    its kernels (written beside them) serves the next run too; put the folder on ``sys.path`` and
+    ``import squkf_ref``.
+    """
+    sha = subprocess.run(
+        ["git", "rev-parse", "--verify", f"{rev}^{{commit}}"],
+        cwd=HERE.parent,
+        check=True,
+        capture_output=True,
+        text=True,
+    ).stdout.strip()
+    where = Path(tempfile.gettempdir()) / f"squkf_ref_{sha[:12]}"
+    if not (where / "squkf_ref").is_dir():
+        tmp = Path(tempfile.mkdtemp(prefix="squkf_ref_part_"))
+        _extract(sha, tmp)
+        try:
+            tmp.rename(where)  # whole or not at all (another run may have made it meanwhile)
+        except OSError:
+            shutil.rmtree(tmp, ignore_errors=True)
+    return where
 
 
 def main(argv=None) -> int:

@@ -3,7 +3,7 @@
     python benchmarks/chunk_sizes.py                      # K = 10^4 and 10^5, chunks 1024 .. 4096
     python benchmarks/chunk_sizes.py --Ks 100000 --sizes 2048 4096 --reps 9
 
-The basis of ``squkf.chunks.default_chunk`` (2048 filters a chunk on one
+The basis of ``squkf.stacks.default_chunk`` (2048 filters a chunk on one
 thread, 4096 on more). The model is ``fleet.py``'s n = 4 constant velocity
 with range and bearing. Every (threads, chunk) pair is run once per
 repetition, in turn, and the process is pinned to two CPUs with BLAS on one

@@ -1,29 +1,39 @@
 """Lower bounds for the library's own time per step, measured on this machine.
 
+    python benchmarks/floor.py              # check the inlined step against SquareRootUKF, bit for bit
+
 Two references, neither of them a filter anyone should use:
 
 - ``qr_ms``: the two QR factorisations a square-root step needs (the prior's
   ``(N + n) x n`` rows and the update's joint ``(N + m) x (m + n)`` rows),
-  timed alone on fresh random rows.
-- ``inline_impls``: the default step (redrawn Merwe points, ``beta >= alpha**2``)
-  written as one straight function with no validation, no error handling,
-  no bookkeeping of filterpy's attributes and no support for anything else.
-  It is what a hand-tuned NumPy square-root UKF costs here, so the gap
-  between it and ``SquareRootUKF`` is the price of the library's checks and
-  interface, and the gap between it and filterpy is all a NumPy library can win.
+  timed alone on fresh random rows with LAPACK's ``dgeqrfp``.
+- ``inline_impls``: the library's default step (redrawn Merwe points, the
+  fused route of :mod:`squkf.engine`) written as one straight function: the
+  same two kernels of :data:`squkf.kernels.KERNELS` called directly (after
+  ``fx``, the transform kernel gives the prior and the second set; after
+  ``hx``, the joint-update kernel gives the posterior and the next first set)
+  into buffers allocated once, with no validation, no error handling, no
+  bookkeeping of filterpy's attributes and no support for anything else.
+  It gives the same numbers as ``SquareRootUKF``, bit for bit, so the gap
+  between the two is the price of the library's checks and interface, and the
+  gap between it and filterpy is all the library can win with these kernels.
+
+``step_profile`` splits one ``SquareRootUKF`` step into the same kernel calls,
+the checks of what the model functions and the caller bring, and the rest.
 """
 
 from __future__ import annotations
 
-import math
+import argparse
+import sys
 import time
+from types import SimpleNamespace
 
 import numpy as np
 from peers import Impl
 from scipy.linalg import lapack
 
 _geqrfp = lapack.get_lapack_funcs("geqrfp", dtype=np.float64)  # R with a non-negative diagonal
-_trtrs = lapack.get_lapack_funcs("trtrs", dtype=np.float64)
 
 
 def qr_ms(n: int, m: int, N: int, reps: int = 300) -> float:
@@ -41,58 +51,107 @@ def qr_ms(n: int, m: int, N: int, reps: int = 300) -> float:
     return 1e3 * float(np.median(times))
 
 
+def library_filter(sc, fx, hx, vectorized: bool):
+    """The ``SquareRootUKF`` of scenario ``sc`` (default scheme), set up as the benchmark's."""
+    from squkf import MerweScaledWeights, SquareRootUKF
+
+    pts = MerweScaledWeights(sc.alpha, sc.beta, sc.kappa)
+    f = SquareRootUKF(sc.dim_x, sc.dim_z, sc.dt, hx, fx, pts, vectorized=vectorized)
+    f.x, f.P, f.Q, f.R = sc.x0.copy(), sc.P0.copy(), sc.Q.copy(), sc.R.copy()
+    return f
+
+
+def fused_route(f) -> SimpleNamespace:
+    """The kernel arguments of ``f``'s default (fused) step, read once from its plan and route.
+
+    ``f`` is a ``SquareRootUKF`` with the redrawn second set and no hooks; the buffers are a
+    block of one filter, allocated here, and the state is ``f``'s current estimate.
+    """
+    from squkf.generators import SigmaSet
+    from squkf.kernels import KERNELS, kernel_array, no_set, zeros_row
+
+    plan, engine = f._plan, f._engine
+    route = engine.route
+    n, m, N = plan.n, f.dim_z, plan.num_sigmas
+    fused = plan.fused_draw
+    if fused is None or fused.augmented or route.hooks.state_add is not None:
+        raise ValueError("the inlined step is the redrawn scheme's fused route only")
+    N2 = fused.xi.shape[0]
+    r = SimpleNamespace(n=n, m=m, N=N, N2=N2, plan=plan, fused=fused, kernels=KERNELS)
+    r.zeros_n, r.zeros_m = zeros_row(n), zeros_row(m)
+    r.Q = kernel_array(f._Q.factor()[None])
+    r.R = kernel_array(f._R.factor()[None])
+    # the prediction's outputs: the prior, its status, the second set and its offsets
+    r.mean, r.S, r.status = np.empty((1, n)), np.empty((1, n, n)), np.empty(1, dtype=np.int64)
+    r.X2, r.D2 = np.empty((1, N2, n)), np.empty((1, N2, n))
+    # the update's outputs: records, the posterior and the next first set
+    r.zp, r.y, r.w, r.Sy = np.empty((1, m)), np.empty((1, m)), np.empty((1, m)), np.empty((1, m, m))
+    r.L21, r.dx, r.x, r.Spost = np.empty((1, n, m)), np.empty((1, n)), np.empty((1, n)), np.empty((1, n, n))
+    r.ll, r.ww, r.ustatus = np.empty(1), np.empty(1), np.empty(1, dtype=np.int64)
+    r.X1 = np.empty((1, N, n))
+    rows = fused.rows
+    sset = SigmaSet(r.X2, rows.Wm, rows.Wc, fused.exact, r.D2, rows, fused.axis)
+    joint = route.update_route(sset, None)  # the joint-QR route the library takes with this set
+    if joint is None:
+        raise ValueError("the library's update does not take the joint-QR route here")
+    r.joint = joint
+    r.Xs = r.D2 if joint.offsets else r.X2
+    r.xref = r.mean if joint.xref else r.zeros_n
+    # the first set of the current estimate, as the library draws it
+    KERNELS.points(engine.x, engine.S, plan.xi1, plan.gamma1, r.X1, no_set(n))
+    r.x[...], r.Spost[...] = engine.x, engine.S
+    return r
+
+
+def prior(r, F: np.ndarray) -> None:
+    """The prior and the second set from the first set's images ``F`` ``(1, N, n)`` (one kernel)."""
+    p, fused = r.plan, r.fused
+    r.kernels.transform(
+        F, r.zeros_n, p.mode1, p.wm1, p.scale1, p.sign1, r.Q, r.mean, r.S, r.status,
+        1, fused.xi, fused.gamma, r.X2, r.D2,
+    )  # fmt: skip
+
+
+def posterior(r, H: np.ndarray, z: np.ndarray) -> None:
+    """The posterior and the next first set from the second set's images ``H`` ``(1, N2, m)``."""
+    j, p = r.joint, r.plan
+    r.kernels.joint_update(
+        H, r.zeros_m, r.Xs, r.xref, z, r.R, r.mean, j.mode, j.wm, j.scale, j.sign, j.pair,
+        r.zp, r.y, r.w, r.Sy, r.L21, r.dx, r.x, r.Spost, r.ll, r.ww, r.ustatus, p.xi1, p.gamma1, r.X1,
+    )  # fmt: skip
+
+
+def _block(a) -> np.ndarray:
+    """A model function's ``(N, d)`` images as the kernels take them: ``(1, N, d)``, float64, C order."""
+    if type(a) is not np.ndarray or a.dtype != np.float64 or not a.flags.c_contiguous:
+        a = np.ascontiguousarray(a, dtype=np.float64)
+    return a[None]
+
+
 class InlineStep:
-    """The redrawn central-form step, inlined; see the module docstring."""
+    """The default step, inlined over the library's two kernels; see the module docstring."""
 
     def __init__(self, sc, fx, hx, vectorized: bool):
-        from squkf import MerweScaledWeights
-
-        n, m = sc.dim_x, sc.dim_z
-        pts = MerweScaledWeights(sc.alpha, sc.beta, sc.kappa)
-        self.xi = np.array(pts.unit_sigma_points(n))
-        Wm, Wc = pts.weights(n)
-        N = self.xi.shape[0]
-        self.n, self.m, self.N, self.dt = n, m, N, sc.dt
-        self.tail = np.array(Wm[1:])
-        self.s = np.sqrt(Wc[1:])[:, None]
-        self.c = math.sqrt(Wc.sum() - 2.0)
-        self.G = self.xi[1:] * self.s
-        self.QT = np.linalg.cholesky(sc.Q).T
-        self.RT = np.linalg.cholesky(sc.R).T
-        self.A = np.empty((N + n, n), order="F")
-        self.M = np.empty((N + m, m + n), order="F")
-        self.mask = np.tril(np.ones((n + m, n + m)))
-        self.x, self.S = sc.x0.astype(float), np.linalg.cholesky(sc.P0)
-        self.fx, self.hx, self.vec = fx, hx, vectorized
+        # the plan, the noise factors and the initial factor are the library's, taken once
+        self.r = fused_route(library_filter(sc, fx, hx, vectorized))
+        self.fx, self.hx, self.vec, self.dt = fx, hx, vectorized, sc.dt
+        self.z = np.empty((1, sc.dim_z))
 
     def step(self, z):
-        n, m, N, A, M = self.n, self.m, self.N, self.A, self.M
-        X = self.xi.dot(self.S.T) + self.x
-        F = self.fx(X, self.dt) if self.vec else np.array([self.fx(s, self.dt) for s in X])
-        E = A[: N - 1]
-        np.subtract(F[1:], F[0], out=E)
-        mu = self.tail.dot(E)
-        E *= self.s
-        A[N - 1] = self.c * mu
-        A[N:] = self.QT
-        qr = _geqrfp(A, overwrite_a=1)[0]
-        S = qr[:n].T * self.mask[:n, :n]
-        x = F[0] + mu
-        D = self.xi.dot(S.T)
-        Z = self.hx(D + x) if self.vec else np.array([self.hx(s) for s in D + x])
-        Ez = M[: N - 1, :m]
-        np.subtract(Z[1:], Z[0], out=Ez)
-        muz = self.tail.dot(Ez)
-        Ez *= self.s
-        M[N - 1, :m] = self.c * muz
-        M[: N - 1, m:] = D[1:] * self.s
-        M[N - 1 :, m:] = 0.0
-        M[N:, :m] = self.RT
-        qr = _geqrfp(M, overwrite_a=1)[0]
-        L = qr[: m + n].T * self.mask
-        w = _trtrs(L[:m, :m], z - (Z[0] + muz), lower=1)[0]
-        self.x = x + L[m:, :m].dot(w)
-        self.S = L[m:, m:]
+        r, fx, hx, dt = self.r, self.fx, self.hx, self.dt
+        X = r.X1[0]
+        prior(r, _block(fx(X, dt) if self.vec else [fx(s, dt) for s in X]))
+        X = r.X2[0]
+        self.z[0] = z
+        posterior(r, _block(hx(X) if self.vec else [hx(s) for s in X]), self.z)
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.r.x[0]
+
+    @property
+    def S(self) -> np.ndarray:
+        return self.r.Spost[0]
 
 
 def inline_impls() -> list[Impl]:
@@ -105,7 +164,7 @@ def inline_impls() -> list[Impl]:
         Impl(
             f"reference: inlined step, no checks {'vectorised' if vec else 'per-point'}",
             lambda sc, fx, hx, vec=vec: InlineStep(sc, fx, hx, vec),
-            lambda f, z: f.step(np.asarray(z, dtype=float)),
+            lambda f, z: f.step(z),
             state,
             vec,
         )
@@ -129,14 +188,12 @@ def step_profile(sc, reps: int = 1000) -> dict[str, float]:
 
     The step runs vectorised with cheap linear model functions of the
     scenario's sizes, so that the library's own time dominates. Each part is
-    then timed alone on the inputs of one such step; the facade's share is
-    what remains of the whole step's time.
+    then timed alone on the inputs of one such step (the kernels as
+    :class:`InlineStep` calls them); the facade's and engine's share is what
+    remains of the whole step's time.
     """
-    from squkf import MerweScaledWeights, SquareRootUKF
-    from squkf.generators import sigma_points_and_offsets
-    from squkf.measurement import measurement_update
-    from squkf.transform import transform_factor
-    from squkf.validate import check_values
+    from squkf.boundary import checks
+    from squkf.engine import _images
 
     n, m = sc.dim_x, sc.dim_z
     A, C = np.eye(n) * 0.99, np.eye(m, n)
@@ -147,8 +204,7 @@ def step_profile(sc, reps: int = 1000) -> dict[str, float]:
     def hx(X):
         return X.dot(C.T)
 
-    f = SquareRootUKF(n, m, sc.dt, hx, fx, MerweScaledWeights(sc.alpha, sc.beta, sc.kappa), vectorized=True)
-    f.x, f.P, f.Q, f.R = sc.x0, sc.P0, sc.Q, sc.R
+    f = library_filter(sc, fx, hx, True)
     z = hx(sc.x0[None])[0] + 0.1
 
     def step():
@@ -156,34 +212,66 @@ def step_profile(sc, reps: int = 1000) -> dict[str, float]:
         f.update(z)
 
     total = _median_us(step, reps)
-    plan = f._plan
-    x, S, Q1_2, R1_2 = f.x.copy(), np.array(f.P1_2), f._Q.factor(), f._R.factor()
-    first = plan.first
-    X1 = sigma_points_and_offsets(x, S, first.xi, None, first.gamma)[0]
-    F = fx(X1, sc.dt)
-    xp, Sp = transform_factor(F, first.rows, Q1_2)
-    sset = plan.second.draw(xp, Sp, None, None, None)
-    X2 = sset.sigmas
-    H = hx(X2)
+    r = fused_route(f)
+    X1, dt = r.X1[0].copy(), sc.dt
+    F = _block(fx(X1, dt))
+    prior(r, F)
+    X2 = r.X2[0].copy()
+    H = _block(hx(X2))
+    zb = z[None].copy()
+    shape_f, shape_h = (1, r.N, n), (1, r.N2, m)
     parts = {
-        "model functions (cheap, linear)": _median_us(lambda: (fx(X1, sc.dt), hx(X2)), reps),
-        "first set (points kernel)": _median_us(
-            lambda: sigma_points_and_offsets(x, S, first.xi, None, first.gamma), reps
-        ),
-        "prior (transform kernel)": _median_us(lambda: transform_factor(F, first.rows, Q1_2), reps),
-        "second set (points kernel)": _median_us(lambda: plan.second.draw(xp, Sp, None, None, None), reps),
-        "update (joint-QR kernel)": _median_us(lambda: measurement_update(xp, Sp, sset, H, z, R1_2), reps),
+        "model functions (cheap, linear)": _median_us(lambda: (fx(X1, dt), hx(X2)), reps),
+        "prior and second set (transform kernel)": _median_us(lambda: prior(r, F), reps),
+        "posterior and next first set (joint-update kernel)": _median_us(lambda: posterior(r, H, zb), reps),
         "checks of what fx, hx and z bring": _median_us(
             lambda: (
-                check_values(F, F.shape, "fx"),
-                check_values(H, H.shape, "hx"),
-                f._as_measurement(z, None),
+                _images(F[0], shape_f, "fx values", False, True),
+                _images(H[0], shape_h, "hx values", True, True),
+                checks.measurement(z, None, m, f._R_dim, 0),
             ),
             reps,
         ),
     }
-    parts["facade and step machine (edit checks, transaction, filterpy's attributes)"] = total - sum(
+    parts["facade and engine (edit checks, routes, commit, filterpy's attributes)"] = total - sum(
         parts.values()
     )
     parts["whole step"] = total
     return parts
+
+
+def same_as_library(sc, vectorized: bool, steps: int) -> bool:
+    """Whether :class:`InlineStep` and ``SquareRootUKF`` give the same ``x`` and ``P1_2``, bit for bit,
+    at every one of ``steps`` steps of scenario ``sc``."""
+    fx, hx = (sc.fx_vec, sc.hx_vec) if vectorized else (sc.fx, sc.hx)
+    f, g = library_filter(sc, fx, hx, vectorized), InlineStep(sc, fx, hx, vectorized)
+    _, zs = sc.simulate(steps, 1)
+    for z in zs:
+        f.predict()
+        f.update(z)
+        g.step(z)
+        if not (np.array_equal(f.x, g.x) and np.array_equal(np.asarray(f.P1_2), g.S)):
+            return False
+    return True
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description="The inlined step against SquareRootUKF, bit for bit")
+    ap.add_argument("--steps", type=int, default=50)
+    args = ap.parse_args(argv)
+    from models import SCENARIOS
+
+    print("| scenario | model functions | inlined step and SquareRootUKF |")
+    print("|---|---|---|")
+    ok = True
+    for sc in SCENARIOS():
+        for vectorized in (True, False):
+            same = same_as_library(sc, vectorized, args.steps)
+            ok &= same
+            kind = "vectorised" if vectorized else "per point"
+            print(f"| {sc.name} | {kind} | {'the same, bit for bit' if same else 'DIFFERENT'} |")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -95,7 +95,7 @@ def circular_mean(angles: np.ndarray, W: np.ndarray, reference: float | None = N
     return float(wrap(ref + np.dot(W, wrap(angles - ref))))
 
 
-class _AngleHook:
+class AngleHook:
     """Base of the picklable angle hooks: remembers which components are angles."""
 
     def __init__(self, angle_indices: Sequence[int]):
@@ -105,7 +105,7 @@ class _AngleHook:
         return f"{type(self).__name__}({self.angle_indices})"
 
 
-class AngleMean(_AngleHook):
+class AngleMean(AngleHook):
     """``x_mean_fn``/``z_mean_fn``: weighted mean with circular means of the angle components."""
 
     def __call__(self, sigmas: np.ndarray, Wm: np.ndarray) -> np.ndarray:
@@ -116,7 +116,7 @@ class AngleMean(_AngleHook):
         return m
 
 
-class AngleResidual(_AngleHook):
+class AngleResidual(AngleHook):
     """``residual_x``/``residual_z``: ``a - b`` with the angle components wrapped."""
 
     def __call__(self, a, b) -> np.ndarray:
@@ -125,7 +125,7 @@ class AngleResidual(_AngleHook):
         return d
 
 
-class AngleAdd(_AngleHook):
+class AngleAdd(AngleHook):
     """``state_add``: ``x + dx`` with the angle components wrapped.
 
     Examples

@@ -44,7 +44,7 @@ except ImportError as exc:  # say which extra brings them
     ) from exc
 
 from .batch import model_kwargs, per_step
-from .boundary import inputs
+from .boundary import checks
 from .boundary.loop import KEEP
 from .errors import ParameterError, ShapeError
 from .fleet import Fleet, FleetResult
@@ -69,13 +69,14 @@ def worker_environ() -> dict[str, Any]:
     set (65536: freed memory goes back to the system soon). Under glibc,
     setting it also fixes the size from which ``malloc`` maps fresh pages for
     every allocation at 128 KiB, where glibc would otherwise raise it as a
-    program reuses larger blocks. The fleet's step works on blocks of 4096
-    filters whose temporaries are about 1 MB each, so in such a worker each of
-    them is a new mapping, zero-filled page by page: filtering runs about 1.6
-    times slower than in a plain process (measured in
-    ``benchmarks/dask_bench.py``). Adding ``MALLOC_MMAP_THRESHOLD_`` (16 MiB,
-    :data:`MMAP_THRESHOLD`) serves them from the heap again; the trimming
-    stays. Other allocators ignore both variables.
+    program reuses larger blocks. A model function's arrays for a chunk of
+    2048 filters are larger than that, so in such a worker each of them is a
+    new mapping, zero-filled page by page at every step; a fleet left to
+    choose its chunk then cuts smaller chunks to keep them under the threshold
+    (:func:`squkf.stacks.default_chunk`). Adding ``MALLOC_MMAP_THRESHOLD_``
+    (16 MiB, :data:`MMAP_THRESHOLD`) serves them from the heap again, and the
+    chunks keep their full size; the trimming stays. Other allocators ignore
+    both variables.
 
     Returns
     -------
@@ -208,7 +209,7 @@ def batch_filter(
         Z = Z.rechunk({1: -1, 2: -1})
     Z = da.ma.filled(Z.astype(float), np.nan)  # masked chunks: missing where masked, as Fleet.batch_filter
     for name, args in (("fx_args", fx_args), ("hx_args", hx_args)):
-        inputs.check_chunk_args(args, name, K, Z.chunks[0])
+        checks.check_chunk_args(args, name, K, Z.chunks[0])
     n = fleet.dim_x
     blocks = Z.to_delayed().reshape(-1)
     fields: dict[str, list] = {f: [] for f in _FIELDS}
@@ -217,7 +218,7 @@ def batch_filter(
         # each task carries only its chunk's filters (not the whole template): a worker holds a few chunks
         chunk = fleet.subset(slice(lo, lo + size))
         rows = slice(lo, lo + size)
-        fx_rows, hx_rows = inputs.chunk_args(fx_args, K, rows), inputs.chunk_args(hx_args, K, rows)
+        fx_rows, hx_rows = checks.chunk_args(fx_args, K, rows), checks.chunk_args(hx_args, K, rows)
         options = {"keep": keep, "dts": dts, "fx_args": fx_rows, "hx_args": hx_rows}
         part = dask.delayed(_run_chunk, pure=True)(chunk, block, options)
         shapes = {

@@ -29,6 +29,7 @@ whole call succeeded, so a call that fails leaves it as it was. Its phases
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Callable
 from typing import NamedTuple
@@ -241,6 +242,94 @@ class _ObservedR:
         return self.factor  # type: ignore[return-value]
 
 
+class Buffers:
+    """A block's output arrays, allocated once per shape and used again: two sets of each, in turn.
+
+    A call takes the set that no committed record holds (:meth:`take`), and :meth:`commit` makes it the
+    one they hold once the whole call succeeded; a call that fails (:meth:`abandon`) leaves the other
+    set, and everything that reads it, as it was.
+    """
+
+    __slots__ = ("sets", "taken")
+
+    def __init__(self) -> None:
+        self.sets: dict[tuple, list] = {}  # (make, *args) -> [set 0, set 1, the set to write next]
+        self.taken: list[list] = []
+
+    def take(self, make: Callable[..., tuple], *args) -> tuple:
+        """The set ``make(*args)`` to write now (made twice, on the first call with these arguments)."""
+        key = (make, *args)
+        pair = self.sets.get(key)
+        if pair is None:
+            pair = self.sets[key] = [make(*args), make(*args), 0]
+        self.taken.append(pair)
+        return pair[pair[2]]
+
+    def spare(self, held: tuple, make: Callable[..., tuple], *args) -> tuple:
+        """A set ``make(*args)`` none of whose arrays is one of ``held`` (what committed records hold now).
+
+        For results that records hold in turn (a fleet's prior and posterior estimates): the first set
+        made for these arguments that nothing holds, else a new one. A failed call leaves the records on
+        their own sets, so nothing is committed or abandoned: as many sets as records hold, and one more.
+        """
+        key = ("spare", make, *args)
+        made = self.sets.get(key)
+        if made is None:
+            made = self.sets[key] = []
+        held_ids = set(map(id, held))
+        for candidate in made:
+            if held_ids.isdisjoint(map(id, candidate)):
+                return candidate
+        candidate = make(*args)
+        made.append(candidate)
+        return candidate
+
+    def commit(self) -> None:
+        """The sets taken since the last call hold the committed records now: the next writes the others."""
+        for pair in self.taken:
+            pair[2] ^= 1
+        self.taken.clear()
+
+    def abandon(self) -> None:
+        """A call failed: the sets it took are written again by the next one."""
+        self.taken.clear()
+
+
+class Scratch(Buffers):
+    """Arrays no result outlives (a fleet chunk's points and statuses): one set per shape, never committed."""
+
+    __slots__ = ()
+
+    def take(self, make: Callable[..., tuple], *args) -> tuple:
+        """The set ``make(*args)``, made on the first call with these arguments."""
+        key = (make, *args)
+        made = self.sets.get(key)
+        if made is None:
+            made = self.sets[key] = make(*args)  # type: ignore[assignment]
+        return made  # type: ignore[return-value]
+
+
+def _prior_out(B: int, n: int, N2: int, offsets: bool) -> tuple:
+    """The prediction kernel's outputs: mean, factor, status, the second set and its offsets."""
+    X2 = np.empty((B, N2, n))
+    D2 = np.empty(X2.shape) if offsets else kernels.no_set(n)
+    return np.empty((B, n)), np.empty((B, n, n)), np.empty(B, dtype=np.int64), X2, D2
+
+
+def _points_out(B: int, N: int, n: int, offsets: bool) -> tuple:
+    """A set of points ``(B, N, n)`` and their offsets (or no array for them)."""
+    return np.empty((B, N, n)), np.empty((B, N, n)) if offsets else kernels.no_set(n)
+
+
+def _posterior_out(B: int, n: int, m: int, N1: int) -> tuple:
+    """The update kernel's outputs (as its arguments), and the next first set (``N1`` points, 0: none)."""
+    return (
+        np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m)), np.empty((B, n, m)),
+        np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B),
+        np.empty(B, dtype=np.int64), np.empty((B, N1, n)) if N1 else kernels.no_set(n),
+    )  # fmt: skip
+
+
 class Route:
     """One configuration's step for a block of filters, decided once: which kernels run, how.
 
@@ -261,14 +350,15 @@ class Route:
     """
 
     __slots__ = (
-        "plan", "hooks", "gate", "single", "plain_x", "plain_add", "_updates", "_observed_R", "_zeros",
-        "_noise",
+        "plan", "hooks", "gate", "single", "plain_x", "plain_add", "no_set", "_updates", "_observed_R",
+        "_zeros", "_noise",
     )  # fmt: skip
 
     def __init__(self, plan: Plan, hooks: Hooks, gate, single: bool):
         self.plan, self.hooks, self.gate, self.single = plan, hooks, gate, single
         self.plain_x = hooks.x_mean_fn is None and hooks.residual_x is None
         self.plain_add = hooks.state_add is None
+        self.no_set = kernels.no_set(plan.n)  # a kernel's set output when it draws none
         self._updates: dict = {}
         self._observed_R = _ObservedR()
         self._zeros: dict[
@@ -309,22 +399,36 @@ class Route:
 
     # -- the phases -------------------------------------------------------------------------
 
-    def first_points(self, x: np.ndarray, S: np.ndarray) -> np.ndarray:
-        """The first sigma-point set of ``(x, S)``, ``(B, N, n)``."""
-        first = self.plan.first
+    def first_points(self, x: np.ndarray, S: np.ndarray, buffers: Buffers | None = None) -> np.ndarray:
+        """The first sigma-point set of ``(x, S)``, ``(B, N, n)`` (in ``buffers``' array where given)."""
+        plan = self.plan
         add = self.hooks.state_add
-        if add is None:
-            return sigma_points_from_factor(x, S, first.xi, None, first.gamma)
-        return self._block(sigma_points_from_factor(self._one(x), self._one(S), first.xi, add))
+        if add is not None:  # the hook sees one filter's vectors (a filter of a block at a time)
+            first = plan.first
+            return self._block(sigma_points_from_factor(self._one(x), self._one(S), first.xi, add))
+        B, n = x.shape
+        N = plan.xi1.shape[0]
+        X = (_points_out(B, N, n, False) if buffers is None else buffers.take(_points_out, B, N, n, False))[0]
+        kernels.KERNELS.points(x, S, plan.xi1, plan.gamma1, X, self.no_set)
+        return X
 
     def prior(
-        self, F: np.ndarray, Q1_2: np.ndarray | None, UT: Callable | None, draw: bool, name: str = "fx values"
+        self,
+        F: np.ndarray,
+        Q1_2: np.ndarray | None,
+        UT: Callable | None,
+        draw: bool,
+        name: str = "fx values",
+        buffers: Buffers | None = None,
+        out: tuple | None = None,
     ):
         """The prior from the first set's images ``F`` ``(B, N, n)``, and its second set where drawn with it.
 
         ``F`` is checked finite: in the kernel on the plain route (no ``x_mean_fn``/``residual_x``,
         no ``UT``: status 306 for a filter whose images are not finite), here on the others (before
-        the hooks see them; ``name`` says what they are).
+        the hooks see them; ``name`` says what they are). The results are written into ``out``
+        (``mean, S, status`` and the second set's points and offsets, where given) or ``buffers``'
+        arrays (else new ones).
 
         Returns
         -------
@@ -340,14 +444,17 @@ class Route:
             fused = plan.fused_draw if (draw and self.plain_add) else None
             if fused is not None and fused.augmented and Q1_2 is None:
                 fused = None  # the augmented set without noise is the propagated set itself
-            mean, S, status = np.empty((B, n)), np.empty((B, n, n)), np.empty(B, dtype=np.int64)
             if fused is None:
-                X2 = D2 = kernels.no_set(n)
-                code, xi2, gamma2 = 0, kernels.no_points(n), 0.0
+                code, xi2, gamma2, N2, with_offsets = 0, kernels.no_points(n), 0.0, 0, False
             else:
-                X2 = np.empty((B, fused.xi.shape[0] + (N if fused.augmented else 0), n))
-                D2 = kernels.no_set(n) if fused.augmented else np.empty(X2.shape)
                 code, xi2, gamma2 = (2 if fused.augmented else 1), fused.xi, fused.gamma
+                N2, with_offsets = fused.xi.shape[0] + (N if fused.augmented else 0), not fused.augmented
+            if out is not None:
+                mean, S, status, X2, D2 = out
+            elif buffers is None:
+                mean, S, status, X2, D2 = _prior_out(B, n, N2, with_offsets)
+            else:
+                mean, S, status, X2, D2 = buffers.take(_prior_out, B, n, N2, with_offsets)
             noise = kernels.no_noise(n) if Q1_2 is None else self.stacked(Q1_2, 0)
             kernels.KERNELS.transform(
                 F, self.zeros(n), plan.mode1, plan.wm1, plan.scale1, plan.sign1, noise, mean, S, status,
@@ -382,9 +489,22 @@ class Route:
             raise NonFiniteError("the predicted mean or factor is not finite")
         return self._block(mean), self._block(S), np.zeros(B, dtype=np.int64), None
 
-    def second_set(self, x, S, propagated, Q1_2) -> SigmaSet:
-        """The generator's second set for ``(x, S)`` (one filter's arrays to a user's generator and hooks)."""
+    def second_set(self, x, S, propagated, Q1_2, buffers: Buffers | None = None) -> SigmaSet:
+        """The generator's second set for ``(x, S)`` (one filter's arrays to a user's generator and hooks).
+
+        A redrawn set is drawn by the points kernel with its offsets (in ``buffers``' arrays where given).
+        """
         plan = self.plan
+        fused = plan.fused_draw
+        if fused is not None and not fused.augmented and self.plain_add:
+            B, n = x.shape
+            N2 = fused.xi.shape[0]
+            X2, D2 = (
+                _points_out(B, N2, n, True) if buffers is None else buffers.take(_points_out, B, N2, n, True)
+            )
+            kernels.KERNELS.points(x, S, fused.xi, fused.gamma, X2, D2)
+            rows = fused.rows
+            return SigmaSet(X2, rows.Wm, rows.Wc, fused.exact, D2, rows, fused.axis)
         if not self.single:
             return plan.second.draw(x, S, propagated, Q1_2, self.hooks.state_add)
         one = self._one
@@ -405,7 +525,10 @@ class Route:
             route = self._updates[key] = _joint_route(sset) if plain else None
         return route  # type: ignore[return-value]
 
-    def posterior(self, sset, x, S, H, z, observed, R1_2, UT, draw_first: bool, name: str = "hx values"):
+    def posterior(
+        self, sset, x, S, H, z, observed, R1_2, UT, draw_first: bool, name: str = "hx values",
+        buffers: Buffers | None = None, out: tuple | None = None,
+    ):  # fmt: skip
         """The update with every measured component (what a gate tests), and the next first set drawn with it.
 
         Parameters
@@ -423,6 +546,13 @@ class Route:
         UT : callable or None
         draw_first : bool
             Draw the next first set from the posterior (the joint route only).
+        name : str
+            What the images are called in messages.
+        buffers : Buffers, optional
+            Where the kernel's results are written (default: new arrays).
+        out : tuple, optional
+            The kernel's outputs themselves, as its arguments (``zp, y, w, Sy, L21, dx, x, S, loglik,
+            nis, status, X1``), on the joint route: a fleet writes into its step's arrays.
 
         Returns
         -------
@@ -463,12 +593,14 @@ class Route:
             Ro = self._observed_R.of(R1_2, observed)
         m = H.shape[2]
         n = x.shape[1]
-        zp, y, w, Sy = np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m))
-        L21, dx, xo, So = np.empty((B, n, m)), np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n))
-        ll, ww, status = np.empty(B), np.empty(B), np.empty(B, dtype=np.int64)
         plan = self.plan
         draw = draw_first and plan.w_xi is None  # (noise entering fx: the first set has a noise part)
-        X1 = np.empty((B,) + plan.xi1.shape) if draw else kernels.no_set(n)
+        N1 = plan.xi1.shape[0] if draw else 0
+        if out is None:
+            out = (
+                _posterior_out(B, n, m, N1) if buffers is None else buffers.take(_posterior_out, B, n, m, N1)
+            )
+        zp, y, w, Sy, L21, dx, xo, So, ll, ww, status, X1 = out
         Rs = self.stacked(Ro, 1)
         Xs = sset.offsets if route.offsets else sset.sigmas
         f = Xs.flags
@@ -476,8 +608,7 @@ class Route:
             Xs = kernels.kernel_array(Xs)
         kernels.KERNELS.joint_update(
             H, self.zeros(m), Xs, x if route.xref else self.zeros(n), z, Rs, x, route.mode, route.wm,
-            route.scale, route.sign, route.pair, zp, y, w, Sy, L21, dx, xo, So, ll, ww, status,
-            plan.xi1, plan.gamma1, X1,
+            route.scale, route.sign, route.pair, *out[:11], plan.xi1, plan.gamma1, X1,
         )  # fmt: skip
         if whole is not None:
             status[~np.isfinite(whole).reshape(B, -1).all(axis=1)] = NOT_FINITE_IMAGES
@@ -580,14 +711,14 @@ class Engine:
 
     __slots__ = (
         "route", "step_route", "x", "S", "phase", "X", "prior", "sset", "prior_record", "post_record", "last",
-        "H", "shown_f", "_first", "_propagated", "_Q",
+        "H", "shown_f", "_first", "_propagated", "_Q", "_buffers",
     )  # fmt: skip
 
     def __init__(
         self, route: Route, x: np.ndarray, S: np.ndarray, sigmas_f: np.ndarray, sigmas_h: np.ndarray
     ):
         self.route = self.step_route = route
-        self.x, self.S = x, S
+        self.x, self.S = kernels.kernel_array(x), kernels.kernel_array(S)
         self.phase = IDLE
         self.X: np.ndarray | None = None  # the points handed out by a pending ask_predict
         self.prior: tuple[np.ndarray, np.ndarray] | None = None
@@ -598,15 +729,32 @@ class Engine:
         self._first: np.ndarray | None = None  # the first set of (x, S), drawn ahead by the last update
         self._propagated: np.ndarray | None = None
         self._Q: np.ndarray | None = None
+        self._buffers = Buffers()
+
+    # the state and the pending step; not the buffers (scratch), nor the first set drawn ahead
+    _SCRATCH = ("_first", "_buffers")
 
     def __getstate__(self):
-        # the state and the pending step, not the first set drawn ahead (a copy draws it again)
-        return {k: getattr(self, k) for k in self.__slots__ if k != "_first"}
+        return {k: getattr(self, k) for k in self.__slots__ if k not in self._SCRATCH}
 
     def __setstate__(self, state) -> None:
         for k, v in state.items():
             object.__setattr__(self, k, v)
         self._first = None
+        self._buffers = Buffers()
+
+    def __copy__(self) -> Engine:
+        """An independent engine: the state's arrays copied (the buffers they live in are this engine's,
+        written again by its later steps), the configuration shared."""
+        new = Engine.__new__(Engine)
+        memo: dict[int, object] = {}
+        new.__setstate__({k: _detached(v, memo) for k, v in self.__getstate__().items()})
+        return new
+
+    def __deepcopy__(self, memo) -> Engine:
+        new = copy.copy(self)
+        memo[id(self)] = new
+        return new
 
     def configure(self, route: Route) -> None:
         """A new configuration (a pending step keeps the route it was drawn with)."""
@@ -616,9 +764,9 @@ class Engine:
     def assign(self, x: np.ndarray | None = None, S: np.ndarray | None = None) -> None:
         """A new estimate from the caller (validated; kept): the sets drawn for the old one are dropped."""
         if x is not None:
-            self.x = x
+            self.x = kernels.kernel_array(x)  # (as the kernels take it: a factor from LAPACK is in F order)
         if S is not None:
-            self.S = S
+            self.S = kernels.kernel_array(S)
         self._first = None
 
     # -- the prediction -------------------------------------------------------------------------
@@ -671,13 +819,16 @@ class Engine:
         plan = route.plan
         keep = plan.keeps_propagated
         F = _images(F, X.shape, name, keep, route.single)
+        buffers = self._buffers
+        buffers.abandon()
         limit = blas.MIN_DIM
         if limit is not None and plan.n >= limit:
             with blas.one_blas_thread():
-                done = self._prior(route, F, Q1_2, UT, name)
+                done = self._prior(route, F, Q1_2, UT, name, buffers)
         else:
-            done = self._prior(route, F, Q1_2, UT, name)
+            done = self._prior(route, F, Q1_2, UT, name, buffers)
         # commit
+        buffers.commit()
         mean, S, sset = done
         self.step_route = route
         self.x, self.S = mean, S
@@ -690,9 +841,9 @@ class Engine:
         self.phase = PRIOR
 
     @staticmethod
-    def _prior(route: Route, F, Q1_2, UT, name: str) -> tuple:
+    def _prior(route: Route, F, Q1_2, UT, name: str, buffers: Buffers) -> tuple:
         """The numerics of a prediction: the prior and its second set (nothing committed)."""
-        mean, S, status, sset = route.prior(F, Q1_2, UT, True, name)
+        mean, S, status, sset = route.prior(F, Q1_2, UT, True, name, buffers)
         if np.count_nonzero(status):
             code = first_status(status)
             raise _described(code, F, status, name) or prior_failure(code, route.plan.first.rows.best)
@@ -770,13 +921,16 @@ class Engine:
         H = _images(H, sset.sigmas.shape[:-1] + (z.shape[-1],), name, True, route.single)
         if route.single:
             z = z[None]
+        buffers = self._buffers
+        buffers.abandon()
         limit = blas.MIN_DIM
         if limit is not None and route.plan.n >= limit:
             with blas.one_blas_thread():
-                update, X1 = self._posterior(route, sset, xp, Sp, H, z, observed, R1_2, UT, name)
+                update, X1 = self._posterior(route, sset, xp, Sp, H, z, observed, R1_2, UT, name, buffers)
         else:
-            update, X1 = self._posterior(route, sset, xp, Sp, H, z, observed, R1_2, UT, name)
+            update, X1 = self._posterior(route, sset, xp, Sp, H, z, observed, R1_2, UT, name, buffers)
         # commit
+        buffers.commit()
         if sset is not self.sset:  # drawn from the estimate alone: no propagated set belongs to it
             self._propagated = self._Q = None
             self.step_route = route
@@ -789,9 +943,9 @@ class Engine:
         self.phase = IDLE
 
     @staticmethod
-    def _posterior(route: Route, sset, xp, Sp, H, z, observed, R1_2, UT, name: str) -> tuple:
+    def _posterior(route: Route, sset, xp, Sp, H, z, observed, R1_2, UT, name: str, buffers: Buffers):
         """The numerics of an update through the gate, and the next first set (nothing committed)."""
-        tested, status, X1 = route.posterior(sset, xp, Sp, H, z, observed, R1_2, UT, True, name)
+        tested, status, X1 = route.posterior(sset, xp, Sp, H, z, observed, R1_2, UT, True, name, buffers)
         if np.count_nonzero(status):
             code = first_status(status)
             raise _described(code, H, status, name) or failure(code, route.form_of(sset, UT))
@@ -809,7 +963,8 @@ class Engine:
                 "update without a measurement called while a prediction is pending: "
                 "tell_predict the fx values first"
             )
-        self.post_record = (self.x, self.S)
+        # the record's own copies: the estimate may live in the buffers the next prediction writes
+        self.post_record = (self.x.copy(), self.S.copy())
         self.phase = IDLE
 
 
@@ -877,3 +1032,19 @@ def _images(values, shape: tuple, name: str, private: bool, single: bool = False
     else:
         A = np.ascontiguousarray(check_values(values, want, name, finite=False))
     return A[None] if single else A
+
+
+def _detached(value, memo: dict[int, object]):
+    """``value`` with every writeable array in it copied (read-only ones, a plan's, shared), identity kept:
+    an array referenced twice is one copy."""
+    if isinstance(value, np.ndarray):
+        if not value.flags.writeable:
+            return value
+        done = memo.get(id(value))
+        if done is None:
+            done = memo[id(value)] = value.copy()
+        return done
+    if isinstance(value, tuple):
+        items = [_detached(v, memo) for v in value]
+        return type(value)(*items) if hasattr(value, "_fields") else tuple(items)
+    return value

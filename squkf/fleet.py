@@ -36,20 +36,19 @@ import numpy as np
 
 from . import stacks
 from .batch import model_kwargs, per_step
-from .boundary import inputs
-from .boundary.config import Config, filter_kwargs
-from .boundary.edits import HandOut
-from .boundary.factors import (
+from .boundary import checks
+from .boundary.checks import (
     covariance_factors,
     given_noise_factors,
     lower_factors,
     noise_factors,
     reset_rows,
 )
+from .boundary.config import Config, filter_kwargs, filter_of, stacked
+from .boundary.covariance import HandOut, Hook
 from .boundary.loop import Transaction, annotate_step, check_keep, check_progress, progress_callback
 from .boundary.records import FleetResult, Records, failures_error, new_records
-from .boundary.stacking import filter_of, stacked
-from .engine import Route
+from .engine import Buffers, Route
 from .errors import CallSequenceError, FleetStepError, ParameterError
 from .gating import Gate, as_gate
 from .generators import SigmaSet, as_generator
@@ -65,8 +64,6 @@ __all__ = ["Fleet", "FleetResult", "FleetStepError"]
 
 # the internal array behind each attribute handed out for editing in place
 HANDED = {"_x": "x", "_S": "P", "_Q1_2": "Q", "_R1_2": "R"}
-# the hooks: assigning one builds the engine's route again
-_HOOKS = frozenset({"x_mean", "z_mean", "residual_x", "residual_z", "state_add"})
 
 
 def _record(name: str, doc: str, covariance: bool = False) -> property:
@@ -97,6 +94,9 @@ class _Pending:
     def __setstate__(self, state) -> None:
         for k, v in zip(self.__slots__, state):
             object.__setattr__(self, k, v)
+
+
+_IDLE_STEP = _Pending()  # no step pending (a _Pending is never changed in place)
 
 
 class Fleet:
@@ -202,10 +202,10 @@ class Fleet:
         hx_noise: int | None = None,
         chunk: int | None = None,
     ):
-        K, n, m = inputs.check_sizes(n_filters=n_filters, dim_x=dim_x, dim_z=dim_z)
+        K, n, m = checks.check_sizes(n_filters=n_filters, dim_x=dim_x, dim_z=dim_z)
         if on_error not in ("flag", "raise"):
             raise ParameterError(f"on_error must be 'flag' or 'raise', got on_error={on_error!r}")
-        self._fx_noise, self._hx_noise = inputs.model_noise(fx, hx, fx_noise, hx_noise)
+        self._fx_noise, self._hx_noise = checks.model_noise(fx, hx, fx_noise, hx_noise)
         self._qd, self._rd = self._fx_noise or n, self._hx_noise or m  # the dimensions of Q and R
         self._handed = HandOut()  # x, P, Q, R: the arrays handed out, for edits in place
         self._K, self._n, self._m = K, n, m
@@ -229,7 +229,8 @@ class Fleet:
         self._S = np.broadcast_to(np.eye(n), (K, n, n)).copy()
         self._Q1_2: np.ndarray | None = np.eye(self._qd)
         self._R1_2: np.ndarray = np.eye(self._rd)
-        self._pending = _Pending()
+        self._pending = _IDLE_STEP
+        self._buffers = Buffers()  # the step's (K, ...) results, two sets used in turn
         self._failed = np.zeros(K, dtype=bool)
         self._failure = np.full(K, "", dtype=object)
         self._x_prior, self._x_post, self._S_prior, self._S_post = self._x, self._x, self._S, self._S
@@ -291,15 +292,17 @@ class Fleet:
             route = self._route = Route(self._plan, self._hooks(), self._gate, single=False)
         return route
 
-    def __setattr__(self, name: str, value) -> None:
-        object.__setattr__(self, name, value)
-        if name in _HOOKS:
-            object.__setattr__(self, "_route", None)
-        handed = HANDED.get(name)
-        if handed is not None and "_handed" in self.__dict__:  # the value behind it changed
-            self._handed.drop(handed)  # the array handed out is history
+    # the hooks: assigning one builds the engine's route again (at the next step)
+    x_mean = Hook()
+    z_mean = Hook()
+    residual_x = Hook()
+    residual_z = Hook()
+    state_add = Hook()
 
-    # -- state and noise: handed out (edits in place taken by boundary.edits.HandOut) -------
+    def _hooks_assigned(self) -> None:
+        self._route = None
+
+    # -- state and noise: handed out (edits in place taken by boundary.covariance.HandOut) -------
 
     @property
     def x(self) -> np.ndarray:
@@ -308,8 +311,9 @@ class Fleet:
 
     @x.setter
     def x(self, value):
-        self._x = inputs.per_filter(value, "x", self._K, (self._n,))
-        self._pending = _Pending()
+        self._x = checks.per_filter(value, "x", self._K, (self._n,))
+        self._handed.drop("x")  # the array handed out is history
+        self._pending = _IDLE_STEP
 
     @property
     def P1_2(self) -> np.ndarray:
@@ -320,7 +324,8 @@ class Fleet:
     @P1_2.setter
     def P1_2(self, value):
         self._S = lower_factors(value, "P1_2", self._n, self._K)
-        self._pending = _Pending()
+        self._handed.drop("P")
+        self._pending = _IDLE_STEP
 
     @property
     def P(self) -> np.ndarray:
@@ -330,7 +335,8 @@ class Fleet:
     @P.setter
     def P(self, value):
         self._S = covariance_factors(value, "P", self._n, self._K)
-        self._pending = _Pending()
+        self._handed.drop("P")
+        self._pending = _IDLE_STEP
 
     @property
     def Q(self) -> np.ndarray:
@@ -345,6 +351,7 @@ class Fleet:
     def Q(self, value):
         S = noise_factors(value, "Q", self._qd, self._K)
         self._Q1_2 = None if S is None or not np.any(S) else S
+        self._handed.drop("Q")
 
     @property
     def Q1_2(self) -> np.ndarray:
@@ -355,6 +362,7 @@ class Fleet:
     @Q1_2.setter
     def Q1_2(self, value):
         self._Q1_2 = given_noise_factors(value, "Q1_2", self._qd, self._K)
+        self._handed.drop("Q")
 
     @property
     def R(self) -> np.ndarray:
@@ -365,6 +373,7 @@ class Fleet:
     def R(self, value):
         S = noise_factors(value, "R", self._rd, self._K)
         self._R1_2 = np.zeros((self._rd, self._rd)) if S is None else S
+        self._handed.drop("R")
 
     @property
     def R1_2(self) -> np.ndarray:
@@ -376,23 +385,25 @@ class Fleet:
     def R1_2(self, value):
         S = given_noise_factors(value, "R1_2", self._rd, self._K)
         self._R1_2 = np.zeros((self._rd, self._rd)) if S is None else S
+        self._handed.drop("R")
 
     def _take_edits(self) -> None:
         """Take the edits in place of ``x``, ``P``, ``Q``, ``R`` through their setters (which may raise)."""
-        if self._handed:
+        if self._handed.held:
             self._handed.take(HANDED.values(), lambda name, a: setattr(self, name, a))
 
     @property
     def chunk(self) -> int | None:
         """Filters per call of ``fx`` and ``hx`` in a step, at most (:mod:`squkf.stacks`); assign to change.
 
-        None: the library's choice for the thread count (:func:`squkf.stacks.default_chunk`).
+        None: the library's choice for the thread count and the allocator's setting
+        (:func:`squkf.stacks.default_chunk`).
         """
         return self._chunk
 
     @chunk.setter
     def chunk(self, value) -> None:
-        self._chunk: int | None = None if value is None else inputs.check_sizes(chunk=value)[0]
+        self._chunk: int | None = None if value is None else checks.check_sizes(chunk=value)[0]
 
     # -- records of the last step (the arrays behind them are never written in place) ------
 
@@ -451,16 +462,17 @@ class Fleet:
         idx = np.flatnonzero(self._failed) if filters is None else np.arange(self._K)[filters]
         idx = np.atleast_1d(idx)
         self._x, self._S = reset_rows(x, P, idx, self._x, self._S)
+        self._handed.drop("x", "P")
         self._failed[idx] = False
         self._failure[idx] = ""
-        self._pending = _Pending()
+        self._pending = _IDLE_STEP
 
     # -- the step -----------------------------------------------------------------
 
     def ask_predict(self) -> np.ndarray:
         """First half of a prediction: the first sigma-point sets, shape ``(K, N, dim_x)`` (fresh)."""
         self._take_edits()
-        X = self._route_now().first_points(self._x, self._S)
+        X = (self._route or self._route_now()).first_points(self._x, self._S)
         self._pending = _Pending(PREDICTING, X)
         return handed_points(X, self._plan.w_xi, self._Q1_2, (self._K,))
 
@@ -480,14 +492,15 @@ class Fleet:
             cut to the filters of each call.
         """
         dt = self._dt if dt is None else check_time_step(dt)
-        self._take_edits()
+        if self._handed.held:
+            self._take_edits()
         self._predict(self._fx_images(dt, fx_args), None)
 
     def tell_predict(self, sigmas_f) -> None:
         """Second half of a prediction: ``fx`` at the points from :meth:`ask_predict`, ``(K, N, dim_x)``."""
         self._take_edits()
         X = self._told(PREDICTING, "tell_predict").first
-        F = inputs.stacked_shape(sigmas_f, X.shape, "fx values", copy=False)
+        F = checks.stacked_shape(sigmas_f, X.shape, "fx values", copy=False)
         self._predict(lambda rows, X: F[rows], X)
 
     def ask_update(self) -> np.ndarray:
@@ -497,7 +510,7 @@ class Fleet:
         sset = p.sset
         if sset is None:
             x, S = p.prior
-            sset = self._route_now().second_set(x, S, p.propagated, p.Q1_2)
+            sset = (self._route or self._route_now()).second_set(x, S, p.propagated, p.Q1_2)
         p = _Pending(UPDATING, None, p.prior, p.propagated, p.Q1_2, sset)
         self._pending = p
         return handed_points(p.sset.sigmas, self._plan.v_xi, self._R1_2, (self._K,))
@@ -517,14 +530,15 @@ class Fleet:
         **hx_args
             Passed to ``hx`` (per-filter arrays as for :meth:`predict`).
         """
-        zz = inputs.measurements(z, self._K, self._m)
-        self._take_edits()
+        zz = checks.measurements(z, self._K, self._m)
+        if self._handed.held:
+            self._take_edits()
         R1_2 = self._R1_2 if R is None else noise_factors(R, "R", self._rd, self._K)
         self._update(self._pending_update(), self._hx_images(R1_2, hx_args), zz, R1_2)
 
     def tell_update(self, sigmas_h, z, R=None) -> None:
         """Second half of an update: ``hx`` at the points from :meth:`ask_update`, and ``z`` (K, dim_z)."""
-        zz = inputs.measurements(z, self._K, self._m)
+        zz = checks.measurements(z, self._K, self._m)
         self._take_edits()
         if self._plan.v_xi is not None and R is not None:
             raise ParameterError(
@@ -535,34 +549,36 @@ class Fleet:
         p = self._told(UPDATING, "tell_update")
         sset: SigmaSet = p.sset  # type: ignore[assignment]  # set in phase UPDATING
         shape = sset.sigmas.shape[:-1] + (self._m,)
-        H = inputs.stacked_shape(sigmas_h, shape, "hx values", copy=True)
+        H = checks.stacked_shape(sigmas_h, shape, "hx values", copy=True)
         self._update(p, lambda rows, s: H[rows], zz, R1_2)
 
     # -- the step's parts -----------------------------------------------------------
 
     def _fx_images(self, dt: float, fx_args: dict) -> Callable:
         """``images(rows, X)``: ``fx`` at the first sets ``X`` of the filters ``rows``, arguments cut."""
-        kwargs, K, plan, Q = inputs.with_filter_axis(fx_args, self._K), self._K, self._plan, self._Q1_2
+        kwargs = checks.with_filter_axis(fx_args, self._K) if fx_args else fx_args
+        K, plan, Q = self._K, self._plan, self._Q1_2
         fx = self.fx
 
         def images(rows: slice, X: np.ndarray):
-            kw = inputs.chunk_args(kwargs, K, rows) if kwargs else kwargs
+            kw = checks.chunk_args(kwargs, K, rows) if kwargs else kwargs
             # the points themselves: the step reads only their shape afterwards
             W = None if plan.w_xi is None else noise_points(plan.w_xi, rows_of(Q, rows, 2), (X.shape[0],))
-            return inputs.call_stack(fx, "fx", X, W, (dt,), kw)
+            return checks.call_stack(fx, "fx", X, W, (dt,), kw)
 
         return images
 
     def _hx_images(self, R1_2: np.ndarray | None, hx_args: dict) -> Callable:
         """``images(rows, sset)``: ``hx`` at the second sets of the filters ``rows``, arguments cut."""
-        kwargs, K, plan = inputs.with_filter_axis(hx_args, self._K), self._K, self._plan
+        kwargs = checks.with_filter_axis(hx_args, self._K) if hx_args else hx_args
+        K, plan = self._K, self._plan
         hx = self.hx
 
         def images(rows: slice, sset):
-            kw = inputs.chunk_args(kwargs, K, rows) if kwargs else kwargs
+            kw = checks.chunk_args(kwargs, K, rows) if kwargs else kwargs
             k = sset.sigmas.shape[0]
             V = None if plan.v_xi is None else noise_points(plan.v_xi, rows_of(R1_2, rows, 2), (k,))
-            return inputs.call_stack(hx, "hx", sset.sigmas.copy(), V, (), kw)
+            return checks.call_stack(hx, "hx", sset.sigmas.copy(), V, (), kw)
 
         return images
 
@@ -591,18 +607,39 @@ class Fleet:
     def _predict(self, images: Callable, first: np.ndarray | None) -> None:
         fails: dict[int, str] = {}
         Q = None if self._plan.w_xi is not None else self._Q1_2  # noise entering fx is in the points already
+        buffers = self._buffers
+        buffers.abandon()
+        route = self._route or self._route_now()
         prior = stacks.predict(
-            self._route_now(), self._x, self._S, Q, ~self._failed, images, fails, first, self._chunk
+            route,
+            self._x,
+            self._S,
+            Q,
+            ~self._failed,
+            images,
+            fails,
+            first,
+            self._chunk,
+            buffers,
+            self._held(),
         )
         if fails and self.on_error == "raise":
             raise failures_error(fails)
+        buffers.commit()
         # commit; the second set is drawn by the update, a chunk at a time (memory)
         self._pending = _Pending(PRIOR, None, (prior.x, prior.S), prior.propagated, Q)
-        self._x, self._S = prior.x, prior.S
-        self._flag(fails)
+        self._stepped(prior.x, prior.S, fails)
         self._x_prior, self._S_prior = prior.x, prior.S  # never written in place: copied when read
 
-    def _flag(self, fails: dict[int, str]) -> None:
+    def _held(self) -> tuple:
+        """The arrays the records hold: what a step must not write (its results go to spare buffers)."""
+        return self._x, self._S, self._x_prior, self._S_prior, self._x_post, self._S_post
+
+    def _stepped(self, x: np.ndarray, S: np.ndarray, fails: dict[int, str]) -> None:
+        """A half step's commit: the new estimate (the arrays handed out for it are history), flags."""
+        self._x, self._S = x, S
+        if self._handed.held:
+            self._handed.drop("x", "P")
         for k, why in fails.items():
             self._failed[k] = True
             self._failure[k] = why
@@ -613,16 +650,19 @@ class Fleet:
         if self._plan.v_xi is not None:  # noise entering hx is in the points: the update adds none
             R1_2 = np.zeros((m, m))
         x, S = pending.prior  # type: ignore[misc]
+        buffers = self._buffers
+        buffers.abandon()
+        route = self._route or self._route_now()
         post = stacks.update(
-            self._route_now(), x, S, pending.sset, pending.propagated, pending.Q1_2, z, R1_2, active, images,
-            fails, self._chunk,
+            route, x, S, pending.sset, pending.propagated, pending.Q1_2, z, R1_2, active, images,
+            fails, self._chunk, buffers, self._held(),
         )  # fmt: skip
         if fails and self.on_error == "raise":
             raise failures_error(fails)
+        buffers.commit()
         # commit
-        self._pending = _Pending()
-        self._x, self._S = post.x, post.S
-        self._flag(fails)
+        self._pending = _IDLE_STEP
+        self._stepped(post.x, post.S, fails)
         self._x_post, self._S_post = post.x, post.S  # never written in place: copied when read
         self.y, self._loglik = post.y, post.log_likelihood
         self._nis, self._rejected = post.nis, post.rejected
@@ -630,8 +670,9 @@ class Fleet:
     def _no_update(self) -> None:
         """The records of a step in which no filter had a measurement, as :meth:`update` would leave them."""
         K, m = self._K, self._m
-        self._pending = _Pending()
-        self._x_post, self._S_post = self._x, self._S
+        self._pending = _IDLE_STEP
+        # the record's own copies: the estimate may live in the arrays the next prediction writes
+        self._x_post, self._S_post = self._x.copy(), self._S.copy()
         self.y, self._loglik = np.full((K, m), np.nan), np.zeros(K)
         self._nis, self._rejected = np.zeros(K), np.zeros((K, m), dtype=bool)
 
@@ -675,8 +716,10 @@ class Fleet:
         """
         check_keep(keep)
         check_progress(progress)
-        Z = inputs.measurement_series(zs, self._K, self._m)
+        Z = checks.measurement_series(zs, self._K, self._m)
         T = Z.shape[1]
+        # step-major: each step's (K, m) contiguous, read by the kernels as it is (no copy per step)
+        Z = np.ascontiguousarray(np.swapaxes(Z, 0, 1))
         dt_list = per_step(dts, T, "dts", "dt", default=self._dt, ref="zs")
         fx_args, hx_args = model_kwargs(fx_args, "fx_args"), model_kwargs(hx_args, "hx_args")
         records = new_records(keep, self._K, T, self._n, self._m)
@@ -686,7 +729,7 @@ class Fleet:
         try:
             with self.transaction():  # an error at any step leaves the fleet as it was before the call
                 for t in range(T):
-                    self._step(t, Z[:, t], dt_list[t], fx_args, hx_args, records)
+                    self._step(t, Z[t], dt_list[t], fx_args, hx_args, records)
                     if callback is not None:
                         callback(t)
         except BaseException as exc:
@@ -719,16 +762,16 @@ class Fleet:
         """
         return Transaction(self._snapshot, self._restore)
 
-    def _snapshot(self) -> tuple[dict, HandOut]:
-        # every array is replaced by the step, never written in place (the flags excepted: copied)
-        state = dict(self.__dict__)
-        state["_failed"], state["_failure"] = self._failed.copy(), self._failure.copy()
-        return state, self._handed.copy()
+    def _snapshot(self) -> tuple[Fleet, HandOut]:
+        # a copy: the step's results live in buffers that later steps write again
+        return copy.copy(self), self._handed.copy()
 
-    def _restore(self, saved: tuple[dict, HandOut]) -> None:
-        state, handed = saved
-        self.__dict__.update(state)
+    def _restore(self, saved: tuple[Fleet, HandOut]) -> None:
+        before, handed = saved
+        buffers = self._buffers
+        self.__dict__.update(before.__dict__)
         self.__dict__["_handed"] = handed  # the arrays handed out stay the caller's, still current
+        self.__dict__["_buffers"] = buffers
 
     # -- one filter and back --------------------------------------------------------
 
@@ -783,8 +826,9 @@ class Fleet:
         new._x, new._S = self._x[idx], self._S[idx]
         new._Q1_2 = rows_of(self._Q1_2, idx, 2)
         new._R1_2 = rows_of(self._R1_2, idx, 2)  # type: ignore[assignment]
+        new._handed = HandOut()  # the arrays handed out are this fleet's
         new._failed, new._failure = self._failed[idx], self._failure[idx]
-        new._pending = _Pending()
+        new._pending = _IDLE_STEP
         new._x_prior, new._x_post = self._x_prior[idx], self._x_post[idx]
         new._S_prior, new._S_post = self._S_prior[idx], self._S_post[idx]
         new.y, new._loglik = self.y[idx], self._loglik[idx]
@@ -823,12 +867,23 @@ class Fleet:
         p = self._pending
         if p.prior is not None:
             # the pending update is known by the identity of the estimate it was drawn for: the
-            # copy's pending step must belong to the copy's estimate
+            # copy's pending step must belong to the copy's estimate, and its own propagated set
             x, S = p.prior
             prior = (copies.get(id(x), x), copies.get(id(S), S))
-            d["_pending"] = _Pending(p.phase, p.first, prior, p.propagated, p.Q1_2, p.sset)
+            propagated = None if p.propagated is None else p.propagated.copy()
+            d["_pending"] = _Pending(p.phase, p.first, prior, propagated, p.Q1_2, p.sset)
+        d["_buffers"] = Buffers()  # the copy's own (scratch: not copied)
         new.__dict__.update(d)
         return new
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        del state["_buffers"]  # scratch: not pickled
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self.__dict__["_buffers"] = Buffers()
 
     def __deepcopy__(self, memo):
         new = copy.copy(self)
@@ -879,5 +934,5 @@ class Fleet:
         FleetStepError
             With ``on_error="raise"``, if some filters failed numerically.
         """
-        inputs.refuse_smoother_noise(self._fx_noise, "fleet")
+        checks.refuse_smoother_noise(self._fx_noise, "fleet")
         return fleet_rts_smoother(self, result, dts=dts, fx_args=fx_args)

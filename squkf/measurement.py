@@ -20,7 +20,7 @@ Three routes, each one compiled kernel (:mod:`squkf.kernels`):
   propagated set with process noise, a user's generator): ``Sy`` from the
   transform of the images, and the prior factor downdated by the columns of
   ``L21 = K Sy``.
-- **no measurement** (:func:`squkf.step.skip_update`).
+- **no measurement** (:meth:`squkf.engine.Engine.skip_update`).
 
 A user's ``UT`` with a set that reproduces the prior takes the gain form:
 ``Sy`` from the ``UT``, the posterior factor the QR of the rows

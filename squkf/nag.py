@@ -1,6 +1,6 @@
 """g13ej's own calling sequence: ``kalman_unscented_state_revcom``.
 
-A thin adapter over the step transitions of :mod:`squkf.step` (the same core as
+A thin adapter over one filter's engine (:class:`squkf.engine.Engine`, the same core as
 :class:`squkf.SquareRootUKF`) with the argument order of NAG's Python
 interface (``naginterfaces.library.tsa.kalman_unscented_state_revcom``)::
 
@@ -113,7 +113,7 @@ from .errors import (
 )
 from .generators import Augmented, Redrawn
 from .plan import Hooks, build_plan
-from .weights import MerweScaledWeights, _real_array, _real_number
+from .weights import MerweScaledWeights, real_array, real_number
 
 __all__ = ["kalman_unscented_state_revcom"]
 
@@ -160,7 +160,7 @@ def _ropt_values(ropt) -> list[float]:
     values = []
     for i, v in enumerate(flat, 1):
         try:
-            values.append(_real_number(v, f"ROPT({i})"))
+            values.append(real_number(v, f"ROPT({i})"))
         except ParameterError:
             what = "" if _ROPT_ERRNO[i - 1] else " (beta)"  # an error without a number says which it is
             raise ParameterError(
@@ -223,7 +223,7 @@ def _options(ropt, mx: int, has_lx: bool):
 
 
 def _lower(a, rows: int, name: str, errno: int, what: str, need: int):
-    arr = _real_array(a, name, errno=errno, error=ShapeError)
+    arr = real_array(a, name, errno=errno, error=ShapeError)
     if arr.ndim != 2 or arr.shape[0] < need or arr.shape[1] < need:
         shape = arr.shape if arr.ndim == 2 else (arr.shape + (0, 0))[:2]
         raise ShapeError(
@@ -290,7 +290,7 @@ def kalman_unscented_state_revcom(irevcm, y, ly, x, st, xt, fxt, comm, lx=None, 
     mx = x.shape[0] if x.ndim == 1 else 0
     if mx < 1:
         raise ParameterError(f"On entry, MX = {mx}. Constraint: MX >= 1.", errno=21)
-    yv = _real_array(y, "y", errno=31, error=ShapeError).reshape(-1)
+    yv = real_array(y, "y", errno=31, error=ShapeError).reshape(-1)
     my = yv.shape[0]
     if my < 1:
         raise ParameterError(f"On entry, MY = {my}. Constraint: MY >= 1.", errno=31)
@@ -465,7 +465,7 @@ def _load(comm, irevcm, x, st, xt, mx, my):
 
 
 def _read_fxt(fxt, rows: int, n: int, irevcm: int, mx: int, my: int):
-    F = _real_array(fxt, f"fxt (with IREVCM = {irevcm})", errno=160 + irevcm, error=ShapeError)
+    F = real_array(fxt, f"fxt (with IREVCM = {irevcm})", errno=160 + irevcm, error=ShapeError)
     if F.ndim != 2 or F.shape[0] < rows or F.shape[1] < n:
         first = F.shape[0] if F.ndim == 2 else 0
         if irevcm == 1:

@@ -4,7 +4,7 @@ A :class:`Plan` is built once per sigma-point family, second-set generator and
 state dimension: the first set's unit points, weights and covariance rows
 (:mod:`squkf.rows`), the structure the points allow (axis points, ``+/-``
 pairs: :class:`squkf.generators.UnitSet`), and the generator's prepared second
-set. The step (:mod:`squkf.step`) reads it and never changes it, so one plan
+set. The engine (:mod:`squkf.engine`) reads it and never changes it, so one plan
 serves any number of filters, and a configuration is data, not code.
 """
 

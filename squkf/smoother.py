@@ -57,10 +57,9 @@ import numpy as np
 
 from . import kernels
 from .batch import model_kwargs, per_step
-from .boundary.factors import noise_factor
-from .boundary.inputs import evaluate, finite_images, with_filter_axis
+from .boundary.checks import evaluate, finite_images, noise_factor, with_filter_axis
+from .boundary.covariance import FactorSlot, as_lower_factor
 from .boundary.records import FleetResult, failures_error
-from .covariance import FactorSlot, as_lower_factor
 from .errors import (
     NonFiniteError,
     NotPositiveDefiniteError,

@@ -21,14 +21,17 @@ keeps its state, and the others go on. The routes through the hooks or a
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import os
+import sys
+import threading
+from collections.abc import Callable, Mapping
 from typing import NamedTuple
 
 import numpy as np
 
 from . import kernels
-from .boundary.inputs import finite_images, stacked_shape
-from .engine import Route, failure
+from .boundary.checks import finite_images, stacked_shape
+from .engine import Buffers, Route, Scratch, failure
 from .errors import NonFiniteError, NotPositiveDefiniteError, SqukfError
 from .generators import SigmaSet
 from .validate import describe_nonfinite
@@ -54,8 +57,45 @@ CHUNK = 2048
 #: Filters computed together in one block of a route that raises (bounds the temporary arrays).
 BLOCK = 4096
 
+#: The fewest filters per chunk the default gives (below it, the step's Python per chunk would dominate).
+MIN_CHUNK = 64
 
-def default_chunk(threads: int, K: int) -> int:
+
+def fixed_mmap_threshold(environ: Mapping[str, str] = os.environ) -> int | None:
+    """glibc's mmap threshold in bytes when the environment fixes it, else None.
+
+    Setting ``MALLOC_TRIM_THRESHOLD_`` (as ``distributed`` does for a Dask
+    worker, 65536) or ``MALLOC_MMAP_THRESHOLD_`` stops glibc from raising its
+    mmap threshold as a program frees large blocks: every array of at least
+    the threshold (128 KiB unless ``MALLOC_MMAP_THRESHOLD_`` says otherwise)
+    is then mapped on allocation and unmapped when freed, its pages faulted
+    in anew each time. A model function's arrays of a chunk are made and
+    freed at every step, so :func:`default_chunk` keeps them under it.
+
+    Parameters
+    ----------
+    environ : mapping, optional
+        The environment read (default: this process's).
+
+    Returns
+    -------
+    int or None
+    """
+    if not sys.platform.startswith("linux"):
+        return None
+    mmap = environ.get("MALLOC_MMAP_THRESHOLD_")
+    if mmap is not None:
+        try:
+            return max(int(mmap), 0)
+        except ValueError:
+            return None
+    return 128 * 1024 if "MALLOC_TRIM_THRESHOLD_" in environ else None
+
+
+_MMAP_THRESHOLD = fixed_mmap_threshold()
+
+
+def default_chunk(threads: int, K: int, row_bytes: int = 0) -> int:
     """Filters per chunk when the fleet leaves it to the library: :data:`CHUNK`, or twice on threads.
 
     On several threads what stays serial is the step's Python per chunk,
@@ -65,19 +105,32 @@ def default_chunk(threads: int, K: int) -> int:
     faster size (``benchmarks/chunk_sizes.py``; the figures in
     ARCHITECTURE.md, "Measured").
 
+    Where the environment fixes glibc's mmap threshold
+    (:func:`fixed_mmap_threshold`: a Dask worker), a chunk is cut so that
+    its largest array per call of the model, ``row_bytes`` per filter, stays
+    under it (at least :data:`MIN_CHUNK` filters): a larger one is mapped
+    and faulted in at every call (``benchmarks/fleet.py`` measures the
+    difference).
+
     Parameters
     ----------
     threads : int
         The thread count of :func:`squkf.set_num_threads`.
     K : int
         Filters in the step.
+    row_bytes : int, optional
+        Bytes per filter of the largest array a model call makes (its points
+        or images); 0: not known.
 
     Returns
     -------
     int
     """
     big = 2 * CHUNK
-    return big if threads > 1 and K >= 4 * threads * big else CHUNK
+    size = big if threads > 1 and K >= 4 * threads * big else CHUNK
+    if _MMAP_THRESHOLD is not None and row_bytes:
+        size = min(size, max(MIN_CHUNK, (_MMAP_THRESHOLD - 1) // row_bytes))
+    return size
 
 
 def chunks(K: int, size: int = CHUNK, parts: int = 1) -> list[slice]:
@@ -107,17 +160,82 @@ def _label(name: str, rows: slice, K: int) -> str:
 
 
 def _map_chunks(
-    one: Callable[[slice], dict[int, str]], K: int, size: int | None, fails: dict[int, str]
+    one: Callable[[slice], dict[int, str]], K: int, size: int | None, fails: dict[int, str], row_bytes: int
 ) -> None:
     """``one`` over the chunks of a step of ``K`` filters, on the threads of :func:`squkf.set_num_threads`.
 
-    The step holds the thread count it starts with (:func:`squkf.kernels.step_threads`):
+    The step holds the thread count it starts with (:func:`squkf.kernels.enter_step`):
     its chunks are cut for it and run on its threads whatever the count is set to meanwhile.
     """
-    with kernels.step_threads() as threads:
-        cut = chunks(K, default_chunk(threads, K) if size is None else size, threads)
-        for part in kernels.thread_map(one, cut):
+    held, own = kernels.enter_step()
+    try:
+        threads = held.n
+        if size is None:
+            size = CHUNK if threads == 1 and _MMAP_THRESHOLD is None else default_chunk(threads, K, row_bytes)
+        if K <= size:  # one chunk: on this thread
+            found = one(slice(0, K))
+            if found:
+                fails.update(found)
+            return
+        for part in kernels.thread_map(one, chunks(K, size, threads)):
             fails.update(part)
+    finally:
+        kernels.exit_step(held, own)
+
+
+_local = threading.local()
+
+
+def _scratch() -> Scratch:
+    """This thread's chunk arrays (points, the kernels' outputs a chunk does not keep), made once per shape
+    and used by each chunk in turn (nothing of a chunk's outlives it)."""
+    scratch = getattr(_local, "scratch", None)
+    if scratch is None:
+        scratch = _local.scratch = Scratch()
+    return scratch
+
+
+def _estimates(K: int, n: int) -> tuple:
+    """A step's new estimates ``(K, n)``, ``(K, n, n)``: the prediction's and the update's in turn."""
+    return np.empty((K, n)), np.empty((K, n, n))
+
+
+def _propagated(K: int, N: int, n: int) -> tuple:
+    """A prediction's images where the update reads them, ``(K, N, n)``."""
+    return (np.empty((K, N, n)),)
+
+
+def _update_records(K: int, m: int) -> tuple:
+    """A fleet update's records besides the estimate: ``y``, log-likelihoods, NIS, ``rejected``."""
+    return np.empty((K, m)), np.empty(K), np.empty(K), np.empty((K, m), dtype=bool)
+
+
+def _second_size(plan) -> int:
+    """Points in a second set, as far as the plan knows them (a user's generator: as many as the first)."""
+    fused, N = plan.fused_draw, plan.xi1.shape[0]
+    if fused is None:
+        return N
+    return fused.xi.shape[0] + (N if fused.augmented else 0)
+
+
+def _as_kernels_take(x: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The estimates as the kernels take them (float64, C-contiguous, writeable): so are their chunks."""
+    fx, fS = x.flags, S.flags
+    if fx.c_contiguous and fx.writeable and fS.c_contiguous and fS.writeable and x.dtype == S.dtype == float:
+        return x, S
+    return kernels.kernel_array(x), kernels.kernel_array(S)
+
+
+def _statuses(k: int) -> tuple:
+    return (np.empty(k, dtype=np.int64),)
+
+
+def _chunk_update(k: int, n: int, m: int) -> tuple:
+    """The joint kernel's outputs a chunk does not keep: ``zp, w, Sy, L21, dx, status``."""
+    return (
+        np.empty((k, m)), np.empty((k, m)), np.empty((k, m, m)), np.empty((k, n, m)), np.empty((k, n)),
+        np.empty(k, dtype=np.int64),
+    )  # fmt: skip
 
 
 def rows_of(a: np.ndarray | None, idx, core: int) -> np.ndarray | None:
@@ -296,6 +414,8 @@ def predict(
     fails: dict[int, str],
     first: np.ndarray | None = None,
     size: int | None = None,
+    buffers: Buffers | None = None,
+    held: tuple = (),
 ) -> Prior:
     """The prediction of a stack of filters, a chunk at a time, failing filters flagged alone.
 
@@ -318,36 +438,50 @@ def predict(
         The first sets already handed out (``ask_predict``); default: drawn per chunk.
     size : int, optional
         Filters per chunk, at most (default: :func:`default_chunk` of the thread count and ``K``).
+    buffers : Buffers, optional
+        The fleet's: the results are written into its spare sets (the caller commits them), the
+        estimates into a set none of whose arrays is one of ``held`` (:meth:`Buffers.spare`).
+    held : tuple of ndarray
+        The arrays the fleet's records hold (its estimate, prior and posterior).
 
     Returns
     -------
     Prior
     """
-    K = x.shape[0]
+    K, n = x.shape
+    x, S = _as_kernels_take(x, S)
     plan = route.plan
-    x_new, S_new = np.empty_like(x), np.empty_like(S)
-    propagated = np.empty((K,) + plan.xi1.shape) if plan.keeps_propagated else None
+    N = plan.xi1.shape[0]
+    keep = plan.keeps_propagated
+
+    if buffers is None:
+        x_new, S_new = _estimates(K, n)
+        propagated = _propagated(K, N, n)[0] if keep else None
+    else:
+        x_new, S_new = buffers.spare(held, _estimates, K, n)
+        propagated = buffers.take(_propagated, K, N, n)[0] if keep else None
     form = plan.first.rows.best
+    none = route.no_set
 
     def one(rows: slice) -> dict[int, str]:
         found: dict[int, str] = {}
-        xs, Ss = x[rows], S[rows]
-        X = route.first_points(xs, Ss) if first is None else first[rows]
-        F = stacked_shape(images(rows, X), X.shape, _label("fx values", rows, K), False, ("fx", X.shape))
-        F = kernels.kernel_array(
-            F
-        )  # (a model's array of another layout: copied once, as the kernels take it)
+        xs, Ss = x[rows], S[rows]  # (the fleet's own C-contiguous arrays: their rows are as the kernels take)
+        scratch = getattr(_local, "scratch", None) or _scratch()
+        X = route.first_points(xs, Ss, scratch) if first is None else first[rows]
+        label = "fx values" if rows.stop - rows.start == K else _label("fx values", rows, K)
+        F = stacked_shape(images(rows, X), X.shape, label, False, ("fx", X.shape))
+        F = kernels.kernel_array(F)  # (a model's array of another layout: copied once, as kernels take it)
         on = active[rows]
-        Qr = rows_of(Q1_2, rows, 2)
+        Qr = Q1_2 if Q1_2 is None or Q1_2.ndim == 2 else Q1_2[rows]
         xo, So = x_new[rows], S_new[rows]
         if route.plain_x:  # the kernel checks the images and reports each filter's failure
-            mean, Sm, status, _ = route.prior(F, Qr, None, False)
+            k = xs.shape[0]
+            status = scratch.take(_statuses, k)[0]
+            route.prior(F, Qr, None, False, out=(xo, So, status, none, none))  # into the step's results
             good = _flag(status, on, found, form, "prior", F, "fx values")
-            if good.all():
-                xo[...], So[...] = mean, Sm
-            else:
-                xo[...], So[...] = xs, Ss
-                xo[good], So[good] = mean[good], Sm[good]
+            if not good.all():  # a failing or inactive filter keeps its estimate
+                bad = ~good
+                xo[bad], So[bad] = xs[bad], Ss[bad]
         else:  # the hooks raise: the chunk is run again a filter at a time to find the failing ones
             finite = finite_images(F, "fx values", on, found)
 
@@ -362,9 +496,9 @@ def predict(
                 xo[good_ix], So[good_ix] = res
         if propagated is not None:
             propagated[rows] = F
-        return {rows.start + i: why for i, why in found.items()}
+        return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
 
-    _map_chunks(one, K, size, fails)
+    _map_chunks(one, K, size, fails, 8 * N * n)
     return Prior(x_new, S_new, propagated)
 
 
@@ -406,6 +540,8 @@ def update(
     images: Callable[[slice, SigmaSet], object],
     fails: dict[int, str],
     size: int | None = None,
+    buffers: Buffers | None = None,
+    held: tuple = (),
 ) -> Posteriors:
     """The update of a stack of filters, a chunk at a time, failing filters flagged alone.
 
@@ -431,7 +567,7 @@ def update(
     images : callable
         ``images(rows, sset)``: the model at the second sets ``sset`` of the
         filters ``rows`` (a slice), shape ``(k, N2, m)``.
-    fails, size
+    fails, size, buffers, held
         As for :func:`predict`.
 
     Returns
@@ -439,34 +575,63 @@ def update(
     Posteriors
     """
     K, m = z.shape
+    n = x.shape[1]
     z = kernels.kernel_array(z)  # (one step's column of a run's measurements)
-    out = Posteriors(
-        np.empty_like(x), np.empty_like(S), np.empty((K, m)), np.empty(K), np.empty(K),
-        np.empty((K, m), dtype=bool),
-    )  # fmt: skip
+    x, S = _as_kernels_take(x, S)
+
+    if buffers is None:
+        out = Posteriors(*_estimates(K, n), *_update_records(K, m))
+    else:
+        out = Posteriors(*buffers.spare(held, _estimates, K, n), *buffers.take(_update_records, K, m))
     observed = ~np.isnan(z)
 
     def one(rows: slice) -> dict[int, str]:
         found: dict[int, str] = {}
-        xs, Ss = x[rows], S[rows]
+        xs, Ss = x[rows], S[rows]  # (the fleet's own C-contiguous arrays: their rows are as the kernels take)
+        scratch = getattr(_local, "scratch", None) or _scratch()
         if sset is not None:
             s = take_set(sset, rows)
         else:
             prop = None if propagated is None else propagated[rows]
-            s = route.second_set(xs, Ss, prop, rows_of(Q1_2, rows, 2))
+            s = route.second_set(xs, Ss, prop, rows_of(Q1_2, rows, 2), scratch)
         shape = s.sigmas.shape[:-1] + (m,)
-        H = stacked_shape(images(rows, s), shape, _label("hx values", rows, K), False, ("hx", s.sigmas.shape))
-        H = kernels.kernel_array(H)
+        label = "hx values" if rows.stop - rows.start == K else _label("hx values", rows, K)
+        H = kernels.kernel_array(stacked_shape(images(rows, s), shape, label, False, ("hx", s.sigmas.shape)))
         on = active[rows]
-        if route.update_route(s, None) is None:  # the hooks raise: non-finite images flagged first
+        zr, obs, Rr = z[rows], observed[rows], R1_2 if R1_2.ndim == 2 else R1_2[rows]
+        plain = route.update_route(s, None) is not None
+        if plain and route.gate is None and obs.all():  # the usual case: the kernel writes the step's arrays
+            part = out if rows.stop - rows.start == K else [a[rows] for a in out]
+            _whole_chunk(route, s, xs, Ss, H, zr, Rr, on, found, part, scratch)
+            return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
+        if not plain:  # the hooks raise: non-finite images flagged first
             on = on & finite_images(H, "hx values", on, found)
-        records = _posteriors(route, s, xs, Ss, H, z[rows], observed[rows], rows_of(R1_2, rows, 2), on, found)
-        for whole, part in zip(out, records):
-            whole[rows] = part
-        return {rows.start + i: why for i, why in found.items()}
+        records = _posteriors(route, s, xs, Ss, H, zr, obs, Rr, on, found)
+        for record, rows_record in zip(out, records):
+            record[rows] = rows_record
+        return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
 
-    _map_chunks(one, K, size, fails)
+    row_bytes = 0 if _MMAP_THRESHOLD is None else 8 * _second_size(route.plan) * max(n, m)
+    _map_chunks(one, K, size, fails, row_bytes)
     return out
+
+
+def _whole_chunk(route: Route, sset, x0, S0, H, z, R1_2, on, found, out, scratch: Scratch) -> None:
+    """A chunk's update with every component measured and no gate, the joint kernel writing the step's
+    arrays ``out`` (``x, S, y, loglik, nis, rejected`` rows) directly; a failing or inactive filter keeps its
+    prior, with no innovation and no likelihood."""
+    x, S, y, ll, nis, rejected = out
+    k, m = z.shape
+    n = x0.shape[1]
+    zp, w, Sy, L21, dx, status = scratch.take(_chunk_update, k, n, m)
+    kernel_out = (zp, y, w, Sy, L21, dx, x, S, ll, nis, status, route.no_set)
+    _, status, _ = route.posterior(sset, x0, S0, H, z, None, R1_2, None, False, out=kernel_out)
+    good = _flag(status, on, found, route.form_of(sset, None), "update", H, "hx values")
+    rejected[...] = False
+    if not good.all():
+        bad = ~good
+        x[bad], S[bad] = x0[bad], S0[bad]
+        y[bad], ll[bad], nis[bad] = np.nan, 0.0, 0.0
 
 
 def _posteriors(route: Route, sset, x0, S0, H, z, observed, R1_2, todo, found) -> tuple:

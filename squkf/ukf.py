@@ -21,14 +21,24 @@ import numpy as np
 
 from . import smoother
 from .batch import batch_filter
-from .boundary import inputs
-from .boundary.attributes import NOISES, Covariance, Estimate, Hook, Unformed, hooks_of, initial, set_factor
+from .boundary import checks
+from .boundary.checks import noise_factor
 from .boundary.config import Config
-from .boundary.edits import Handed
-from .boundary.factors import noise_factor
+from .boundary.covariance import (
+    NOISES,
+    Covariance,
+    Estimate,
+    FactorSlot,
+    Handed,
+    Hook,
+    Unformed,
+    as_lower_factor,
+    hooks_of,
+    initial,
+    set_factor,
+)
 from .boundary.loop import Transaction
 from .boundary.records import embed, innovation_inverse
-from .covariance import FactorSlot, as_lower_factor
 from .engine import Engine, Route, Update
 from .errors import NonFiniteError
 from .gating import Gate, as_gate
@@ -213,11 +223,11 @@ class SquareRootUKF:
         fx_noise: int | None = None,
         hx_noise: int | None = None,
     ):
-        n, m = inputs.check_sizes(dim_x=dim_x, dim_z=dim_z)
-        fx_noise_, hx_noise_ = inputs.model_noise(fx, hx, fx_noise, hx_noise)
+        n, m = checks.check_sizes(dim_x=dim_x, dim_z=dim_z)
+        fx_noise_, hx_noise_ = checks.model_noise(fx, hx, fx_noise, hx_noise)
         dt_ = check_time_step(dt)
-        family, num = inputs.sigma_family(points, n, fx_noise_)
-        generator = inputs.second_set(scheme, n, family, hx_noise_)
+        family, num = checks.sigma_family(points, n, fx_noise_)
+        generator = checks.second_set(scheme, n, family, hx_noise_)
         plan = build_plan(family, generator, n, fx_noise_, hx_noise_)
         d = self.__dict__
         d.update(_dim_x=n, _dim_z=m, _dt=dt_, _num_sigmas=num, _fx_noise=fx_noise_, _hx_noise=hx_noise_)
@@ -251,7 +261,7 @@ class SquareRootUKF:
     @points_fn.setter
     def points_fn(self, points):
         d = self.__dict__
-        family, num = inputs.sigma_family(points, self._dim_x, self._fx_noise)
+        family, num = checks.sigma_family(points, self._dim_x, self._fx_noise)
         plan = build_plan(family, self._generator, self._dim_x, self._fx_noise, self._hx_noise)
         d.update(_points=points, _family=family, _num_sigmas=num, _plan=plan)
         self._configured()
@@ -263,7 +273,7 @@ class SquareRootUKF:
 
     @scheme.setter
     def scheme(self, value):
-        gen = inputs.second_set(value, self._dim_x, self._family, self._hx_noise)
+        gen = checks.second_set(value, self._dim_x, self._family, self._hx_noise)
         plan = build_plan(self._family, gen, self._dim_x, self._fx_noise, self._hx_noise)
         self.__dict__.update(_generator=gen, _plan=plan)
         self._configured()
@@ -336,7 +346,7 @@ class SquareRootUKF:
 
     def _assign_x(self, value) -> None:
         """``x = value``, validated: the engine's estimate, ``x`` formed again when read."""
-        x = inputs.as_state(value, "x", self._dim_x)
+        x = checks.as_state(value, "x", self._dim_x)
         self._engine.assign(x=x[None])
         d = self.__dict__
         d["x"], d["_x"] = self._unformed[0], None
@@ -358,7 +368,7 @@ class SquareRootUKF:
         d = self.__dict__
         handed = d["_x"]
         if handed is not None and handed.edited():
-            x = inputs.as_state(handed.array, "x", self._dim_x)
+            x = checks.as_state(handed.array, "x", self._dim_x)
             self._engine.assign(x=x[None])
             d["_x"] = Handed(handed.array)
         handed = d["_Ph"]
@@ -630,7 +640,7 @@ class SquareRootUKF:
         """
         e = self._engine
         w_xi = e.step_route.plan.w_xi
-        inputs.refuse_noise_args(w_xi, "Q", Q, UT)
+        checks.refuse_noise_args(w_xi, "Q", Q, UT)
         # noise entering fx is in the points: no noise is added to the prior
         e.tell_predict(sigmas_f, None if w_xi is not None else self._Q1_2(Q), UT)
         self._stepped()
@@ -671,8 +681,8 @@ class SquareRootUKF:
         P1_2_post : ndarray, shape (dim_x, dim_x)
             Fresh arrays.
         """
-        inputs.refuse_noise_args(self._plan.v_xi, "R", R, UT)
-        meas = inputs.measurement(z, R, self._dim_z, self._R_dim, self._hx_noise)
+        checks.refuse_noise_args(self._plan.v_xi, "R", R, UT)
+        meas = checks.measurement(z, R, self._dim_z, self._R_dim, self._hx_noise)
         if meas is None:
             raise NonFiniteError(
                 "tell_update needs a measurement, but z holds none (all NaN, masked or None)"
@@ -743,7 +753,7 @@ class SquareRootUKF:
         **hx_args
             Passed to ``hx``.
         """
-        meas = inputs.measurement(z, R, self._dim_z, self._R_dim, self._hx_noise)
+        meas = checks.measurement(z, R, self._dim_z, self._R_dim, self._hx_noise)
         d = self.__dict__
         if d["_x"] is not None or d["_Ph"] is not None:  # handed out since the step: edits are taken
             self._take_edits()
@@ -815,12 +825,12 @@ class SquareRootUKF:
 
     def rts_smoother(self, Xs, Ps, Qs=None, dts=None, UT=None, *, fx_args=None):
         """Square-root unscented RTS smoother: :func:`squkf.smoother.rts_smoother` on this filter."""
-        inputs.refuse_smoother_noise(self._fx_noise, "filter")
+        checks.refuse_smoother_noise(self._fx_noise, "filter")
         return smoother.rts_smoother(self, Xs, Ps, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
 
     def rts_smoother_factors(self, Xs, P1_2s, Qs=None, dts=None, UT=None, *, fx_args=None):
         """The smoother on lower factors: :func:`squkf.smoother.rts_smoother_factors` on this filter."""
-        inputs.refuse_smoother_noise(self._fx_noise, "filter")
+        checks.refuse_smoother_noise(self._fx_noise, "filter")
         return smoother.rts_smoother_factors(self, Xs, P1_2s, Qs=Qs, dts=dts, UT=UT, fx_args=fx_args)
 
     # -- the step's parts -----------------------------------------------------
@@ -834,8 +844,8 @@ class SquareRootUKF:
         if xi is None:
             if self.vectorized:
                 return fn(X, *args, **kwargs)
-            return inputs.evaluate(fn, X, args, kwargs, False)
-        inputs.refuse_noise_args(xi, name, noise, UT)
+            return checks.evaluate(fn, X, args, kwargs, False)
+        checks.refuse_noise_args(xi, name, noise, UT)
         W = noise_points(xi, self._noise_factor(noise, name, xi.shape[1]), ())
         return call_model(fn, which, dim, X, W, args, kwargs, self.vectorized)
 
@@ -846,7 +856,7 @@ class SquareRootUKF:
 
     def _per_point(self, fn: Callable, X: np.ndarray, dt, kwargs: dict):
         """``fn`` at each point of ``X``: ``fx(x, dt)``, or ``hx(x)`` with no ``dt``, as filterpy calls it."""
-        return inputs.evaluate(fn, X, () if dt is None else (dt,), kwargs, False)
+        return checks.evaluate(fn, X, () if dt is None else (dt,), kwargs, False)
 
     def _R_dim(self) -> int:
         return self._R.factor_or_zeros().shape[0]

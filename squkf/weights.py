@@ -80,7 +80,7 @@ def _frozen(a: np.ndarray) -> np.ndarray:
     return a
 
 
-def _real_number(value, name: str, errno: int | None = None) -> float:
+def real_number(value, name: str, errno: int | None = None) -> float:
     """``value`` as a float if it is one real number (not a bool, string, complex or array).
 
     ``float()`` alone would parse strings and, for numpy complex scalars, drop
@@ -95,7 +95,7 @@ def _real_number(value, name: str, errno: int | None = None) -> float:
     return float(value)
 
 
-def _real_array(value, name: str, errno: int | None = None, error=ParameterError) -> np.ndarray:
+def real_array(value, name: str, errno: int | None = None, error=ParameterError) -> np.ndarray:
     """``value`` as a new float64 array if it holds real numbers (int or float dtype) only.
 
     Complex, bool, string and object arrays are refused rather than cast
@@ -120,7 +120,7 @@ def _dimension(n) -> int:
 
 
 def _alpha(value, errno: int | None = 173) -> float:
-    alpha = _real_number(value, "alpha", errno)
+    alpha = real_number(value, "alpha", errno)
     if not (np.isfinite(alpha) and alpha > 0):
         raise ParameterError(f"alpha must be a positive finite number, got alpha={alpha!r}", errno=errno)
     a2 = alpha * alpha
@@ -134,14 +134,14 @@ def _alpha(value, errno: int | None = 173) -> float:
 
 
 def _beta(value) -> float:
-    beta = _real_number(value, "beta")
+    beta = real_number(value, "beta")
     if not np.isfinite(beta):
         raise ParameterError(f"beta must be a finite number, got beta={beta!r}")
     return beta
 
 
 def _kappa(value, errno: int | None = 172) -> float:
-    kappa = _real_number(value, "kappa", errno)
+    kappa = real_number(value, "kappa", errno)
     if not np.isfinite(kappa):
         raise ParameterError(f"kappa must be a finite number, got kappa={kappa!r}", errno=errno)
     return kappa
@@ -181,10 +181,10 @@ class _CachedFamily:
     def _fill(self, n: int) -> tuple:
         n = _dimension(n)
         what = f"{self!r} for n={n}"
-        xi = _real_array(self._unit_points(n), f"the unit sigma points of {what}")
+        xi = real_array(self._unit_points(n), f"the unit sigma points of {what}")
         Wm, Wc = self._weights(n)
-        Wm = _real_array(Wm, f"the mean weights Wm of {what}")
-        Wc = _real_array(Wc, f"the covariance weights Wc of {what}")
+        Wm = real_array(Wm, f"the mean weights Wm of {what}")
+        Wc = real_array(Wc, f"the covariance weights Wc of {what}")
         N = self.num_sigmas(n)
         if xi.shape != (N, n) or Wm.shape != (N,) or Wc.shape != (N,):
             raise ParameterError(
@@ -499,7 +499,7 @@ class FilterpyPoints(_CachedFamily):
                 raise ParameterError(f"{name}.n must be a positive integer, got n={n!r}")
             n = int(n)
         else:
-            n = len(_real_array(points.Wm, f"{name}.Wm").reshape(-1)) // 2
+            n = len(real_array(points.Wm, f"{name}.Wm").reshape(-1)) // 2
         if hasattr(points, "alpha"):
             self._param(points, "alpha", _alpha)
         if hasattr(points, "beta"):
@@ -545,7 +545,7 @@ class FilterpyPoints(_CachedFamily):
             probe.sqrt = cholesky
         if hasattr(probe, "subtract"):
             probe.subtract = np.subtract
-        xi = _real_array(probe.sigma_points(np.zeros(n), np.eye(n)), f"{type(self.points).__name__}'s points")
+        xi = real_array(probe.sigma_points(np.zeros(n), np.eye(n)), f"{type(self.points).__name__}'s points")
         if xi.size != self.num_sigmas(n) * n:
             raise ParameterError(
                 f"{type(self.points).__name__}.sigma_points gave {xi.size} numbers for "
@@ -556,7 +556,7 @@ class FilterpyPoints(_CachedFamily):
     def _weights(self, n):
         self._check(n)
         name = type(self.points).__name__
-        return _real_array(self.points.Wm, f"{name}.Wm"), _real_array(self.points.Wc, f"{name}.Wc")
+        return real_array(self.points.Wm, f"{name}.Wm"), real_array(self.points.Wc, f"{name}.Wc")
 
     def as_native(self) -> MerweScaledWeights | None:
         """The equivalent squkf family for Merwe- or Julier-type objects, else None."""

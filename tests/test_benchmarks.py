@@ -7,6 +7,7 @@ fleet matching the loop) and benchmarks/dask_bench.py (on a LocalCluster).
 from __future__ import annotations
 
 import json
+import math
 import re
 import subprocess
 import sys
@@ -55,9 +56,36 @@ def test_quick_benchmark_writes_results(tmp_path):
         if row.startswith("| ") and "---" not in row and "part" not in row
     }
     whole = cells.pop("whole step")
-    assert len(cells) == 7 and abs(sum(cells.values()) - whole) < 0.5
+    assert len(cells) == 5 and abs(sum(cells.values()) - whole) < 0.5
+    # the Python per step: both routes counted, each target judged on its count
+    python = text.split("## Python per step")[1].split("##")[0]
+    for route in ("vectorised", "per point"):
+        row = next(line for line in python.splitlines() if line.startswith(f"| {route} |"))
+        calls, depth, modules = (int(c) for c in row.strip("|").split("|")[1:])
+        assert calls > 0 and 1 <= depth <= calls and 1 <= modules <= calls
+        verdict = next(line for line in python.splitlines() if line.startswith(f"- {route}:"))
+        assert f"calls {calls} (<= 50: {'met' if calls <= 50 else 'not met'})" in verdict
+    # the targets of the single filter, each with its ratio (Lorenz-96 is not run with --quick)
+    targets = text.split("## Targets")[1].split("##")[0]
+    for sc in ("g13ej robot n=3", "coordinated turn n=5"):
+        assert f"| {sc} | per-point | filterpy UKF | <= 0.35 |" in targets
+        assert f"| {sc} | vectorised | filterpy UKF | <= 0.2 |" in targets
     assert (tmp_path / "scaling.png").stat().st_size > 1000
     assert (tmp_path / "failure_map.png").stat().st_size > 1000
+
+
+def test_inlined_reference_is_the_library_step_bit_for_bit():
+    """benchmarks/floor.py's floor drives the library's kernels as its default route does."""
+    res = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "floor.py"), "--steps", "10"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    rows = [line for line in res.stdout.splitlines() if line.startswith("| ") and "scenario" not in line]
+    assert len(rows) == 6, res.stdout + res.stderr  # three scenarios, vectorised and per point
+    assert all(row.endswith("| the same, bit for bit |") for row in rows), res.stdout
+    assert res.returncode == 0
 
 
 def test_quick_fleet_benchmark(tmp_path):
@@ -80,6 +108,12 @@ def test_quick_fleet_benchmark(tmp_path):
         for row in res["timing"].values():
             assert row["fleet"]["us"] > 0 and row["loop"]["us"] > 0 and row["filterpy"]["us"] > 0
         assert all(m["peak_MB"] > 0 for m in res["memory"].values())
+        # three steps measured: each one's peak RSS growth and the fleet's peak RSS (the memory target's)
+        rss = res["rss"]
+        assert all(
+            rss[f"step{t}_peak_MB"] >= 0 and math.isfinite(rss[f"step{t}_total_MB"]) for t in (1, 2, 3)
+        )
+        assert f"| {rss['step3_total_MB']:.3g} |" in text.split("## Peak memory of one fleet step")[1]
         acc = res["accuracy"]
         # the fleet and the loop of SquareRootUKF are the same filters: same RMSE, same estimates
         assert acc["fleet_equals_loop"] is True
@@ -89,6 +123,27 @@ def test_quick_fleet_benchmark(tmp_path):
         assert abs(acc["fleet"]["rmse"] - acc["filterpy"]["rmse"]) <= 1e-6 * acc["fleet"]["rmse"]
         if "dynamax" in results["impls"]:
             assert abs(acc["fleet"]["rmse"] - acc["dynamax"]["rmse"]) <= 1e-4 * acc["fleet"]["rmse"]
+        # each ratio's spread over the repetitions holds its median
+        for row in res["timing"].values():
+            for name in set(row) & {"loop", "filterpy", "dynamax"}:
+                lo, hi = row[name]["speedup_range"]
+                assert lo <= row[name]["speedup"] <= hi
+    # Fleet.batch_filter with a Dask worker's MALLOC_TRIM_THRESHOLD_ and without, in pairs of processes
+    trim = results["malloc_trim"]
+    assert [r["trim"] for r in trim["runs"]["set"]] == ["65536"] * trim["reps"]
+    assert [r["trim"] for r in trim["runs"]["unset"]] == [None] * trim["reps"]
+    ratios = [s["wall_s"] / u["wall_s"] for u, s in zip(trim["runs"]["unset"], trim["runs"]["set"])]
+    assert trim["range"] == [min(ratios), max(ratios)] and min(ratios) <= trim["ratio"] <= max(ratios)
+    assert f"**{trim['ratio']:.3f}x**" in text.split("## MALLOC_TRIM_THRESHOLD_=65536")[1]
+    # every fleet target of issue 30 is reported, measured or not
+    reported = [t["target"] for t in results["targets"]]
+    for start in (
+        "K = 10^4, one thread: fleet's time <= 0.5x",
+        "K = 10^5: two threads >= 1.6x",
+        "K = 10^5: one fleet step's peak memory no higher than at",
+        "MALLOC_TRIM_THRESHOLD_=65536",
+    ):
+        assert any(t.startswith(start) for t in reported), start
 
 
 def test_quick_dask_benchmark_writes_results(tmp_path):

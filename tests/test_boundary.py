@@ -16,58 +16,58 @@ import pytest
 from models import CV3_K, CV3_NZ, assert_fleet_state, fleet_state, make_cv3_fleet
 
 import squkf
-from squkf.boundary import config, edits, factors, inputs, loop, records
+from squkf.boundary import checks, config, covariance, loop, records
 from squkf.errors import FleetStepError, NonFiniteError, ParameterError, ShapeError
 
 PACKAGE = Path(squkf.__file__).resolve().parent
 
 
 def test_sizes_are_positive_integers_with_one_message():
-    assert inputs.check_sizes(dim_x=np.int64(3), dim_z=1) == (3, 1)
+    assert checks.check_sizes(dim_x=np.int64(3), dim_z=1) == (3, 1)
     for bad in (0, True, 2.0, "2"):
         with pytest.raises(ParameterError, match=r"dim_z must be a positive integer, got dim_z="):
-            inputs.check_sizes(dim_x=2, dim_z=bad)
+            checks.check_sizes(dim_x=2, dim_z=bad)
 
 
 def test_one_filters_measurement_and_a_stacks_read_the_same_components():
     z = np.array([1.0, np.nan, 3.0])
-    one = inputs.measurement(z, None, 3, lambda: 3, 0)
+    one = checks.measurement(z, None, 3, lambda: 3, 0)
     assert one is not None
     arr, observed = one
     np.testing.assert_array_equal(observed, [True, False, True])
-    stacked = inputs.measurements(np.stack([z, z]), 2, 3)
+    stacked = checks.measurements(np.stack([z, z]), 2, 3)
     np.testing.assert_array_equal(~np.isnan(stacked[0]), observed)
-    assert inputs.measurement(np.full(3, np.nan), None, 3, lambda: 3, 0) is None
+    assert checks.measurement(np.full(3, np.nan), None, 3, lambda: 3, 0) is None
     with pytest.raises(NonFiniteError, match="inf"):
-        inputs.measurement(np.array([1.0, np.inf, 0.0]), None, 3, lambda: 3, 0)
+        checks.measurement(np.array([1.0, np.inf, 0.0]), None, 3, lambda: 3, 0)
     with pytest.raises(NonFiniteError, match=r"row 1"):
-        inputs.measurements(np.array([[1.0, 0.0, 0.0], [np.inf, 0.0, 0.0]]), 2, 3)
+        checks.measurements(np.array([[1.0, 0.0, 0.0], [np.inf, 0.0, 0.0]]), 2, 3)
     with pytest.raises(ShapeError, match=r"z is None"):
-        inputs.measurements(None, 2, 3)
+        checks.measurements(None, 2, 3)
 
 
 def test_a_series_of_steps_is_read_as_the_array():
     zs = np.arange(12.0).reshape(2, 3, 2)
-    from_steps = inputs.measurement_series(iter([zs[:, t] for t in range(3)]), 2, 2)
-    np.testing.assert_array_equal(from_steps, inputs.measurement_series(zs, 2, 2))
+    from_steps = checks.measurement_series(iter([zs[:, t] for t in range(3)]), 2, 2)
+    np.testing.assert_array_equal(from_steps, checks.measurement_series(zs, 2, 2))
     with pytest.raises(ShapeError, match=r"zs\[1\]"):
-        inputs.measurement_series(iter([zs[:, 0], zs[:, 1, :1]]), 2, 2)
+        checks.measurement_series(iter([zs[:, 0], zs[:, 1, :1]]), 2, 2)
 
 
 def test_a_given_covariance_is_factored_once_shared_or_per_filter():
     A = np.array([[4.0, 2.0], [2.0, 3.0]])
-    S = factors.noise_factors(A, "R", 2, 3)
+    S = checks.noise_factors(A, "R", 2, 3)
     np.testing.assert_allclose(S @ S.T, A)
-    per = factors.noise_factors(np.stack([A, 2 * A, 3 * A]), "R", 2, 3)
+    per = checks.noise_factors(np.stack([A, 2 * A, 3 * A]), "R", 2, 3)
     np.testing.assert_array_equal(per[0], S)
     np.testing.assert_allclose(per[2] @ per[2].T, 3 * A)
     with pytest.raises(ShapeError, match=r"expected \(2, 2\) or \(3, 2, 2\)"):
-        factors.noise_factors(np.zeros((2, 2, 2)), "R", 2, 3)
+        checks.noise_factors(np.zeros((2, 2, 2)), "R", 2, 3)
     cache: dict = {}
-    one = factors.noise_factor(A, "R", 2, lambda: None, cache)
+    one = checks.noise_factor(A, "R", 2, lambda: None, cache)
     np.testing.assert_array_equal(one, np.linalg.cholesky(A))
-    assert factors.noise_factor(A, "R", 2, lambda: None, cache) is one  # the same array: not factored again
-    Ps = factors.covariance_factors(A, "P", 2, 3)
+    assert checks.noise_factor(A, "R", 2, lambda: None, cache) is one  # the same array: not factored again
+    Ps = checks.covariance_factors(A, "P", 2, 3)
     assert Ps.shape == (3, 2, 2) and np.array_equal(Ps[1], Ps[0])
 
 
@@ -79,7 +79,7 @@ def test_an_edit_in_place_is_taken_once_through_the_setter_or_stays_pending():
             raise NonFiniteError(f"{name} contains NaN")
         taken.append((name, a.copy()))
 
-    out = edits.HandOut()
+    out = covariance.HandOut()
     a = out.array("x", lambda: np.zeros(2))
     assert out.array("x", lambda: np.ones(2)) is a  # the same array until dropped
     out.take(["x"], assign)
@@ -95,7 +95,7 @@ def test_an_edit_in_place_is_taken_once_through_the_setter_or_stays_pending():
     with pytest.raises(NonFiniteError):
         copied.take(["x"], assign)
     a.shape = (1, 2)  # a change of shape in place is an edit too
-    assert edits.Handed(np.zeros(2)).edited() is False
+    assert covariance.Handed(np.zeros(2)).edited() is False
     out.take(["x"], assign)
     assert taken[-1][1].shape == (1, 2)
     out.drop("x")
@@ -200,8 +200,76 @@ def test_the_front_ends_and_the_smoother_import_each_other_in_no_cycle():
             visit(m, [])
 
 
+#: squkf's layers, bottom up (ARCHITECTURE.md): a module imports from its own layer and those below only.
+LAYERS = {
+    "the exceptions": ["squkf._version", "squkf.errors"],
+    "kernels": ["squkf.kernels", "squkf.kernels.phases", "squkf.kernels.cache"],
+    "plug-ins and support": [
+        "squkf.angles", "squkf.blas", "squkf.rows", "squkf.weights", "squkf.generators", "squkf.gating",
+        "squkf.noise", "squkf.validate", "squkf.linalg", "squkf.transform", "squkf.measurement",
+    ],
+    "the plan": ["squkf.plan"],
+    "the boundary": [
+        "squkf.boundary", "squkf.boundary.checks", "squkf.boundary.covariance", "squkf.boundary.records",
+        "squkf.boundary.loop", "squkf.boundary.config", "squkf.batch",
+    ],
+    "the engine": ["squkf.engine"],
+    "the fleet's stacks": ["squkf.stacks"],
+    "the faces": [
+        "squkf", "squkf.__main__", "squkf.ukf", "squkf.fleet", "squkf.smoother", "squkf.nag", "squkf.ut",
+        "squkf.dask", "squkf.first_use", "squkf.examples", "squkf.examples.g13ej_example",
+    ],
+}  # fmt: skip
+LEVEL = {m: k for k, mods in enumerate(LAYERS.values()) for m in mods}
+
+
+def _all_modules() -> dict[str, Path]:
+    out = {}
+    for path in PACKAGE.rglob("*.py"):
+        rel = path.relative_to(PACKAGE.parent).with_suffix("")
+        out[".".join(rel.parts[:-1] if rel.name == "__init__" else rel.parts)] = path
+    return out
+
+
+def _module_of(name: str) -> str:
+    """The squkf module an imported name belongs to (``squkf.engine.Route`` -> ``squkf.engine``)."""
+    while name not in LEVEL and "." in name:
+        name = name.rsplit(".", 1)[0]
+    return name
+
+
+def test_every_module_has_a_layer():
+    assert set(_all_modules()) == set(LEVEL), set(_all_modules()) ^ set(LEVEL)
+
+
+def test_no_module_imports_from_a_layer_above_its_own():
+    """Bottom up: the exceptions, kernels, plug-ins and support, the plan, the boundary, the engine,
+    the stacks, the faces."""
+    layer = list(LAYERS)
+    wrong = []
+    for module, path in _all_modules().items():
+        for imported in _imports(path):
+            dep = _module_of(imported)
+            if dep in LEVEL and LEVEL[dep] > LEVEL[module]:
+                wrong.append(f"{module} ({layer[LEVEL[module]]}) imports {dep} ({layer[LEVEL[dep]]})")
+    assert not wrong, wrong
+
+
+def test_no_module_imports_another_modules_private_names():
+    found = []
+    for module, path in _all_modules().items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.level or (node.module or "").startswith("squkf")):
+                found += [
+                    f"{module}: {a.name}"
+                    for a in node.names
+                    if a.name.startswith("_") and not a.name.startswith("__")
+                ]
+    assert not found, found
+
+
 @pytest.mark.parametrize(
-    "module", ["smoother", "batch", "dask", "boundary/config", "boundary/loop", "boundary/stacking"]
+    "module", ["smoother", "batch", "dask", "boundary/config", "boundary/loop", "stacks"]
 )
 def test_no_module_reads_a_front_ends_private_members(module):
     tree = ast.parse((PACKAGE / f"{module}.py").read_text())

@@ -24,6 +24,7 @@ from models import heading_fx, l96_fx, l96_hx, xy_radar_hx
 from squkf import (
     Augmented,
     CubatureWeights,
+    Fleet,
     GainError,
     Gate,
     JulierWeights,
@@ -337,3 +338,55 @@ def test_a_failed_half_leaves_the_engine_as_it_was(when):
     assert (e.x, e.S, e.phase, e.last, e.post_record) == before
     e.tell_update(apply(TURN.hx, Y), TURN.zs[0][0], None, TURN.R1_2)
     assert e.phase == "idle" and e.last is not None
+
+
+def _array_ids(sets) -> set[int]:
+    found: set[int] = set()
+
+    def walk(v):
+        if isinstance(v, np.ndarray):
+            found.add(id(v))
+        elif isinstance(v, (tuple, list)):
+            for item in v:
+                walk(item)
+
+    for v in sets.values():
+        walk(v)
+    return found
+
+
+def test_a_steady_step_allocates_its_buffers_once():
+    """The block's outputs are made once per configuration and size and used again: after the first
+    steps, neither a filter's buffers nor a fleet's (nor its chunks' scratch) make a new array,
+    nothing is kept per step, and a fleet keeps no more estimates than its records need."""
+    import squkf.stacks as stacks
+
+    def fx(X, dt):  # any leading axes: the filter's points and the fleet's stack of them
+        return np.apply_along_axis(heading_fx, -1, X)
+
+    def hx(X):
+        return np.apply_along_axis(xy_radar_hx, -1, X)
+
+    f = SquareRootUKF(4, 2, 1.0, hx, fx, MerweScaledWeights(alpha=0.5), vectorized=True)
+    f.x, f.P1_2, f.Q1_2, f.R1_2 = TURN.x0[0], TURN.S0[0], TURN.Q1_2, TURN.R1_2
+    fleet = Fleet.from_filters([f, f, f])
+    z = xy_radar_hx(TURN.x0[0])
+    for _ in range(2):
+        f.predict()
+        f.update(z)
+        fleet.predict()
+        fleet.update(np.tile(z, (3, 1)))
+    scratch = stacks._local.scratch
+    before = (_array_ids(f._engine._buffers.sets), _array_ids(fleet._buffers.sets), _array_ids(scratch.sets))
+    for _ in range(5):
+        f.predict()
+        f.update(z)
+        fleet.predict()
+        fleet.update(np.tile(z, (3, 1)))
+    after = (_array_ids(f._engine._buffers.sets), _array_ids(fleet._buffers.sets), _array_ids(scratch.sets))
+    assert after == before and all(before)
+    assert f._engine._buffers.taken == [] and fleet._buffers.taken == [] and scratch.taken == []
+    # the fleet's estimates in three sets, as many as a step held before the engine: the posterior it
+    # starts from, the prior it keeps as a record, and the new one
+    estimates = [sets for key, sets in fleet._buffers.sets.items() if key[0] == "spare"]
+    assert [len(sets) for sets in estimates] == [3]

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import copy
 import pickle
+import sys
 
 import numpy as np
 import pytest
@@ -490,6 +491,55 @@ def test_chunk_none_is_the_librarys_size_for_the_thread_count(K, threads, chunk,
     fleet.chunk = 7
     fleet.chunk = None  # back to the library's choice
     assert fleet.chunk is None
+
+
+@pytest.mark.parametrize(
+    ("environ", "threshold"),
+    [
+        ({}, None),
+        ({"MALLOC_TRIM_THRESHOLD_": "65536"}, 128 * 1024),  # a Dask worker's: glibc's default, fixed
+        ({"MALLOC_TRIM_THRESHOLD_": "65536", "MALLOC_MMAP_THRESHOLD_": "40000"}, 40000),
+        ({"MALLOC_MMAP_THRESHOLD_": "not a number"}, None),  # glibc ignores it too
+    ],
+)
+def test_the_mmap_threshold_is_read_from_the_environment(environ, threshold):
+    if not sys.platform.startswith("linux"):
+        threshold = None
+    assert squkf.stacks.fixed_mmap_threshold(environ) == threshold
+
+
+@pytest.mark.parametrize("scheme", ["redrawn", "augmented"])
+def test_under_a_fixed_mmap_threshold_the_models_arrays_stay_below_it(monkeypatch, scheme):
+    """A Dask worker's setting: the default chunk keeps each model call's points and images under the
+    threshold (none is mapped and faulted in at every step), and changes no number."""
+    K, threshold = 700, 128 * 1024
+    expected = cv_fleet(K, MerweScaledWeights(), scheme)
+    monkeypatch.setattr(squkf.stacks, "_MMAP_THRESHOLD", threshold)
+    fleet = cv_fleet(K, MerweScaledWeights(), scheme)
+    nbytes: list[int] = []  # of every array a model call is given or gives back
+    filters: list[int] = []  # per call
+
+    def fx(X, dt):
+        F = cv_fx_stacked(X, dt)
+        nbytes.extend([X.nbytes, F.nbytes])
+        filters.append(X.shape[0])
+        return F
+
+    def hx(X):
+        H = range_bearing_hx(X)
+        nbytes.extend([X.nbytes, H.nbytes])
+        filters.append(X.shape[0])
+        return H
+
+    fleet.fx, fleet.hx = fx, hx
+    z = np.tile(range_bearing_hx(np.array([10.0, 1.0, 20.0, -1.0])), (K, 1))
+    for f in (expected, fleet):
+        f.x, f.P, f.Q, f.R = [10.0, 1.0, 20.0, -1.0], np.eye(4), 0.01 * np.eye(4), np.diag([0.1, 1e-3])
+        f.predict()
+        f.update(z)
+    assert max(nbytes) < threshold
+    assert max(filters) < K and sum(filters) == 2 * K  # every filter in one call of each model
+    assert_fleet_state(fleet, fleet_state(expected))
 
 
 @pytest.mark.parametrize("scheme", SCHEMES)

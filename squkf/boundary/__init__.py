@@ -1,35 +1,28 @@
-"""The boundary every front end shares: checks, given covariances as factors, the batch loop, records.
+"""The boundary every face shares: checks, covariances and edits, records, the batch loop, configuration.
 
-One layer between the callers and the step (:mod:`squkf.step`), used by
+One layer between the callers and the engine (:mod:`squkf.engine`), used by
 :class:`squkf.SquareRootUKF` (batch shape ``()``), :class:`squkf.Fleet`
 (batch shape ``(K,)``) and :mod:`squkf.dask` (before anything is scheduled):
 
-- :mod:`squkf.boundary.inputs`: the checks of sizes, states, measurements and
-  model-function arguments, for one filter and for a stack of ``K``;
-- :mod:`squkf.boundary.factors`: a covariance or factor the caller gave
-  (``P``, ``Q``, ``R``, shared or per filter) as its lower factor;
-- :mod:`squkf.boundary.config`: a filter's configuration as one record
-  (:class:`Config`), what ``Fleet.from_filters``, ``fleet[k]``, the smoothers and
-  :mod:`squkf.dask` read instead of a facade's private members;
-- :mod:`squkf.boundary.model_form`: ``fx_noise``, ``hx_noise`` and ``gate``, the
-  model's form as both faces show it;
-- :mod:`squkf.boundary.edits`: edits in place of the arrays handed out, seen
-  at the next call and taken through the validating setter (both faces);
-- :mod:`squkf.boundary.attributes`: one filter's attributes in its
-  ``__dict__`` (filterpy's ``Saver``), their copies and pickles;
-- :mod:`squkf.boundary.one_filter`: the single filter's step at its boundary,
-  under the public face of :class:`squkf.SquareRootUKF`;
-- :mod:`squkf.boundary.stacking`: ``fleet[k]`` and ``Fleet.from_filters``;
+- :mod:`squkf.boundary.checks`: the checks of sizes, states, measurements,
+  model functions' arguments and images, and every covariance or factor the
+  caller gives, as its lower factor (shared or per filter);
+- :mod:`squkf.boundary.covariance`: a covariance held as its factor and read
+  as a matrix (``FactorSlot``), the edits in place of what is handed out
+  (``Handed``, ``HandOut``), and one filter's attributes in its ``__dict__``
+  as filterpy keeps them (its ``Saver`` copies them);
 - :mod:`squkf.boundary.records`: what a fleet's run hands out
-  (:class:`FleetResult`), the error of its failing filters, one filter's last
-  update;
+  (:class:`FleetResult`), the error of its failing filters, the records formed
+  from one filter's last update;
 - :mod:`squkf.boundary.loop`: the batch loop's option checks, its progress
-  bar and its transaction (the filter as it was, on any error).
+  bar and its transaction (the filter as it was, on any error), with
+  :mod:`squkf.batch` (the per-step arguments and the single filter's run);
+- :mod:`squkf.boundary.config`: a filter's configuration as one record
+  (:class:`Config`), and filters into a fleet and out of it (``fleet[k]``,
+  ``Fleet.from_filters``).
 
-The rest of the boundary is in :mod:`squkf.validate` (the checks of single
-values: arrays, ``dt``, model-function images), :mod:`squkf.covariance`
-(``FactorSlot``) and :mod:`squkf.batch` (the per-step arguments and the single
-filter's batch run).
+The checks of single values (an array of reals, ``dt``, a model function's
+images) are :mod:`squkf.validate`'s, below the boundary.
 """
 
 from .config import Config, filter_kwargs

@@ -1,10 +1,12 @@
-"""A filter's configuration as one record: what the front ends read of each other.
+"""A filter's configuration as one record, and filters into a fleet and out of it.
 
 ``SquareRootUKF.configuration()`` and ``Fleet.configuration()`` give a
 :class:`Config`; ``Fleet.from_filters`` compares the filters' records and
-builds the fleet from one, ``fleet[k]`` builds a filter from the fleet's, and
-the smoothers and :mod:`squkf.dask` read the time step, the model and the
-noise from it. No module reads another's private members.
+builds the fleet from one (:func:`stacked`), ``fleet[k]`` builds a filter from
+the fleet's (:func:`filter_of`), and the smoothers and :mod:`squkf.dask` read
+the time step, the model and the noise from it. No module reads another's
+private members. A pending ask/tell step is kept where the single filter and
+the fleet take it the same way, and refused otherwise (:func:`check_pending`).
 """
 
 from __future__ import annotations
@@ -14,13 +16,20 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ..angles import _AngleHook
-from ..errors import ParameterError
+from ..angles import AngleHook
+from ..errors import CallSequenceError, ParameterError
 from ..gating import Gate
-from ..plan import Hooks, Plan
+from ..plan import IDLE, PRIOR, Hooks, Plan
 from ..weights import FilterpyPoints
 
-__all__ = ["Config", "common_config", "filter_kwargs"]
+__all__ = [
+    "check_pending",
+    "common_config",
+    "Config",
+    "filter_kwargs",
+    "filter_of",
+    "stacked",
+]
 
 
 class Config(NamedTuple):
@@ -50,7 +59,7 @@ class Config(NamedTuple):
         Lower factors of ``Q`` and ``R``: ``(d, d)``, or ``(K, d, d)`` per filter
         of a fleet; ``Q1_2`` None when there is no process noise.
     step : str
-        The phase of one filter's pending ask/tell step (``squkf.step.IDLE``,
+        The phase of one filter's pending ask/tell step (``squkf.plan.IDLE``,
         ...), which ``Fleet.from_filters`` checks; a fleet's is left idle
         (``fleet[k]`` checks the fleet's own).
     """
@@ -105,7 +114,7 @@ def filter_kwargs(c: Config) -> dict:
 
 
 def _same(h):  # squkf's angle hooks are equal when they wrap the same components
-    return (type(h), tuple(h.angle_indices)) if isinstance(h, _AngleHook) else h
+    return (type(h), tuple(h.angle_indices)) if isinstance(h, AngleHook) else h
 
 
 def _by_value(family):
@@ -169,3 +178,98 @@ def common_config(configs: Sequence[Config]) -> Config:
         if _key(c) != key0:
             raise ParameterError(f"filters[{k}] differs in configuration from filters[0]")
     return configs[0]
+
+
+def check_pending(phase: str, plan: Plan, who: str) -> None:
+    """Refuse to copy a filter out of (or into) a fleet when its pending step would be lost.
+
+    After a prediction whose second set is redrawn from the prior alone, the
+    copy draws the same set from the same prior at its update: the step is
+    kept. Points handed out by ``ask_*`` and not yet told, or a second set
+    that reads the propagated points (``"augmented"``, ``"propagated"``),
+    cannot be carried over.
+
+    Parameters
+    ----------
+    phase : str
+        The step's phase (:data:`squkf.plan.IDLE`, ...).
+    plan : squkf.plan.Plan
+    who : str
+        For the message, e.g. ``"fleet[3]"`` or ``"filters[1]"``.
+
+    Raises
+    ------
+    CallSequenceError
+    """
+    if phase == IDLE or (phase == PRIOR and not plan.keeps_propagated):
+        return
+    what = (
+        "a prediction whose second set reads the propagated points" if phase == PRIOR else f"an ask ({phase})"
+    )
+    raise CallSequenceError(
+        f"{who}: the step is pending ({what}), which a copy cannot carry over: "
+        "complete the step (update, or tell) first"
+    )
+
+
+def filter_of(make: Callable[..., Any], c: Config, k: int, x: np.ndarray, S: np.ndarray, phase: str):
+    """Filter ``k`` of a fleet as a :class:`squkf.SquareRootUKF` (vectorised).
+
+    Parameters
+    ----------
+    make : type
+        :class:`squkf.SquareRootUKF` (given by the fleet: the boundary imports no front end).
+    c : Config
+        The fleet's configuration and noise factors (shared or per filter).
+    k : int
+        A valid index of the fleet's filters.
+    x : ndarray, shape (K, n)
+    S : ndarray, shape (K, n, n)
+        The fleet's states and lower factors.
+    phase : str
+        The fleet's pending step (:func:`check_pending`).
+
+    Returns
+    -------
+    SquareRootUKF
+        With its own copies of filter ``k``'s state and noise.
+    """
+    check_pending(phase, c.plan, f"fleet[{k}]")
+    f = make(c.dim_x, c.dim_z, c.dt, c.hx, c.fx, c.points, vectorized=True, **filter_kwargs(c))
+    f.x = x[k]
+    f.P1_2 = S[k]
+    Q, R = c.Q1_2, c.R1_2
+    f.Q1_2 = None if Q is None else (Q if Q.ndim == 2 else Q[k])
+    f.R1_2 = R if R is None or R.ndim == 2 else R[k]
+    return f
+
+
+def stacked(filters: Sequence[Any]) -> tuple[Config, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """What ``Fleet.from_filters`` builds its fleet of: the filters' one configuration and stacked arrays.
+
+    Parameters
+    ----------
+    filters : sequence of SquareRootUKF
+        Of one configuration (:func:`squkf.boundary.config.common_config`),
+        none with a step pending that a fleet cannot carry (:func:`check_pending`).
+
+    Returns
+    -------
+    c : Config
+        The first filter's.
+    x : ndarray, shape (K, n)
+    P1_2 : ndarray, shape (K, n, n)
+    Q1_2, R1_2 : ndarray, shape (d, d) or (K, d, d)
+        Shared where every filter's is the same (zeros: no noise).
+    """
+    configs = [f.configuration() for f in filters]  # edits in place of Q and R taken (validated)
+    c = common_config(configs)
+    for k, ck in enumerate(configs):
+        check_pending(ck.step, ck.plan, f"filters[{k}]")
+    x = np.stack([f.x for f in filters])  # validated by the fleet's setter
+    P1_2 = np.stack([f.P1_2 for f in filters])  # edits in place of P taken (validated)
+    Qs = [f.Q1_2 for f in filters]
+    Rs = [f.R1_2 for f in filters]
+    Q = Qs[0] if all(np.array_equal(q, Qs[0]) for q in Qs) else np.stack(Qs)
+    R = Rs[0] if all(np.array_equal(r, Rs[0]) for r in Rs) else np.stack(Rs)
+    return c, x, P1_2, Q, R

@@ -1,11 +1,10 @@
-"""The records handed out: a fleet's run (:class:`FleetResult`), the last update's of one filter.
+"""The records handed out: a fleet's run (:class:`FleetResult`), and those formed from one filter's update.
 
 Also the arrays a fleet's run fills and the error of its failing filters.
 """
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -13,19 +12,8 @@ import numpy as np
 
 from ..errors import FleetStepError
 from ..linalg import solve_lower
-from ..measurement import gain_from_factors
 
-__all__ = [
-    "FleetResult",
-    "LastUpdate",
-    "Records",
-    "embed",
-    "failures_error",
-    "gain",
-    "innovation_inverse",
-    "new_records",
-    "update_records",
-]
+__all__ = ["FleetResult", "Records", "embed", "failures_error", "innovation_inverse", "new_records"]
 
 
 @dataclass
@@ -194,115 +182,3 @@ def innovation_inverse(Sy: np.ndarray, observed: np.ndarray | None) -> np.ndarra
         return embed(np.zeros((m, m)), observed, np.nan)
     W = solve_lower(Sy, np.eye(m))
     return embed(W.T @ W, observed, np.nan)
-
-
-def gain(Sy: np.ndarray, L21: np.ndarray, measured: bool, observed: np.ndarray | None, n: int) -> np.ndarray:
-    """One filter's Kalman gain of the last update, ``(n, m)``, zero columns where not measured.
-
-    Parameters
-    ----------
-    Sy : ndarray, shape (o, o)
-        The innovation factor over the measured components.
-    L21 : ndarray, shape (n, o)
-        ``K Sy`` over them.
-    measured : bool
-        Whether an update has happened (else the gain is zero).
-    observed : ndarray of bool, shape (m,), or None
-    n : int
-
-    Returns
-    -------
-    ndarray, shape (n, m)
-    """
-    K = gain_from_factors(Sy, L21) if measured else np.zeros_like(L21)
-    if observed is not None:
-        full = np.zeros((n, observed.shape[0]))
-        full[:, observed] = K
-        K = full
-    return K
-
-
-def update_records(gated, observed: np.ndarray | None, n: int, m: int) -> tuple[np.ndarray, LastUpdate]:
-    """One filter's records of a (gated) update, over all ``m`` components: ``(y, last)``.
-
-    Parameters
-    ----------
-    gated : squkf.step.GatedUpdate
-        The update through the gate (its tested posterior, rejections, gain applied).
-    observed : ndarray of bool, shape (m,), or None
-        The measured components (None: all).
-    n, m : int
-        State and measurement dimensions.
-
-    Returns
-    -------
-    y : ndarray, shape (m,)
-        The innovation, NaN where not measured.
-    last : LastUpdate
-        Its ``K`` the gain applied when the gate rejected something (zero
-        columns for rejected or missing components); None: the gain is
-        formed when read (:func:`gain`).
-    """
-    post = gated.tested
-    if observed is None:
-        y = post.y
-        rejected = gated.rejected  # a fresh array of the step's
-    else:
-        rejected = np.zeros(m, dtype=bool)
-        y = np.full(m, np.nan)
-        y[observed] = post.y
-        rejected[observed] = gated.rejected
-    K = None
-    if gated.K is not None:  # the gate rejected something: the gain applied, not the tested one
-        K = np.zeros((n, m))
-        K[:, slice(None) if observed is None else observed] = gated.K
-    ll, nis = float(gated.log_likelihood), float(post.nis)
-    return y, LastUpdate(post.Sy, post.L21, observed, ll, nis, True, rejected, K)
-
-
-@dataclass(frozen=True, slots=True)
-class LastUpdate:
-    """One filter's last update as the step gave it; the records handed out are formed from it.
-
-    One object, not a tuple: filterpy's ``Saver`` turns each entry of a
-    filter's ``__dict__`` into an array.
-
-    Attributes
-    ----------
-    Sy : ndarray, shape (o, o)
-        The innovation factor over the measured components.
-    L21 : ndarray, shape (n, o)
-        ``K @ Sy`` over them.
-    observed : ndarray of bool, shape (m,), or None
-        The measured components (None: all).
-    log_likelihood, nis : float
-        From the update kernel (the NIS is ``w.w``, ``w = Sy^-1 y``).
-    measured : bool
-        Whether an update has happened.
-    rejected : ndarray of bool, shape (m,)
-        The gate's decision.
-    K : ndarray, shape (n, m), or None
-        The gain, once formed (:func:`gain`) or applied by a gate; None: not formed yet.
-    """
-
-    Sy: np.ndarray
-    L21: np.ndarray
-    observed: np.ndarray | None
-    log_likelihood: float
-    nis: float
-    measured: bool
-    rejected: np.ndarray
-    K: np.ndarray | None = None
-
-    def replace(self, **changes) -> LastUpdate:
-        """A copy with ``changes``."""
-        return dataclasses.replace(self, **changes)
-
-    def with_gain(self, n: int) -> LastUpdate:
-        """The record with its gain ``K`` formed (:func:`gain`), ``(n, m)``."""
-        return self.replace(K=gain(self.Sy, self.L21, self.measured, self.observed, n))
-
-    @classmethod
-    def none(cls, n: int, m: int) -> LastUpdate:
-        """The record before any update."""
-        return cls(np.zeros((m, m)), np.zeros((n, m)), None, 0.0, 0.0, False, np.zeros(m, dtype=bool))

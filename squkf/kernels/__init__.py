@@ -223,23 +223,36 @@ def _held() -> Iterator[_Threads]:
         _let_go(held)
 
 
-@contextmanager
-def step_threads() -> Iterator[int]:
-    """Hold the thread count for the block: a step's :func:`thread_map` and kernel calls in it use it.
+def enter_step() -> tuple[_Threads, bool]:
+    """Hold the thread count (and its pool) for a step, until :func:`exit_step`.
 
-    A step holds the count (and the pool) it starts with until it ends: a
-    change of :func:`set_num_threads` meanwhile, from another thread or from
-    a model function inside the step, takes effect at the next step, and the
-    running one finishes on its threads. Inside a job of the pool, and inside
-    a block already held, it yields what is held there.
+    A step holds the count it starts with until it ends: a change of
+    :func:`set_num_threads` meanwhile, from another thread or from a model
+    function inside the step, takes effect at the next step, and the running
+    one finishes on its threads. Its :func:`thread_map` and kernel calls use
+    what it holds. Inside a job of the pool, or inside a step already held on
+    this thread, it holds nothing more and returns what is held there.
 
-    Yields
-    ------
-    int
-        The count held.
+    Returns
+    -------
+    held : (int, pool or None)
+        The count held (``held.n``) and its pool (None: one thread).
+    own : bool
+        Whether this call took the hold (give both to :func:`exit_step`).
     """
-    with _held() as held:
-        yield held.n
+    outer = getattr(_local, "held", None)
+    if outer is not None:
+        return outer, False
+    held = _local.held = _SERIAL if _threads == 1 else _hold()
+    return held, True
+
+
+def exit_step(held: _Threads, own: bool) -> None:
+    """End the hold of :func:`enter_step` (``held, own`` as it returned them)."""
+    if own:
+        _local.held = None
+        if held.pool is not None:
+            _let_go(held)
 
 
 def _in_pool(fn: Callable, *args):
@@ -345,7 +358,7 @@ def _batch(*arrays: tuple[np.ndarray | None, int]) -> tuple[int, ...]:
 _ZEROS: dict[int, np.ndarray] = {}
 
 
-def _zeros(d: int) -> np.ndarray:
+def zeros_row(d: int) -> np.ndarray:
     """A shared reference of zeros, shape ``(1, d)`` (the kernels never write their inputs)."""
     z = _ZEROS.get(d)
     if z is None:
@@ -353,7 +366,7 @@ def _zeros(d: int) -> np.ndarray:
     return z
 
 
-def _kernel_array(a: np.ndarray) -> np.ndarray:
+def kernel_array(a: np.ndarray) -> np.ndarray:
     """``a`` itself if it is float64, C-contiguous and writeable (one kernel signature), else a copy."""
     f = a.flags
     if f.c_contiguous and f.writeable and a.dtype == np.float64:
@@ -364,11 +377,11 @@ def _kernel_array(a: np.ndarray) -> np.ndarray:
 def _stack(a: np.ndarray, batch: tuple[int, ...], core: int) -> np.ndarray:
     """``a`` as a stack ``(B, *core shape)`` over ``batch``, as the kernels take it."""
     if not batch and a.ndim == core:  # one filter: a view with a leading axis of one
-        return _kernel_array(a[None])
+        return kernel_array(a[None])
     tail = a.shape[a.ndim - core :]
     if a.shape[: a.ndim - core] != batch:
         a = np.broadcast_to(a, batch + tail)
-    return _kernel_array(a.reshape((-1,) + tail))
+    return kernel_array(a.reshape((-1,) + tail))
 
 
 def _unstack(a: np.ndarray, batch: tuple[int, ...]) -> np.ndarray:
@@ -383,7 +396,7 @@ def _unstack(a: np.ndarray, batch: tuple[int, ...]) -> np.ndarray:
 def _shared(a: np.ndarray, batch: tuple[int, ...], core: int) -> np.ndarray:
     """Like :func:`_stack`, but an ``a`` with no batch axis is passed once (leading axis 1)."""
     if a.ndim == core:
-        return _kernel_array(a[None])
+        return kernel_array(a[None])
     return _stack(a, batch, core)
 
 
@@ -391,15 +404,15 @@ _NO_POINTS: dict[int, np.ndarray] = {}
 _NO_SET: dict[int, np.ndarray] = {}
 
 
-def _no_points(d: int) -> np.ndarray:
+def no_points(d: int) -> np.ndarray:
     """No unit points, shape ``(0, d)``, read-only: a kernel told to draw no set."""
     a = _NO_POINTS.get(d)
     if a is None:
-        a = _NO_POINTS[d] = _plan(np.empty((0, d)))
+        a = _NO_POINTS[d] = plan_array(np.empty((0, d)))
     return a
 
 
-def _no_set(d: int) -> np.ndarray:
+def no_set(d: int) -> np.ndarray:
     """No set to write, shape ``(0, 1, d)``: a kernel's set output when none is drawn."""
     a = _NO_SET.get(d)
     if a is None:
@@ -444,32 +457,7 @@ def no_noise(d: int) -> np.ndarray:
     return a
 
 
-def zeros_row(d: int) -> np.ndarray:
-    """A shared row of zeros, shape ``(1, d)`` (a reference the kernels read, never write)."""
-    return _zeros(d)
-
-
-def no_points(d: int) -> np.ndarray:
-    """No unit points, shape ``(0, d)``, read-only (a kernel told to draw no set)."""
-    return _no_points(d)
-
-
-def no_set(d: int) -> np.ndarray:
-    """No set to write, shape ``(0, 1, d)`` (a kernel's set output when none is drawn)."""
-    return _no_set(d)
-
-
-def kernel_array(a: np.ndarray) -> np.ndarray:
-    """``a`` itself if float64, C-contiguous and writeable (the kernels' one signature), else a copy."""
-    return _kernel_array(a)
-
-
 def plan_array(a: np.ndarray) -> np.ndarray:
-    """A plan's array as the kernels take it: float64, C-contiguous and read-only (:func:`_plan`)."""
-    return _plan(a)
-
-
-def _plan(a: np.ndarray) -> np.ndarray:
     """A plan's array as the kernels take it: float64, C-contiguous and read-only.
 
     numba types a read-only array apart from a writeable one; the plan's arrays are
@@ -584,7 +572,7 @@ def sigma_points(x: np.ndarray, S: np.ndarray, xi: np.ndarray, gamma: float = 0.
         Ss.shape[0],
         _shared(x, batch, 1),
         Ss,
-        _plan(xi),
+        plan_array(xi),
         float(gamma),
         X,
         dX,
@@ -604,7 +592,7 @@ def finite_rows(A: np.ndarray) -> np.ndarray:
     -------
     ndarray of bool, shape (K,)
     """
-    rows = _kernel_array(A.reshape(A.shape[0], -1))
+    rows = kernel_array(A.reshape(A.shape[0], -1))
     ok = np.empty(rows.shape[0], dtype=np.bool_)
     _call(phases.finite_rows_kernel, rows.shape[0], rows, ok)
     return ok
@@ -647,26 +635,26 @@ def transform(
     Ps = _stack(P, batch, 2)
     B = Ps.shape[0]
     Nz = np.zeros((1, d, 0)) if noise is None else _shared(noise, batch, 2)
-    R = _zeros(d) if ref is None else _shared(ref, batch, 1)
+    R = zeros_row(d) if ref is None else _shared(ref, batch, 1)
     mean = np.empty((B, d))
     S = np.empty((B, d, d))
     status = np.empty(B, dtype=np.int64)
-    nothing = _no_set(d)
+    nothing = no_set(d)
     _call(
         phases.transform_kernel,
         B,
         Ps,
         R,
         mode,
-        _plan(wm),
-        _plan(scale),
-        _plan(sign),
+        plan_array(wm),
+        plan_array(scale),
+        plan_array(sign),
         Nz,
         mean,
         S,
         status,
         0,
-        _no_points(d),
+        no_points(d),
         0.0,
         nothing,
         nothing,
@@ -760,21 +748,21 @@ def joint_update(
         phases.joint_update_kernel,
         B,
         Hs,
-        _zeros(m) if zref is None else _shared(zref, batch, 1),
+        zeros_row(m) if zref is None else _shared(zref, batch, 1),
         _stack(X, batch, 2),
-        _zeros(n) if xref is None else _shared(xref, batch, 1),
+        zeros_row(n) if xref is None else _shared(xref, batch, 1),
         _stack(z, batch, 1),
         _shared(R1_2, batch, 2),
         _shared(x, batch, 1),
         mode,
-        _plan(wm),
-        _plan(scale),
-        _plan(sign),
+        plan_array(wm),
+        plan_array(scale),
+        plan_array(sign),
         float(pair),
         *out,
-        _no_points(n),
+        no_points(n),
         0.0,
-        _no_set(n),
+        no_set(n),
         plan=(8, 9, 10, 23),
     )
     return JointUpdate(*(_unstack(a, batch) for a in out))
@@ -832,7 +820,7 @@ def downdate_update(
         Sys,
         _stack(S, batch, 2),
         _shared(x, batch, 1),
-        _plan(wc),
+        plan_array(wc),
         L21,
         w,
         dx,
