@@ -3,6 +3,7 @@
     python benchmarks/compile_time.py              # results in benchmarks/results/compile.md
     python benchmarks/compile_time.py --reps 5     # more repetitions of the cached runs
     python benchmarks/compile_time.py --out DIR
+    python benchmarks/compile_time.py --ref 0cdce8e --cold-reps 3   # and cold compiles against a revision
 
 Each measurement is a fresh Python process (this script run as a child) with
 ``NUMBA_CACHE_DIR`` pointed at a temporary directory, so the package's own
@@ -24,11 +25,21 @@ predict + update, and the second one (compiled code only). "Process" is the
 child's wall time seen from this script, interpreter start-up and exit
 included. The model is the fleet benchmark's constant-velocity target with a
 range-bearing sensor (n = 4, m = 2). BLAS is held to one thread.
+
+With ``--ref REV`` (any number of times) the cold compiles are also measured
+against earlier revisions in the same run: each revision's ``squkf`` package
+is taken from git (``git archive``) into a temporary folder, and a child
+process imports it from there (``PYTHONPATH``). ``--cold-reps`` rounds, each
+running every tree's filter and fleet once on a new empty cache, this tree
+first, so that a machine that slows for a while slows all alike. The table
+gives each tree's median build + first predict + update, and the median over
+rounds of this tree's time divided by the revision's.
 """
 
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import os
 import platform
@@ -36,6 +47,7 @@ import shutil
 import statistics
 import subprocess
 import sys
+import tarfile
 import tempfile
 import time
 from pathlib import Path
@@ -94,9 +106,12 @@ def child(kind: str, K: int) -> None:
     )
 
 
-def run_child(kind: str, K: int, cache: Path) -> dict:
+def run_child(kind: str, K: int, cache: Path, tree: Path | None = None) -> dict:
+    """One child on ``cache``; ``tree``: a folder with the ``squkf`` package to import instead of this one."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
     env.update({v: "1" for v in THREAD_VARS})
+    if tree is not None:
+        env["PYTHONPATH"] = os.pathsep.join([str(tree), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", kind, "--K", str(K)]
     t = time.perf_counter()
     p = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=str(HERE))
@@ -106,6 +121,59 @@ def run_child(kind: str, K: int, cache: Path) -> dict:
     out = json.loads(p.stdout.strip().splitlines()[-1])
     out["process_s"] = wall
     return out
+
+
+def export_revision(rev: str, where: Path) -> Path:
+    """Git revision ``rev``'s ``squkf`` package unpacked under ``where``, the folder returned."""
+    data = subprocess.run(
+        ["git", "archive", rev, "squkf"], cwd=HERE.parent, check=True, capture_output=True
+    ).stdout
+    with tarfile.open(fileobj=io.BytesIO(data)) as tar:
+        tar.extractall(where, filter="data")
+    return where
+
+
+def cold_against(refs: list[str], rounds: int, K: int, log) -> list[tuple[str, dict[str, list[float]]]]:
+    """Cold compiles (build + first predict + update, s) of this tree and of each revision, alternating."""
+    trees: list[tuple[str, Path | None]] = [("this tree", None)]
+    with tempfile.TemporaryDirectory(prefix="squkf_revisions_") as tmp:
+        for rev in refs:
+            trees.append((rev, export_revision(rev, Path(tmp) / rev)))
+        times: dict[str, dict[str, list[float]]] = {label: {"filter": [], "fleet": []} for label, _ in trees}
+        for i in range(rounds):
+            for label, tree in trees:
+                for kind in ("filter", "fleet"):
+                    cache = Path(tempfile.mkdtemp(prefix=f"squkf_numba_cache_{kind}_"))
+                    try:
+                        r = run_child(kind, K, cache, tree)
+                    finally:
+                        shutil.rmtree(cache, ignore_errors=True)
+                    times[label][kind].append(r["build_s"] + r["first_step_s"])
+                    log(f"round {i + 1}, {label}, {kind}, cold: {times[label][kind][-1]:.2f} s")
+    return list(times.items())
+
+
+def against_markdown(table: list[tuple[str, dict[str, list[float]]]], K: int) -> list[str]:
+    """The table of :func:`cold_against`: medians, and this tree's time over each revision's."""
+    rounds = len(table[0][1]["filter"])
+    lines = [
+        "",
+        f"## Cold compile against earlier revisions ({rounds} alternating rounds)",
+        "",
+        "Build + first predict + update on an empty cache, median over the rounds; the ratio is the median "
+        "over rounds of this tree's time divided by the revision's in that round.",
+        "",
+        f"| tree | default SquareRootUKF s | ratio | default Fleet, K = {K:,} s | ratio |",
+        "|---|---|---|---|---|",
+    ]
+    mine = table[0][1]
+    for label, times in table:
+        cells = []
+        for kind in ("filter", "fleet"):
+            ratio = statistics.median(a / b for a, b in zip(mine[kind], times[kind]))
+            cells += [f"{statistics.median(times[kind]):.2f}", f"{ratio:.2f}"]
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def cache_files(cache: Path) -> tuple[int, float]:
@@ -130,7 +198,9 @@ def versions() -> str:
     )
 
 
-def write_markdown(out: Path, rows: list[tuple[str, str, int, dict]], files: dict, command: str) -> str:
+def write_markdown(
+    out: Path, rows: list[tuple[str, str, int, dict]], files: dict, command: str, extra: list[str]
+) -> str:
     lines = [
         "# Compile time and the first step of a new process",
         "",
@@ -179,7 +249,7 @@ def write_markdown(out: Path, rows: list[tuple[str, str, int, dict]], files: dic
                 f"{CACHED_TARGET_S:g} s | {v:.2f} s (`import squkf` {r['import_s']:.2f} s: numpy, scipy, "
                 f"numba) | {'yes' if v <= CACHED_TARGET_S else 'no'} |"
             )
-    text = "\n".join(lines) + "\n"
+    text = "\n".join(lines + extra) + "\n"
     out.mkdir(parents=True, exist_ok=True)
     (out / "compile.md").write_text(text)
     return text
@@ -190,6 +260,8 @@ def main(argv) -> int:
     ap.add_argument("--out", default=str(HERE / "results"))
     ap.add_argument("--reps", type=int, default=3, help="processes per cached measurement")
     ap.add_argument("--K", type=int, default=1000, help="filters in the Fleet")
+    ap.add_argument("--ref", action="append", default=[], help="also this git revision, cold")
+    ap.add_argument("--cold-reps", type=int, default=3, help="alternating rounds against --ref")
     ap.add_argument("--child", choices=("filter", "fleet"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child:
@@ -218,10 +290,14 @@ def main(argv) -> int:
     finally:
         for d in tmp:
             shutil.rmtree(d, ignore_errors=True)
+    extra = against_markdown(cold_against(args.ref, args.cold_reps, args.K, log), args.K) if args.ref else []
     command = "python benchmarks/compile_time.py" + "".join(
         f" --{k} {v}" for k, v in (("reps", args.reps), ("K", args.K)) if v != ap.get_default(k)
     )
-    print(write_markdown(Path(args.out), rows, files, command))
+    command += "".join(f" --ref {rev}" for rev in args.ref)
+    if args.ref and args.cold_reps != ap.get_default("cold_reps"):
+        command += f" --cold-reps {args.cold_reps}"
+    print(write_markdown(Path(args.out), rows, files, command, extra))
     return 0
 
 

@@ -63,6 +63,20 @@ Every compiled function lives in this one module on purpose: numba's disk
 cache is keyed on the source file of the kernel called, not on the files of
 the functions it calls, so a helper in another module could be edited and
 its callers still load the old machine code. Nothing is compiled at import.
+
+Compile time
+------------
+numba compiles each helper on its own (optimised, machine code made) and
+links that module into every caller, whose module is optimised and made into
+machine code again: a helper's code is compiled once for itself and once for
+each function above it, up to each kernel. So the call graph is kept flat:
+the kernels call the large helpers themselves (the QR, the triangular solve
+and the rank-1 updates under at most one small helper), a piece with one
+caller is written in that caller, and a helper has no Python or C wrapper (it
+is only ever called from a kernel). Inlining helpers into their callers in
+numba's IR (``inline="always"``) was measured slower: numba's own passes grow
+faster than linearly with a function's size. A helper's number of copies is
+what ``benchmarks/compile_time.py`` measures in the end.
 """
 
 from __future__ import annotations
@@ -89,9 +103,13 @@ __all__ = [
 
 _TINY = float(np.finfo(np.float64).tiny)
 _LOG_2PI = math.log(2.0 * math.pi)
-#: The decorator of every kernel and helper: compiled on first call, releases the GIL, cached on disk where
-#: numba has a writable place, else in memory with a warning (:mod:`squkf.kernels.cache`).
-kernel = jit(nogil=True, error_model="numpy")
+#: The decorator of every kernel: compiled on first call, releases the GIL, cached on disk where numba has a
+#: writable place, else in memory with a warning (:mod:`squkf.kernels.cache`). No C-callable wrapper: a
+#: kernel is called from Python or from another kernel, never through a C pointer (the wrapper would only
+#: add compile time).
+kernel = jit(nogil=True, error_model="numpy", no_cfunc_wrapper=True)
+#: The decorator of every helper: a kernel called only from other kernels, so with no Python wrapper either.
+_helper = jit(nogil=True, error_model="numpy", no_cfunc_wrapper=True, no_cpython_wrapper=True)
 #: Inlined into its caller (numba IR), so that it never compiles on its own (:func:`_unfold`).
 _inline = jit(nogil=True, error_model="numpy", inline="always")
 _LANES = 64
@@ -114,23 +132,7 @@ _geqrf = _LAPACK().numba_ez_geqrf(types.float64)
 _KIND = ord("d")
 
 
-@kernel
-def _tria_lapack(At, c, r, nb):
-    """``tria_lanes`` for wide matrices: one ``dgeqrf`` per lane, then each row of R made non-negative."""
-    tau = np.empty(max(1, min(r, c)))
-    F = np.empty(r * c)  # the lane's matrix in Fortran order
-    for b in range(nb):
-        for j in range(c):
-            for i in range(r):
-                F[i + j * r] = At[j, i, b]
-        _geqrf(_KIND, r, c, F.ctypes, r, tau.ctypes)
-        for j in range(min(r, c)):
-            s = -1.0 if F[j + j * r] < 0.0 else 1.0
-            for l in range(j, c):
-                At[l, j, b] = s * F[j + l * r]
-
-
-@kernel
+@_helper
 def tria_lanes(At, c, r, nb, V):
     """Householder QR of ``nb`` row matrices ``A`` (``r x c``) held transposed.
 
@@ -138,6 +140,9 @@ def tria_lanes(At, c, r, nb, V):
     ``L @ L.T == A.T @ A`` and a non-negative diagonal (``L = R.T``): entry
     ``(l, j)`` of ``L``, ``l >= j``, is ``At[l, j, b]``. Above it ``At`` holds
     the reflectors.
+
+    From ``LAPACK_MIN_COLUMNS`` columns on, each lane is one ``dgeqrf`` instead, then each row of
+    ``R`` is made non-negative.
 
     Each column is scaled by its largest entry before its norm is taken
     (no overflow or underflow for entries between 1e-300 and 1e300), and the
@@ -157,7 +162,17 @@ def tria_lanes(At, c, r, nb, V):
         Scratch.
     """
     if c >= LAPACK_MIN_COLUMNS:
-        _tria_lapack(At, c, r, nb)
+        tau = np.empty(max(1, min(r, c)))
+        F = np.empty(r * c)  # the lane's matrix in Fortran order
+        for b in range(nb):
+            for j in range(c):
+                for i in range(r):
+                    F[i + j * r] = At[j, i, b]
+            _geqrf(_KIND, r, c, F.ctypes, r, tau.ctypes)
+            for j in range(min(r, c)):
+                s = -1.0 if F[j + j * r] < 0.0 else 1.0
+                for l in range(j, c):
+                    At[l, j, b] = s * F[j + l * r]
         return
     for j in range(min(c, r)):
         for b in range(nb):
@@ -202,7 +217,7 @@ def tria_lanes(At, c, r, nb, V):
             At[j, j, b] = V[5, b]
 
 
-@kernel
+@_helper
 def solve_lower_lanes(L, y, n, nb, trans):
     """Solve ``L w = y`` (or ``L.T w = y``) in place for lower-triangular ``L``, on lanes.
 
@@ -232,7 +247,7 @@ def solve_lower_lanes(L, y, n, nb, trans):
                 y[i, b] /= L[i, i, b]
 
 
-@kernel
+@_helper
 def chol_update_lanes(L, v, n, nb, sign, fail, V):
     """Rank-1 update (``sign > 0``) or downdate of lower factors in place, in O(n^2), on lanes.
 
@@ -280,19 +295,11 @@ def chol_update_lanes(L, v, n, nb, sign, fail, V):
                 v[i, b] = V[0, b] * v[i, b] - V[1, b] * Lik
 
 
-@kernel
+@_helper
 def _lanes(size, B):
     """Lanes per block for a scratch matrix of ``size`` entries per filter: 64 at most, and no
     more than the ``B`` filters there are (one filter's scratch is then contiguous)."""
     return max(1, min(_LANES, _SCRATCH // max(size, 1), B))
-
-
-@kernel
-def _source(mode, r, N):
-    """Where row ``r`` of a form lives in the deviation buffer (central: ``mu`` in slot 0)."""
-    if mode == 0:
-        return r + 1 if r < N - 1 else 0
-    return r
 
 
 # Loads go through the block's slice ``a[k0:k0 + nb]`` with the lane loop innermost: twice as fast
@@ -300,18 +307,7 @@ def _source(mode, r, N):
 # sets stay a loop per filter (contiguous rows: faster there, measured).
 
 
-@kernel
-def _load_points(P, k0, nb, Pl):
-    """``Pl[i, l, b] = P[k0 + b, i, l]`` (point-major: one filter's points are copied as they are)."""
-    N, d = P.shape[1], P.shape[2]
-    Q = P[k0 : k0 + nb]
-    for i in range(N):
-        for l in range(d):
-            for b in range(nb):
-                Pl[i, l, b] = Q[b, i, l]
-
-
-@kernel
+@_helper
 def _finite_lanes(Pl, N, d, nb, acc):
     """``acc[b] == 0`` exactly when lane ``b``'s ``N x d`` values are all finite (a NaN sum otherwise).
 
@@ -326,7 +322,7 @@ def _finite_lanes(Pl, N, d, nb, acc):
                 acc[b] += Pl[i, l, b] * 0.0
 
 
-@kernel
+@_helper
 def _load_vector(a, k0, nb, al):
     """``al[l, b] = a[k0 + b, l]``, or ``a[0, l]`` for a shared ``a``."""
     if a.shape[0] == 1:
@@ -341,15 +337,17 @@ def _load_vector(a, k0, nb, al):
             al[l, b] = Q[b, l]
 
 
-@kernel
+@_helper
 def _load_matrix(a, k0, nb, al):
-    """``al[i, j, b] = a[k0 + b, i, j]``, or ``a[0, i, j]`` for a shared ``a``."""
+    """``al[i, j, b] = a[k0 + b, i, j]``, or ``a[0, i, j]`` for a shared ``a`` (a block of one filter's
+    points too: point-major, its points are copied as they are)."""
     if a.shape[0] == 1:
-        for i in range(a.shape[1]):
-            for j in range(a.shape[2]):
-                c = a[0, i, j]
-                for b in range(nb):
-                    al[i, j, b] = c
+        # a lane at a time: the same copies, and a third of the machine code (re-optimised in each
+        # kernel that calls this, lane-innermost loops here were unrolled three times over)
+        for b in range(nb):
+            for i in range(a.shape[1]):
+                for j in range(a.shape[2]):
+                    al[i, j, b] = a[0, i, j]
         return
     Q = a[k0 : k0 + nb]
     for i in range(a.shape[1]):
@@ -358,7 +356,7 @@ def _load_matrix(a, k0, nb, al):
                 al[i, j, b] = Q[b, i, j]
 
 
-@kernel
+@_helper
 def _store_lower(L, i0, n, k0, nb, out):
     """``out[k0 + b] = tril(L[i0:i0 + n, i0:i0 + n, b])``, a diagonal block of the lanes' factors."""
     Q = out[k0 : k0 + nb]
@@ -372,7 +370,7 @@ def _store_lower(L, i0, n, k0, nb, out):
                     Q[b, i, j] = 0.0
 
 
-@kernel
+@_helper
 def _deviations(Pl, N, d, nb, mode, wm, mean):
     """The rows of a form in place in ``Pl`` (``N x d x nb``) and the mean in ``mean`` (``d x nb``).
 
@@ -413,7 +411,7 @@ def _deviations(Pl, N, d, nb, mode, wm, mean):
                     Pl[i, l, b] -= mean[l, b]
 
 
-@kernel
+@_helper
 def _state_rows(Xl, N, n, nb, mode, wm, xref):
     """State rows in place in ``Xl`` (``N x n x nb``): central (mode 0), ``X - xref`` (1), as given (2)."""
     if mode == 0:
@@ -437,16 +435,15 @@ def _state_rows(Xl, N, n, nb, mode, wm, xref):
                     Xl[i, l, b] -= xref[l, b]
 
 
-@kernel
-def _factor_lanes(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, fl, st):
-    """Factor weighted rows and a noise factor in place in ``At`` (``L = At`` below its diagonal).
+@_helper
+def _weighted_rows(D1, D2, N, nb, mode, scale, sign, noise, k0, At):
+    """The positive rows and a noise factor's columns into ``At``, for one QR (the caller's).
 
     Each row is ``[D1[r], D2[r]]`` (``d1 + d2`` entries, row ``r`` of form ``mode`` in the
     deviation buffers ``D1``, ``D2``, ``(N, d, nb)`` each), entering with weight
-    ``sign[r] * scale[r]**2``: the positive rows and the noise's columns (padded with zeros to
-    ``d1 + d2`` entries) go into one QR, then each negative row is downdated. ``st[b]`` is set to 0, or
-    for a failed downdate to the row ``r + 1`` (``split == 0``) or to g13ej's 301 when it failed in
-    the first ``split`` columns and 303 after (the joint factor: its leading block is ``Sy``).
+    ``sign[r] * scale[r]**2``: the positive rows, scaled, then the noise's columns (padded with zeros
+    to ``d1 + d2`` entries), then zero rows up to ``d1 + d2``: ``rows`` = the positive rows + ``q``.
+    The caller factors them (:func:`tria_lanes`) and downdates the negative rows (:func:`_downdated_rows`).
 
     Parameters
     ----------
@@ -455,9 +452,8 @@ def _factor_lanes(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, 
     scale, sign : ndarray, shape (N,)
     noise : ndarray, shape (B or 1, dn, q)
         ``dn <= d1``.
-    k0, split : int
+    k0 : int
     At : ndarray, shape (d1 + d2, >= max(rows, d1 + d2), >= nb)
-    V, v, fl, st : scratch, shape (>= 6, nb), (>= d1 + d2, nb), (nb,), (nb,)
     """
     d1, d2 = D1.shape[1], D2.shape[1]
     d = d1 + d2
@@ -466,7 +462,7 @@ def _factor_lanes(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, 
     npos = 0
     for r in range(N):
         if sign[r] > 0.0:
-            src = _source(mode, r, N)
+            src = (r + 1 if r < N - 1 else 0) if mode == 0 else r  # central: mu is in slot 0
             c = scale[r]
             for l in range(d1):
                 for b in range(nb):
@@ -485,12 +481,31 @@ def _factor_lanes(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, 
         for j in range(rows, d):
             for b in range(nb):
                 At[i, j, b] = 0.0
-    tria_lanes(At, d, rows, nb, V)  # L = At below the diagonal (read nowhere above it)
+
+
+@_helper
+def _downdated_rows(D1, D2, N, nb, mode, scale, sign, split, At, V, v, fl, st):
+    """Each negative row of :func:`_weighted_rows`' form downdated from the factor ``L`` in ``At``.
+
+    ``st[b]`` is set to 0, or for a failed downdate to the row ``r + 1`` (``split == 0``) or to
+    g13ej's 301 when it failed in the first ``split`` columns and 303 after (the joint factor: its
+    leading block is ``Sy``).
+
+    Parameters
+    ----------
+    D1, D2, N, nb, mode, scale, sign
+        As :func:`_weighted_rows`.
+    split : int
+    At : ndarray, shape (d1 + d2, >= d1 + d2, >= nb)
+        ``L`` below its diagonal (read nowhere above it); downdated in place.
+    V, v, fl, st : scratch, shape (>= 6, nb), (>= d1 + d2, nb), (nb,), (nb,)
+    """
+    d1, d2 = D1.shape[1], D2.shape[1]
     for b in range(nb):
         st[b] = 0
     for r in range(N):
         if sign[r] < 0.0:
-            src = _source(mode, r, N)
+            src = (r + 1 if r < N - 1 else 0) if mode == 0 else r
             c = scale[r]
             for b in range(nb):
                 fl[b] = -1
@@ -500,7 +515,7 @@ def _factor_lanes(D1, D2, N, nb, mode, scale, sign, noise, k0, split, At, V, v, 
             for l in range(d2):
                 for b in range(nb):
                     v[d1 + l, b] = c * D2[src, l, b]
-            chol_update_lanes(At, v, d, nb, -1.0, fl, V)
+            chol_update_lanes(At, v, d1 + d2, nb, -1.0, fl, V)
             for b in range(nb):
                 code = r + 1 if split == 0 else (301 if fl[b] < split else 303)
                 st[b] = code if (fl[b] >= 0 and st[b] == 0) else st[b]
@@ -607,48 +622,6 @@ def chol_update_kernel(L, v, sign, out, fail):
 
 
 @kernel
-def _offsets(Sl, xi, N, n, nb, Dl):
-    """The offsets ``Dl[i, l, b] = (xi[i] @ S_b.T)[l]`` of :func:`points_kernel` (``S_b = Sl[:, :, b]``),
-    point-major, so that one filter's offsets are its output's rows."""
-    for i in range(N):
-        for l in range(n):
-            for b in range(nb):
-                Dl[i, l, b] = 0.0
-            for j in range(l + 1):
-                c = xi[i, j]
-                for b in range(nb):
-                    Dl[i, l, b] += c * Sl[l, j, b]
-
-
-@kernel
-def _axis_points(x, S, gamma, X, dX, offsets):
-    """:func:`points_kernel` for axis points, one filter at a time: the columns of its factor, times
-    ``+/- gamma``, straight into its rows. Each point is its centre plus its offset, ``x + s`` and
-    ``x + (-s)``, the same sums as the general route's ``x + dX``."""
-    B, N, n = X.shape
-    o = N - 2 * n  # 1 with the central point, else 0
-    shared = x.shape[0] == 1
-    shared_S = S.shape[0] == 1
-    for k in range(B):
-        xk = x[0] if shared else x[k]
-        Sk, Xk = S[0] if shared_S else S[k], X[k]
-        Dk = dX[k] if offsets else Xk  # never written when the offsets are not wanted
-        if o == 1:
-            for l in range(n):
-                Xk[0, l] = xk[l] + 0.0
-                if offsets:
-                    Dk[0, l] = 0.0
-        for j in range(n):
-            for l in range(n):
-                s = gamma * Sk[l, j] if j <= l else 0.0
-                Xk[o + j, l] = xk[l] + s
-                Xk[o + n + j, l] = xk[l] + (-s)
-                if offsets:
-                    Dk[o + j, l] = s
-                    Dk[o + n + j, l] = -s
-
-
-@kernel
 def points_kernel(x, S, xi, gamma, X, dX):
     """Sigma points ``X[k, i] = x[k] + dX[k, i]`` with offsets ``dX[k, i] = xi[i] @ S[k].T``.
 
@@ -670,8 +643,30 @@ def points_kernel(x, S, xi, gamma, X, dX):
     """
     B, N, n = X.shape
     offsets = dX.shape[0] == B
-    if gamma != 0.0:  # O(n^2) a filter, no product: a loop per filter stores its rows directly
-        _axis_points(x, S, gamma, X, dX, offsets)
+    if gamma != 0.0:
+        # Axis points, O(n^2) a filter, no product: one filter at a time, the columns of its factor
+        # times +/- gamma straight into its rows. Each point is its centre plus its offset, x + s and
+        # x + (-s), the same sums as the general route's x + dX.
+        o = N - 2 * n  # 1 with the central point, else 0
+        shared = x.shape[0] == 1
+        shared_S = S.shape[0] == 1
+        for k in range(B):
+            xk = x[0] if shared else x[k]
+            Sk, Xk = S[0] if shared_S else S[k], X[k]
+            Dk = dX[k] if offsets else Xk  # never written when the offsets are not wanted
+            if o == 1:
+                for l in range(n):
+                    Xk[0, l] = xk[l] + 0.0
+                    if offsets:
+                        Dk[0, l] = 0.0
+            for j in range(n):
+                for l in range(n):
+                    s = gamma * Sk[l, j] if j <= l else 0.0
+                    Xk[o + j, l] = xk[l] + s
+                    Xk[o + n + j, l] = xk[l] + (-s)
+                    if offsets:
+                        Dk[o + j, l] = s
+                        Dk[o + n + j, l] = -s
         return
     nl = _lanes(N * n, B)
     Sl = np.empty((n, n, nl))
@@ -681,7 +676,15 @@ def points_kernel(x, S, xi, gamma, X, dX):
         nb = min(nl, B - k0)
         _load_matrix(S, k0, nb, Sl)
         _load_vector(x, k0, nb, xl)
-        _offsets(Sl, xi, N, n, nb, Dl)
+        # the offsets Dl[i, l, b] = (xi[i] @ S_b.T)[l], point-major: one filter's offsets are its rows
+        for i in range(N):
+            for l in range(n):
+                for b in range(nb):
+                    Dl[i, l, b] = 0.0
+                for j in range(l + 1):
+                    c = xi[i, j]
+                    for b in range(nb):
+                        Dl[i, l, b] += c * Sl[l, j, b]
         for b in range(nb):
             Xk = X[k0 + b]
             for i in range(N):
@@ -716,32 +719,6 @@ def finite_rows_kernel(A, ok):
         for i in range(r):
             special |= (((row[i] >> 52) & 0x7FF) + 1) >> 11  # 1 when the exponent is 0x7FF
         ok[k] = special == 0
-
-
-@kernel
-def _augmented_set(F, noise, xi, gamma, X2):
-    """``X2[k] = [F[k]; F[k, 0] + xi @ noise[k].T]``: g13ej's augmented second set (``noise``, shape
-    ``(B or 1, d, q)``, the process noise's lower factor; with ``q == 0`` the set is ``F`` alone)."""
-    B, N, d = F.shape
-    for k in range(B):
-        Xk, Fk = X2[k], F[k]
-        for i in range(N):
-            for l in range(d):
-                Xk[i, l] = Fk[i, l]
-    N2 = X2.shape[1]
-    if N2 == N:
-        return
-    centre = np.empty((B, d))
-    for k in range(B):
-        for l in range(d):
-            centre[k, l] = F[k, 0, l]
-    extra = np.empty((B, N2 - N, d))
-    points_kernel(centre, noise, xi, gamma, extra, np.empty((0, N2 - N, d)))
-    for k in range(B):
-        Xk, Ek = X2[k], extra[k]
-        for i in range(N2 - N):
-            for l in range(d):
-                Xk[N + i, l] = Ek[i, l]
 
 
 @kernel
@@ -801,12 +778,14 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status, draw
     fin = np.empty(nl)
     for k0 in range(0, B, nl):
         nb = min(nl, B - k0)
-        _load_points(P, k0, nb, Pl)
+        _load_matrix(P, k0, nb, Pl)
         _finite_lanes(Pl, N, d, nb, fin)
         if mode == 2:
             _load_vector(ref, k0, nb, ml)
         _deviations(Pl, N, d, nb, mode, wm, ml)
-        _factor_lanes(Pl, none, N, nb, mode, scale, sign, noise, k0, _unfold(0), At, V, v, fl, st)
+        _weighted_rows(Pl, none, N, nb, mode, scale, sign, noise, k0, At)
+        tria_lanes(At, d, rows, nb, V)  # L = At below the diagonal
+        _downdated_rows(Pl, none, N, nb, mode, scale, sign, _unfold(0), At, V, v, fl, st)
         for b in range(nb):
             mk = mean[k0 + b]
             good = True
@@ -821,15 +800,34 @@ def transform_kernel(P, ref, mode, wm, scale, sign, noise, mean, S, status, draw
     if draw == 1:
         points_kernel(mean, S, xi2, gamma2, X2, D2)
     elif draw == 2:
-        _augmented_set(P, noise, xi2, gamma2, X2)
+        # g13ej's augmented second set: X2[k] = [P[k]; P[k, 0] + xi2 @ noise[k].T] (no noise: P alone)
+        for k in range(B):
+            Xk, Fk = X2[k], P[k]
+            for i in range(N):
+                for l in range(d):
+                    Xk[i, l] = Fk[i, l]
+        N2 = X2.shape[1]
+        if N2 > N:
+            centre = np.empty((B, d))
+            for k in range(B):
+                for l in range(d):
+                    centre[k, l] = P[k, 0, l]
+            extra = np.empty((B, N2 - N, d))
+            points_kernel(centre, noise, xi2, gamma2, extra, np.empty((0, N2 - N, d)))
+            for k in range(B):
+                Xk, Ek = X2[k], extra[k]
+                for i in range(N2 - N):
+                    for l in range(d):
+                        Xk[N + i, l] = Ek[i, l]
 
 
-@kernel
-def _paired_rows(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V):
-    """The rotated joint rows of axis points (``joint_update_kernel``'s ``pair``) into ``At``.
+@_helper
+def _pair_sums(Hl, R1_2, k0, nb, N, m, c, mus, Zt):
+    """The rows of ``T`` for axis points (``joint_update_kernel``'s ``pair``) into ``Zt``: each pair's
+    sum ``c (e+ + e-)`` (no state part), ``mus mu`` and ``R1_2^T``, to be triangularised.
 
-    ``Hl``, ``Xl`` hold the central form's deviations (``mu`` in slot 0); pair ``j`` is points
-    ``1 + j`` and ``1 + h + j`` (``h = (N - 1) / 2``).
+    ``Hl`` holds the central form's deviations (``mu`` in slot 0); pair ``j`` is points ``1 + j`` and
+    ``1 + h + j`` (``h = (N - 1) / 2``).
     """
     h = (N - 1) // 2
     shared = R1_2.shape[0] == 1
@@ -845,7 +843,14 @@ def _paired_rows(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V):
         for l in range(m):
             for q in range(m):
                 Zt[l, h + 1 + q, b] = Rk[l, q]
-    tria_lanes(Zt, m, h + 1 + m, nb, V)  # T, lower: Zt[l, i] for i <= l
+
+
+@_helper
+def _pair_differences(Hl, Xl, N, m, n, nb, c, Zt, At):
+    """The rotated joint rows of axis points into ``At`` (``m + n`` columns): each pair's difference
+    ``c (e+ - e-)``, then ``T^T`` from :func:`_pair_sums`' rows triangularised in ``Zt`` (lower:
+    ``Zt[l, i]`` for ``i <= l``), then zero rows up to ``m + n``."""
+    h = (N - 1) // 2
     for j in range(h):
         for l in range(m):
             for b in range(nb):
@@ -861,6 +866,10 @@ def _paired_rows(Hl, Xl, R1_2, k0, nb, N, m, n, c, mus, Zt, At, V):
         for i in range(m):
             for b in range(nb):
                 At[m + l, h + i, b] = 0.0
+    for i in range(m + n):  # fewer rows than columns: the factor's last columns are zero
+        for j in range(h + m, m + n):
+            for b in range(nb):
+                At[i, j, b] = 0.0
 
 
 @kernel
@@ -970,9 +979,9 @@ def joint_update_kernel(
     fin = np.empty(nl)
     for k0 in range(0, B, nl):
         nb = min(nl, B - k0)
-        _load_points(H, k0, nb, Hl)
+        _load_matrix(H, k0, nb, Hl)
         _finite_lanes(Hl, N, m, nb, fin)
-        _load_points(X, k0, nb, Xl)
+        _load_matrix(X, k0, nb, Xl)
         if mode == 2:
             _load_vector(zref, k0, nb, zl)
         if mode == 1:
@@ -985,16 +994,16 @@ def joint_update_kernel(
                 for b in range(nb):
                     yl[l, b] -= zl[l, b]
         if pair != 0.0:
-            _paired_rows(Hl, Xl, R1_2, k0, nb, N, m, n, pair, scale[N - 1], Zt, At, V)
-            for i in range(c):  # fewer rows than columns: the factor's last columns are zero
-                for j in range(half + m, c):
-                    for b in range(nb):
-                        At[i, j, b] = 0.0
+            _pair_sums(Hl, R1_2, k0, nb, N, m, pair, scale[N - 1], Zt)
+            tria_lanes(Zt, m, half + 1 + m, nb, V)  # T, lower: Zt[l, i] for i <= l
+            _pair_differences(Hl, Xl, N, m, n, nb, pair, Zt, At)
             tria_lanes(At, c, half + m, nb, V)
             for b in range(nb):
                 st[b] = 0
         else:
-            _factor_lanes(Hl, Xl, N, nb, mode, scale, sign, R1_2, k0, m, At, V, v, fl, st)
+            _weighted_rows(Hl, Xl, N, nb, mode, scale, sign, R1_2, k0, At)
+            tria_lanes(At, c, rows, nb, V)
+            _downdated_rows(Hl, Xl, N, nb, mode, scale, sign, m, At, V, v, fl, st)
         _innovation(L, L, m, yl, wl, xr, m, n, k0, nb, st, ll, ww)
         _load_vector(x, k0, nb, xl)
         _finish(L, m, n, xl, xr, st, k0, nb, dx, xpost)
@@ -1014,23 +1023,11 @@ def joint_update_kernel(
         points_kernel(xpost, Spost, xi1, gamma1, X1, np.empty((0, X1.shape[1], n)))
 
 
-@kernel
-def _likelihood(Sy, w, m, k0, nb, ll, ww):
-    """``ww = w.w`` and the Gaussian log-likelihood ``-(m log 2 pi + 2 sum log|Sy_ii| + w.w) / 2``."""
-    for b in range(nb):
-        s = 0.0
-        logdet = 0.0
-        for i in range(m):
-            s += w[i, b] * w[i, b]
-            logdet += math.log(abs(Sy[i, i, b]))
-        ww[k0 + b] = s
-        ll[k0 + b] = -0.5 * (m * _LOG_2PI + 2.0 * logdet + s)
-
-
-@kernel
+@_helper
 def _innovation(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
-    """From the innovation factor: g13ej's 302 unless ``Sy`` is regular, ``w = Sy^-1 y``, the
-    likelihood, and ``dx = L21 w`` with ``L21`` the rows ``r0 .. r0 + n`` of its buffer."""
+    """From the innovation factor: g13ej's 302 unless ``Sy`` is regular, ``w = Sy^-1 y``, ``ww = w.w``
+    and the Gaussian log-likelihood ``-(m log 2 pi + 2 sum log|Sy_ii| + w.w) / 2``, and ``dx = L21 w``
+    with ``L21`` the rows ``r0 .. r0 + n`` of its buffer."""
     for b in range(nb):
         good = True
         for i in range(m):
@@ -1040,7 +1037,14 @@ def _innovation(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
         for b in range(nb):
             wl[l, b] = yl[l, b]
     solve_lower_lanes(Sy, wl, m, nb, _unfold(0))
-    _likelihood(Sy, wl, m, k0, nb, ll, ww)
+    for b in range(nb):
+        s = 0.0
+        logdet = 0.0
+        for i in range(m):
+            s += wl[i, b] * wl[i, b]
+            logdet += math.log(abs(Sy[i, i, b]))
+        ww[k0 + b] = s
+        ll[k0 + b] = -0.5 * (m * _LOG_2PI + 2.0 * logdet + s)
     for l in range(n):
         for b in range(nb):
             dxl[l, b] = 0.0
@@ -1049,7 +1053,7 @@ def _innovation(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
                 dxl[l, b] += L21[r0 + l, j, b] * wl[j, b]
 
 
-@kernel
+@_helper
 def _finish(L, i0, n, xl, dxl, st, k0, nb, dx, xpost):
     """``xpost = x + dx``; 303 unless it and the posterior factor ``L[i0:, i0:]`` are finite.
 
@@ -1122,8 +1126,8 @@ def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpos
     st = np.empty(nl, dtype=np.int64)
     for k0 in range(0, B, nl):
         nb = min(nl, B - k0)
-        _load_points(H, k0, nb, Hl)
-        _load_points(X, k0, nb, Xl)
+        _load_matrix(H, k0, nb, Hl)
+        _load_matrix(X, k0, nb, Xl)
         _load_vector(zref, k0, nb, zr)
         _load_vector(xref, k0, nb, xr)
         _load_matrix(Sy, k0, nb, Syl)
