@@ -8,7 +8,7 @@ results back in that shape. One filter is a stack of one, computed by the
 same kernel as a fleet, so a filter alone and the same filter in a fleet get
 the same numbers, bit for bit.
 
-Kernels are compiled on first use (on an empty cache, 22 s for the default
+Kernels are compiled on first use (on an empty cache, about 11 s for the default
 ``SquareRootUKF`` or ``Fleet`` on the 2-core benchmark machine:
 ``python benchmarks/compile_time.py``, ``benchmarks/results/compile.md``) and
 cached on disk beside the package (numba's ``cache=True``); a new process
