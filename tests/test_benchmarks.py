@@ -176,3 +176,20 @@ def test_quick_dask_benchmark_writes_results(tmp_path):
     assert 0 < last < first < 20
     peaks = [line for line in mem.splitlines() if re.match(r"\| [01] \| \d+ \| \d+ \|", line)]
     assert len(peaks) == 2
+
+
+def test_fleet_profile_splits_the_whole_step():
+    """benchmarks/fleet_profile.py: the kernels, the model functions and the rest make up the step, the
+    kernel table put back afterwards."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    try:
+        import fleet_profile
+    finally:
+        sys.path.remove(str(ROOT / "benchmarks"))
+    from squkf import kernels
+
+    table = kernels.KERNELS
+    row = fleet_profile.split(K=64, steps=2, reps=2)
+    assert kernels.KERNELS is table
+    assert row["kernels"] > 0 and row["model"] > 0
+    assert math.isclose(row["kernels"] + row["model"] + row["rest"], row["whole"])
