@@ -35,13 +35,19 @@ HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
 
-def _extract(rev: str, where: Path) -> None:
-    """The ``squkf`` package of git revision ``rev`` as ``where/squkf_ref``."""
+def export_package(rev: str, where: Path) -> Path:
+    """Git revision ``rev``'s ``squkf`` package unpacked as ``where/squkf``; ``where`` returned."""
     data = subprocess.run(
         ["git", "archive", rev, "squkf"], cwd=HERE.parent, check=True, capture_output=True
     ).stdout
     with tarfile.open(fileobj=io.BytesIO(data)) as tar:
         tar.extractall(where, filter="data")
+    return where
+
+
+def _extract(rev: str, where: Path) -> None:
+    """The ``squkf`` package of git revision ``rev`` as ``where/squkf_ref``."""
+    export_package(rev, where)
     (where / "squkf").rename(where / "squkf_ref")
 
 

@@ -39,7 +39,6 @@ rounds of this tree's time divided by the revision's.
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import os
 import platform
@@ -47,12 +46,15 @@ import shutil
 import statistics
 import subprocess
 import sys
-import tarfile
 import tempfile
 import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+from against_revision import export_package  # noqa: E402
+
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BLIS_NUM_THREADS")
 COLD_TARGET_S, CACHED_TARGET_S = 30.0, 1.0
 
@@ -123,22 +125,12 @@ def run_child(kind: str, K: int, cache: Path, tree: Path | None = None) -> dict:
     return out
 
 
-def export_revision(rev: str, where: Path) -> Path:
-    """Git revision ``rev``'s ``squkf`` package unpacked under ``where``, the folder returned."""
-    data = subprocess.run(
-        ["git", "archive", rev, "squkf"], cwd=HERE.parent, check=True, capture_output=True
-    ).stdout
-    with tarfile.open(fileobj=io.BytesIO(data)) as tar:
-        tar.extractall(where, filter="data")
-    return where
-
-
 def cold_against(refs: list[str], rounds: int, K: int, log) -> list[tuple[str, dict[str, list[float]]]]:
     """Cold compiles (build + first predict + update, s) of this tree and of each revision, alternating."""
     trees: list[tuple[str, Path | None]] = [("this tree", None)]
     with tempfile.TemporaryDirectory(prefix="squkf_revisions_") as tmp:
         for rev in refs:
-            trees.append((rev, export_revision(rev, Path(tmp) / rev)))
+            trees.append((rev, export_package(rev, Path(tmp) / rev)))
         times: dict[str, dict[str, list[float]]] = {label: {"filter": [], "fleet": []} for label, _ in trees}
         for i in range(rounds):
             for label, tree in trees:
