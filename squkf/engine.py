@@ -300,17 +300,26 @@ class Buffers:
 
 
 class Scratch(Buffers):
-    """Arrays no result outlives (a fleet chunk's points and statuses): one set per shape, never committed."""
+    """Arrays no result outlives (a fleet chunk's points and statuses), never committed.
+
+    One set per ``make`` and trailing arguments, made for the largest block asked for: a smaller block
+    (a fleet's last chunk) gets the leading rows of each array, so that a chunk of another size costs
+    no second set.
+    """
 
     __slots__ = ()
 
-    def take(self, make: Callable[..., tuple], *args) -> tuple:
-        """The set ``make(*args)``, made on the first call with these arguments."""
+    def take(self, make: Callable[..., tuple], B: int, *args) -> tuple:  # type: ignore[override]
+        """The set ``make(B, *args)``: arrays whose first axis is the block's ``B`` filters."""
         key = (make, *args)
         made = self.sets.get(key)
-        if made is None:
-            made = self.sets[key] = make(*args)  # type: ignore[assignment]
-        return made  # type: ignore[return-value]
+        if made is None or made[0] < B:
+            made = self.sets[key] = [B, make(B, *args)]
+        size, arrays = made
+        if size == B:
+            return arrays
+        # the leading rows of a C-contiguous array are C-contiguous: the kernels take them as they are
+        return tuple(a[:B] if a.shape[:1] == (size,) else a for a in arrays)
 
 
 def _prior_out(B: int, n: int, N2: int, offsets: bool) -> tuple:

@@ -235,7 +235,7 @@ class Fleet:
         self._pending = _IDLE_STEP
         self._buffers = Buffers()  # the step's (K, ...) results, used in turn
         self._failed = np.zeros(K, dtype=bool)
-        self._failure = np.full(K, "", dtype=object)
+        self._failure: dict[int, str] = {}  # filter -> why it is flagged (few: not a (K,) array)
         self._x_prior, self._x_post, self._S_prior, self._S_post = self._x, self._x, self._S, self._S
         self._y = np.zeros((K, m))
         self._loglik = np.zeros(K)
@@ -425,7 +425,10 @@ class Fleet:
     @property
     def failure(self) -> np.ndarray:
         """Why each flagged filter failed ("" for the others), shape ``(K,)`` (a copy)."""
-        return self._failure.copy()
+        failure = np.full(self._K, "", dtype=object)
+        for k, why in self._failure.items():
+            failure[k] = why
+        return failure
 
     @property
     def log_likelihood(self) -> np.ndarray:
@@ -472,7 +475,7 @@ class Fleet:
         self._x, self._S = reset_rows(x, P, idx, self._x, self._S)
         self._handed.drop("x", "P")
         self._failed[idx] = False
-        self._failure[idx] = ""
+        self._failure = {k: why for k, why in self._failure.items() if self._failed[k]}
         self._pending = _IDLE_STEP
 
     # -- the step -----------------------------------------------------------------
@@ -650,11 +653,11 @@ class Fleet:
             self._handed.drop("x", "P")
         for k, why in fails.items():
             self._failed[k] = True
-            self._failure[k] = why
+            self._failure[int(k)] = why
 
     def _update(self, pending: _Pending, images: Callable, z: np.ndarray, R1_2) -> None:
         m, fails = self._m, dict[int, str]()
-        active = ~self._failed & ~np.isnan(z).all(axis=1)
+        active = ~self._failed  # (and, chunk by chunk, a measurement)
         if self._plan.v_xi is not None:  # noise entering hx is in the points: the update adds none
             R1_2 = np.zeros((m, m))
         x, S = pending.prior  # type: ignore[misc]
@@ -833,7 +836,8 @@ class Fleet:
         new._Q1_2 = rows_of(self._Q1_2, idx, 2)
         new._R1_2 = rows_of(self._R1_2, idx, 2)  # type: ignore[assignment]
         new._handed = HandOut()  # the arrays handed out are this fleet's
-        new._failed, new._failure = self._failed[idx], self._failure[idx]
+        new._failed = self._failed[idx]
+        new._failure = {i: self._failure[k] for i, k in enumerate(idx.tolist()) if k in self._failure}
         new._pending = _IDLE_STEP
         new._x_prior, new._x_post = self._x_prior[idx], self._x_post[idx]
         new._S_prior, new._S_post = self._S_prior[idx], self._S_post[idx]
@@ -870,6 +874,7 @@ class Fleet:
             d[key] = v
         # the copy's own arrays handed out, pending edits included
         d["_handed"] = self._handed.detached()
+        d["_failure"] = dict(self._failure)
         p = self._pending
         if p.prior is not None:
             # the pending update is known by the identity of the estimate it was drawn for: the
@@ -892,6 +897,8 @@ class Fleet:
     def __setstate__(self, state: dict) -> None:
         self.__dict__.update(state)
         self._buffers = Buffers()
+        if isinstance(self._failure, np.ndarray):  # pickled before the reasons were kept as a dict
+            self._failure = {int(k): str(self._failure[k]) for k in np.flatnonzero(self._failure != "")}
 
     def __deepcopy__(self, memo):
         new = copy.copy(self)

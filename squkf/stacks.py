@@ -39,6 +39,7 @@ from .validate import describe_nonfinite
 __all__ = [
     "BLOCK",
     "CHUNK",
+    "CHUNK_BYTES",
     "Posteriors",
     "Prior",
     "chunks",
@@ -59,6 +60,12 @@ BLOCK = 4096
 
 #: The fewest filters per chunk the default gives (below it, the step's Python per chunk would dominate).
 MIN_CHUNK = 64
+
+#: Bytes of a chunk's largest array per model call (its points or images), at most, in a chunk of
+#: :data:`CHUNK` filters (twice as many on threads: twice this): larger chunks outgrow the caches
+#: (``benchmarks/chunk_sizes.py --model n10``: at n = 10, 2048 filters a chunk took 1.17x the time of
+#: 1024 or fewer; at n = 4 the bound is not reached).
+CHUNK_BYTES = 1 << 20
 
 
 def fixed_mmap_threshold(environ: Mapping[str, str] = os.environ) -> int | None:
@@ -105,12 +112,13 @@ def default_chunk(threads: int, K: int, row_bytes: int = 0) -> int:
     faster size (``benchmarks/chunk_sizes.py``; the figures in
     ARCHITECTURE.md, "Measured").
 
-    Where the environment fixes glibc's mmap threshold
-    (:func:`fixed_mmap_threshold`: a Dask worker), a chunk is cut so that
-    its largest array per call of the model, ``row_bytes`` per filter, stays
-    under it (at least :data:`MIN_CHUNK` filters): a larger one is mapped
-    and faulted in at every call (``benchmarks/fleet.py`` measures the
-    difference).
+    A model with large points has fewer filters a chunk: its largest array
+    per call of the model, ``row_bytes`` per filter, stays within
+    :data:`CHUNK_BYTES` (twice that for chunks twice as large), and, where
+    the environment fixes glibc's mmap threshold (:func:`fixed_mmap_threshold`:
+    a Dask worker), under that threshold: a larger one is mapped and faulted
+    in at every call (``benchmarks/fleet.py`` measures the difference). A
+    chunk has at least :data:`MIN_CHUNK` filters.
 
     Parameters
     ----------
@@ -128,8 +136,11 @@ def default_chunk(threads: int, K: int, row_bytes: int = 0) -> int:
     """
     big = 2 * CHUNK
     size = big if threads > 1 and K >= 4 * threads * big else CHUNK
-    if _MMAP_THRESHOLD is not None and row_bytes:
-        size = min(size, max(MIN_CHUNK, (_MMAP_THRESHOLD - 1) // row_bytes))
+    if row_bytes:
+        limit = CHUNK_BYTES * (size // CHUNK)
+        if _MMAP_THRESHOLD is not None:
+            limit = min(limit, _MMAP_THRESHOLD - 1)
+        size = min(size, max(MIN_CHUNK, limit // row_bytes))
     return size
 
 
@@ -171,7 +182,7 @@ def _map_chunks(
     try:
         threads = held.n
         if size is None:
-            size = CHUNK if threads == 1 and _MMAP_THRESHOLD is None else default_chunk(threads, K, row_bytes)
+            size = default_chunk(threads, K, row_bytes)
         if K <= size:  # one chunk: on this thread
             found = one(slice(0, K))
             if found:
@@ -564,7 +575,8 @@ def update(
     R1_2 : ndarray, shape (m, m) or (K, m, m)
         Measurement noise factor, shared or per filter.
     active : ndarray of bool, shape (K,)
-        The filters to update (the others keep their prior, with no innovation).
+        The filters that may be updated: those with a measurement are (the
+        others keep their prior, with no innovation).
     images : callable
         ``images(rows, sset)``: the model at the second sets ``sset`` of the
         filters ``rows`` (a slice), shape ``(k, N2, m)``.
@@ -577,14 +589,12 @@ def update(
     """
     K, m = z.shape
     n = x.shape[1]
-    z = kernels.kernel_array(z)  # (one step's column of a run's measurements)
     x, S = _as_kernels_take(x, S)
 
     if buffers is None:
         out = Posteriors(*_estimates(K, n), *_update_records(K, m))
     else:
         out = Posteriors(*buffers.spare(held, _estimates, K, n), *buffers.take(_update_records, K, m))
-    observed = ~np.isnan(z)
 
     def one(rows: slice) -> dict[int, str]:
         found: dict[int, str] = {}
@@ -598,8 +608,10 @@ def update(
         shape = s.sigmas.shape[:-1] + (m,)
         label = "hx values" if rows.stop - rows.start == K else _label("hx values", rows, K)
         H = kernels.kernel_array(stacked_shape(images(rows, s), shape, label, False, ("hx", s.sigmas.shape)))
-        on = active[rows]
-        zr, obs, Rr = z[rows], observed[rows], R1_2 if R1_2.ndim == 2 else R1_2[rows]
+        zr = _measured_rows(z, rows, scratch)
+        obs = ~np.isnan(zr)
+        on = active[rows] & obs.any(axis=1)
+        Rr = R1_2 if R1_2.ndim == 2 else R1_2[rows]
         plain = route.update_route(s, None) is not None
         if plain and route.gate is None and obs.all():  # the usual case: the kernel writes the step's arrays
             part = out if rows.stop - rows.start == K else [a[rows] for a in out]
@@ -612,9 +624,26 @@ def update(
             record[rows] = rows_record
         return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
 
-    row_bytes = 0 if _MMAP_THRESHOLD is None else 8 * _second_size(route.plan) * max(n, m)
-    _map_chunks(one, K, size, fails, row_bytes)
+    _map_chunks(one, K, size, fails, 8 * _second_size(route.plan) * max(n, m))
     return out
+
+
+def _measured_rows(z: np.ndarray, rows: slice, scratch: Scratch) -> np.ndarray:
+    """The chunk's rows of ``z`` in its own array, read once and checked as read.
+
+    A chunk's copy, not the step's: the step never holds a second ``(K, m)`` array, and what the
+    kernels use is what was checked, even if the model functions wrote into the caller's ``z``.
+    """
+    zr = scratch.take(_rows_of_z, rows.stop - rows.start, z.shape[1])[0]
+    np.copyto(zr, z[rows])
+    if np.isinf(zr).any():
+        k = rows.start + int(np.flatnonzero(np.isinf(zr).any(axis=1))[0])
+        raise NonFiniteError(f"z contains inf (row {k}; NaN means a missing component)")
+    return zr
+
+
+def _rows_of_z(k: int, m: int) -> tuple:
+    return (np.empty((k, m)),)
 
 
 def _whole_chunk(route: Route, sset, x0, S0, H, z, R1_2, on, found, out, scratch: Scratch) -> None:

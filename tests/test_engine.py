@@ -39,7 +39,7 @@ from squkf import (
     sqrt_unscented_transform,
 )
 from squkf.angles import AngleAdd, AngleMean, AngleResidual
-from squkf.engine import Engine, Route
+from squkf.engine import Engine, Route, Scratch
 from squkf.measurement import measurement_update
 from squkf.plan import Hooks, build_plan
 from squkf.transform import transform_factor
@@ -391,6 +391,25 @@ def test_a_steady_step_allocates_its_buffers_once():
     # starts from, the prior it keeps as a record, and the new one
     estimates = [sets for key, sets in fleet._buffers.sets.items() if key[0] == "spare"]
     assert [len(sets) for sets in estimates] == [3]
+
+
+def _two_outputs(B: int, n: int) -> tuple:
+    return np.empty((B, n)), np.empty((0, 1, n))  # (a block's array, and one without a block axis)
+
+
+def test_scratch_serves_a_smaller_block_from_the_leading_rows_of_its_set():
+    """A fleet's last, shorter chunk costs no second set of chunk arrays: it gets the leading rows of
+    the set made for the full chunks, C-contiguous as the kernels take them; a larger block replaces the
+    set."""
+    scratch = Scratch()
+    full = scratch.take(_two_outputs, 8, 3)
+    assert scratch.take(_two_outputs, 8, 3) is full
+    last = scratch.take(_two_outputs, 5, 3)
+    assert last[0].shape == (5, 3) and last[0].flags.c_contiguous and np.shares_memory(last[0], full[0])
+    assert last[1] is full[1]
+    larger = scratch.take(_two_outputs, 12, 3)
+    assert larger[0].shape == (12, 3) and not np.shares_memory(larger[0], full[0])
+    assert scratch.take(_two_outputs, 8, 3)[0].base is larger[0] and len(scratch.sets) == 1
 
 
 class _VaryingWeights:

@@ -459,6 +459,77 @@ def test_a_chunks_wrong_fx_shape_names_its_filters_and_changes_nothing():
     assert_fleet_state(fleet, before)
 
 
+def _fleet_and_measurements(K: int, T: int):
+    fleet = cv_fleet(K, MerweScaledWeights())
+    x0 = np.array([10.0, 1.0, 5.0, -0.5])
+    fleet.x, fleet.P, fleet.Q, fleet.R = x0, FLEET_P0, 0.01 * np.eye(FLEET_N_X), np.diag([0.5, 0.01])
+    rng = np.random.default_rng(5)
+    zs = range_bearing_hx(x0) + rng.normal(0.0, 0.1, (K, T, FLEET_N_Z))
+    return fleet, zs
+
+
+def test_a_z_written_to_inf_by_hx_mid_step_is_refused_and_changes_nothing():
+    """The step reads each chunk's rows of z after that chunk's hx, and checks what it read: an hx that
+    writes inf into the caller's z (a later chunk's rows) cannot slip it into the kernels."""
+    fleet, zs = _fleet_and_measurements(5, 2)
+    fleet.chunk = 2
+    fleet.predict()
+    fleet.update(zs[:, 0])
+    fleet.predict()
+    before = fleet_state(fleet)
+    z = zs[:, 1].copy()
+    hx = fleet.hx
+
+    def hostile_hx(X):
+        z[4, 1] = np.inf
+        return hx(X)
+
+    fleet.hx = hostile_hx
+    with pytest.raises(NonFiniteError, match=r"row 4"):
+        fleet.update(z)
+    fleet.hx = hx
+    assert_fleet_state(fleet, before)
+
+
+def test_steps_yielded_in_one_reused_array_are_each_the_step_read():
+    """batch_filter given an iterator that writes every step into the same array (a reader's buffer)
+    filters each step as yielded, as it does the whole array."""
+    fleet, zs = _fleet_and_measurements(3, 4)
+    other = copy.deepcopy(fleet)
+
+    def reader():
+        buffer = np.empty((3, FLEET_N_Z))
+        for t in range(zs.shape[1]):
+            buffer[...] = zs[:, t]
+            yield buffer
+
+    expected = fleet.batch_filter(zs)
+    got = other.batch_filter(reader())
+    np.testing.assert_array_equal(got.x, expected.x)
+    np.testing.assert_array_equal(got.P1_2, expected.P1_2)
+
+
+def test_a_copy_keeps_its_own_failures():
+    """The reasons of flagged filters are the fleet's own: a copy's are not changed by the original's
+    later failures, and a pickle or a fleet of some rows keeps them."""
+    fleet, zs = _fleet_and_measurements(4, 3)
+    bad = np.zeros(4, dtype=bool)
+    bad[1] = True
+    fleet.predict(bad=bad)
+    twin = copy.copy(fleet)
+    bad[:] = [False, False, False, True]
+    fleet.predict(bad=bad)
+    assert list(fleet.failed) == [False, True, False, True] and "fx" in fleet.failure[3]
+    assert list(twin.failed) == [False, True, False, False]
+    assert list(twin.failure == "") == [True, False, True, True]
+    back = pickle.loads(pickle.dumps(fleet))
+    assert list(back.failure) == list(fleet.failure)
+    some = fleet.subset([3, 0, 1])
+    assert list(some.failure == "") == [False, True, False] and some.failure[0] == fleet.failure[3]
+    fleet.reset(1)
+    assert list(fleet.failure == "") == [True, True, True, False] and "fx" in fleet.failure[3]
+
+
 @pytest.mark.parametrize("bad", [0, -2, 1.5, "8", True, "auto"])
 def test_chunk_must_be_a_positive_integer(bad):
     with pytest.raises(ParameterError, match="chunk"):
@@ -540,6 +611,38 @@ def test_under_a_fixed_mmap_threshold_the_models_arrays_stay_below_it(monkeypatc
     assert max(nbytes) < threshold
     assert max(filters) < K and sum(filters) == 2 * K  # every filter in one call of each model
     assert_fleet_state(fleet, fleet_state(expected))
+
+
+@pytest.mark.parametrize(("threads", "K", "row_bytes", "size"), [
+    (1, 10**5, 0, 2048),  # rows not known: CHUNK
+    (1, 10**5, 9 * 4 * 8, 2048),  # n = 4: a chunk's points 0.6 MB, within CHUNK_BYTES
+    (1, 10**5, 21 * 10 * 8, (1 << 20) // (21 * 10 * 8)),  # n = 10: 624 filters, 1 MiB of points
+    (2, 10**5, 9 * 4 * 8, 4096),  # on threads twice the filters, twice the bytes
+    (2, 10**5, 21 * 10 * 8, (2 << 20) // (21 * 10 * 8)),
+    (1, 10**5, 10**6, 64),  # never fewer than MIN_CHUNK
+])  # fmt: skip
+def test_a_model_with_large_points_gets_fewer_filters_a_chunk(threads, K, row_bytes, size):
+    assert squkf.stacks.default_chunk(threads, K, row_bytes) == size
+
+
+def test_a_fleets_chunks_hold_at_most_chunk_bytes_of_points():
+    """End to end: a 30-state model's points are cut into chunks of at most CHUNK_BYTES per call."""
+    n, K = 30, 400
+
+    def fx(X, dt):
+        seen.append(X.nbytes)
+        return X
+
+    def hx(X):
+        seen.append(X.nbytes)
+        return X[..., :1]
+
+    seen: list[int] = []
+    fleet = Fleet(K, n, 1, 1.0, hx, fx, MerweScaledWeights())
+    fleet.predict()
+    fleet.update(np.zeros((K, 1)))
+    assert max(seen) <= squkf.stacks.CHUNK_BYTES and len(seen) > 2
+    assert sum(seen) == 2 * K * (2 * n + 1) * n * 8  # every filter's points, once in each model
 
 
 @pytest.mark.parametrize("scheme", SCHEMES)

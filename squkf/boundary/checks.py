@@ -218,7 +218,7 @@ def measurements(z, K: int, m: int, name: str = "z") -> np.ndarray:
             " (NaN rows for filters without a measurement)"
         )
     if type(z) is np.ndarray and z.dtype == np.float64 and z.shape == (K, m):
-        zz = z.copy()  # (the usual step: read as it is, into the step's own copy)
+        zz = z  # (the usual step: read as it is; each chunk copies its rows, checked again as read)
     else:
         zz = as_measurements(z, name)
     if zz.shape == (K,) and m == 1:
@@ -251,7 +251,8 @@ def measurement_series(zs, K: int, m: int) -> np.ndarray:
     if not isinstance(zs, (np.ndarray, list, tuple)) and not hasattr(zs, "__array__"):  # MaskedArray: ndarray
         # a generator, an iterator, tqdm(...): one (K, dim_z) array per step, each checked
         it = iter_measurements(zs)
-        steps_read = [measurements(z, K, m, f"zs[{t}]") for t, z in enumerate(it)]
+        # each step's own copy: an iterator may yield one array, written again for every step
+        steps_read = [measurements(z, K, m, f"zs[{t}]").copy() for t, z in enumerate(it)]
         zs = np.stack(steps_read, axis=1) if steps_read else np.zeros((K, 0, m))
     Z = as_measurements(zs, "zs")
     if Z.ndim == 2 and m == 1:
