@@ -63,8 +63,8 @@ MIN_CHUNK = 64
 
 #: Bytes of a chunk's largest array per model call (its points or images), at most, in a chunk of
 #: :data:`CHUNK` filters (twice as many on threads: twice this): larger chunks outgrow the caches
-#: (``benchmarks/chunk_sizes.py --model n10``: at n = 10, 2048 filters a chunk took 1.17x the time of
-#: 1024 or fewer; at n = 4 the bound is not reached).
+#: (``benchmarks/chunk_sizes.py --model n10``: at n = 10, 2048 filters a chunk took 1.11x the time of
+#: 624, the size this gives; at n = 4 the bound is not reached).
 CHUNK_BYTES = 1 << 20
 
 
@@ -575,8 +575,8 @@ def update(
     R1_2 : ndarray, shape (m, m) or (K, m, m)
         Measurement noise factor, shared or per filter.
     active : ndarray of bool, shape (K,)
-        The filters that may be updated: those with a measurement are (the
-        others keep their prior, with no innovation).
+        The filters not flagged; those of them with a measurement in ``z``
+        are updated (the others keep their prior, with no innovation).
     images : callable
         ``images(rows, sset)``: the model at the second sets ``sset`` of the
         filters ``rows`` (a slice), shape ``(k, N2, m)``.
