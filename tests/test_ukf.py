@@ -382,6 +382,25 @@ def test_filterpy_outputs_match_attribute_by_attribute():
     assert rel(Pxz, fp.cross_variance(fp.x_prior, fp.sigmas_h.T @ fp.Wm, fp.sigmas_f, fp.sigmas_h)) < 1e-12
 
 
+def test_compute_process_sigmas_is_filterpys_and_changes_no_state():
+    """filterpy's ``compute_process_sigmas(dt, fx, **fx_args)``: ``sigmas_f`` set to the first set
+    propagated through ``fx`` (the one given, with its arguments), the estimate left as it was."""
+    points = MerweScaledSigmaPoints(5, alpha=0.3, beta=2.0, kappa=-2.0)
+    fp, sq = ct_filter(points, cls=UnscentedKalmanFilter), ct_filter(points)
+    x0, P0 = sq.x.copy(), sq.P.copy()
+
+    def slowed(x, dt, factor):
+        return ct_fx(x, factor * dt)
+
+    for f in (fp, sq):
+        f.compute_process_sigmas(2.0, slowed, factor=0.5)
+    assert rel(sq.sigmas_f, fp.sigmas_f) < 1e-12
+    np.testing.assert_array_equal(sq.x, x0)
+    np.testing.assert_array_equal(sq.P, P0)
+    sq.compute_process_sigmas(1.0)  # the filter's own fx
+    assert rel(sq.sigmas_f, fp.sigmas_f) < 1e-12
+
+
 # == where filterpy's UKF fails ====================================================================
 
 
