@@ -233,3 +233,23 @@ def test_readme_and_landing_page_name_every_dependency_and_extra(dists):
     for page, code in ((readme, "`{}`"), (landing, "``{}``")):
         assert not [extra for extra in extras if code.format(extra) not in page]
         assert not [name for name in runtime if not re.search(rf"\b{name}\b", page)]
+
+
+def _modules() -> list[str]:
+    import pkgutil
+
+    return sorted(
+        info.name
+        for info in pkgutil.walk_packages(squkf.__path__, "squkf.")
+        if not info.name.startswith("squkf.examples")
+    )
+
+
+@pytest.mark.parametrize("name", _modules())
+def test_every_name_a_module_exports_exists(name):
+    """``__all__`` names only what the module defines: ``from module import *`` works."""
+    import importlib
+
+    module = importlib.import_module(name)
+    missing = [n for n in getattr(module, "__all__", ()) if not hasattr(module, n)]
+    assert not missing, f"{name}.__all__ names {missing}"

@@ -53,7 +53,8 @@ __all__ = [
     "set_num_threads",
     "get_num_threads",
     "usable_cores",
-    "step_threads",
+    "enter_step",
+    "exit_step",
     "thread_map",
 ]
 
@@ -283,7 +284,7 @@ def thread_map(fn: Callable[[Any], _T], items: Sequence) -> list[_T]:
     they are handed to the pool; every job is waited for, and the first
     item's exception (in the order of ``items``) is raised, so no job still
     runs when this returns. The count used is the one held by the calling
-    thread's step (:func:`step_threads`), else the current one, held until
+    thread's step (:func:`enter_step`), else the current one, held until
     every item has run.
 
     Parameters
@@ -324,7 +325,7 @@ def _call(kernel: Any, B: int, *args, plan: tuple[int, ...] = ()) -> None:
     """``kernel(*args)`` over ``B`` filters; the arguments at ``plan`` are the plan's data, never cut.
 
     Every other array with ``B`` rows is one row per filter; a shared array has one row.
-    A large stack is cut between the threads the calling thread's step holds (:func:`step_threads`).
+    A large stack is cut between the threads the calling thread's step holds (:func:`enter_step`).
     """
     if B < 2 * MIN_FILTERS_PER_THREAD:
         kernel(*args)
@@ -641,7 +642,7 @@ def transform(
     N, d = P.shape[-2:]
     Ps = _stack(P, batch, 2)
     B = Ps.shape[0]
-    Nz = np.zeros((1, d, 0)) if noise is None else _shared(noise, batch, 2)
+    Nz = no_noise(d) if noise is None else _shared(noise, batch, 2)
     R = zeros_row(d) if ref is None else _shared(ref, batch, 1)
     mean = np.empty((B, d))
     S = np.empty((B, d, d))
