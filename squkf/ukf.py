@@ -657,8 +657,9 @@ class SquareRootUKF:
             :meth:`tell_update`.
         """
         self._take_edits()
-        X = self._engine.ask_update()[0]
-        return self._handed(X, self._plan.v_xi, "R")
+        e = self._engine
+        X = e.ask_update()[0]
+        return self._handed(X, e.step_route.plan.v_xi, "R")  # (the plan that drew the set)
 
     def tell_update(self, sigmas_h, z, R=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of an update: measurement-function values and ``z`` give the posterior.
@@ -681,17 +682,18 @@ class SquareRootUKF:
         P1_2_post : ndarray, shape (dim_x, dim_x)
             Fresh arrays.
         """
-        checks.refuse_noise_args(self._plan.v_xi, "R", R, UT)
+        e = self._engine
+        v_xi = e.step_route.plan.v_xi  # the noise of the set handed out (drawn by the step's route)
+        checks.refuse_noise_args(v_xi, "R", R, UT)
         meas = checks.measurement(z, R, self._dim_z, self._R_dim, self._hx_noise)
         if meas is None:
             raise NonFiniteError(
                 "tell_update needs a measurement, but z holds none (all NaN, masked or None)"
             )
         z, observed = meas
-        e = self._engine
         m = z.shape[0]
         # noise entering hx is in the points: the update adds none
-        R1_2 = np.zeros((m, m)) if self._plan.v_xi is not None else self._R1_2(R, m)
+        R1_2 = np.zeros((m, m)) if v_xi is not None else self._R1_2(R, m)
         e.tell_update(sigmas_h, z, observed, R1_2, UT)
         self.__dict__["z"] = z
         self._stepped()
@@ -766,11 +768,13 @@ class SquareRootUKF:
         pending = e.pending_update()
         sigmas = pending[1].sigmas[0].copy()  # hx gets its own copy: the update reads the set
         hx = self.hx if hx is None else hx
-        if self._plan.v_xi is None:
+        # the set's own plan: the prediction's (a configuration changed since applies from the next step)
+        plan = (e.step_route if pending[1] is e.sset else e.route).plan
+        if plan.v_xi is None:
             values = hx(sigmas, **hx_args) if self.vectorized else self._per_point(hx, sigmas, None, hx_args)
             R1_2 = self._R1_2(R, z.shape[0])
         else:  # noise entering hx is in the points: the update adds none
-            values = self._model(hx, "hx", sigmas, (), hx_args, R, UT)
+            values = self._model(hx, "hx", sigmas, (), hx_args, R, UT, plan)
             R1_2 = np.zeros((z.shape[0],) * 2)
         e.tell_update(values, z, observed, R1_2, UT, pending)
         d["z"] = z
@@ -832,9 +836,22 @@ class SquareRootUKF:
 
     # -- the step's parts -----------------------------------------------------
 
-    def _model(self, fn: Callable, which: str, X: np.ndarray, args: tuple, kwargs: dict, noise=None, UT=None):
-        """``fn`` (``"fx"`` or ``"hx"``) at the points ``X``, with noise points if the noise enters it."""
-        plan = self._plan
+    def _model(
+        self,
+        fn: Callable,
+        which: str,
+        X: np.ndarray,
+        args: tuple,
+        kwargs: dict,
+        noise=None,
+        UT=None,
+        plan=None,
+    ):
+        """``fn`` (``"fx"`` or ``"hx"``) at the points ``X``, with noise points if the noise enters it.
+
+        ``plan``: the one that drew ``X`` (default: the filter's current one).
+        """
+        plan = self._plan if plan is None else plan
         xi, name, dim = (
             (plan.w_xi, "Q", self._fx_noise) if which == "fx" else (plan.v_xi, "R", self._hx_noise)
         )

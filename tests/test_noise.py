@@ -501,3 +501,38 @@ def test_what_the_noise_form_cannot_take_is_refused():
     means, factors = f.batch_filter(pendulum_simulate(3, seed=8), return_factors=True)
     with pytest.raises(ParameterError, match="additive process noise only"):
         f.rts_smoother_factors(means, factors)
+
+
+def _range_filter(points):
+    def fx(x, dt):
+        return np.array([x[0] + dt * x[1], x[1]])
+
+    def hx(x, v):
+        return np.array([np.hypot(x[0], 2.0) + v[0]])
+
+    f = SquareRootUKF(2, 1, 1.0, hx, fx, points, hx_noise=1)
+    f.x, f.P, f.Q, f.R = np.array([1.0, 0.5]), np.eye(2), 0.01 * np.eye(2), 0.1
+    return f
+
+
+@pytest.mark.parametrize("how", ["update", "ask/tell"])
+def test_points_changed_after_a_prediction_apply_from_the_next_step_with_hx_noise(how):
+    """The update finishes with the set the prediction drew and that set's noise points, as it does
+    without noise forms; the new points are the next prediction's."""
+    kept, changed = _range_filter(MerweScaledWeights(0.5)), _range_filter(MerweScaledWeights(0.5))
+    for f in (kept, changed):
+        f.predict()
+    changed.points_fn = SimplexWeights()
+    for f in (kept, changed):
+        if how == "update":
+            f.update([2.5])
+        else:
+            X = f.ask_update()
+            assert X.shape == (7, 3)  # 2 states + 1 noise, Merwe's 2 * 3 + 1 points
+            f.tell_update(np.array([f.hx(x[:2], x[2:]) for x in X]), [2.5])
+    np.testing.assert_array_equal(changed.x, kept.x)
+    np.testing.assert_array_equal(changed.P, kept.P)
+    fresh = _range_filter(SimplexWeights())
+    for f in (changed, fresh):
+        f.predict()
+    assert changed.sigmas_f.shape == fresh.sigmas_f.shape != kept.sigmas_f.shape
