@@ -223,27 +223,30 @@ def first_status(status: np.ndarray) -> int:
 
 
 class _ObservedR:
-    """The factor of R's observed block, kept for the last (R, observed) pair: repeated, nothing is formed."""
+    """The factor of R's observed block, kept for the last (R, observed) pair: repeated, nothing is formed.
 
-    __slots__ = ("R", "key", "factor")
+    The pair and its factor are kept as one tuple, replaced in one assignment: a fleet's chunks on
+    several threads share the route, and never see one pair's key with another's factor.
+    """
+
+    __slots__ = ("kept",)
 
     def __init__(self):
-        self.R = None
-        self.key = b""
-        self.factor = None
+        self.kept: tuple = (None, b"", None)
 
     def of(self, R1_2: np.ndarray, observed: np.ndarray) -> np.ndarray:
         """``tria(R1_2[observed].T)``: the observed block ``R[obs][:, obs]`` is ``R1_2[obs] R1_2[obs].T``."""
         key = observed.tobytes()
-        if self.R is not R1_2 or self.key != key:
+        R, kept_key, factor = self.kept
+        if R is not R1_2 or kept_key != key:
             rows = np.ascontiguousarray(np.swapaxes(R1_2[..., observed, :], -1, -2))
             A = rows[None] if rows.ndim == 2 else rows
             mo = A.shape[-1]
             S = np.empty((A.shape[0], mo, mo))
             kernels.KERNELS.tria(A, S)
-            self.factor = S[0] if rows.ndim == 2 else S
-            self.R, self.key = R1_2, key
-        return self.factor  # type: ignore[return-value]
+            factor = S[0] if rows.ndim == 2 else S
+            self.kept = (R1_2, key, factor)
+        return factor
 
 
 class Buffers:
@@ -731,7 +734,7 @@ class Engine:
 
     __slots__ = (
         "route", "step_route", "x", "S", "phase", "X", "prior", "sset", "prior_record", "post_record", "last",
-        "H", "shown_f", "_first", "_propagated", "_Q", "_buffers",
+        "H", "shown_f", "_first", "_buffers",
     )  # fmt: skip
 
     def __init__(
@@ -743,12 +746,10 @@ class Engine:
         self.X: np.ndarray | None = None  # the points handed out by a pending ask_predict
         self.prior: tuple[np.ndarray, np.ndarray] | None = None
         self.sset: SigmaSet | None = None
-        self.prior_record = self.post_record = (x, S)
+        self.prior_record = self.post_record = (self.x, self.S)
         self.last: Update | None = None
         self.H, self.shown_f = sigmas_h, sigmas_f
         self._first: np.ndarray | None = None  # the first set of (x, S), drawn ahead by the last update
-        self._propagated: np.ndarray | None = None
-        self._Q: np.ndarray | None = None
         self._buffers = Buffers()
 
     # the state and the pending step; not the buffers (scratch), nor the first set drawn ahead
@@ -855,7 +856,6 @@ class Engine:
         self.prior = self.prior_record = (mean, S)
         self.sset = sset
         self.shown_f = sset.sigmas
-        self._propagated, self._Q = (F, Q1_2) if keep else (None, Q1_2)
         self._first = None
         self.X = None
         self.phase = PRIOR
@@ -901,8 +901,7 @@ class Engine:
         return sset.sigmas
 
     def _keep(self, prior, sset) -> None:
-        if sset is not self.sset:  # drawn from the estimate alone: no propagated set belongs to it
-            self._propagated = self._Q = None
+        if sset is not self.sset:  # drawn from the estimate alone, by the current route
             self.step_route = self.route
         self.prior, self.sset = prior, sset
 
@@ -951,10 +950,7 @@ class Engine:
             update, X1 = self._posterior(route, sset, xp, Sp, H, z, observed, R1_2, UT, name, buffers)
         # commit
         buffers.commit()
-        if sset is not self.sset:  # drawn from the estimate alone: no propagated set belongs to it
-            self._propagated = self._Q = None
-            self.step_route = route
-        self.prior, self.sset = (xp, Sp), sset
+        self._keep((xp, Sp), sset)
         self.x, self.S = update.x, update.S
         self.post_record = (update.x, update.S)
         self.last = update
