@@ -9,8 +9,9 @@ in place as often as it assigns them (``ukf.P *= 10``, ``ukf.Q[2:4, 2:4] = ...``
   behind it, an array that no longer matches its record was edited, and is
   given to the attribute's validating setter, as an assignment would be (if
   that raises, nothing changes and the edit stays pending).
-- :class:`FactorSlot`: a covariance (``Q``, ``R`` of one filter) held as its
-  lower factor, the truth, and handed out as a matrix formed when read;
+- :class:`FactorSlot`: a covariance (``Q``, ``R`` of one filter; a ``P``
+  being assigned, validated and factored) held as its lower factor, the
+  truth, and handed out as a matrix formed when read;
   :func:`as_matrix` and :func:`as_lower_factor` validate what is assigned.
 - one filter's attributes in its ``__dict__``, as filterpy keeps them
   (filterpy's ``Saver`` deep-copies the ``__dict__``): data descriptors
@@ -306,10 +307,6 @@ class FactorSlot:
             return self._factor.shape[0]
         return self.dim if self.dim is not None else 0
 
-    def pending(self) -> bool:
-        """Whether the matrix handed out was edited in place since it matched the factor."""
-        return self._view is not None and self._view.edited()
-
     def factor(self) -> np.ndarray | None:
         """The current lower factor (None: zero covariance), after validating in-place edits.
 
@@ -353,8 +350,8 @@ class FactorSlot:
         The copy handed out by :meth:`matrix` has the shape assigned: a
         ``(dim, dim)`` matrix, or for dimension 1 also a 1-element vector
         ``(1,)`` (filterpy keeps what it is given, so ``R[0]`` is a number). A
-        scalar ``s`` is the matrix ``s * I``. When the filter installs a new
-        factor (:meth:`set_trusted_factor`) the matrix is formed ``(dim, dim)``.
+        scalar ``s`` is the matrix ``s * I``. After :meth:`set_factor` the
+        matrix is formed ``(dim, dim)``.
         """
         if value is None:
             if not self.semidefinite:
@@ -377,10 +374,6 @@ class FactorSlot:
         )
         if self.semidefinite and not np.any(S):
             S = None
-        self._factor, self._view, self._assigned = S, None, None
-
-    def set_trusted_factor(self, S: np.ndarray) -> None:
-        """Install a factor computed by the filter itself (no validation; not copied)."""
         self._factor, self._view, self._assigned = S, None, None
 
     def factor_or_zeros(self) -> np.ndarray:
