@@ -214,7 +214,7 @@ class Fleet:
         self._K, self._n, self._m = K, n, m
         self._dt = check_time_step(dt)
         self.hx, self.fx = hx, fx
-        self.points_fn = points
+        self._points = points
         self._family = as_family(points)
         self._generator = as_generator(scheme)
         self._plan = build_plan(self._family, self._generator, n, self._fx_noise, self._hx_noise)
@@ -259,6 +259,18 @@ class Fleet:
     def dim_z(self) -> int:
         """Measurement dimension."""
         return self._m
+
+    @property
+    def points_fn(self):
+        """The sigma-point family (or filterpy points object) of the first set, fixed at construction."""
+        return self._points
+
+    @points_fn.setter
+    def points_fn(self, points) -> None:
+        raise ParameterError(
+            f"a fleet's points are fixed when it is built (points_fn={points!r:.80}): build a Fleet with"
+            " them, or step its filters apart (fleet[k]) and Fleet.from_filters"
+        )
 
     @property
     def scheme(self):
@@ -869,8 +881,10 @@ class Fleet:
         copies: dict[int, np.ndarray] = {}
         d = {}
         for key, v in self.__dict__.items():
-            if isinstance(v, np.ndarray):
-                v = copies.setdefault(id(v), v.copy())
+            if isinstance(v, np.ndarray):  # an array two records share is copied once, and stays shared
+                if id(v) not in copies:
+                    copies[id(v)] = v.copy()
+                v = copies[id(v)]
             d[key] = v
         # the copy's own arrays handed out, pending edits included
         d["_handed"] = self._handed.detached()
@@ -895,6 +909,8 @@ class Fleet:
         return dict(self.__dict__)  # not the buffers
 
     def __setstate__(self, state: dict) -> None:
+        if "points_fn" in state:  # pickled when the points were a plain attribute
+            state = {("_points" if k == "points_fn" else k): v for k, v in state.items()}
         self.__dict__.update(state)
         self._buffers = Buffers()
         if isinstance(self._failure, np.ndarray):  # pickled before the reasons were kept as a dict

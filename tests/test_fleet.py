@@ -58,6 +58,7 @@ from squkf import (
     NotPositiveDefiniteError,
     ParameterError,
     ShapeError,
+    SimplexWeights,
     SquareRootUKF,
     SqukfError,
     SqukfValueError,
@@ -1241,3 +1242,15 @@ def test_batch_filter_takes_an_iterator_of_steps_and_reports_progress(capsys):
     assert "6/6" in capsys.readouterr().err
     with pytest.raises(ParameterError):
         copy.deepcopy(fleet).batch_filter(zs, progress="yes")
+
+
+def test_a_fleets_points_are_fixed_and_assigning_them_changes_nothing():
+    """A fleet's configuration is fixed at construction: a new points object is refused by name (it used to
+    be kept as an attribute while the step went on with the old points)."""
+    fleet, zs = _fleet_and_measurements(3, 1)
+    before = fleet_state(fleet)
+    with pytest.raises(ParameterError, match="points_fn"):
+        fleet.points_fn = SimplexWeights()
+    assert isinstance(fleet.points_fn, MerweScaledWeights)
+    assert_fleet_state(fleet, before)
+    assert fleet.ask_predict().shape == (3, 9, FLEET_N_X)  # Merwe's 2n + 1 points, as built
