@@ -17,8 +17,8 @@ Which route a call takes is decided once per key (the plan and the hooks fix
 the :class:`Route`; the second set's kind and ``UT`` given or not, its update
 route, kept by :meth:`Route.update_route`; the observed components, the factor
 of their ``R``, kept while they repeat), so a repeated key decides nothing.
-A kernel reports a status per filter; :func:`failure` turns one into squkf's
-exception, the one wording of both faces.
+A kernel reports a status per filter; :func:`squkf.statuses.failure` turns one
+into squkf's exception, the one wording of both faces.
 
 An :class:`Engine` computes into its :class:`Buffers`, arrays allocated once
 per shape, two sets used in turn: a call writes the set no committed record
@@ -34,26 +34,19 @@ was. Its phases
 from __future__ import annotations
 
 import copy
-import math
 from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
 
 from . import blas, kernels
-from .errors import (
-    CallSequenceError,
-    DowndateError,
-    GainError,
-    NonFiniteError,
-    PosteriorFactorError,
-    SqukfError,
-)
+from .errors import CallSequenceError, NonFiniteError, SqukfError
 from .generators import SigmaSet, sigma_points_from_factor
 from .linalg import all_finite
 from .measurement import Posterior, measurement_update
 from .plan import IDLE, PREDICTING, PRIOR, UPDATING, Hooks, Plan
 from .rows import RowForm
+from .statuses import failure, first_status, prior_failure, singular_allowed
 from .transform import transform_factor
 from .validate import check_hook_result, check_values, describe_nonfinite
 
@@ -65,15 +58,12 @@ __all__ = [
     "Engine",
     "Route",
     "Update",
-    "failure",
-    "prior_failure",
 ]
 
 
 _FLOAT64 = np.dtype(np.float64)
 
-# kernel status codes (squkf.kernels.phases)
-NOT_FINITE = 305
+# kernel status codes (squkf.kernels.phases; squkf.statuses words them)
 NOT_FINITE_IMAGES = 306
 
 
@@ -145,81 +135,6 @@ def _joint_route(sset: SigmaSet) -> _Joint:
 
 def _ro(a: np.ndarray) -> np.ndarray:
     return kernels.plan_array(a)
-
-
-def failure(code: int, form: RowForm | None = None, what: str = "update") -> SqukfError:
-    """The exception of a kernel's status ``code`` (not 0): the one wording of every route and face.
-
-    Parameters
-    ----------
-    code : int
-        From the transform kernel (``r + 1`` / ``-(r + 1)``: negative row ``r``'s downdate failed, or
-        found the factor singular; 305: the result is not finite) or an update kernel (g13ej's 301,
-        302, 303; 304 only where the posterior is not allowed to be singular).
-    form : RowForm, optional
-        The rows of the weights, for the negative weights' values.
-    what : {"prior", "update"}
-        Which phase.
-
-    Returns
-    -------
-    SqukfError
-    """
-    negative = "" if form is None else ", ".join(f"{w:.6g}" for w in form.weights[form.neg])
-    if what == "prior":
-        if code == NOT_FINITE:
-            return NonFiniteError("the predicted mean or factor is not finite")
-        k = abs(code) - 1
-        why = "the factor to downdate is singular" if code < 0 else "its downdate failed"
-        w = form.weights[k] if form is not None else math.nan
-        return DowndateError(f"weight {w:.6g} of row {k} is negative and {why}", errno=301)
-    if code == 304:
-        return PosteriorFactorError(
-            "the posterior factor lost rank to rounding (a zero on its diagonal from positive definite P"
-            " and R): the covariances' scales are too far apart for double precision",
-            errno=303,
-        )
-    if code == 301:
-        return DowndateError(
-            f"weight {negative} is negative and the innovation factor's downdate failed", 301
-        )
-    if code == 302:
-        return GainError("innovation factor is singular: cannot form the Kalman gain", errno=302)
-    if negative and code == 303:
-        return PosteriorFactorError(
-            f"the posterior factor could not be formed (downdate failed, or not finite; negative weight "
-            f"{negative})",
-            errno=303,
-        )
-    return PosteriorFactorError(
-        "the posterior mean or factor is not finite, or its downdate failed", errno=303
-    )
-
-
-def prior_failure(code: int, form: RowForm | None) -> SqukfError:
-    """:func:`failure` of a prediction's transform."""
-    return failure(code, form, "prior")
-
-
-def _singular_allowed(status: np.ndarray, S: np.ndarray, R1_2: np.ndarray) -> np.ndarray:
-    """The status with each 304 that is the right answer cleared.
-
-    A posterior factor with a zero on its diagonal from a positive definite prior factor ``S`` and
-    noise factor ``R1_2`` is rank lost to rounding (an error); from a singular one (an exactly measured
-    component) it is right.
-    """
-    definite = (np.diagonal(S, 0, -2, -1) != 0).all(axis=-1) & (np.diagonal(R1_2, 0, -2, -1) != 0).all(
-        axis=-1
-    )
-    return np.where((status == 304) & ~definite, 0, status)
-
-
-def first_status(status: np.ndarray) -> int:
-    """The first non-zero status of a block (0 if none)."""
-    if status.shape[0] == 1:
-        return int(status[0])
-    bad = np.flatnonzero(status)
-    return int(status[bad[0]]) if bad.size else 0
 
 
 class _ObservedR:
@@ -636,7 +551,7 @@ class Route:
         if whole is not None:
             status[~np.isfinite(whole).reshape(B, -1).all(axis=1)] = NOT_FINITE_IMAGES
         if np.count_nonzero(status):
-            status = _singular_allowed(status, S, Rs)
+            status = singular_allowed(status, S, Rs)
         update = Update(xo, So, y, Sy, L21, ll, ww, observed, _none_rejected(y.shape), None, m_all)
         return update, status, (X1 if draw else None)
 

@@ -40,10 +40,11 @@ from typing import NamedTuple, cast
 import numpy as np
 
 from . import kernels
-from .errors import DowndateError, GainError, PosteriorFactorError
+from .errors import GainError, PosteriorFactorError
 from .generators import SigmaSet
 from .linalg import all_finite, solve_lower, tria
 from .rows import RowForm, WeightRows, weight_rows
+from .statuses import failure, first_status, singular_allowed
 from .transform import deviations, factor_rows, transform_factor, weighted_mean
 from .validate import call_hook, check_hook_result
 
@@ -295,47 +296,16 @@ def _innovation(z: np.ndarray, z_pred: np.ndarray, residual_z: Callable | None) 
 def _raise_update_status(status: np.ndarray, form: RowForm, S: np.ndarray, R1_2: np.ndarray) -> None:
     """The exception for the first failed filter of an update kernel's ``status`` (nothing if none).
 
-    A kernel reports 304 for a posterior factor with a zero on its diagonal. From a positive
-    definite prior factor ``S`` and measurement noise ``R1_2`` the posterior is positive definite,
-    so the zero is rank lost to rounding: error 303. Otherwise (a singular prior, an exactly
-    measured component) it is the right answer.
+    A kernel reports 304 for a posterior factor with a zero on its diagonal: from a positive
+    definite prior factor ``S`` and measurement noise ``R1_2`` it is rank lost to rounding (an
+    error), otherwise (a singular prior, an exactly measured component) the right answer
+    (:func:`squkf.statuses.singular_allowed`).
     """
-    bad = status.ravel()
-    bad = bad[bad != 0]
-    if bad.size == 0:
+    if not status.any():
         return
-    if (bad == 304).any():
-        definite = (np.diagonal(S, 0, -2, -1) != 0).all(axis=-1) & (np.diagonal(R1_2, 0, -2, -1) != 0).all(
-            axis=-1
-        )
-        status = np.where((status == 304) & ~np.broadcast_to(definite, status.shape), 0, status)
-        bad = status.ravel()
-        bad = bad[bad != 0]
-        if bad.size == 0:
-            return
-        if int(bad[0]) == 304:
-            raise PosteriorFactorError(
-                "the posterior factor lost rank to rounding (a zero on its diagonal from positive definite P"
-                " and R): the covariances' scales are too far apart for double precision",
-                errno=303,
-            )
-    code = int(bad[0])
-    negative = ", ".join(f"{w:.6g}" for w in form.weights[form.neg])
-    if code == 301:
-        raise DowndateError(
-            f"weight {negative} is negative and the innovation factor's downdate failed", errno=301
-        )
-    if code == 302:
-        raise GainError("innovation factor is singular: cannot form the Kalman gain", errno=302)
-    if form.neg.size and code == 303:
-        raise PosteriorFactorError(
-            f"the posterior factor could not be formed (downdate failed, or not finite; negative weight "
-            f"{negative})",
-            errno=303,
-        )
-    raise PosteriorFactorError(
-        "the posterior mean or factor is not finite, or its downdate failed", errno=303
-    )
+    code = first_status(singular_allowed(status, S, R1_2))
+    if code:
+        raise failure(code, form)
 
 
 def _per_filter(fn: Callable, a: np.ndarray, b: np.ndarray, hook: str) -> np.ndarray:

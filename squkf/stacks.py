@@ -13,7 +13,7 @@ numbers are the same, bit for bit, whatever chunk or thread it is in.
 
 A filter's numerical failure is its own: the kernels report a status per
 filter, and a filter that fails (or whose images are not finite) is flagged
-with the reason a single filter would give (:func:`squkf.engine.failure`),
+with the reason a single filter would give (:func:`squkf.statuses.failure`),
 keeps its state, and the others go on. The routes through the hooks or a
 ``UT`` raise instead; their chunk is then run again a filter at a time
 (:func:`run_isolated`) to find the failing ones.
@@ -31,9 +31,10 @@ import numpy as np
 
 from . import kernels
 from .boundary.checks import finite_images, stacked_shape
-from .engine import Buffers, Route, Scratch, failure
+from .engine import Buffers, Route, Scratch
 from .errors import NonFiniteError, NotPositiveDefiniteError, SqukfError
 from .generators import SigmaSet
+from .statuses import failure
 from .validate import describe_nonfinite
 
 __all__ = [
@@ -366,7 +367,7 @@ def _block(fn: Callable, idx: np.ndarray, rows: slice | None, fails: dict[int, s
 
 def _flag(status: np.ndarray, on: np.ndarray, found: dict[int, str], form, what: str, images, name: str):
     """The filters ``on`` whose ``status`` is a success; the others added to ``found`` with their reason,
-    in a single filter's words (:func:`squkf.engine.failure`; images that are not finite described by
+    in a single filter's words (:func:`squkf.statuses.failure`; images that are not finite described by
     their own rows).
 
     Parameters

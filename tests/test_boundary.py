@@ -206,7 +206,8 @@ LAYERS = {
     "kernels": ["squkf.kernels", "squkf.kernels.phases", "squkf.kernels.cache"],
     "plug-ins and support": [
         "squkf.angles", "squkf.blas", "squkf.rows", "squkf.weights", "squkf.generators", "squkf.gating",
-        "squkf.noise", "squkf.validate", "squkf.linalg", "squkf.transform", "squkf.measurement",
+        "squkf.noise", "squkf.validate", "squkf.linalg", "squkf.transform", "squkf.statuses",
+        "squkf.measurement",
     ],
     "the plan": ["squkf.plan"],
     "the boundary": [
