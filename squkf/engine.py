@@ -286,7 +286,7 @@ class Route:
 
     __slots__ = (
         "plan", "hooks", "gate", "single", "plain_x", "plain_add", "no_set", "_updates", "_observed_R",
-        "_zeros", "_noise",
+        "_zeros", "_noise", "_prior_draws",
     )  # fmt: skip
 
     def __init__(self, plan: Plan, hooks: Hooks, gate, single: bool):
@@ -300,6 +300,7 @@ class Route:
             int, np.ndarray
         ] = {}  # a shared row of zeros per size (a reference the kernels read)
         self._noise: dict[int, tuple] = {}  # per noise factor given: (that array, as the kernels take it)
+        self._prior_draws: dict[tuple[bool, bool], tuple] = {}  # (draw, Q given) -> _prior_draw's
 
     def __reduce__(self):
         return (Route, (self.plan, self.hooks, self.gate, self.single))
@@ -347,6 +348,25 @@ class Route:
         kernels.KERNELS.points(x, S, plan.xi1, plan.gamma1, X, self.no_set)
         return X
 
+    def _prior_draw(self, draw: bool, with_Q: bool) -> tuple:
+        """How a prediction draws its second set with the prior, decided once per (``draw``, Q given).
+
+        ``(fused, code, xi2, gamma2, N2, with_offsets)``: the plan's fused draw (None: the kernel draws
+        none) and the transform kernel's arguments for it.
+        """
+        plan = self.plan
+        n, N = plan.n, plan.xi1.shape[0]
+        fused = plan.fused_draw if (draw and self.plain_add) else None
+        if fused is not None and fused.augmented and not with_Q:
+            fused = None  # the augmented set without noise is the propagated set itself
+        if fused is None:
+            drawn: tuple = (None, 0, kernels.no_points(n), 0.0, 0, False)
+        else:
+            N2 = fused.xi.shape[0] + (N if fused.augmented else 0)
+            drawn = (fused, 2 if fused.augmented else 1, fused.xi, fused.gamma, N2, not fused.augmented)
+        self._prior_draws[(draw, with_Q)] = drawn
+        return drawn
+
     def prior(
         self,
         F: np.ndarray,
@@ -376,14 +396,9 @@ class Route:
         plan = self.plan
         B, N, n = F.shape
         if UT is None and self.plain_x:
-            fused = plan.fused_draw if (draw and self.plain_add) else None
-            if fused is not None and fused.augmented and Q1_2 is None:
-                fused = None  # the augmented set without noise is the propagated set itself
-            if fused is None:
-                code, xi2, gamma2, N2, with_offsets = 0, kernels.no_points(n), 0.0, 0, False
-            else:
-                code, xi2, gamma2 = (2 if fused.augmented else 1), fused.xi, fused.gamma
-                N2, with_offsets = fused.xi.shape[0] + (N if fused.augmented else 0), not fused.augmented
+            key = (draw, Q1_2 is not None)
+            drawn = self._prior_draws.get(key) or self._prior_draw(*key)
+            fused, code, xi2, gamma2, N2, with_offsets = drawn
             if out is not None:
                 mean, S, status, X2, D2 = out
             elif buffers is None:
@@ -865,7 +880,9 @@ class Engine:
             update, X1 = self._posterior(route, sset, xp, Sp, H, z, observed, R1_2, UT, name, buffers)
         # commit
         buffers.commit()
-        self._keep((xp, Sp), sset)
+        if sset is not self.sset:  # (as _keep, written out: one call fewer on every update)
+            self.step_route = route
+        self.prior, self.sset = (xp, Sp), sset
         self.x, self.S = update.x, update.S
         self.post_record = (update.x, update.S)
         self.last = update

@@ -222,16 +222,23 @@ def _update_records(K: int, m: int) -> tuple:
     return np.empty((K, m)), np.empty(K), np.empty(K), np.empty((K, m), dtype=bool)
 
 
-def _second_size(plan) -> int:
-    """Points in a second set, as far as the plan knows them (a user's generator: as many as the first)."""
+def _second_size(plan, Q1_2) -> int:
+    """Points in a second set, as far as the plan knows them (a user's generator: as many as the first).
+
+    The augmented set is the propagated points and the noise's; with no process noise (``Q1_2`` None)
+    it is the propagated points alone.
+    """
     fused, N = plan.fused_draw, plan.xi1.shape[0]
-    if fused is None:
+    if fused is None or (fused.augmented and Q1_2 is None):
         return N
     return fused.xi.shape[0] + (N if fused.augmented else 0)
 
 
 def _as_kernels_take(x: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The estimates as the kernels take them (float64, C-contiguous, writeable): so are their chunks."""
+    """The estimates as the kernels take them (float64, C-contiguous, writeable): so are their chunks.
+
+    :func:`squkf.kernels.kernel_array` of each, with the usual case (both already so) in one call.
+    """
     fx, fS = x.flags, S.flags
     if fx.c_contiguous and fx.writeable and fS.c_contiguous and fS.writeable and x.dtype == S.dtype == float:
         return x, S
@@ -625,7 +632,7 @@ def update(
             record[rows] = rows_record
         return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
 
-    _map_chunks(one, K, size, fails, 8 * _second_size(route.plan) * max(n, m))
+    _map_chunks(one, K, size, fails, 8 * _second_size(route.plan, Q1_2) * max(n, m))
     return out
 
 

@@ -1254,3 +1254,18 @@ def test_a_fleets_points_are_fixed_and_assigning_them_changes_nothing():
     assert isinstance(fleet.points_fn, MerweScaledWeights)
     assert_fleet_state(fleet, before)
     assert fleet.ask_predict().shape == (3, 9, FLEET_N_X)  # Merwe's 2n + 1 points, as built
+
+
+@pytest.mark.parametrize(("scheme", "with_Q", "points"), [
+    ("redrawn", True, 9),
+    ("augmented", True, 9 + 8),  # the propagated points and Q's
+    ("augmented", False, 9),  # no process noise: the propagated points alone
+])  # fmt: skip
+def test_a_chunks_size_counts_the_second_sets_points(scheme, with_Q, points):
+    """The update's chunk is sized on its second set's points as the step draws it."""
+    from squkf.generators import as_generator
+    from squkf.plan import build_plan
+    from squkf.weights import as_family
+
+    plan = build_plan(as_family(MerweScaledWeights()), as_generator(scheme), FLEET_N_X)
+    assert squkf.stacks._second_size(plan, np.eye(FLEET_N_X) if with_Q else None) == points
