@@ -43,7 +43,7 @@ from . import blas, kernels
 from .errors import CallSequenceError, NonFiniteError, SqukfError
 from .generators import SigmaSet, sigma_points_from_factor
 from .linalg import all_finite
-from .measurement import Posterior, measurement_update
+from .measurement import Posterior, measurement_update, observed_noise_factor
 from .plan import IDLE, PREDICTING, PRIOR, UPDATING, Hooks, Plan
 from .rows import RowForm
 from .statuses import failure, first_status, prior_failure, singular_allowed
@@ -154,12 +154,7 @@ class _ObservedR:
         key = observed.tobytes()
         R, kept_key, factor = self.kept
         if R is not R1_2 or kept_key != key:
-            rows = np.ascontiguousarray(np.swapaxes(R1_2[..., observed, :], -1, -2))
-            A = rows[None] if rows.ndim == 2 else rows
-            mo = A.shape[-1]
-            S = np.empty((A.shape[0], mo, mo))
-            kernels.KERNELS.tria(A, S)
-            factor = S[0] if rows.ndim == 2 else S
+            factor = observed_noise_factor(R1_2, observed)
             self.kept = (R1_2, key, factor)
         return factor
 
