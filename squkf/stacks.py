@@ -34,6 +34,7 @@ from .boundary.checks import finite_images, stacked_shape
 from .engine import Buffers, Route, Scratch
 from .errors import NonFiniteError, NotPositiveDefiniteError, SqukfError
 from .generators import SigmaSet
+from .rows import RowForm
 from .statuses import failure
 from .validate import describe_nonfinite
 
@@ -620,10 +621,11 @@ def update(
         obs = ~np.isnan(zr)
         on = active[rows] & obs.any(axis=1)
         Rr = R1_2 if R1_2.ndim == 2 else R1_2[rows]
-        plain = route.update_route(s, None) is not None
-        if plain and route.gate is None and obs.all():  # the usual case: the kernel writes the step's arrays
+        joint = route.update_route(s, None)
+        plain = joint is not None
+        if joint is not None and route.gate is None and obs.all():  # the usual case: straight into the step's
             part = out if rows.stop - rows.start == K else [a[rows] for a in out]
-            _whole_chunk(route, s, xs, Ss, H, zr, Rr, on, found, part, scratch)
+            _whole_chunk(route, joint.form, s, xs, Ss, H, zr, Rr, on, found, part, scratch)
             return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
         if not plain:  # the hooks raise: non-finite images flagged first
             on = on & finite_images(H, "hx values", on, found)
@@ -654,17 +656,19 @@ def _rows_of_z(k: int, m: int) -> tuple:
     return (np.empty((k, m)),)
 
 
-def _whole_chunk(route: Route, sset, x0, S0, H, z, R1_2, on, found, out, scratch: Scratch) -> None:
+def _whole_chunk(
+    route: Route, form: RowForm, sset, x0, S0, H, z, R1_2, on, found, out, scratch: Scratch
+) -> None:
     """A chunk's update with every component measured and no gate, the joint kernel writing the step's
     arrays ``out`` (``x, S, y, loglik, nis, rejected`` rows) directly; a failing or inactive filter keeps its
-    prior, with no innovation and no likelihood."""
+    prior, with no innovation and no likelihood. ``form``: the joint route's rows (a failure's words)."""
     x, S, y, ll, nis, rejected = out
     k, m = z.shape
     n = x0.shape[1]
     zp, w, Sy, L21, dx, status = scratch.take(_chunk_update, k, n, m)
     kernel_out = (zp, y, w, Sy, L21, dx, x, S, ll, nis, status, route.no_set)
     _, status, _ = route.posterior(sset, x0, S0, H, z, None, R1_2, None, False, out=kernel_out)
-    good = _flag(status, on, found, route.form_of(sset, None), "update", H, "hx values")
+    good = _flag(status, on, found, form, "update", H, "hx values")
     rejected[...] = False
     if not good.all():
         bad = ~good
