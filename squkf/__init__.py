@@ -17,6 +17,7 @@ from .errors import (
     ShapeError,
     SqukfError,
     SqukfValueError,
+    UnsetError,
     UnsupportedEnvironmentError,
 )
 from .first_use import Precompiled, precompile
@@ -69,5 +70,6 @@ __all__ = [
     "PosteriorFactorError",
     "CallSequenceError",
     "CommunicationError",
+    "UnsetError",
     "UnsupportedEnvironmentError",
 ]

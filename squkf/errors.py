@@ -28,6 +28,7 @@ __all__ = [
     "GainError",
     "PosteriorFactorError",
     "CallSequenceError",
+    "UnsetError",
     "CommunicationError",
     "FleetStepError",
     "UnsupportedEnvironmentError",
@@ -117,6 +118,11 @@ class PosteriorFactorError(NotPositiveDefiniteError):
 
 class CallSequenceError(SqukfError, RuntimeError):
     """The ask/tell (or reverse-communication) calls came in an order that is not allowed."""
+
+
+class UnsetError(CallSequenceError):
+    """A step met ``x`` or ``P`` not set yet: a placeholder (``None`` or all NaN) a program assigned before a
+    track starts. Assign the initial value first; nothing was changed."""
 
 
 class CommunicationError(CallSequenceError):

@@ -212,7 +212,7 @@ class Fleet:
         self._qd, self._rd = self._fx_noise or n, self._hx_noise or m  # the dimensions of Q and R
         self._handed = HandOut()  # x, P, Q, R: the arrays handed out, for edits in place
         self._K, self._n, self._m = K, n, m
-        self._dt = check_time_step(dt)
+        self._dt = None if dt is None else check_time_step(dt)  # None: every predict passes its own
         self.hx, self.fx = hx, fx
         self._points = points
         self._family = as_family(points)
@@ -236,6 +236,9 @@ class Fleet:
         self._buffers = Buffers()  # the step's (K, ...) results, used in turn
         self._failed = np.zeros(K, dtype=bool)
         self._failure: dict[int, str] = {}  # filter -> why it is flagged (few: not a (K,) array)
+        # filters whose x or P is a placeholder (an all-NaN row): a step flags them (_unset_fails)
+        self._unset_x = np.zeros(K, dtype=bool)
+        self._unset_P = np.zeros(K, dtype=bool)
         self._x_prior, self._x_post, self._S_prior, self._S_post = self._x, self._x, self._S, self._S
         self._y = np.zeros((K, m))
         self._loglik = np.zeros(K)
@@ -326,7 +329,7 @@ class Fleet:
 
     @x.setter
     def x(self, value):
-        self._x = checks.per_filter(value, "x", self._K, (self._n,))
+        self._x, self._unset_x = checks.per_filter(value, "x", self._K, (self._n,), placeholders=True)
         self._handed.drop("x")  # the array handed out is history
         self._pending = _IDLE_STEP
 
@@ -339,6 +342,7 @@ class Fleet:
     @P1_2.setter
     def P1_2(self, value):
         self._S = lower_factors(value, "P1_2", self._n, self._K)
+        self._unset_P = np.zeros(self._K, dtype=bool)
         self._handed.drop("P")
         self._pending = _IDLE_STEP
 
@@ -349,7 +353,7 @@ class Fleet:
 
     @P.setter
     def P(self, value):
-        self._S = covariance_factors(value, "P", self._n, self._K)
+        self._S, self._unset_P = covariance_factors(value, "P", self._n, self._K, placeholders=True)
         self._handed.drop("P")
         self._pending = _IDLE_STEP
 
@@ -485,6 +489,12 @@ class Fleet:
         idx = np.flatnonzero(self._failed) if filters is None else np.arange(self._K)[filters]
         idx = np.atleast_1d(idx)
         self._x, self._S = reset_rows(x, P, idx, self._x, self._S)
+        if x is not None:
+            self._unset_x = self._unset_x.copy()
+            self._unset_x[idx] = False
+        if P is not None:
+            self._unset_P = self._unset_P.copy()
+            self._unset_P[idx] = False
         self._handed.drop("x", "P")
         self._failed[idx] = False
         self._failure = {k: why for k, why in self._failure.items() if self._failed[k]}
@@ -627,8 +637,19 @@ class Fleet:
             return p
         return _Pending(PRIOR, None, (self._x, self._S))
 
+    def _unset_fails(self) -> dict[int, str]:
+        """The filters a step flags for an ``x`` or ``P`` not set (an all-NaN row), with the reason."""
+        unset = self._unset_x | self._unset_P
+        if not unset.any():
+            return {}
+        fails = {}
+        for k in np.flatnonzero(unset & ~self._failed).tolist():
+            names = " and ".join(name for name, u in (("x", self._unset_x), ("P", self._unset_P)) if u[k])
+            fails[k] = f"{names} of filter {k} was never set (a placeholder, all NaN): assign it, reset({k})"
+        return fails
+
     def _predict(self, images: Callable, first: np.ndarray | None) -> None:
-        fails: dict[int, str] = {}
+        fails = self._unset_fails()
         Q = None if self._plan.w_xi is not None else self._Q1_2  # noise entering fx is in the points already
         buffers = self._buffers
         buffers.abandon()
@@ -638,7 +659,7 @@ class Fleet:
             self._x,
             self._S,
             Q,
-            ~self._failed,
+            ~self._failed if not fails else ~self._failed & ~self._unset_x & ~self._unset_P,
             images,
             fails,
             first,
@@ -668,8 +689,10 @@ class Fleet:
             self._failure[int(k)] = why
 
     def _update(self, pending: _Pending, images: Callable, z: np.ndarray, R1_2) -> None:
-        m, fails = self._m, dict[int, str]()
+        m, fails = self._m, self._unset_fails()
         active = ~self._failed  # (and, chunk by chunk, a measurement)
+        if fails:
+            active &= ~self._unset_x & ~self._unset_P
         if self._plan.v_xi is not None:  # noise entering hx is in the points: the update adds none
             R1_2 = np.zeros((m, m))
         x, S = pending.prior  # type: ignore[misc]
@@ -849,6 +872,7 @@ class Fleet:
         new._R1_2 = rows_of(self._R1_2, idx, 2)  # type: ignore[assignment]
         new._handed = HandOut()  # the arrays handed out are this fleet's
         new._failed = self._failed[idx]
+        new._unset_x, new._unset_P = self._unset_x[idx], self._unset_P[idx]
         new._failure = {i: self._failure[k] for i, k in enumerate(idx.tolist()) if k in self._failure}
         new._pending = _IDLE_STEP
         new._x_prior, new._x_post = self._x_prior[idx], self._x_post[idx]
@@ -911,6 +935,8 @@ class Fleet:
     def __setstate__(self, state: dict) -> None:
         if "points_fn" in state:  # pickled when the points were a plain attribute
             state = {("_points" if k == "points_fn" else k): v for k, v in state.items()}
+        state.setdefault("_unset_x", np.zeros(state["_K"], dtype=bool))  # pickled before placeholders
+        state.setdefault("_unset_P", np.zeros(state["_K"], dtype=bool))
         self.__dict__.update(state)
         self._buffers = Buffers()
         if isinstance(self._failure, np.ndarray):  # pickled before the reasons were kept as a dict

@@ -18,9 +18,9 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from .errors import ParameterError
-from .generators import FusedDraw, Redrawn, UnitSet, noise_family, prepare_second_set
+from .generators import Augmented, FusedDraw, Propagated, Redrawn, UnitSet, noise_family, prepare_second_set
 from .kernels import CENTRAL, MEAN, plan_array
-from .weights import FilterpyPoints
+from .weights import CubatureWeights, FilterpyPoints, JulierWeights, MerweScaledWeights, SimplexWeights
 
 __all__ = ["IDLE", "PREDICTING", "PRIOR", "UPDATING", "Plan", "Hooks", "build_plan", "check_built_for"]
 
@@ -169,6 +169,68 @@ def build_plan(family, generator, n: int, fx_noise: int = 0, hx_noise: int = 0) 
     check_built_for(family, "points", n, fx_noise, hx_noise if serves_second else None)
     if own is not None:
         check_built_for(own, "Redrawn(weights=...)", n, None, hx_noise)
+    key = _prepared_key(family, generator, n, fx_noise, hx_noise)
+    prepared = _PREPARED.get(key) if key is not None else None
+    if prepared is None:
+        prepared = _prepare(family, generator, n, fx_noise, hx_noise)
+        if key is not None:
+            if len(_PREPARED) >= _PREPARED_MAX:
+                _PREPARED.clear()
+            _PREPARED[key] = prepared
+    return Plan(n, family, generator, *prepared)
+
+
+#: The sets prepared for a configuration, by its value (:func:`_prepared_key`): a program that builds a
+#: filter per track or per request prepares them once (the unit points, weights and their rows).
+_PREPARED: dict[tuple, tuple] = {}
+_PREPARED_MAX = 64
+
+
+def _prepared_key(family, generator, n: int, fx_noise: int, hx_noise: int) -> tuple | None:
+    """A key equal for two configurations that prepare the same sets, or None where that is not known
+    (a user's family or generator: prepared each time)."""
+    fam = _value_key(family)
+    if fam is None:
+        return None
+    if type(generator) in (Redrawn, Augmented):
+        own = generator.weights
+        gen: tuple | None = (type(generator), None if own is None else _value_key(own))
+        if own is not None and gen[1] is None:  # type: ignore[index]
+            return None
+    elif type(generator) is Propagated:
+        gen = (Propagated,)
+    else:
+        return None
+    return (fam, gen, n, fx_noise, hx_noise)
+
+
+_NATIVE = (MerweScaledWeights, JulierWeights, SimplexWeights, CubatureWeights)
+
+
+def _value_key(family) -> tuple | None:
+    """A squkf family by its parameters, a filterpy points object by its class, parameters and weights."""
+    if isinstance(family, FilterpyPoints):
+        p = family.points
+        if not type(p).__module__.startswith("filterpy."):  # (a look-alike's points may depend on more)
+            return None
+        numbers_ = tuple(
+            (k, v) for k, v in sorted(vars(p).items()) if isinstance(v, (int, float, str, np.generic))
+        )
+        Wm, Wc = np.asarray(p.Wm), np.asarray(p.Wc)
+        if Wm.dtype.kind != "f" or Wc.dtype.kind != "f":
+            return None
+        return (FilterpyPoints, type(p), family.n, numbers_, Wm.tobytes(), Wc.tobytes())
+    if type(family) in _NATIVE:
+        try:
+            hash(family)
+        except TypeError:
+            return None
+        return (type(family), family)
+    return None
+
+
+def _prepare(family, generator, n: int, fx_noise: int, hx_noise: int) -> tuple:
+    """The first set and the second set's drawer (and the noise parts of their unit points)."""
     w_xi = v_xi = None
     with _serving(n, "fx_noise", fx_noise):
         if fx_noise:
@@ -180,7 +242,7 @@ def build_plan(family, generator, n: int, fx_noise: int = 0, hx_noise: int = 0) 
             second, v_xi = generator.prepare_augmented(family, n, hx_noise)
         else:
             second = prepare_second_set(generator, noise_family(family, n, 0), n)
-    return Plan(n, family, generator, first, second, w_xi, v_xi)
+    return first, second, w_xi, v_xi
 
 
 def check_built_for(

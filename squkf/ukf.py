@@ -40,7 +40,7 @@ from .boundary.covariance import (
 from .boundary.loop import Transaction
 from .boundary.records import embed, innovation_inverse
 from .engine import Engine, Route, Update
-from .errors import NonFiniteError
+from .errors import NonFiniteError, ParameterError, ShapeError, UnsetError
 from .gating import Gate, as_gate
 from .generators import sigma_points_from_factor
 from .measurement import gain_from_factors
@@ -48,10 +48,23 @@ from .noise import call_model, handed_points, noise_points
 from .plan import Plan, build_plan
 from .transform import cross_covariance
 from .validate import as_float_array, check_time_step, check_values
+from .weights import WrittenWeights
 
 __all__ = ["SquareRootUKF"]
 
 _LOG_TINY = math.log(sys.float_info.min)
+_REAL = checks.REAL
+
+# What lives outside the __dict__ (see the class): the engine and the gain formed from its last update,
+# the configuration, the noise slots, and what was handed out or written: the arrays ``x``, ``P`` handed
+# out (``_x``, ``_Ph``; None: none), the records written (``_written``), the sigma points handed out
+# (``_sigmas``).
+_SLOTS = (
+    "_engine", "_gain_of", "_unformed", "_points", "_family", "_generator", "_plan", "_gate", "_fx_noise",
+    "_hx_noise", "_noise_cache", "_Q", "_R", "_x", "_Ph", "_unset", "_written", "_sigmas",
+)  # fmt: skip
+# the slots a copy or a pickle carries (the others are formed again: _unformed, and _gain_of from _engine)
+_CARRIED = _SLOTS[3:]
 
 # what repr shows, in order
 _SHOWN = (
@@ -60,6 +73,53 @@ _SHOWN = (
     " x_mean z_mean"
 ).split()
 _LABELS = {"log_likelihood": "log-likelihood"}
+
+
+def _written_record(stamp: str, ndim: int) -> Callable[[Callable], property]:
+    """A record filterpy lets a program write, as a ``property`` (a ``Saver`` collects it).
+
+    The getter forms the record; an assignment (validated, a private copy) reads back, as fresh copies,
+    until the step that makes the record again: the engine's attribute ``stamp`` (``prior_record``,
+    ``post_record``, ``last``) is replaced by that step and nothing else.
+    """
+
+    def make(form: Callable) -> property:
+        name = form.__name__
+
+        def get(self):
+            held = self._written.get(name)
+            if held is not None and held[0] is getattr(self._engine, stamp):
+                return held[1].copy()
+            return form(self)
+
+        def set_(self, value) -> None:
+            self._written[name] = (getattr(self._engine, stamp), checks.written_record(value, name, ndim))
+
+        return property(get, set_, doc=form.__doc__)
+
+    return make
+
+
+#: the engine's attribute each written record or set handed out is current with (see _written_record)
+_STAMPS = {
+    "x_prior": "prior_record", "P_prior": "prior_record", "x_post": "post_record", "P_post": "post_record",
+    "y": "last", "S": "last", "SI": "last", "sigmas_f": "shown_f", "sigmas_h": "H",
+}  # fmt: skip
+
+
+def _same(value):
+    return value
+
+
+def _restamped(held: dict, old: Engine, new: Engine, copy_value: Callable) -> dict:
+    """Records written (or sets handed out) of a filter on engine ``old``, for its copy on engine ``new``:
+    those still current, each with the copy's stamp and its value through ``copy_value``."""
+    out = {}
+    for name, (stamp, value, *rest) in held.items():
+        attr = _STAMPS[name]
+        if stamp is getattr(old, attr):
+            out[name] = (getattr(new, attr), copy_value(value), *rest)
+    return out
 
 
 class SquareRootUKF:
@@ -169,25 +229,35 @@ class SquareRootUKF:
     [6.0168 0.9937]
     """
 
-    # the engine and the gain formed from its last update live in slots, not in the __dict__ that a
-    # filterpy Saver copies at each step
-    __slots__ = ("_engine", "_gain_of", "_unformed", "__dict__", "__weakref__")
+    # The engine, the configuration, the noise slots and the arrays handed out live in slots: the
+    # __dict__ (which a filterpy Saver deep-copies at each step, and a deepcopy copies) holds
+    # filterpy's own keys alone.
+    __slots__ = _SLOTS + ("__dict__", "__weakref__")
 
-    # kept in the __dict__ (filterpy's layout), set in __init__
-    _dim_x: int
-    _dim_z: int
-    _dt: float
-    _num_sigmas: int
-    _fx_noise: int
-    _hx_noise: int
+    _engine: Engine
+    _gain_of: tuple
+    _unformed: tuple
     _points: object
     _family: object
     _generator: object
     _plan: Plan
     _gate: Gate | None
+    _fx_noise: int
+    _hx_noise: int
     _noise_cache: dict
     _Q: FactorSlot
     _R: FactorSlot
+    _x: Handed | None
+    _Ph: Handed | None
+    _unset: set
+    _written: dict
+    _sigmas: dict
+
+    # kept in the __dict__ (filterpy's layout), set in __init__
+    _dim_x: int
+    _dim_z: int
+    _dt: float | None
+    _num_sigmas: int
     hx: Callable
     fx: Callable
     vectorized: bool
@@ -225,15 +295,20 @@ class SquareRootUKF:
     ):
         n, m = checks.check_sizes(dim_x=dim_x, dim_z=dim_z)
         fx_noise_, hx_noise_ = checks.model_noise(fx, hx, fx_noise, hx_noise)
-        dt_ = check_time_step(dt)
+        dt_ = None if dt is None else check_time_step(dt)  # None: every predict passes its own
         family, num = checks.sigma_family(points, n, fx_noise_)
         generator = checks.second_set(scheme, n, family, hx_noise_)
         plan = build_plan(family, generator, n, fx_noise_, hx_noise_)
+        gate_ = as_gate(gate)
         d = self.__dict__
-        d.update(_dim_x=n, _dim_z=m, _dt=dt_, _num_sigmas=num, _fx_noise=fx_noise_, _hx_noise=hx_noise_)
-        d.update(_points=points, _family=family, _generator=generator, _plan=plan, _gate=as_gate(gate))
-        d.update(_noise_cache={}, _x=None)
-        self._gain_of: tuple = (None, None)  # (the update, its gain) once formed
+        d.update(_dim_x=n, _dim_z=m, _dt=dt_, _num_sigmas=num)
+        self._fx_noise, self._hx_noise = fx_noise_, hx_noise_
+        self._points, self._family, self._generator = points, family, generator
+        self._plan, self._gate = plan, gate_
+        self._noise_cache = {}
+        self._x = self._Ph = None
+        self._unset, self._written, self._sigmas = set(), {}, {}
+        self._gain_of = (None, None)  # (the update, its gain) once formed
         self.hx = hx
         self.fx = fx
         self.msqrt = sqrt_fn
@@ -244,8 +319,8 @@ class SquareRootUKF:
         self.vectorized = bool(vectorized)
         self.inv = np.linalg.inv
         # P, Q (the noise's own dimension when it enters fx), R; x = 0; the records of no step yet
-        initial(d, m, fx_noise_ or n, hx_noise_ or m)
-        route = Route(plan, hooks_of(d), d["_gate"], single=True)
+        initial(self, m, fx_noise_ or n, hx_noise_ or m)
+        route = Route(plan, hooks_of(d), gate_, single=True)
         self._engine = Engine(
             route, np.zeros((1, n)), np.eye(n)[None], np.zeros((1, num, n)), np.zeros((1, num, m))
         )
@@ -260,10 +335,10 @@ class SquareRootUKF:
 
     @points_fn.setter
     def points_fn(self, points):
-        d = self.__dict__
         family, num = checks.sigma_family(points, self._dim_x, self._fx_noise)
         plan = build_plan(family, self._generator, self._dim_x, self._fx_noise, self._hx_noise)
-        d.update(_points=points, _family=family, _num_sigmas=num, _plan=plan)
+        self._points, self._family, self._plan = points, family, plan
+        self.__dict__["_num_sigmas"] = num
         self._configured()
 
     @property
@@ -275,7 +350,7 @@ class SquareRootUKF:
     def scheme(self, value):
         gen = checks.second_set(value, self._dim_x, self._family, self._hx_noise)
         plan = build_plan(self._family, gen, self._dim_x, self._fx_noise, self._hx_noise)
-        self.__dict__.update(_generator=gen, _plan=plan)
+        self._generator, self._plan = gen, plan
         self._configured()
 
     @property
@@ -285,7 +360,7 @@ class SquareRootUKF:
 
     @gate.setter
     def gate(self, value) -> None:
-        self.__dict__["_gate"] = as_gate(value)
+        self._gate = as_gate(value)
         self._configured()
 
     @property
@@ -310,21 +385,57 @@ class SquareRootUKF:
 
     @property
     def Wm(self) -> np.ndarray:
-        """Mean weights of the first sigma-point set, shape ``(N,)`` (a copy)."""
+        """Mean weights of the first sigma-point set, shape ``(N,)`` (a copy).
+
+        Writable, as filterpy's: the weights written are used by every later step (the family's unit
+        points kept), or refused naming ``points`` where they cannot serve (:ref:`promise-records`).
+        """
         return self._plan.first.rows.Wm.copy()
+
+    @Wm.setter
+    def Wm(self, value) -> None:
+        self._write_weights(value, self._plan.first.rows.Wc)
 
     @property
     def Wc(self) -> np.ndarray:
-        """Covariance weights of the first sigma-point set, shape ``(N,)`` (a copy)."""
+        """Covariance weights of the first sigma-point set, shape ``(N,)`` (a copy; writable, as ``Wm``)."""
         return self._plan.first.rows.Wc.copy()
+
+    @Wc.setter
+    def Wc(self, value) -> None:
+        self._write_weights(self._plan.first.rows.Wm, value)
+
+    def _write_weights(self, Wm, Wc) -> None:
+        """New weights of the first set (and of a redrawn second set that has none of its own)."""
+        first = self._plan.first.rows
+        N = first.Wm.shape[0]
+        Wm, Wc = (checks.written_record(w, name, 1) for w, name in ((Wm, "Wm"), (Wc, "Wc")))
+        for w, name in ((Wm, "Wm"), (Wc, "Wc")):
+            if w.shape != (N,):
+                raise ShapeError(f"{name} has shape {w.shape}, expected ({N},): one weight per sigma point")
+            if not np.all(np.isfinite(w)):
+                raise NonFiniteError(f"{name} contains NaN or inf: {w!r}")
+        if np.array_equal(Wm, first.Wm) and np.array_equal(Wc, first.Wc):
+            return  # (a program writing back the weights it read)
+        family = self._family
+        base = family.base if isinstance(family, WrittenWeights) else family
+        written = WrittenWeights(base, self._dim_x, Wm, Wc)
+        try:
+            plan = build_plan(written, self._generator, self._dim_x, self._fx_noise, self._hx_noise)
+        except ParameterError as exc:
+            raise ParameterError(
+                f"points={self._points!r} with the weights written as Wm and Wc cannot serve this filter"
+                f" ({exc}); give points= a family with those weights"
+            ) from None
+        self._family, self._plan = written, plan
+        self._configured()
 
     def _configured(self) -> None:
         """The plan, hooks or gate changed: the engine's routes are decided again."""
-        d = self.__dict__
-        self._engine.configure(Route(d["_plan"], hooks_of(d), d["_gate"], single=True))
+        self._engine.configure(Route(self._plan, hooks_of(self.__dict__), self._gate, single=True))
 
     def _hooks_assigned(self) -> None:
-        if "_plan" in self.__dict__:  # (not while __init__ sets the hooks)
+        if "_dim_x" in self.__dict__:  # (not while __init__ sets the hooks)
             self._configured()
 
     # -- state and covariances ---------------------------------------------
@@ -342,54 +453,101 @@ class SquareRootUKF:
         """The engine has a new estimate: ``x`` and ``P`` are formed from it when read."""
         d = self.__dict__
         d["x"], d["P"] = self._unformed
-        d["_x"] = d["_Ph"] = None
+        self._x = self._Ph = None
 
     def _assign_x(self, value) -> None:
-        """``x = value``, validated: the engine's estimate, ``x`` formed again when read."""
+        """``x = value``, validated: the engine's estimate, ``x`` formed again when read.
+
+        ``None`` or an all-NaN array is a placeholder (:func:`checks.placeholder`): ``x`` is then not
+        set, reads back as assigned, and a step refuses until it is.
+        """
+        kept = checks.placeholder(value, "x", (self._dim_x,))
+        if kept is not _REAL:
+            self._unset_as("x", kept)
+            return
         x = checks.as_state(value, "x", self._dim_x)
         self._engine.assign(x=x[None])
-        d = self.__dict__
-        d["x"], d["_x"] = self._unformed[0], None
+        self.__dict__["x"], self._x = self._unformed[0], None
+        self._unset.discard("x")
 
     def _assign_P(self, value) -> None:
-        """``P = value``, validated and factored once; handed out as assigned (a copy)."""
+        """``P = value``, validated and factored once; handed out as assigned (a copy).
+
+        A placeholder (``None``, all NaN) leaves ``P`` not set, as :meth:`_assign_x` says.
+        """
+        kept = checks.placeholder(value, "P", (self._dim_x, self._dim_x))
+        if kept is not _REAL:
+            self._unset_as("P", kept)
+            return
         slot = FactorSlot("P", self._dim_x, semidefinite=False, factor=None)
         slot.set_matrix(value)
         self._engine.assign(S=slot.factor()[None])  # type: ignore[index]  # P is never singular
-        d = self.__dict__
-        P = d["P"] = slot.matrix()
-        d["_Ph"] = Handed(P)
+        P = self.__dict__["P"] = slot.matrix()
+        self._Ph = Handed(P)
+        self._unset.discard("P")
+
+    def _unset_as(self, name: str, kept: np.ndarray | None) -> None:
+        """``x`` or ``P`` is a placeholder, ``kept`` (None, or an all-NaN copy handed out for edits)."""
+        self.__dict__[name] = kept
+        setattr(self, "_x" if name == "x" else "_Ph", None if kept is None else Handed(kept))
+        self._unset.add(name)
 
     def _take_edits(self) -> None:
         """The edits in place of ``x`` and ``P`` validated and taken into the engine (either may raise).
 
         Each array stays handed out, with a fresh record; an invalid edit raises and stays pending.
+        A placeholder edited in place is an assignment too (still all NaN: still not set).
         """
-        d = self.__dict__
-        handed = d["_x"]
+        handed = self._x
         if handed is not None and handed.edited():
-            x = checks.as_state(handed.array, "x", self._dim_x)
+            self._take_edit("x", handed.array)
+            self._x = Handed(handed.array)
+        handed = self._Ph
+        if handed is not None and handed.edited():
+            self._take_edit("P", handed.array)
+            self._Ph = Handed(handed.array)
+
+    def _take_edit(self, name: str, array: np.ndarray) -> None:
+        """An array handed out as ``x`` or ``P`` was edited in place: validated and taken (may raise)."""
+        n = self._dim_x
+        if checks.placeholder(array, name, (n,) if name == "x" else (n, n)) is not _REAL:
+            self._unset.add(name)
+            return
+        if name == "x":
+            x = checks.as_state(array, "x", n)
             self._engine.assign(x=x[None])
-            d["_x"] = Handed(handed.array)
-        handed = d["_Ph"]
-        if handed is not None and handed.edited():
-            slot = FactorSlot("P", self._dim_x, semidefinite=False, factor=None)
-            slot.set_matrix(handed.array)
+        else:
+            slot = FactorSlot("P", n, semidefinite=False, factor=None)
+            slot.set_matrix(array)
             self._engine.assign(S=slot.factor()[None])  # type: ignore[index]  # P is never singular
-            d["_Ph"] = Handed(handed.array)
+        self._unset.discard(name)
+
+    def _ready(self, call: str) -> None:
+        """Edits in place taken; refuse a step while ``x`` or ``P`` is a placeholder (changes nothing)."""
+        if self._x is not None or self._Ph is not None:  # handed out since the step: edits are taken
+            self._take_edits()
+        if self._unset:
+            name = "x" if "x" in self._unset else "P"
+            raise UnsetError(
+                f"{call} needs {name}, but {name} was never set: it holds the placeholder"
+                f" {'None' if self.__dict__[name] is None else 'all NaN'}; assign the initial {name}"
+                " first"
+            )
 
     @property
     def P1_2(self) -> np.ndarray:
-        """Lower Cholesky factor of ``P`` (a fresh copy; assign to change)."""
+        """Lower Cholesky factor of ``P`` (a fresh copy; assign to change); all NaN while ``P`` is not set."""
         self._take_edits()
+        if "P" in self._unset:
+            return np.full((self._dim_x,) * 2, np.nan)
         return self._engine.S[0].copy()
 
     @P1_2.setter
     def P1_2(self, value):
         S = as_lower_factor(value, "P1_2", self._dim_x, singular_ok=False)
         self._engine.assign(S=S[None])
-        d = self.__dict__
-        d["P"], d["_Ph"] = self._unformed[1], None
+        self.__dict__["P"], self._Ph = self._unformed[1], None
+        self._unset.discard("P")
 
     @property
     def Q1_2(self) -> np.ndarray:
@@ -398,7 +556,7 @@ class SquareRootUKF:
 
     @Q1_2.setter
     def Q1_2(self, value):
-        set_factor(self.__dict__, "Q", value)
+        set_factor(self, "Q", value)
 
     @property
     def R1_2(self) -> np.ndarray:
@@ -407,11 +565,11 @@ class SquareRootUKF:
 
     @R1_2.setter
     def R1_2(self, value):
-        set_factor(self.__dict__, "R", value)
+        set_factor(self, "R", value)
 
     def _noise_factor(self, value, name: str, dim: int) -> np.ndarray | None:
         """Lower factor of ``Q`` or ``R`` (``value`` for this call, else the attribute's); None: zero."""
-        return noise_factor(value, name, dim, self.__dict__["_" + name].factor, self._noise_cache)
+        return noise_factor(value, name, dim, getattr(self, "_" + name).factor, self._noise_cache)
 
     def _Q1_2(self, Q) -> np.ndarray | None:
         """The prediction's process-noise factor: this call's ``Q``, else the filter's (None: none added)."""
@@ -426,9 +584,9 @@ class SquareRootUKF:
 
     # -- the records of the last prediction and update (formed when read) --------------------
 
-    @property
+    @_written_record("prior_record", 1)
     def x_prior(self) -> np.ndarray:
-        """State after the last prediction, shape ``(dim_x,)`` (a fresh array)."""
+        """State after the last prediction, shape ``(dim_x,)`` (a fresh array; writable, as filterpy's)."""
         return self._engine.prior_record[0][0].copy()
 
     @property
@@ -436,15 +594,15 @@ class SquareRootUKF:
         """Lower factor of the covariance after the last prediction (a fresh array)."""
         return self._engine.prior_record[1][0].copy()
 
-    @property
+    @_written_record("prior_record", 2)
     def P_prior(self) -> np.ndarray:
-        """Covariance after the last prediction (a fresh array)."""
+        """Covariance after the last prediction (a fresh array; writable)."""
         S = self._engine.prior_record[1][0]
         return S @ S.T
 
-    @property
+    @_written_record("post_record", 1)
     def x_post(self) -> np.ndarray:
-        """State after the last update, shape ``(dim_x,)`` (a fresh array)."""
+        """State after the last update, shape ``(dim_x,)`` (a fresh array; writable)."""
         return self._engine.post_record[0][0].copy()
 
     @property
@@ -452,25 +610,71 @@ class SquareRootUKF:
         """Lower factor of the covariance after the last update (a fresh array)."""
         return self._engine.post_record[1][0].copy()
 
-    @property
+    @_written_record("post_record", 2)
     def P_post(self) -> np.ndarray:
-        """Covariance after the last update (a fresh array)."""
+        """Covariance after the last update (a fresh array; writable)."""
         S = self._engine.post_record[1][0]
         return S @ S.T
 
     @property
     def sigmas_f(self) -> np.ndarray:
-        """The second set after a prediction (filterpy's ``sigmas_f``), ``(N2, dim_x)`` (a fresh array)."""
-        return self._engine.shown_f[0].copy()
+        """The second set after a prediction (filterpy's ``sigmas_f``), shape ``(N2, dim_x)``.
+
+        The same array at every read until a step makes a new set (:ref:`promise-sigmas`); a set
+        written here, or this array changed in place, is the set of the next ``update``.
+        """
+        return self._handed_sigmas("sigmas_f").array
+
+    @sigmas_f.setter
+    def sigmas_f(self, value) -> None:
+        self._write_sigmas("sigmas_f", value)
 
     @property
     def sigmas_h(self) -> np.ndarray:
-        """``hx`` at the second set in the last update, ``(N2, dim_z)`` (a fresh array)."""
-        return self._engine.H[0].copy()
+        """``hx`` at the second set in the last update, ``(N2, dim_z)``; one array until the next update."""
+        return self._handed_sigmas("sigmas_h").array
 
-    @property
+    @sigmas_h.setter
+    def sigmas_h(self, value) -> None:
+        self._write_sigmas("sigmas_h", value)
+
+    def _handed_sigmas(self, name: str) -> Handed:
+        """The array handed out as ``sigmas_f`` or ``sigmas_h`` since the step that made the set (made now
+        if none is), with the record it was handed out with."""
+        e = self._engine
+        stamp = e.shown_f if name == "sigmas_f" else e.H
+        held = self._sigmas.get(name)
+        if held is None or held[0] is not stamp:
+            held = self._sigmas[name] = (stamp, Handed(stamp[0].copy()), False)
+        return held[1]
+
+    def _write_sigmas(self, name: str, value) -> None:
+        e = self._engine
+        stamp = e.shown_f if name == "sigmas_f" else e.H
+        A = checks.written_record(value, name, 2)
+        if name == "sigmas_f" and A.shape[1:] != (self._dim_x,):
+            raise ShapeError(f"sigmas_f has shape {A.shape}, expected (N, dim_x={self._dim_x})")
+        self._sigmas[name] = (stamp, Handed(A), True)
+
+    def _given_set(self, expected: tuple) -> np.ndarray | None:
+        """The set written as ``sigmas_f`` (or changed in place) since the prediction, for the update to
+        use (validated: ``expected`` is the set's shape); None if it was not."""
+        held = self._sigmas.get("sigmas_f")
+        if held is None or held[0] is not self._engine.shown_f:
+            return None
+        stamp, handed, written = held
+        if not (written or handed.edited()):
+            return None
+        return check_values(handed.array, expected, "sigmas_f")
+
+    def _set_used(self) -> None:
+        """The update used the set written as ``sigmas_f``: it reads back, and is not used again."""
+        stamp, handed, _ = self._sigmas["sigmas_f"]
+        self._sigmas["sigmas_f"] = (stamp, Handed(handed.array), False)
+
+    @_written_record("last", 1)
     def y(self) -> np.ndarray:
-        """Innovation of the last update, shape ``(dim_z,)``; NaN in components not measured (fresh)."""
+        """Innovation of the last update, shape ``(dim_z,)``; NaN where not measured (fresh; writable)."""
         last = self._last()
         if last is None:
             return np.zeros(self._dim_z)
@@ -497,13 +701,13 @@ class SquareRootUKF:
         Sy, observed = self._Sy()
         return embed(Sy, observed, np.nan)
 
-    @property
+    @_written_record("last", 2)
     def S(self) -> np.ndarray:
         """Innovation covariance of the last update, ``S1_2 @ S1_2.T`` (NaN where missing)."""
         Sy, observed = self._Sy()
         return embed(Sy @ Sy.T, observed, np.nan)
 
-    @property
+    @_written_record("last", 2)
     def SI(self) -> np.ndarray:
         """Inverse of ``S``, by triangular solves with ``S1_2`` (or by ``self.inv`` if replaced)."""
         if self.inv is not np.linalg.inv:
@@ -526,7 +730,7 @@ class SquareRootUKF:
 
     @K.setter
     def K(self, value):
-        self._gain_of = (self._last(), as_float_array(value, "K"))  # a private copy, read as fresh copies
+        self._gain_of = (self._last(), checks.written_record(value, "K", 2))  # read as fresh copies
 
     def _gain(self, last: Update | None) -> np.ndarray:
         n = self._dim_x
@@ -613,7 +817,7 @@ class SquareRootUKF:
         [[2. 0.]
          [0. 2.]]
         """
-        self._take_edits()
+        self._ready("ask_predict")
         X = self._engine.ask_predict()[0]
         return self._handed(X, self._plan.w_xi, "Q")
 
@@ -656,7 +860,7 @@ class SquareRootUKF:
             array); evaluate ``hx`` at each and pass the results to
             :meth:`tell_update`.
         """
-        self._take_edits()
+        self._ready("ask_update")
         e = self._engine
         X = e.ask_update()[0]
         return self._handed(X, e.step_route.plan.v_xi, "R")  # (the plan that drew the set)
@@ -718,10 +922,8 @@ class SquareRootUKF:
         **fx_args
             Passed to ``fx``.
         """
-        dt = self._dt if dt is None else check_time_step(dt)
-        d = self.__dict__
-        if d["_x"] is not None or d["_Ph"] is not None:  # handed out since the step: edits are taken
-            self._take_edits()
+        dt = self._dt if dt is None else check_time_step(dt)  # None, if the constructor's was: fx gets None
+        self._ready("predict")
         e = self._engine
         sigmas = e.first_set()  # fx may write on them: the step reads only their shape
         fx = self.fx if fx is None else fx
@@ -729,14 +931,14 @@ class SquareRootUKF:
             values = (
                 fx(sigmas[0], dt, **fx_args)
                 if self.vectorized
-                else self._per_point(fx, sigmas[0], dt, fx_args)
+                else self._per_point(fx, sigmas[0], (dt,), fx_args)
             )
             Q1_2 = self._Q1_2(Q)
         else:  # noise entering fx is in the points: no noise is added to the prior
             values, Q1_2 = self._model(fx, "fx", sigmas[0], (dt,), fx_args, Q, UT), None
         e.tell_predict(values, Q1_2, UT, sigmas)
-        d["x"], d["P"] = self._unformed  # the new estimate: x and P formed from it when read
-        d["_x"] = d["_Ph"] = None
+        self.__dict__["x"], self.__dict__["P"] = self._unformed  # the new estimate: formed when read
+        self._x = self._Ph = None
 
     def update(self, z, R=None, UT=None, hx=None, **hx_args) -> None:
         """Update the estimate with measurement ``z``: ``x``, ``P`` become the posterior.
@@ -756,9 +958,8 @@ class SquareRootUKF:
             Passed to ``hx``.
         """
         meas = checks.measurement(z, R, self._dim_z, self._R_dim, self._hx_noise)
+        self._ready("update")
         d = self.__dict__
-        if d["_x"] is not None or d["_Ph"] is not None:  # handed out since the step: edits are taken
-            self._take_edits()
         e = self._engine
         if meas is None:  # no measurement: the prior stays, and the last update's records
             e.skip_update()
@@ -766,26 +967,32 @@ class SquareRootUKF:
             return
         z, observed = meas
         pending = e.pending_update()
-        sigmas = pending[1].sigmas[0].copy()  # hx gets its own copy: the update reads the set
-        hx = self.hx if hx is None else hx
         # the set's own plan: the prediction's (a configuration changed since applies from the next step)
         plan = (e.step_route if pending[1] is e.sset else e.route).plan
+        given = self._given_set(pending[1].sigmas.shape[1:]) if self._sigmas else None
+        if given is not None:  # a set the program wrote as sigmas_f: its spread is not the prior's
+            sset = pending[1]._replace(sigmas=given[None], offsets=None, moments_exact=False, axis=False)
+            pending = (pending[0], sset)
+        sigmas = pending[1].sigmas[0].copy()  # hx gets its own copy: the update reads the set
+        hx = self.hx if hx is None else hx
         if plan.v_xi is None:
-            values = hx(sigmas, **hx_args) if self.vectorized else self._per_point(hx, sigmas, None, hx_args)
+            values = hx(sigmas, **hx_args) if self.vectorized else self._per_point(hx, sigmas, (), hx_args)
             R1_2 = self._R1_2(R, z.shape[0])
         else:  # noise entering hx is in the points: the update adds none
             values = self._model(hx, "hx", sigmas, (), hx_args, R, UT, plan)
             R1_2 = np.zeros((z.shape[0],) * 2)
         e.tell_update(values, z, observed, R1_2, UT, pending)
+        if given is not None:
+            self._set_used()
         d["z"] = z
         d["x"], d["P"] = self._unformed
-        d["_x"] = d["_Ph"] = None
+        self._x = self._Ph = None
 
     def compute_process_sigmas(self, dt, fx=None, **fx_args) -> None:
         """Set ``sigmas_f`` to the first set propagated through ``fx`` (state unchanged)."""
         dt = check_time_step(dt)
         fx = self.fx if fx is None else fx
-        self._take_edits()
+        self._ready("compute_process_sigmas")
         e = self._engine
         first = self._plan.first
         sigmas = sigma_points_from_factor(e.x[0], e.S[0], first.xi, hooks_of(self.__dict__).state_add)
@@ -868,9 +1075,10 @@ class SquareRootUKF:
         factor = None if xi is None else self._noise_factor(None, name, xi.shape[1])
         return handed_points(X, xi, factor, ())
 
-    def _per_point(self, fn: Callable, X: np.ndarray, dt, kwargs: dict):
-        """``fn`` at each point of ``X``: ``fx(x, dt)``, or ``hx(x)`` with no ``dt``, as filterpy calls it."""
-        return checks.evaluate(fn, X, () if dt is None else (dt,), kwargs, False)
+    def _per_point(self, fn: Callable, X: np.ndarray, args: tuple, kwargs: dict):
+        """``fn`` at each point of ``X``: ``fx(x, dt)`` (``args``: ``(dt,)``, a ``dt`` of None too), or
+        ``hx(x)`` (``args``: ``()``), as filterpy calls them."""
+        return checks.evaluate(fn, X, args, kwargs, False)
 
     def _R_dim(self) -> int:
         return self._R.factor_or_zeros().shape[0]
@@ -902,17 +1110,28 @@ class SquareRootUKF:
         # the engine's arrays are replaced by each step, never changed in place: a shallow copy keeps
         # them; the covariance slots, whose matrices the caller may edit in place, are copied
         state = dict(self.__dict__)
+        own = self._carried()
         for name in NOISES:
-            slot = state["_" + name] = copy.copy(state["_" + name])
+            slot = own["_" + name] = copy.copy(own["_" + name])
             if type(state[name]) is Unformed:
                 state[name] = Unformed(slot.matrix)
-        return state, copy.copy(self._engine), self._kept_gain()
+        engine = copy.copy(self._engine)
+        own["_unset"] = set(self._unset)
+        for name in ("_written", "_sigmas"):  # the same records, current with the engine put back
+            own[name] = _restamped(own[name], self._engine, engine, _same)
+        return state, own, engine, self._kept_gain()
 
     def _restore(self, saved) -> None:
-        state, engine, gain = saved
+        state, own, engine, gain = saved
         self.__dict__.clear()
         self.__dict__.update(state)
+        for name, value in own.items():
+            setattr(self, name, value)
         self._engine, self._gain_of = engine, (engine.last, gain)
+
+    def _carried(self) -> dict:
+        """The slots a copy or a pickle carries, by name (the values themselves)."""
+        return {name: getattr(self, name) for name in _CARRIED}
 
     def _kept_gain(self) -> np.ndarray | None:
         """The gain formed (or assigned) for the last update, or None (never written in place)."""
@@ -921,20 +1140,30 @@ class SquareRootUKF:
 
     def __copy__(self):
         new = type(self).__new__(type(self))
-        d = {}
-        for key, value in self.__dict__.items():
-            if isinstance(value, np.ndarray):
-                value = value.copy()
-            elif key in ("_Q", "_R"):
-                value = value.detached()  # the factor shared, the matrix handed out copied
-            elif isinstance(value, Handed):
-                value = value.copy()
-            d[key] = value
-        new._engine = copy.copy(self._engine)
-        new._gain_of = (new._engine.last, self._kept_gain())  # never written in place: shared
+        d = {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in self.__dict__.items()}
+        engine = new._engine = copy.copy(self._engine)
+        new._gain_of = (engine.last, self._kept_gain())  # never written in place: shared
         new.__dict__.update(d)
+        self._carry_to(new, engine, lambda v: v.copy())
         new._rebind()
         return new
+
+    def _carry_to(self, new: SquareRootUKF, engine: Engine, copy_value: Callable) -> None:
+        """Give the copy ``new`` (on ``engine``) this filter's carried slots: the configuration shared
+        (never changed in place), the noise slots, the placeholders, what was written or handed out its
+        own (``copy_value`` copies an array or a :class:`Handed`)."""
+        for name, value in self._carried().items():
+            if name in ("_Q", "_R"):
+                value = value.detached()  # the factor shared, the matrix handed out copied
+            elif name in ("_x", "_Ph"):
+                value = None if value is None else value.copy()
+            elif name == "_unset":
+                value = set(value)
+            elif name == "_noise_cache":
+                value = {}
+            elif name in ("_written", "_sigmas"):
+                value = _restamped(value, self._engine, engine, copy_value)
+            setattr(new, name, value)
 
     def __deepcopy__(self, memo):
         new = type(self).__new__(type(self))
@@ -943,6 +1172,7 @@ class SquareRootUKF:
         engine = new._engine = copy.deepcopy(self._engine, memo)
         new._gain_of = (engine.last, copy.deepcopy(self._kept_gain(), memo))
         new.__dict__.update(d)
+        self._carry_to(new, engine, lambda v: v.copy())
         # the copy's routes run the copy's own hooks (the pending step's route too: it is the copy's)
         pending_own_route = engine.step_route is engine.route
         new._configured()
@@ -953,29 +1183,36 @@ class SquareRootUKF:
 
     def __getstate__(self):
         state = {k: v for k, v in self.__dict__.items() if type(v) is not Unformed}
-        state["_noise_cache"] = {}
-        return state, self._engine, self._kept_gain()
+        own = self._carried()
+        own["_noise_cache"] = {}
+        # what was written or handed out is current with this engine: pickled with it, the stamps stay its
+        return state, own, self._engine, self._kept_gain()
 
     def __setstate__(self, saved):
-        state, engine, gain = saved
+        state, own, engine, gain = saved
         self.__dict__.update(state)
+        for name, value in own.items():
+            setattr(self, name, value)
         self._engine = engine
         self._gain_of = (engine.last, gain)
         self._rebind()
 
     def _rebind(self) -> None:
         """After construction or a copy: ``x``, ``P``, ``Q``, ``R`` formed from this filter's own engine and
-        slots, the arrays handed out (``_x``, ``_Ph``) its own."""
+        slots, the arrays handed out (``_x``, ``_Ph``) its own; a placeholder as assigned."""
         self._unformed = (Unformed(self._formed_x), Unformed(self._formed_P))
         d = self.__dict__
-        for k, (name, record) in enumerate((("x", "_x"), ("P", "_Ph"))):
-            handed = d.get(record)
-            if handed is None:
-                d[name], d[record] = self._unformed[k], None
-            else:
+        for k, name in enumerate(("x", "P")):
+            record = "_x" if name == "x" else "_Ph"
+            handed = getattr(self, record)
+            if handed is not None:
                 d[name] = handed.array
+            elif name in self._unset:
+                d[name] = None
+            else:
+                d[name] = self._unformed[k]
         for name in NOISES:
-            d[name] = Unformed(d["_" + name].matrix)
+            d[name] = Unformed(getattr(self, "_" + name).matrix)
 
     def __repr__(self) -> str:
         from filterpy.common import pretty_str

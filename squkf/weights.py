@@ -95,7 +95,22 @@ def real_number(value, name: str, errno: int | None = None) -> float:
     return float(value)
 
 
-def real_array(value, name: str, errno: int | None = None, error=ParameterError) -> np.ndarray:
+class _Described:
+    """``"<prefix> <family!r> for n=<n>"``, a message's subject, formed only when a message is."""
+
+    __slots__ = ("family", "n", "prefix")
+
+    def __init__(self, family, n: int, prefix: str = ""):
+        self.family, self.n, self.prefix = family, n, prefix
+
+    def of(self, prefix: str) -> _Described:
+        return _Described(self.family, self.n, prefix + " ")
+
+    def __str__(self) -> str:
+        return f"{self.prefix}{self.family!r} for n={self.n}"
+
+
+def real_array(value, name: str | _Described, errno: int | None = None, error=ParameterError) -> np.ndarray:
     """``value`` as a new float64 array if it holds real numbers (int or float dtype) only.
 
     Complex, bool, string and object arrays are refused rather than cast
@@ -180,11 +195,11 @@ class _CachedFamily:
 
     def _fill(self, n: int) -> tuple:
         n = _dimension(n)
-        what = f"{self!r} for n={n}"
-        xi = real_array(self._unit_points(n), f"the unit sigma points of {what}")
+        what = _Described(self, n)  # (formed only for a message: a filterpy object's repr is slow)
+        xi = real_array(self._unit_points(n), what.of("the unit sigma points of"))
         Wm, Wc = self._weights(n)
-        Wm = real_array(Wm, f"the mean weights Wm of {what}")
-        Wc = real_array(Wc, f"the covariance weights Wc of {what}")
+        Wm = real_array(Wm, what.of("the mean weights Wm of"))
+        Wc = real_array(Wc, what.of("the covariance weights Wc of"))
         N = self.num_sigmas(n)
         if xi.shape != (N, n) or Wm.shape != (N,) or Wc.shape != (N,):
             raise ParameterError(
@@ -567,6 +582,52 @@ class FilterpyPoints(_CachedFamily):
         if "Julier" in name and hasattr(p, "kappa"):
             return JulierWeights(p.kappa)
         return None
+
+
+class WrittenWeights(_CachedFamily):
+    """A family's unit points with the weights a program wrote (``ukf.Wm = ...``, a filterpy habit).
+
+    It serves the one dimension it was written for; a set of another (an
+    augmented one) refuses, naming ``points``.
+
+    Parameters
+    ----------
+    base : sigma-point family
+        The family whose unit points are kept.
+    n : int
+    Wm, Wc : ndarray, shape (N,)
+        The weights written, ``N = base.num_sigmas(n)``.
+    """
+
+    def __init__(self, base, n: int, Wm: np.ndarray, Wc: np.ndarray):
+        self.base, self.n, self.Wm, self.Wc = base, n, Wm, Wc
+
+    def _check(self, n: int) -> None:
+        if n != self.n:
+            raise ParameterError(
+                f"the weights written as Wm and Wc serve the first set's dimension {self.n}, but the filter"
+                f" also draws a set of dimension {n}: give points= a family with those weights instead"
+            )
+
+    def num_sigmas(self, n: int) -> int:
+        """The number of weights written."""
+        self._check(n)
+        return int(self.Wm.shape[0])
+
+    def _unit_points(self, n: int) -> np.ndarray:
+        self._check(n)
+        return self.base.unit_sigma_points(n)
+
+    def _weights(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        self._check(n)
+        return self.Wm, self.Wc
+
+    # compared by identity: two programs' written weights are never taken for one another
+    __eq__ = object.__eq__
+    __hash__ = object.__hash__
+
+    def __repr__(self) -> str:
+        return f"WrittenWeights({self.base!r}, n={self.n}, Wm={self.Wm.tolist()}, Wc={self.Wc.tolist()})"
 
 
 def as_family(points) -> SigmaPointFamily:

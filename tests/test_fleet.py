@@ -256,12 +256,12 @@ def test_state_assignment_broadcasts_and_checks():
     for attr, bad, exc in [
         ("x", np.zeros(3), ShapeError),
         ("x", np.zeros((K + 1, 4)), ShapeError),
-        ("x", np.full(4, np.nan), NonFiniteError),
+        ("x", np.r_[0.0, np.nan, 0, 0], NonFiniteError),  # (all NaN is a placeholder: not set yet)
         ("x", np.r_[0.0, np.inf, 0, 0], NonFiniteError),
         ("P", np.eye(3), ShapeError),
         ("P", -np.eye(4), NotPositiveDefiniteError),
         ("P", np.stack([FLEET_P0, FLEET_P0, -FLEET_P0]), NotPositiveDefiniteError),
-        ("P", np.full((4, 4), np.nan), NonFiniteError),
+        ("P", np.where(np.eye(4) > 0, np.nan, 0.0), NonFiniteError),
         ("P1_2", np.ones((4, 4)), SqukfValueError),  # not lower triangular
         ("P1_2", np.zeros((K, 4, 4)), SqukfError),  # singular
         ("P1_2", np.eye(5), ShapeError),

@@ -95,7 +95,7 @@ def test_invalid_in_place_edit_raises_at_next_call_and_changes_nothing(name, idx
 BAD_ASSIGNMENTS = [
     ("P", np.array([[1.0, 0.5], [0.0, 1.0]]), ShapeError),
     ("P", np.diag([1.0, 1.0, -1.0, 1.0]), SqukfError),
-    ("P", np.full((4, 4), np.nan), NonFiniteError),
+    ("P", np.where(np.eye(4) > 0, np.nan, 0.0), NonFiniteError),  # (all NaN is a placeholder)
     ("P", np.triu(np.ones((4, 4))) + np.eye(4), SqukfValueError),
     ("Q", "big", ShapeError),
     ("R", np.array([1.0, 2.0]), ShapeError),

@@ -30,6 +30,7 @@ from .covariance import FactorSlot, as_lower_factor, as_matrix
 _FLOAT64 = np.dtype(np.float64)
 
 __all__ = [
+    "REAL",
     "as_state",
     "call_stack",
     "check_chunk_args",
@@ -48,6 +49,8 @@ __all__ = [
     "noise_factor",
     "noise_factors",
     "per_filter",
+    "placeholder",
+    "written_record",
     "refuse_noise_args",
     "refuse_smoother_noise",
     "reset_rows",
@@ -83,6 +86,81 @@ def check_sizes(**sizes) -> tuple[int, ...]:
     return tuple(int(v) for v in sizes.values())
 
 
+class _Real:
+    """What :func:`placeholder` returns for a value that is not a placeholder (one object, by ``is``)."""
+
+    __slots__ = ()
+
+    def __repr__(self) -> str:
+        return "REAL"
+
+
+REAL = _Real()
+
+
+def placeholder(value, name: str, shape: tuple[int, ...]):
+    """A placeholder for ``x`` or ``P`` not set yet (``None``, or an array all NaN), as programs write.
+
+    Parameters
+    ----------
+    value : object
+        What is assigned.
+    name : str
+        For messages.
+    shape : tuple of int
+        The attribute's shape, ``(n,)`` (a column ``(n, 1)`` is taken too) or ``(n, n)``.
+
+    Returns
+    -------
+    None, ndarray or REAL
+        ``None`` for ``None``; a copy of an all-NaN array (``shape``, as
+        given); :data:`REAL` for anything else, which the attribute's own
+        validation then reads (a partly NaN array is its NonFiniteError).
+
+    Raises
+    ------
+    ShapeError
+        An all-NaN array of another shape.
+    """
+    if value is None:
+        return None
+    if isinstance(value, np.ndarray) and value.dtype.kind != "f":
+        return REAL  # (only a float array holds NaN: an integer state is converted once, by its setter)
+    A = as_float_array(value, name)
+    if A.size == 0 or not math.isnan(A.flat[0]) or not np.isnan(A).all():
+        return REAL
+    if A.shape != shape and not (len(shape) == 1 and A.shape == shape + (1,)):
+        raise ShapeError(f"{name} is a placeholder (all NaN) of shape {A.shape}, expected {shape}")
+    return A.copy()
+
+
+def written_record(value, name: str, ndim: int) -> np.ndarray:
+    """A record a program writes (``x_prior``, ``S``, ``sigmas_f``, ...), as the private copy kept.
+
+    Parameters
+    ----------
+    value : array_like
+    name : str
+        The record's name, for messages.
+    ndim : int
+        The record's number of axes (1 for a vector, 2 for a matrix or a set of points).
+
+    Returns
+    -------
+    ndarray, float64, a copy (NaN and inf kept: a record is read back, not stepped from)
+
+    Raises
+    ------
+    ShapeError
+        ``value`` has another number of axes.
+    """
+    A = np.array(as_float_array(value, name), dtype=np.float64)
+    if A.ndim != ndim:
+        want = "a vector" if ndim == 1 else "a matrix"
+        raise ShapeError(f"{name} must be {want} ({ndim}-D), got shape {A.shape}")
+    return A
+
+
 def as_state(value, name: str, dim: int) -> np.ndarray:
     """One filter's state, shape ``(dim,)`` (a column ``(dim, 1)`` is taken too), finite.
 
@@ -106,7 +184,7 @@ def as_state(value, name: str, dim: int) -> np.ndarray:
     return x
 
 
-def per_filter(value, name: str, K: int, shape: tuple[int, ...]) -> np.ndarray:
+def per_filter(value, name: str, K: int, shape: tuple[int, ...], placeholders: bool = False):
     """``value`` as ``(K, *shape)``: one value broadcast to every filter, or one per filter; finite.
 
     Parameters
@@ -118,21 +196,31 @@ def per_filter(value, name: str, K: int, shape: tuple[int, ...]) -> np.ndarray:
         Number of filters.
     shape : tuple of int
         One filter's shape, ``(n,)`` for a state, ``(n, n)`` for a factor.
+    placeholders : bool
+        Accept a filter's value all NaN, a placeholder for a value not set
+        yet (``Fleet.x``, ``Fleet.P``).
 
     Returns
     -------
     ndarray, shape (K, *shape)
         A new array.
+    unset : ndarray of bool, shape (K,)
+        With ``placeholders`` only: the filters whose value is all NaN.
     """
     a = as_float_array(value, name)
     if a.shape == shape:
         a = np.broadcast_to(a, (K,) + shape).copy()
     if a.shape != (K,) + shape:
         raise ShapeError(f"{name} has shape {a.shape}, expected {shape} or {(K,) + shape}")
+    unset = np.zeros(K, dtype=bool)
     if not np.all(np.isfinite(a)):
-        bad = np.flatnonzero(~np.isfinite(a.reshape(K, -1)).all(axis=1))
-        raise NonFiniteError(f"{name} contains NaN or inf (filters {bad[:10].tolist()})")
-    return a
+        rows = a.reshape(K, -1)
+        if placeholders:
+            unset = np.isnan(rows).all(axis=1)
+        bad = np.flatnonzero(~np.isfinite(rows).all(axis=1) & ~unset)
+        if bad.size:
+            raise NonFiniteError(f"{name} contains NaN or inf (filters {bad[:10].tolist()})")
+    return (a, unset) if placeholders else a
 
 
 def measurement(
@@ -704,7 +792,7 @@ def given_noise_factors(value, name: str, dim: int, K: int) -> np.ndarray | None
     return S if np.any(S) else None
 
 
-def covariance_factors(value, name: str, n: int, K: int) -> np.ndarray:
+def covariance_factors(value, name: str, n: int, K: int, placeholders: bool = False):
     """A stack's ``P``, one matrix for all (factored once) or one per filter, as ``(K, n, n)`` factors.
 
     Parameters
@@ -712,18 +800,28 @@ def covariance_factors(value, name: str, n: int, K: int) -> np.ndarray:
     value : array_like, shape (n, n) or (K, n, n)
     name : str
     n, K : int
+    placeholders : bool
+        Accept a filter's matrix all NaN (not set yet): its factor is all NaN.
 
     Returns
     -------
     ndarray, shape (K, n, n)
         Lower factors with a positive diagonal.
+    unset : ndarray of bool, shape (K,)
+        With ``placeholders`` only: the filters whose matrix is all NaN.
     """
     a = as_float_array(value, name)
-    if a.shape == (n, n):  # one matrix for all: factored once
+    if a.shape == (n, n) and not (placeholders and np.isnan(a).all()):  # one matrix for all: factored once
         S = factor_covariance(as_matrix(a, name, n), name)
-        return np.broadcast_to(S, (K, n, n)).copy()
-    A = per_filter(a, name, K, (n, n))
-    return np.stack([factor_covariance(as_matrix(A[k], f"{name}[{k}]", n), f"{name}[{k}]") for k in range(K)])
+        S = np.broadcast_to(S, (K, n, n)).copy()
+        return (S, np.zeros(K, dtype=bool)) if placeholders else S
+    A, unset = per_filter(a, name, K, (n, n), placeholders=True)
+    if unset.any() and not placeholders:
+        raise NonFiniteError(f"{name} contains NaN or inf (filters {np.flatnonzero(unset)[:10].tolist()})")
+    S = np.full((K, n, n), np.nan)
+    for k in np.flatnonzero(~unset).tolist():
+        S[k] = factor_covariance(as_matrix(A[k], f"{name}[{k}]", n), f"{name}[{k}]")
+    return (S, unset) if placeholders else S
 
 
 def lower_factors(value, name: str, n: int, K: int) -> np.ndarray:

@@ -66,7 +66,7 @@ class Config(NamedTuple):
 
     dim_x: int
     dim_z: int
-    dt: float
+    dt: float | None  # None: every predict passes its own
     hx: Callable
     fx: Callable
     points: Any

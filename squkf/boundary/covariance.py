@@ -414,7 +414,8 @@ class Unformed:
 
 
 class Covariance:
-    """``P``, ``Q`` or ``R``: a matrix kept in the instance's ``__dict__``, backed by a factor slot.
+    """``Q`` or ``R``: a matrix kept in the instance's ``__dict__``, backed by a factor slot (the
+    instance's attribute ``_Q`` or ``_R``, kept outside the ``__dict__``).
 
     Not a ``property``, on purpose: filterpy's ``Saver`` deep-copies the
     instance's ``__dict__`` (so a saved matrix is a copy, as for filterpy's
@@ -431,20 +432,19 @@ class Covariance:
         d = obj.__dict__
         value = d[self.name]
         if type(value) is Unformed:
-            value = d[self.name] = d[self.slot].matrix()
+            value = d[self.name] = getattr(obj, self.slot).matrix()
         return value
 
     def __set__(self, obj, value):
-        d = obj.__dict__
-        slot = d[self.slot]
+        slot = getattr(obj, self.slot)
         slot.set_matrix(value)
-        d[self.name] = Unformed(slot.matrix)
+        obj.__dict__[self.name] = Unformed(slot.matrix)
 
 
 class Estimate:
     """``x`` or ``P``: formed from the filter's estimate when first read after a step, and handed out
-    as the same array (with its record, ``_x`` or ``_Ph``) until the next one; an assignment is
-    validated by the filter (``_assign_x``, ``_assign_P``). See :class:`Covariance`."""
+    as the same array (with its record, the instance's attribute ``_x`` or ``_Ph``) until the next one;
+    an assignment is validated by the filter (``_assign_x``, ``_assign_P``). See :class:`Covariance`."""
 
     def __set_name__(self, owner, name: str):
         self.name = name
@@ -456,8 +456,8 @@ class Estimate:
         d = obj.__dict__
         value = d[self.name]
         if type(value) is Unformed:
-            value = value.form()
-            d[self.name], d[self.record] = value, Handed(value)
+            value = d[self.name] = value.form()
+            setattr(obj, self.record, Handed(value))
         return value
 
     def __set__(self, obj, value):
@@ -484,28 +484,31 @@ class Hook:
         obj._hooks_assigned()
 
 
-def initial(d: dict, m: int, q: int, r: int) -> None:
-    """Fill a new filter's ``__dict__``: ``Q``, ``R`` identities, ``z`` (``x`` and ``P`` are the engine's).
+def initial(obj, m: int, q: int, r: int) -> None:
+    """Set a new filter's ``Q``, ``R`` (identities, in their slots ``_Q``, ``_R``) and ``z`` (``x`` and ``P``
+    are the engine's).
 
     Parameters
     ----------
-    d : dict
+    obj : SquareRootUKF
     m : int
         Measurement dimension.
     q, r : int
         The dimensions of ``Q`` and ``R`` (the noise's own when it enters ``fx``, ``hx``).
     """
+    d = obj.__dict__
     for name, dim in (("Q", q), ("R", r)):
-        slot = d["_" + name] = FactorSlot(name, dim, semidefinite=True, factor=np.eye(dim))
+        slot = FactorSlot(name, dim, semidefinite=True, factor=np.eye(dim))
+        setattr(obj, "_" + name, slot)
         d[name] = Unformed(slot.matrix)
     d["z"] = np.array([[None] * m]).T
 
 
-def set_factor(d: dict, name: str, value) -> None:
-    """Assign ``Q1_2`` or ``R1_2`` (``name``: ``"Q"``, ``"R"``), validated."""
-    slot = d["_" + name]
+def set_factor(obj, name: str, value) -> None:
+    """Assign ``Q1_2`` or ``R1_2`` (``name``: ``"Q"``, ``"R"``) of the filter ``obj``, validated."""
+    slot = getattr(obj, "_" + name)
     slot.set_factor(value)
-    d[name] = Unformed(slot.matrix)
+    obj.__dict__[name] = Unformed(slot.matrix)
 
 
 def hooks_of(d: dict) -> Hooks:
