@@ -196,16 +196,21 @@ def _map_chunks(
         kernels.exit_step(held, own)
 
 
-_local = threading.local()
+class _Spare(threading.local):
+    """This thread's chunk arrays that no running chunk holds: a stack of :class:`Scratch`.
+
+    A chunk takes the last one (a new one if none is left) and gives it back when it ends; nothing of a
+    chunk's outlives it. A fleet stepped inside another's model function on the same thread (a nested
+    step) takes another while the outer chunk holds its own, so neither writes the other's arrays; each
+    chunk gets the same one at every step (the outer's is given back last), made once for its largest
+    chunk. A chunk that raises drops its own (the next chunk makes another).
+    """
+
+    def __init__(self) -> None:
+        self.free: list[Scratch] = []
 
 
-def _scratch() -> Scratch:
-    """This thread's chunk arrays (points, the kernels' outputs a chunk does not keep), made once per shape
-    and used by each chunk in turn (nothing of a chunk's outlives it)."""
-    scratch = getattr(_local, "scratch", None)
-    if scratch is None:
-        scratch = _local.scratch = Scratch()
-    return scratch
+_spare = _Spare()
 
 
 def _estimates(K: int, n: int) -> tuple:
@@ -486,7 +491,8 @@ def predict(
     def one(rows: slice) -> dict[int, str]:
         found: dict[int, str] = {}
         xs, Ss = x[rows], S[rows]  # (the fleet's own C-contiguous arrays: their rows are as the kernels take)
-        scratch = getattr(_local, "scratch", None) or _scratch()
+        free = _spare.free
+        scratch = free.pop() if free else Scratch()  # this chunk's alone, until given back (_Spare)
         X = route.first_points(xs, Ss, scratch) if first is None else first[rows]
         label = "fx values" if rows.stop - rows.start == K else _label("fx values", rows, K)
         F = stacked_shape(images(rows, X), X.shape, label, False, ("fx", X.shape))
@@ -516,6 +522,7 @@ def predict(
                 xo[good_ix], So[good_ix] = res
         if propagated is not None:
             propagated[rows] = F
+        free.append(scratch)
         return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
 
     _map_chunks(one, K, size, fails, 8 * N * n)
@@ -608,7 +615,8 @@ def update(
     def one(rows: slice) -> dict[int, str]:
         found: dict[int, str] = {}
         xs, Ss = x[rows], S[rows]  # (the fleet's own C-contiguous arrays: their rows are as the kernels take)
-        scratch = getattr(_local, "scratch", None) or _scratch()
+        free = _spare.free
+        scratch = free.pop() if free else Scratch()  # this chunk's alone, until given back (_Spare)
         if sset is not None:
             s = take_set(sset, rows)
         else:
@@ -626,12 +634,14 @@ def update(
         if joint is not None and route.gate is None and obs.all():  # the usual case: straight into the step's
             part = out if rows.stop - rows.start == K else [a[rows] for a in out]
             _whole_chunk(route, joint.form, s, xs, Ss, H, zr, Rr, on, found, part, scratch)
+            free.append(scratch)
             return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
         if not plain:  # the hooks raise: non-finite images flagged first
             on = on & finite_images(H, "hx values", on, found)
         records = _posteriors(route, s, xs, Ss, H, zr, obs, Rr, on, found)
         for record, rows_record in zip(out, records):
             record[rows] = rows_record
+        free.append(scratch)
         return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
 
     _map_chunks(one, K, size, fails, 8 * _second_size(route.plan, Q1_2) * max(n, m))

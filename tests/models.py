@@ -36,6 +36,7 @@ tests/README.md lists them by kind. In the order of this file:
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 import time
@@ -519,6 +520,103 @@ def fleet_batch_setup(K=3, T=7, scheme="redrawn"):
     zs[1, T - 3, 1] = np.nan
     zs[:, T - 2] = np.nan
     return fleet, singles, zs
+
+
+# -- nested filters: a model function that steps another filter (issue 35) ------------------------
+
+NESTED_T = 4  # steps of a nested run
+
+
+class InnerSteps:
+    """Inner filters stepped from inside an outer filter's model function, or their results played back.
+
+    One inner filter per chunk of the outer fleet, found by the chunk's ``tag`` (its first filter's
+    index; None: the outer is one filter), so that chunks on several threads never step the same
+    inner filter. Each call steps that inner filter once (a predict and an update with its next
+    measurement) and returns a number of its new estimate. :meth:`record` steps copies of them all
+    outside any model function first, and the calls then return those numbers instead: the outer
+    filter's numbers must be the same either way.
+    """
+
+    def __init__(self, inners: list, zs: list, chunk: int = 1) -> None:
+        self.inners, self.zs, self.chunk = inners, zs, chunk
+        self.played: list | None = None
+        self.done = [0] * len(inners)
+
+    def _step(self, f, zs, t: int) -> float:
+        f.predict()
+        f.update(zs[t % len(zs)])
+        return float(f.x.sum() + f.P.sum())
+
+    def record(self) -> None:
+        self.played = [
+            [self._step(f, zs, t) for t in range(2 * NESTED_T)]
+            for f, zs in zip(copy.deepcopy(self.inners), self.zs)
+        ]
+
+    def __call__(self, tag=None) -> float:
+        i = 0 if tag is None else int(np.ravel(tag)[0]) // self.chunk
+        t, self.done[i] = self.done[i], self.done[i] + 1
+        if self.played is not None:
+            return self.played[i][t]
+        return self._step(self.inners[i], self.zs[i], t)
+
+
+def nested_fx(steps: InnerSteps | None):
+    """``cv_fx_stacked`` plus 1e-3 of an inner filter's step, taken first (so X is read after it);
+    ``steps`` None: ``cv_fx_stacked`` (``tag`` ignored)."""
+
+    def fx(X, dt, tag=None):
+        c = 0.0 if steps is None else 1e-3 * steps(tag)
+        return cv_fx_stacked(X, dt) + c
+
+    return fx
+
+
+def nested_hx(steps: InnerSteps | None):
+    """``range_bearing_hx`` plus 1e-3 of an inner filter's step, taken first; None: as ``nested_fx``."""
+
+    def hx(X, tag=None):
+        c = 0.0 if steps is None else 1e-3 * steps(tag)
+        return range_bearing_hx(X) + c
+
+    return hx
+
+
+def nested_filters(outer: str, inner: str, where: str, c: int = 3):
+    """An outer filter whose ``fx`` or ``hx`` (``where``) steps inner filters of the same ``dim_x``.
+
+    ``outer``: "fleet" (``2 c`` filters in chunks of ``c``) or "single" (a vectorised
+    ``SquareRootUKF``); ``inner``: "fleet" (``c`` filters, chunks of ``c``: the outer's chunk size),
+    "single", or "copy" (a copy of the outer). Returns the outer filter, its measurements per step,
+    the keyword arguments of its steps (a fleet's ``tag``: the filters' indices) and the
+    :class:`InnerSteps`.
+    """
+    if outer == "fleet":
+        f, _, zs = fleet_and_singles(2 * c, "merwe", "redrawn", T=NESTED_T)
+        f.chunk = c
+        z_steps, args = [zs[:, t] for t in range(NESTED_T)], {"tag": np.arange(2 * c)}
+    else:
+        _, singles, zs = fleet_and_singles(1, "merwe", "redrawn", T=NESTED_T)
+        f, z_steps, args = singles[0], [zs[0, t] for t in range(NESTED_T)], {}
+    inners, inner_zs = [], []
+    for i in range(2 if outer == "fleet" else 1):
+        if inner == "copy":
+            inners.append(copy.copy(f))
+            inner_zs.append(z_steps)
+            continue
+        g, singles, zs = fleet_and_singles(c, "merwe", "redrawn", T=NESTED_T, seed=5 + i)
+        if inner == "fleet":
+            g.chunk = c
+            inners.append(g)
+            inner_zs.append([zs[:, t] for t in range(NESTED_T)])
+        else:
+            inners.append(singles[0])
+            inner_zs.append([zs[0, t] for t in range(NESTED_T)])
+    steps = InnerSteps(inners, inner_zs, c)
+    f.fx = nested_fx(steps if where == "fx" else None)
+    f.hx = nested_hx(steps if where == "hx" else None)
+    return f, z_steps, args, steps
 
 
 # -- the fleet smoother's: K coordinated-turn tracks of the far scenario --------------------------

@@ -377,7 +377,7 @@ def test_a_steady_step_allocates_its_buffers_once():
         f.update(z)
         fleet.predict()
         fleet.update(np.tile(z, (3, 1)))
-    scratch = stacks._local.scratch
+    scratch = stacks._spare.free[-1]  # the chunk arrays this thread's next chunk takes
     before = (_array_ids(f._engine._buffers.sets), _array_ids(fleet._buffers.sets), _array_ids(scratch.sets))
     for _ in range(5):
         f.predict()
