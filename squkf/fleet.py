@@ -188,7 +188,7 @@ class Fleet:
         n_filters: int,
         dim_x: int,
         dim_z: int,
-        dt: float,
+        dt: float | None,
         hx: Callable,
         fx: Callable,
         points,

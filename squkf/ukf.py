@@ -276,7 +276,7 @@ class SquareRootUKF:
         self,
         dim_x: int,
         dim_z: int,
-        dt: float,
+        dt: float | None,
         hx: Callable,
         fx: Callable,
         points,
