@@ -29,7 +29,7 @@ With ``on_error="raise"`` a step with a failing filter instead raises
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -45,7 +45,7 @@ from .boundary.checks import (
     reset_rows,
 )
 from .boundary.config import Config, filter_kwargs, filter_of, stacked
-from .boundary.covariance import HandOut, Hook
+from .boundary.covariance import HandOut, Hook, ModelFunction
 from .boundary.loop import Transaction, annotate_step, check_keep, check_progress, progress_callback
 from .boundary.records import FleetResult, Records, failures_error, new_records
 from .engine import Buffers, Route
@@ -57,7 +57,7 @@ from .plan import IDLE, PREDICTING, PRIOR, UPDATING, Hooks, build_plan
 from .smoother import fleet_rts_smoother
 from .stacks import rows_of
 from .ukf import SquareRootUKF
-from .validate import check_time_step
+from .validate import check_time_step, short_repr
 from .weights import as_family
 
 __all__ = ["Fleet", "FleetResult", "FleetStepError"]
@@ -99,6 +99,31 @@ class _Pending:
 _IDLE_STEP = _Pending()  # no step pending (a _Pending is never changed in place)
 
 
+def _as_filters(filters) -> list[SquareRootUKF]:
+    """``Fleet.from_filters``'s ``filters`` as a list of :class:`squkf.SquareRootUKF`, or a ParameterError."""
+    if filters is None or isinstance(filters, (str, bytes, Mapping)) or not isinstance(filters, Iterable):
+        raise ParameterError(
+            f"filters must be a sequence of squkf.SquareRootUKF, got filters={short_repr(filters)}"
+            f" ({type(filters).__name__})"
+        )
+    filters = list(filters)
+    for k, f in enumerate(filters):
+        if isinstance(f, SquareRootUKF):
+            continue
+        kind = type(f).__name__
+        if type(f).__module__.split(".")[0] == "filterpy":
+            how = (
+                " build each as squkf.SquareRootUKF with the same arguments (dim_x, dim_z, dt, hx, fx,"
+                " points, the hooks) and vectorized=True, and give it the filterpy filter's x, P, Q and R"
+                " (g.x, g.P, g.Q, g.R = f.x, f.P, f.Q, f.R)"
+                if kind == "UnscentedKalmanFilter"
+                else " a fleet stacks square-root UKFs only"
+            )
+            raise ParameterError(f"filters[{k}] is filterpy's {kind}, not a squkf.SquareRootUKF:{how}")
+        raise ParameterError(f"filters[{k}] is not a squkf.SquareRootUKF: got {short_repr(f)} ({kind})")
+    return filters
+
+
 class Fleet:
     """K independent square-root UKFs with one model and one configuration.
 
@@ -114,6 +139,7 @@ class Fleet:
         ``hx(X, **hx_args)`` maps sigma points ``(K, N, dim_x)`` to ``(K, N, dim_z)``.
     fx : callable
         ``fx(X, dt, **fx_args)`` maps ``(K, N, dim_x)`` to ``(K, N, dim_x)``.
+        A fleet needs both: None (filterpy's placeholder) is refused.
     points : sigma-point family or filterpy points object
         As for :class:`squkf.SquareRootUKF`.
     scheme : {"redrawn", "augmented", "propagated"} or generator
@@ -206,6 +232,10 @@ class Fleet:
         chunk: int | None = None,
     ):
         K, n, m = checks.check_sizes(n_filters=n_filters, dim_x=dim_x, dim_z=dim_z)
+        checks.model_functions(
+            False, hx=hx, fx=fx, x_mean_fn=x_mean_fn, z_mean_fn=z_mean_fn, residual_x=residual_x,
+            residual_z=residual_z, state_add=state_add,
+        )  # fmt: skip
         if on_error not in ("flag", "raise"):
             raise ParameterError(f"on_error must be 'flag' or 'raise', got on_error={on_error!r}")
         self._fx_noise, self._hx_noise = checks.model_noise(fx, hx, fx_noise, hx_noise)
@@ -309,6 +339,10 @@ class Fleet:
         if route is None:
             route = self._route = Route(self._plan, self._hooks(), self._gate, single=False)
         return route
+
+    # the model functions: a fleet needs both
+    hx = ModelFunction(optional=False, why="a fleet needs fx and hx")
+    fx = ModelFunction(optional=False, why="a fleet needs fx and hx")
 
     # the hooks: assigning one builds the engine's route again (at the next step)
     x_mean = Hook()
@@ -891,9 +925,11 @@ class Fleet:
         Raises
         ------
         ParameterError
-            If the filters differ in configuration.
+            If ``filters`` is not a sequence of ``SquareRootUKF`` (filterpy's
+            ``UnscentedKalmanFilter`` included: the message says how to build
+            one from it), is empty, or the filters differ in configuration.
         """
-        c, x, P1_2, Q1_2, R1_2 = stacked(list(filters))
+        c, x, P1_2, Q1_2, R1_2 = stacked(_as_filters(filters))
         fleet = cls(
             len(x), c.dim_x, c.dim_z, c.dt, c.hx, c.fx, c.points, on_error=on_error, **filter_kwargs(c)
         )

@@ -54,14 +54,14 @@ def check_noise_dim(value, name: str) -> int:
     return int(value)
 
 
-def check_accepts_noise(fn: Callable, name: str, dim: int, positional: int) -> None:
+def check_accepts_noise(fn: Callable | None, name: str, dim: int, positional: int) -> None:
     """Refuse a model function that cannot take the noise as its second argument.
 
     Parameters
     ----------
-    fn : callable
+    fn : callable or None
         ``fx`` (called ``fx(x, w, dt)``: 3 positional arguments) or ``hx``
-        (``hx(x, v)``: 2).
+        (``hx(x, v)``: 2); None (a function given per call) is not checked.
     name : str
         ``"fx"`` or ``"hx"``.
     dim : int

@@ -57,7 +57,7 @@ import numpy as np
 
 from . import kernels
 from .batch import model_kwargs, per_step
-from .boundary.checks import evaluate, finite_images, noise_factor, with_filter_axis
+from .boundary.checks import evaluate, finite_images, model_function, noise_factor, with_filter_axis
 from .boundary.covariance import FactorSlot, as_lower_factor
 from .boundary.records import FleetResult, failures_error
 from .errors import (
@@ -86,6 +86,8 @@ def _as_stack(value, name: str, tail: tuple[int, ...], T: int | None = None) -> 
         value = list(value)  # a generator: the backward pass needs all of it
     try:
         A = np.array(value, dtype=float)
+    except OverflowError:  # a Python integer beyond float64's range
+        A = as_float_array(value, name)  # raises, naming the number
     except (TypeError, ValueError) as exc:
         raise ShapeError(f"{name} must be an array of shape {expected}: {exc}") from None
     if A.ndim == 1 and A.size == 0:
@@ -265,6 +267,7 @@ def rts_smoother_factors(
     True
     """
     c = ukf.configuration()
+    fx = model_function(None, c.fx, "fx", "rts_smoother", per_call=False)
     n = c.dim_x
     Xs = _as_stack(Xs, "Xs", (n,))
     T = len(Xs)
@@ -278,7 +281,7 @@ def rts_smoother_factors(
     cache: dict = {}
 
     def fx_eval(k: int, X: np.ndarray):
-        return evaluate(c.fx, X, (dt_list[k + 1],), kw_list[k + 1], c.vectorized)
+        return evaluate(fx, X, (dt_list[k + 1],), kw_list[k + 1], c.vectorized)
 
     def noise(k: int) -> np.ndarray | None:
         return noise_factor(Q_list[k + 1], "Q", n, lambda: c.Q1_2, cache)

@@ -31,6 +31,7 @@ from .boundary.covariance import (
     FactorSlot,
     Handed,
     Hook,
+    ModelFunction,
     Unformed,
     as_lower_factor,
     hooks_of,
@@ -47,7 +48,7 @@ from .measurement import gain_from_factors
 from .noise import call_model, handed_points, noise_points
 from .plan import Plan, build_plan
 from .transform import cross_covariance
-from .validate import as_float_array, check_time_step, check_values
+from .validate import as_float_array, check_flag, check_time_step, check_values
 from .weights import WrittenWeights
 
 __all__ = ["SquareRootUKF"]
@@ -145,12 +146,15 @@ class SquareRootUKF:
         sizes when given a matching ``R``).
     dt : float
         Default time step passed to ``fx``.
-    hx : callable
+    hx : callable or None
         ``hx(x, **hx_args) -> (dim_z,)``; with ``vectorized=True``
         ``hx(sigmas, **hx_args)`` maps ``(N, dim_x)`` to ``(N, dim_z)``.
-    fx : callable
+        None, as in filterpy, when every ``update`` is given ``hx=`` (an
+        update given none then raises a ``ParameterError``).
+    fx : callable or None
         ``fx(x, dt, **fx_args) -> (dim_x,)``; with ``vectorized=True``
         ``fx(sigmas, dt, **fx_args)`` maps ``(N, dim_x)`` to ``(N, dim_x)``.
+        None, as in filterpy, when every ``predict`` is given ``fx=``.
     points : sigma-point family or filterpy points object
         The first set's points and weights, e.g. ``MerweScaledWeights()`` or
         filterpy's ``MerweScaledSigmaPoints(n, alpha, beta, kappa)``.
@@ -165,7 +169,8 @@ class SquareRootUKF:
         How the second sigma-point set is formed (g13ej's ROPT(1)); a
         generator object may carry its own weights (ROPT(5..7)).
     vectorized : bool, keyword-only
-        Call ``fx`` and ``hx`` once with all sigma points.
+        Call ``fx`` and ``hx`` once with all sigma points (``True`` or
+        ``False``; anything else is refused).
     gate : None, float or Gate, keyword-only
         Outlier gating (off by default): a chi-square probability such as
         ``0.999``, or a :class:`~squkf.Gate` (a squared Mahalanobis distance,
@@ -258,14 +263,14 @@ class SquareRootUKF:
     _dim_z: int
     _dt: float | None
     _num_sigmas: int
-    hx: Callable
-    fx: Callable
     vectorized: bool
 
     x = Estimate()
     P = Estimate()
     Q = Covariance()
     R = Covariance()
+    hx = ModelFunction(optional=True)
+    fx = ModelFunction(optional=True)
     x_mean = Hook()
     z_mean = Hook()
     residual_x = Hook()
@@ -277,8 +282,8 @@ class SquareRootUKF:
         dim_x: int,
         dim_z: int,
         dt: float | None,
-        hx: Callable,
-        fx: Callable,
+        hx: Callable | None,
+        fx: Callable | None,
         points,
         sqrt_fn: Callable | None = None,
         x_mean_fn: Callable | None = None,
@@ -294,6 +299,11 @@ class SquareRootUKF:
         hx_noise: int | None = None,
     ):
         n, m = checks.check_sizes(dim_x=dim_x, dim_z=dim_z)
+        checks.model_functions(
+            True, hx=hx, fx=fx, sqrt_fn=sqrt_fn, x_mean_fn=x_mean_fn, z_mean_fn=z_mean_fn,
+            residual_x=residual_x, residual_z=residual_z, state_add=state_add,
+        )  # fmt: skip
+        vectorized_ = check_flag(vectorized, "vectorized")
         fx_noise_, hx_noise_ = checks.model_noise(fx, hx, fx_noise, hx_noise)
         dt_ = None if dt is None else check_time_step(dt)  # None: every predict passes its own
         family, num = checks.sigma_family(points, n, fx_noise_)
@@ -316,7 +326,7 @@ class SquareRootUKF:
         d["residual_x"] = np.subtract if residual_x is None else residual_x
         d["residual_z"] = np.subtract if residual_z is None else residual_z
         d["state_add"] = np.add if state_add is None else state_add
-        self.vectorized = bool(vectorized)
+        self.vectorized = vectorized_
         self.inv = np.linalg.inv
         # P, Q (the noise's own dimension when it enters fx), R; x = 0; the records of no step yet
         initial(self, m, fx_noise_ or n, hx_noise_ or m)
@@ -923,10 +933,10 @@ class SquareRootUKF:
             Passed to ``fx``.
         """
         dt = self._dt if dt is None else check_time_step(dt)  # None, if the constructor's was: fx gets None
+        fx = checks.model_function(fx, self.fx, "fx", "predict")
         self._ready("predict")
         e = self._engine
         sigmas = e.first_set()  # fx may write on them: the step reads only their shape
-        fx = self.fx if fx is None else fx
         if self._plan.w_xi is None:
             values = (
                 fx(sigmas[0], dt, **fx_args)
@@ -958,6 +968,8 @@ class SquareRootUKF:
             Passed to ``hx``.
         """
         meas = checks.measurement(z, R, self._dim_z, self._R_dim, self._hx_noise)
+        if meas is not None:  # (as filterpy's, an update without a measurement needs no hx)
+            hx = checks.model_function(hx, self.hx, "hx", "update")
         self._ready("update")
         d = self.__dict__
         e = self._engine
@@ -974,7 +986,6 @@ class SquareRootUKF:
             sset = pending[1]._replace(sigmas=given[None], offsets=None, moments_exact=False, axis=False)
             pending = (pending[0], sset)
         sigmas = pending[1].sigmas[0].copy()  # hx gets its own copy: the update reads the set
-        hx = self.hx if hx is None else hx
         if plan.v_xi is None:
             values = hx(sigmas, **hx_args) if self.vectorized else self._per_point(hx, sigmas, (), hx_args)
             R1_2 = self._R1_2(R, z.shape[0])
@@ -991,7 +1002,7 @@ class SquareRootUKF:
     def compute_process_sigmas(self, dt, fx=None, **fx_args) -> None:
         """Set ``sigmas_f`` to the first set propagated through ``fx`` (state unchanged)."""
         dt = check_time_step(dt)
-        fx = self.fx if fx is None else fx
+        fx = checks.model_function(fx, self.fx, "fx", "compute_process_sigmas")
         self._ready("compute_process_sigmas")
         e = self._engine
         first = self._plan.first

@@ -19,6 +19,8 @@ from .linalg import all_finite
 __all__ = [
     "as_float_array",
     "as_measurements",
+    "check_callable",
+    "check_flag",
     "check_time_step",
     "check_values",
     "point_value",
@@ -26,12 +28,13 @@ __all__ = [
     "check_hook_result",
     "call_hook",
     "note_on_user_error",
+    "short_repr",
 ]
 
 _FLOAT64 = np.dtype(np.float64)  # numpy's native float64 dtype is one object: compared by identity
 
 
-def as_float_array(value, name: str) -> np.ndarray:
+def as_float_array(value, name: str, bools: bool = True) -> np.ndarray:
     """``value`` as a new float64 array; complex or non-numeric input is an error.
 
     Parameters
@@ -39,6 +42,9 @@ def as_float_array(value, name: str) -> np.ndarray:
     value : array_like
     name : str
         Used in the error message.
+    bools : bool
+        Whether booleans are read as numbers (0 and 1), as numpy reads them
+        (the default); False refuses them, in an array or among numbers.
 
     Returns
     -------
@@ -49,10 +55,17 @@ def as_float_array(value, name: str) -> np.ndarray:
     ShapeError
         ``value`` is not a real numeric array (complex, strings, ragged, objects).
         Text is refused in every form, numeric text (``"1.0"``) and an object
-        array holding some included.
+        array holding some included; with ``bools=False``, booleans too.
+    NonFiniteError
+        ``value`` holds a number beyond float64's range (a Python integer
+        such as ``10**400``), which would be infinite.
     """
-    if isinstance(value, np.ndarray) and value.dtype.kind in "fiub":
+    kinds = "fiub" if bools else "fiu"
+    if isinstance(value, np.ndarray) and value.dtype.kind in kinds:
         return np.array(value, dtype=float)
+    if not bools and isinstance(value, (list, tuple)) and _holds_bool(value):
+        # before numpy, which reads [True, 2.0] as [1.0, 2.0]
+        raise _bool_error(name, value)
     try:
         probe = np.asarray(value)
     except (TypeError, ValueError) as exc:
@@ -61,16 +74,76 @@ def as_float_array(value, name: str) -> np.ndarray:
         return probe  # built from a list: already a new array (per-point images), no second copy
     if probe.dtype.kind == "c":
         raise ShapeError(f"{name} is complex ({probe.dtype}); squkf works in real float64")
+    if probe.dtype.kind == "b" and not bools:
+        raise _bool_error(name, value)
     if probe.dtype.kind not in "fiub":
         if probe.dtype.kind == "O" and not any(isinstance(v, (str, bytes)) for v in probe.flat):
+            if not bools and any(isinstance(v, (bool, np.bool_)) for v in probe.flat):
+                raise _bool_error(name, value)
             # objects that are numbers (None, Fractions, 0-d arrays): read as floats; text never,
             # not even "1.0", which numpy's astype(float) would parse
             try:
                 return as_float_array(probe.astype(float), name)
+            except OverflowError:
+                raise NonFiniteError(_too_large(probe, name)) from None
             except (TypeError, ValueError):
                 pass
         raise ShapeError(f"{name} could not be read as a real float array (dtype {probe.dtype}): {value!r}")
     return np.array(probe, dtype=float)
+
+
+def _holds_bool(value: list | tuple) -> bool:
+    """Whether a (nested) list or tuple holds a bool, or a bool array (arrays are not walked)."""
+    for v in value:
+        if type(v) is float:  # the usual entry: nothing to look into
+            continue
+        if isinstance(v, (list, tuple)):
+            if _holds_bool(v):
+                return True
+        elif isinstance(v, (bool, np.bool_)) or (isinstance(v, np.ndarray) and v.dtype.kind == "b"):
+            return True
+    return False
+
+
+def _bool_error(name: str, value) -> ShapeError:
+    return ShapeError(f"{name} holds booleans ({short_repr(value)}): it takes numbers, not True or False")
+
+
+def _too_large(probe: np.ndarray, name: str) -> str:
+    """What is said of an object array holding a number beyond float64's range (a huge Python int)."""
+    for v in probe.flat:
+        try:
+            float(v)
+        except OverflowError:
+            return (
+                f"{name} holds {short_repr(v)}, beyond float64's largest number"
+                f" ({np.finfo(float).max:.4g}): it would be infinite"
+            )
+        except (TypeError, ValueError):
+            continue
+    return f"{name} holds a number beyond float64's largest: it would be infinite"
+
+
+def short_repr(value, limit: int = 60) -> str:
+    """``repr(value)``, cut short for a message: a huge integer by its first digits and length.
+
+    Parameters
+    ----------
+    value : object
+    limit : int
+        The longest text kept whole.
+
+    Returns
+    -------
+    str
+    """
+    text = repr(value)
+    if len(text) <= limit:
+        return text
+    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        digits = len(str(abs(int(value))))
+        return f"{text[:12]}... (an integer of {digits} digits)"
+    return text[: limit - 3] + "..."
 
 
 def as_measurements(value, name: str) -> np.ndarray:
@@ -93,16 +166,20 @@ def as_measurements(value, name: str) -> np.ndarray:
     Raises
     ------
     ShapeError
-        As :func:`as_float_array` (the data of a masked array is read the same way).
+        As :func:`as_float_array` (the data of a masked array is read the same way);
+        booleans (a bool array, or ``True``/``False`` among the numbers) too:
+        a measurement of ``True`` is a mistake, not the number 1.
+    NonFiniteError
+        As :func:`as_float_array`: a number beyond float64's range.
     """
     if isinstance(value, np.ma.MaskedArray):
-        data = as_float_array(np.ma.getdata(value), name)
+        data = as_float_array(np.ma.getdata(value), name, bools=False)
         mask = np.ma.getmaskarray(value)
         if mask.shape != data.shape:
             mask = np.broadcast_to(mask, data.shape)
         data[mask] = np.nan
         return data
-    return as_float_array(value, name)
+    return as_float_array(value, name, bools=False)
 
 
 def check_values(
@@ -298,21 +375,85 @@ def check_time_step(dt, name: str = "dt") -> float:
     Raises
     ------
     ParameterError
-        ``dt`` is a string (numeric or not), complex, not a number, NaN or
-        infinite.
+        ``dt`` is a string (numeric or not), a bool, complex, not a number,
+        NaN, infinite, or beyond float64's range (``10**400``).
     """
     if isinstance(dt, (str, bytes)) or (isinstance(dt, np.ndarray) and dt.dtype.kind not in "fiub"):
         # before float(), which would read "0.1" as a number
         raise ParameterError(f"{name} must be a finite number, got {name}={dt!r} ({type(dt).__name__})")
+    if isinstance(dt, (bool, np.bool_)) or (isinstance(dt, np.ndarray) and dt.dtype.kind == "b"):
+        # before float(), which would read True as a step of 1
+        raise ParameterError(f"{name} must be a finite number, not a bool: got {name}={dt!r}")
     if np.iscomplexobj(dt):  # before float(), which would drop the imaginary part with a warning
         raise ParameterError(f"{name} must be a finite real number, got {name}={dt!r}")
     try:
         value = float(dt)
+    except OverflowError:
+        raise ParameterError(
+            f"{name} must be a finite number, got {name}={short_repr(dt)}: beyond float64's range"
+        ) from None
     except (TypeError, ValueError):
-        raise ParameterError(f"{name} must be a finite number, got {name}={dt!r}") from None
+        raise ParameterError(f"{name} must be a finite number, got {name}={short_repr(dt)}") from None
     if not math.isfinite(value):
-        raise ParameterError(f"{name} must be a finite number, got {name}={dt!r}")
+        raise ParameterError(f"{name} must be a finite number, got {name}={short_repr(dt)}")
     return value
+
+
+def check_callable(value, name: str, optional: bool = True, why: str = ""):
+    """A model function or hook as given: callable, or None where ``optional``.
+
+    Parameters
+    ----------
+    value : callable or None
+    name : str
+        The argument, for the message (``"fx"``, ``"residual_z"``).
+    optional : bool
+        Whether None is taken (filterpy's placeholder, or a hook's default).
+    why : str
+        Why it is needed, for the message (``"a fleet needs fx and hx"``).
+
+    Returns
+    -------
+    callable or None
+        ``value`` itself.
+
+    Raises
+    ------
+    ParameterError
+        ``value`` is neither callable nor (where taken) None.
+    """
+    if value is None and optional:
+        return value
+    if not callable(value):
+        what = "a callable or None" if optional else "a callable"
+        raise ParameterError(
+            f"{name} must be {what}, got {name}={short_repr(value)} ({type(value).__name__})"
+            + (f": {why}" if why else "")
+        )
+    return value
+
+
+def check_flag(value, name: str) -> bool:
+    """An option that is on or off (``vectorized``): ``True`` or ``False``, a numpy bool too.
+
+    Parameters
+    ----------
+    value : bool
+    name : str
+        The argument, for the message.
+
+    Returns
+    -------
+    bool
+
+    Raises
+    ------
+    ParameterError
+        Anything else: ``"no"`` is not False, nor is ``0`` read as it.
+    """
+    if not isinstance(value, (bool, np.bool_)):
+        raise ParameterError(f"{name} must be True or False, got {name}={short_repr(value)}")
+    return bool(value)
 
 
 def note_on_user_error(exc: BaseException, note: str) -> None:

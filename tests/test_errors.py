@@ -4,7 +4,8 @@ The fault matrix (bad measurements, matrices, factors, model functions, weights,
 downdates, singular innovations) on the single filter, each error checked to leave the filter as
 it was and able to go on; the fleet's errors naming the rows or describing the failing filter's
 own values; complex and text input; junk input (property-based). g13ej's IFAIL numbers are
-checked in tests/test_nag.py.
+checked in tests/test_nag.py. Issue 35: model functions and hooks are callable (``fx`` and ``hx``
+may be None, filterpy's placeholder, for one filter given them per call; a fleet needs both).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from models import (
     CV3_NZ,
     CV_DT,
     CV_P0,
+    CV_Q,
     CV_R,
     CV_X0,
     CV_Z,
@@ -552,3 +554,131 @@ def test_the_per_component_decision_keeps_to_the_scale_of_y_and_Sy(y, diag, belo
     scale = 2.0**power
     want = gate.reject(y, Sy, np.zeros(()))
     np.testing.assert_array_equal(gate.reject(y * scale, Sy * scale, np.zeros(())), want)
+
+
+# == issue 35, 7. model functions and hooks: callable, or None where filterpy takes a placeholder ==
+
+
+def placeholder_filter() -> SquareRootUKF:
+    """:func:`models.cv_filter` built as filterpy allows, with ``fx=None`` and ``hx=None``."""
+    f = SquareRootUKF(4, 2, CV_DT, None, None, MerweScaledWeights(alpha=0.5, beta=2.0, kappa=0.0))
+    f.x, f.P, f.Q, f.R = CV_X0, CV_P0, CV_Q, CV_R
+    return f
+
+
+def test_fx_and_hx_may_be_none_and_given_per_call_as_in_filterpy():
+    f, twin = placeholder_filter(), cv_filter()
+    for z in CV_Z[:3]:
+        f.predict(fx=cv_fx)
+        f.update(z, hx=ct_hx)
+        step(twin, z)
+    assert_same_estimate(f, twin)
+    # a call given none is refused, naming the function, and changes nothing
+    snap = filter_state(f)
+    with pytest.raises(ParameterError, match=r"^predict needs fx, but the filter's fx is None"):
+        f.predict()
+    with pytest.raises(ParameterError, match=r"^compute_process_sigmas needs fx"):
+        f.compute_process_sigmas(CV_DT)
+    with pytest.raises(ParameterError, match=r"^at step 0: predict needs fx"):
+        f.batch_filter(CV_Z[:2])
+    with pytest.raises(ParameterError, match=r"^rts_smoother needs fx"):
+        f.rts_smoother(np.stack([f.x] * 2), np.stack([f.P] * 2))
+    assert_filter_state(f, snap)
+    f.predict(fx=cv_fx)
+    snap = filter_state(f)
+    with pytest.raises(ParameterError, match=r"^update needs hx, but the filter's hx is None"):
+        f.update(CV_Z[3])
+    assert_filter_state(f, snap)
+    f.update(None)  # no measurement: no hx wanted, as in filterpy
+    # the halves of a step call neither
+    X = f.ask_predict()
+    f.tell_predict([cv_fx(x, CV_DT) for x in X])
+    Y = f.ask_update()
+    f.tell_update([ct_hx(y) for y in Y], CV_Z[3])
+    # assigned later, they serve every call
+    f.fx, f.hx = cv_fx, ct_hx
+    step(f, CV_Z[4])
+    assert np.all(np.isfinite(f.x))
+
+
+@pytest.mark.parametrize("value", [5, "fx", np.eye(2)], ids=["int", "str", "array"])
+def test_a_model_function_given_per_call_that_is_not_callable_is_refused(value):
+    check(
+        ct_mid_step_filter(),
+        lambda f: f.predict(fx=value),
+        ParameterError,
+        r"^fx must be a callable, got fx=",
+    )
+    check(
+        ct_mid_step_filter(),
+        lambda f: f.update(ct_hx(f.x), hx=value),
+        ParameterError,
+        r"^hx must be a callable, got hx=",
+    )
+
+
+NOT_CALLABLE = [pytest.param(5, id="int"), pytest.param("a", id="str"), pytest.param(np.eye(2), id="array")]
+CONSTRUCTOR_FUNCTIONS = [
+    "hx",
+    "fx",
+    "sqrt_fn",
+    "x_mean_fn",
+    "z_mean_fn",
+    "residual_x",
+    "residual_z",
+    "state_add",
+]
+
+
+@pytest.mark.parametrize("value", NOT_CALLABLE)
+@pytest.mark.parametrize("name", CONSTRUCTOR_FUNCTIONS)
+def test_a_model_function_or_hook_that_is_not_callable_is_refused_at_construction(name, value):
+    single = {"hx": ct_hx, "fx": cv_fx, name: value}
+    with pytest.raises(ParameterError, match=rf"^{name} must be a callable or None, got {name}="):
+        SquareRootUKF(4, 2, CV_DT, points=MerweScaledWeights(), **single)
+    if name == "sqrt_fn":  # (a fleet takes none)
+        return
+    fleet = {"hx": positions_hx, "fx": cv_fx_stacked, name: value}
+    with pytest.raises(ParameterError, match=rf"^{name} must be a callable"):
+        Fleet(CV3_K, 4, 2, 1.0, points=MerweScaledWeights(), **fleet)
+
+
+@pytest.mark.parametrize("value", NOT_CALLABLE)
+@pytest.mark.parametrize("name", ["fx", "hx", "x_mean", "z_mean", "residual_x", "residual_z", "state_add"])
+def test_assigning_a_model_function_or_hook_that_is_not_callable_is_refused(name, value):
+    f = ct_mid_step_filter()
+    before = getattr(f, name)
+    check(f, lambda g: setattr(g, name, value), ParameterError, rf"^{name} must be a callable or None, got")
+    assert getattr(f, name) is before
+    fl = make_cv3_fleet()
+    before = getattr(fl, name)
+    snap = fleet_state(fl)
+    with pytest.raises(ParameterError, match=rf"^{name} must be a callable"):
+        setattr(fl, name, value)
+    assert getattr(fl, name) is before
+    assert_fleet_state(fl, snap)
+
+
+@pytest.mark.parametrize("name", ["fx", "hx"])
+def test_a_fleet_needs_fx_and_hx(name):
+    match = rf"^{name} must be a callable, got {name}=None .*: a fleet needs fx and hx"
+    with pytest.raises(ParameterError, match=match):
+        Fleet(
+            CV3_K,
+            4,
+            2,
+            1.0,
+            points=MerweScaledWeights(),
+            **{"hx": positions_hx, "fx": cv_fx_stacked, name: None},
+        )
+    fl = make_cv3_fleet()
+    before = getattr(fl, name)
+    snap = fleet_state(fl)
+    with pytest.raises(ParameterError, match=match):
+        setattr(fl, name, None)
+    assert getattr(fl, name) is before
+    assert_fleet_state(fl, snap)
+    one = {"hx": positions_hx, "fx": cv_fx_stacked, name: None}
+    f = SquareRootUKF(4, 2, 1.0, points=MerweScaledWeights(), vectorized=True, **one)
+    with pytest.raises(ParameterError, match=match):
+        Fleet.from_filters([f])

@@ -991,6 +991,52 @@ def test_from_filters_validates_pending_edits_and_takes_points_objects_equal_by_
         Fleet.from_filters([fs[0], cv_single(MerweScaledSigmaPoints(FLEET_N_X, 0.4, 2.0, 0.0))])
 
 
+NOT_FILTERS = [
+    pytest.param(None, r"^filters must be a sequence of squkf\.SquareRootUKF, got filters=None", id="None"),
+    pytest.param(5, r"^filters must be a sequence of squkf\.SquareRootUKF, got filters=5", id="int"),
+    pytest.param("ab", r"^filters must be a sequence", id="str"),
+    pytest.param({0: "a"}, r"^filters must be a sequence", id="dict"),
+    pytest.param([], r"^filters is empty", id="empty"),
+    pytest.param(iter([]), r"^filters is empty", id="empty iterator"),
+    pytest.param([None], r"^filters\[0\] is not a squkf\.SquareRootUKF: got None", id="[None]"),
+    pytest.param(["x"], r"^filters\[0\] is not a squkf\.SquareRootUKF: got 'x'", id="['x']"),
+    pytest.param("one and x", r"^filters\[1\] is not a squkf\.SquareRootUKF: got 'x'", id="[ukf, 'x']"),
+]
+
+
+@pytest.mark.parametrize("filters, match", NOT_FILTERS)
+def test_from_filters_refuses_what_is_not_a_sequence_of_square_root_ukfs_naming_filters(filters, match):
+    if filters == "one and x":
+        filters = [cv_single(MerweScaledWeights()), "x"]
+    with pytest.raises(ParameterError, match=match):
+        Fleet.from_filters(filters)
+
+
+def test_from_filters_given_filterpys_ukf_says_how_to_build_a_square_root_ukf_from_it():
+    from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+    points = MerweScaledSigmaPoints(FLEET_N_X, 0.5, 2.0, 0.0)
+    theirs = UnscentedKalmanFilter(FLEET_N_X, FLEET_N_Z, FLEET_DT, range_bearing_hx, cv_fx_stacked, points)
+    theirs.x, theirs.P = np.array([10.0, 1.0, 5.0, 0.5]), FLEET_P0
+    ours = cv_single(MerweScaledWeights())
+    for filters, k in (([theirs], 0), ([ours, theirs], 1)):
+        with pytest.raises(
+            ParameterError,
+            match=rf"^filters\[{k}\] is filterpy's UnscentedKalmanFilter, not a squkf\.SquareRootUKF: build"
+            r" each as squkf\.SquareRootUKF with the same arguments .* and vectorized=True, and give it"
+            r" the filterpy filter's x, P, Q and R",
+        ):
+            Fleet.from_filters(filters)
+    # what the message says, done
+    g = SquareRootUKF(
+        FLEET_N_X, FLEET_N_Z, FLEET_DT, range_bearing_hx, cv_fx_stacked, points, vectorized=True
+    )
+    g.x, g.P, g.Q, g.R = theirs.x, theirs.P, theirs.Q, theirs.R
+    fleet = Fleet.from_filters([g])
+    np.testing.assert_array_equal(fleet.x[0], theirs.x)
+    np.testing.assert_allclose(fleet.P[0], theirs.P, rtol=1e-15)
+
+
 @pytest.mark.parametrize("scheme", SCHEMES)
 def test_one_filter_out_or_filters_in_between_predict_and_update_keep_the_step_or_raise(scheme):
     fleet, singles, zs = fleet_and_singles(3, "merwe", scheme)

@@ -3,7 +3,9 @@
 dt is any finite real number (negative: a step backwards), never a string; fx_args and hx_args
 reach the model functions only and may not be named like a step argument; what a zs iterable
 yields is checked naming the step, and zs must be array-like; text measurements are errors before
-anything runs. Each test failed on the code before its fix (issue 20).
+anything runs. Each test failed on the code before its fix (issue 20). Issue 35: a number beyond
+float64's range (``10**400``) anywhere is refused naming its argument; a time step is never a bool,
+a measurement never holds booleans, and ``vectorized`` is True or False.
 """
 
 from __future__ import annotations
@@ -42,7 +44,15 @@ from models import (
     positions_hx,
 )
 
-from squkf import Fleet, MerweScaledWeights, ParameterError, ShapeError, SquareRootUKF, SqukfError
+from squkf import (
+    Fleet,
+    MerweScaledWeights,
+    NonFiniteError,
+    ParameterError,
+    ShapeError,
+    SquareRootUKF,
+    SqukfError,
+)
 
 # the paths here end in documented errors or decisions: no numpy RuntimeWarning may escape squkf
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
@@ -437,3 +447,222 @@ def test_the_vectorised_and_fleet_routes_keep_exact_shapes():
     with pytest.raises(ShapeError, match=r"fx values have shape \(1, 3, 9, 4\), expected \(3, 9, 4\)"):
         fl.predict()
     assert_fleet_state(fl, snap)
+
+
+# -- issue 35, 6. a number beyond float64's range is an error naming its argument ----------------
+#
+# A Python integer such as 10**400 has no float64: numpy and float() raise a bare OverflowError.
+# Anywhere in an array (a list, nested lists, an object array) or as one number, it is refused as
+# the infinity it would be: a NonFiniteError naming the argument (a ParameterError for a time
+# step, as every other bad dt), and nothing changes.
+
+HUGE = st.integers(min_value=2**1024, max_value=10**500) | st.integers(
+    min_value=-(10**500), max_value=-(2**1024)
+)
+FORMS = ["list", "object array", "one number"]
+
+
+def with_huge(value: np.ndarray, where: int, huge: int, form: str):
+    """``value`` with entry ``where`` (modulo its size) made ``huge``, as nested lists or an object array."""
+    if form == "one number":
+        return huge
+    out = np.asarray(value, dtype=float).astype(object)
+    out.flat[where % out.size] = huge
+    return out.tolist() if form == "list" else out
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    target=st.sampled_from(["x", "P", "Q", "R", "Q per call", "R per call", "z", "z in tell_update"]),
+    where=st.integers(0, 100),
+    huge=HUGE,
+    form=st.sampled_from(FORMS),
+)
+def test_a_huge_integer_is_refused_naming_its_argument_for_one_filter(target, where, huge, form):
+    f = near_filter()
+    z = near_measurements(1)[0]
+    f.predict()
+    f.update(z)
+    name = target.split()[0]
+    bad = with_huge({"x": f.x, "P": f.P, "Q": f.Q, "R": f.R, "z": z}[name], where, huge, form)
+    snap = filter_state(f)
+    with pytest.raises(NonFiniteError, match=rf"^{name} holds .*beyond float64's largest"):
+        if target == "Q per call":
+            f.predict(Q=bad)
+        elif target == "R per call":
+            f.update(z, R=bad)
+        elif target == "z":
+            f.update(bad)
+        elif target == "z in tell_update":
+            Y = f.ask_update()
+            f.tell_update([ct_hx(y) for y in Y], bad)
+        else:
+            setattr(f, name, bad)
+    if target == "z in tell_update":
+        f.tell_update([ct_hx(y) for y in Y], z)  # the ask is still pending: the step completes
+    else:
+        assert_filter_state(f, snap)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    target=st.sampled_from(["x", "P", "Q", "R", "R per call", "z"]),
+    per_filter=st.booleans(),
+    where=st.integers(0, 100),
+    huge=HUGE,
+    form=st.sampled_from(FORMS),
+)
+def test_a_huge_integer_is_refused_naming_its_argument_for_a_fleet(target, per_filter, where, huge, form):
+    fl = make_cv3_fleet()
+    zs = cv3_zs(1)[:, 0]
+    name = target.split()[0]
+    one = {"x": fl.x[0], "P": fl.P[0], "Q": fl.Q, "R": fl.R, "z": zs}[name]  # Q and R are shared
+    good = np.broadcast_to(one, (CV3_K,) + one.shape) if per_filter and name != "z" else one
+    bad = with_huge(good, where, huge, form)
+    snap = fleet_state(fl)
+    with pytest.raises(NonFiniteError, match=rf"^{name} holds .*beyond float64's largest"):
+        if target == "R per call":
+            fl.update(zs, R=bad)
+        elif target == "z":
+            fl.update(bad)
+        else:
+            setattr(fl, name, bad)
+    assert_fleet_state(fl, snap)
+
+
+@pytest.mark.parametrize("huge", [10**400, -(10**400)], ids=["+10**400", "-10**400"])
+def test_a_huge_integer_in_a_run_is_refused_naming_it(huge):
+    zs = near_measurements(3).astype(object)
+    zs[1, 0] = huge
+    f = near_filter()
+    snap = filter_state(f)
+    with pytest.raises(NonFiniteError, match=r"at step 1: z holds"):
+        f.batch_filter(zs.tolist())
+    assert_filter_state(f, snap)
+    fzs = cv3_zs(3).astype(object)
+    fzs[2, 1, 1] = huge
+    fl = make_cv3_fleet()
+    snap = fleet_state(fl)
+    with pytest.raises(NonFiniteError, match=r"^zs holds"):
+        fl.batch_filter(fzs.tolist())
+    assert_fleet_state(fl, snap)
+
+
+# -- issue 35, 6. and 9. a time step is a number: not beyond float64's range, not a bool -----------
+
+
+BAD_STEPS = [10**400, -(10**400), True, False, np.True_, np.array(True)]
+
+
+@pytest.mark.parametrize(
+    "bad", BAD_STEPS, ids=["+10**400", "-10**400", "True", "False", "np.True_", "0-d bool"]
+)
+def test_a_huge_or_boolean_dt_is_refused_naming_it_on_every_route(bad):
+    with pytest.raises(ParameterError, match="^dt must be a finite number"):
+        SquareRootUKF(5, 2, bad, ct_hx, ct_fx, MerweScaledWeights())
+    with pytest.raises(ParameterError, match="^dt must be a finite number"):
+        Fleet(CV3_K, CV3_NX, CV3_NZ, bad, positions_hx, cv_fx_nudged, MerweScaledWeights())
+    f = near_filter()
+    f.predict()
+    snap = filter_state(f)
+    with pytest.raises(ParameterError, match="^dt must be a finite number"):
+        f.predict(dt=bad)
+    with pytest.raises(ParameterError, match=r"dts\[1\] must be a finite number"):
+        f.batch_filter(near_measurements(3), dts=[1.0, bad, 1.0])
+    with pytest.raises(ParameterError, match="^dts must be"):
+        f.batch_filter(near_measurements(3), dts=bad)
+    assert_filter_state(f, snap)
+    means, covs = near_filter().batch_filter(near_measurements(3))
+    with pytest.raises(ParameterError, match=r"dts\[2\] must be a finite number"):
+        near_filter().rts_smoother(means, covs, dts=[1.0, 1.0, bad])
+    fl = make_cv3_fleet()
+    snap = fleet_state(fl)
+    with pytest.raises(ParameterError, match="^dt must be a finite number"):
+        fl.predict(dt=bad)
+    with pytest.raises(ParameterError, match=r"dts\[1\] must be a finite number"):
+        fl.batch_filter(cv3_zs(3), dts=[1.0, bad, 1.0])
+    assert_fleet_state(fl, snap)
+
+
+def test_a_boolean_array_of_dts_is_refused_naming_the_step():
+    f = near_filter()
+    snap = filter_state(f)
+    with pytest.raises(ParameterError, match=r"dts\[0\] must be a finite number, not a bool"):
+        f.batch_filter(near_measurements(2), dts=np.array([True, True]))
+    assert_filter_state(f, snap)
+
+
+# -- issue 35, 9. a measurement is numbers, not booleans ------------------------------------------
+
+
+def bool_versions(zs: np.ndarray) -> dict:
+    """``zs`` (any shape) with booleans: a bool array, Python bools, one bool among numbers."""
+    flags = zs > 0
+    mixed = zs.astype(object)
+    mixed.flat[0] = True
+    return {
+        "bool array": flags,
+        "list of bools": flags.tolist(),
+        "one bool among numbers (list)": mixed.tolist(),
+        "one bool among numbers (object array)": mixed,
+        "numpy bool among numbers": [np.True_] + zs.ravel()[1:].tolist() if zs.ndim == 1 else None,
+        "masked bool array": np.ma.masked_array(flags, mask=np.zeros(zs.shape, dtype=bool)),
+    }
+
+
+@pytest.mark.parametrize("what", list(bool_versions(np.zeros(2))))
+def test_a_boolean_measurement_is_refused_naming_z_for_one_filter(what):
+    zs = near_measurements(3)
+    z = bool_versions(zs[0])[what]
+    f = near_filter()
+    f.predict()
+    snap = filter_state(f)
+    with pytest.raises(ShapeError, match="^z holds booleans"):
+        f.update(z)
+    assert_filter_state(f, snap)
+    Y = f.ask_update()
+    with pytest.raises(ShapeError, match="^z holds booleans"):
+        f.tell_update([ct_hx(y) for y in Y], z)
+    f.tell_update([ct_hx(y) for y in Y], zs[0])  # the ask is still pending: the step completes
+    f = near_filter()
+    snap = filter_state(f)
+    with pytest.raises(ShapeError, match=r"at step 1: z holds booleans"):
+        f.batch_filter([zs[0], z, zs[2]])
+    assert_filter_state(f, snap)
+
+
+@pytest.mark.parametrize("what", [w for w in bool_versions(np.zeros(2)) if "numpy bool" not in w])
+def test_a_boolean_measurement_is_refused_naming_z_for_a_fleet(what):
+    z = bool_versions(cv3_zs(1)[:, 0])[what]
+    zs = bool_versions(cv3_zs(3))[what]
+    fl = make_cv3_fleet()
+    fl.predict()
+    snap = fleet_state(fl)
+    with pytest.raises(ShapeError, match="^z holds booleans"):
+        fl.update(z)
+    assert_fleet_state(fl, snap)
+    Y = fl.ask_update()
+    with pytest.raises(ShapeError, match="^z holds booleans"):
+        fl.tell_update(positions_hx(Y), z)
+    fl.tell_update(positions_hx(Y), cv3_zs(1)[:, 0])  # the ask is still pending: the step completes
+    fl = make_cv3_fleet()
+    snap = fleet_state(fl)
+    with pytest.raises(ShapeError, match="^zs holds booleans"):
+        fl.batch_filter(zs)
+    assert_fleet_state(fl, snap)
+    sd = pytest.importorskip("squkf.dask")
+    with pytest.raises(ShapeError, match="^zs holds booleans"):  # before anything is scheduled
+        sd.batch_filter(make_cv3_fleet(), zs)
+
+
+# -- issue 35, 9. vectorized is True or False -------------------------------------------------------
+
+
+@pytest.mark.parametrize("bad", ["no", "False", "", 1, 0, 1.0, None, [True]], ids=repr)
+def test_vectorized_that_is_not_a_bool_is_refused_naming_it(bad):
+    with pytest.raises(ParameterError, match=r"^vectorized must be True or False"):
+        SquareRootUKF(5, 2, 1.0, ct_hx, ct_fx, MerweScaledWeights(), vectorized=bad)
+    # numpy's bools are bools
+    assert near_filter(vectorized=np.False_).vectorized is False
+    fl = SquareRootUKF(4, 2, 1.0, positions_hx, cv_fx_nudged, MerweScaledWeights(), vectorized=np.True_)
+    assert fl.vectorized is True

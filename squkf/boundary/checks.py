@@ -23,7 +23,13 @@ from ..generators import as_generator, noise_family
 from ..linalg import all_finite, factor_covariance
 from ..noise import check_accepts_noise, check_noise_dim
 from ..plan import check_built_for
-from ..validate import as_float_array, as_measurements, describe_nonfinite, note_on_user_error
+from ..validate import (
+    as_float_array,
+    as_measurements,
+    check_callable,
+    describe_nonfinite,
+    note_on_user_error,
+)
 from ..weights import FilterpyPoints, as_family
 from .covariance import FactorSlot, as_lower_factor, as_matrix
 
@@ -45,6 +51,8 @@ __all__ = [
     "measurement",
     "measurement_series",
     "measurements",
+    "model_function",
+    "model_functions",
     "model_noise",
     "noise_factor",
     "noise_factors",
@@ -159,6 +167,61 @@ def written_record(value, name: str, ndim: int) -> np.ndarray:
         want = "a vector" if ndim == 1 else "a matrix"
         raise ShapeError(f"{name} must be {want} ({ndim}-D), got shape {A.shape}")
     return A
+def model_functions(optional: bool, **functions) -> None:
+    """The model functions and hooks a constructor was given, each callable (or None where taken).
+
+    Parameters
+    ----------
+    optional : bool
+        Whether ``fx`` and ``hx`` may be None (filterpy's placeholder, a
+        function given per call: one filter), or are needed (a fleet).
+        The hooks and ``sqrt_fn`` may always be None.
+    **functions : callable or None
+        Name (the constructor's argument) and value, checked in order.
+
+    Raises
+    ------
+    ParameterError
+        A value that is neither callable nor (where taken) None, naming it.
+    """
+    for name, fn in functions.items():
+        needed = not optional and name in ("fx", "hx")
+        check_callable(fn, name, not needed, "a fleet needs fx and hx" if needed else "")
+
+
+def model_function(given, own, name: str, call: str, per_call: bool = True) -> Callable:
+    """The model function of a call: the one ``given`` to it, else the filter's ``own``.
+
+    Parameters
+    ----------
+    given : callable or None
+        The call's (``predict(fx=...)``).
+    own : callable or None
+        The filter's (None: filterpy's placeholder, never set).
+    name : {"fx", "hx"}
+    call : str
+        The call, for the message (``"predict"``, ``"rts_smoother"``).
+    per_call : bool
+        Whether ``call`` takes the function as an argument (said in the message).
+
+    Returns
+    -------
+    callable
+
+    Raises
+    ------
+    ParameterError
+        Neither is callable: nothing was changed.
+    """
+    if given is not None:
+        return check_callable(given, name, optional=False)
+    if own is None:
+        how = f"pass {call}({name}=...) or assign" if per_call else "assign"
+        raise ParameterError(
+            f"{call} needs {name}, but the filter's {name} is None (never set):"
+            f" {how} a function to ukf.{name}"
+        )
+    return own
 
 
 def as_state(value, name: str, dim: int) -> np.ndarray:
@@ -575,13 +638,14 @@ def finite_images(A: np.ndarray, name: str, active, fails: dict) -> np.ndarray:
     return finite
 
 
-def model_noise(fx: Callable, hx: Callable, fx_noise, hx_noise) -> tuple[int, int]:
+def model_noise(fx: Callable | None, hx: Callable | None, fx_noise, hx_noise) -> tuple[int, int]:
     """The dimensions of the noise entering ``fx`` and ``hx``, checked with the functions that take it.
 
     Parameters
     ----------
-    fx, hx : callable
-        With noise, ``fx(x, w, dt)`` and ``hx(x, v)`` must take it (:mod:`squkf.noise`).
+    fx, hx : callable or None
+        With noise, ``fx(x, w, dt)`` and ``hx(x, v)`` must take it (:mod:`squkf.noise`);
+        None (a function given per call) is not checked.
     fx_noise, hx_noise : int or None
         None: additive noise.
 

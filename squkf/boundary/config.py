@@ -170,7 +170,7 @@ def common_config(configs: Sequence[Config]) -> Config:
         configuration differs from the first's.
     """
     if not configs:
-        raise ParameterError("from_filters needs at least one filter")
+        raise ParameterError("filters is empty: from_filters needs at least one filter")
     key0 = _key(configs[0])
     for k, c in enumerate(configs):
         if not c.vectorized:

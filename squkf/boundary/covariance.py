@@ -16,8 +16,8 @@ in place as often as it assigns them (``ukf.P *= 10``, ``ukf.Q[2:4, 2:4] = ...``
 - one filter's attributes in its ``__dict__``, as filterpy keeps them
   (filterpy's ``Saver`` deep-copies the ``__dict__``): data descriptors
   (:class:`Estimate` for ``x`` and ``P``, :class:`Covariance` for ``Q`` and
-  ``R``, :class:`Hook`), and :class:`Unformed`, an array not formed since the
-  value behind it changed.
+  ``R``, :class:`Hook`, :class:`ModelFunction` for ``fx`` and ``hx``), and
+  :class:`Unformed`, an array not formed since the value behind it changed.
 """
 
 from __future__ import annotations
@@ -25,13 +25,14 @@ from __future__ import annotations
 import copy
 import functools
 from collections.abc import Callable, Iterable
+from typing import Any
 
 import numpy as np
 
 from ..errors import NonFiniteError, NotPositiveDefiniteError, ShapeError, SqukfValueError
 from ..linalg import all_finite, factor_covariance
 from ..plan import Hooks
-from ..validate import as_float_array
+from ..validate import as_float_array, check_callable
 
 __all__ = [
     "as_lower_factor",
@@ -43,6 +44,7 @@ __all__ = [
     "HandOut",
     "Hook",
     "hooks_of",
+    "ModelFunction",
     "initial",
     "NOISES",
     "set_factor",
@@ -480,8 +482,35 @@ class Hook:
         return obj.__dict__[self.name]
 
     def __set__(self, obj, value):
-        obj.__dict__[self.name] = value
+        obj.__dict__[self.name] = check_callable(value, self.name)
         obj._hooks_assigned()
+
+
+class ModelFunction:
+    """``fx`` or ``hx``, kept in the instance's ``__dict__`` (filterpy's layout), callable when assigned.
+
+    Parameters
+    ----------
+    optional : bool
+        Whether None is taken: filterpy's placeholder for a function given
+        per call (``predict(fx=...)``), which a call given none refuses.
+    why : str
+        Why it is needed where None is not taken, for the message.
+    """
+
+    def __init__(self, optional: bool, why: str = ""):
+        self.optional, self.why = optional, why
+
+    def __set_name__(self, owner, name: str):
+        self.name = name
+
+    def __get__(self, obj, owner=None) -> Any:
+        if obj is None:
+            return self
+        return obj.__dict__[self.name]
+
+    def __set__(self, obj, value) -> None:
+        obj.__dict__[self.name] = check_callable(value, self.name, self.optional, self.why)
 
 
 def initial(obj, m: int, q: int, r: int) -> None:
