@@ -578,10 +578,16 @@ class FilterpyPoints(_CachedFamily):
         p = self.points
         name = type(p).__name__
         if "Merwe" in name and all(hasattr(p, a) for a in ("alpha", "beta", "kappa")):
-            return MerweScaledWeights(p.alpha, p.beta, p.kappa)
-        if "Julier" in name and hasattr(p, "kappa"):
-            return JulierWeights(p.kappa)
-        return None
+            key: tuple = (MerweScaledWeights, p.alpha, p.beta, p.kappa)
+        elif "Julier" in name and hasattr(p, "kappa"):
+            key = (JulierWeights, p.kappa)
+        else:
+            return None
+        # made once per parameters read (a filter's plan asks more than once; the object may be changed)
+        kept = self.__dict__.get("_native")
+        if kept is None or kept[0] != key:
+            kept = self.__dict__["_native"] = (key, key[0](*key[1:]))
+        return kept[1]
 
 
 class WrittenWeights(_CachedFamily):
@@ -639,7 +645,7 @@ def as_family(points) -> SigmaPointFamily:
         If ``points`` is neither.
     """
     if isinstance(points, (_CachedFamily,)) or (
-        isinstance(points, SigmaPointFamily) and not hasattr(points, "sigma_points")
-    ):
+        not hasattr(points, "sigma_points") and isinstance(points, SigmaPointFamily)
+    ):  # (the protocol's check is slow: a filterpy object, with sigma_points, skips it)
         return points
     return FilterpyPoints(points)

@@ -411,6 +411,46 @@ def cv_filter(scheme="redrawn", points=None, **kw):
     return f
 
 
+def cv_pair(cls_points=None, dt=CV_DT, **kw):
+    """The four-state radar in squkf and in filterpy 2.0.0, one points object each (Merwe, alpha 0.5)."""
+    points = cls_points or (lambda: MerweScaledSigmaPoints(4, 0.5, 2.0, 0.0))
+    pair = []
+    for cls in (SquareRootUKF, UnscentedKalmanFilter):
+        f = cls(4, 2, dt, ct_hx, cv_fx, points(), **kw)
+        f.x, f.P, f.Q, f.R = CV_X0.copy(), CV_P0.copy(), CV_Q.copy(), CV_R.copy()
+        pair.append(f)
+    return tuple(pair)
+
+
+def ctrv_fx(x, dt):
+    """A car's turn rate and velocity model (CTRV), state [px, py, v, yaw, yaw rate]; dt is None: 0.1."""
+    dt = 0.1 if dt is None else dt
+    px, py, v, yaw, w = x
+    if abs(w) > 1e-6:
+        px += v / w * (np.sin(yaw + w * dt) - np.sin(yaw))
+        py += v / w * (np.cos(yaw) - np.cos(yaw + w * dt))
+    else:
+        px += v * dt * np.cos(yaw)
+        py += v * dt * np.sin(yaw)
+    return np.array([px, py, v, yaw + w * dt, w])
+
+
+def ctrv_hx(x):
+    """The car's position (a LiDAR's)."""
+    return x[:2]
+
+
+def ctrv_track(T=8, seed=5):
+    """Noisy positions of a car turning at 0.3 rad/s at 5 m/s, every 0.1 s."""
+    rng = np.random.default_rng(seed)
+    x = np.array([0.0, 0.0, 5.0, 0.0, 0.3])
+    zs = []
+    for _ in range(T):
+        x = ctrv_fx(x, 0.1)
+        zs.append(x[:2] + rng.normal(0.0, 0.15, 2))
+    return zs
+
+
 def step(f, z):
     """One predict and one update."""
     f.predict()
