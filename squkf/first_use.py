@@ -294,8 +294,13 @@ def precompile() -> Precompiled:
     """
     start = time.perf_counter()
     before = sum(cache.compiled().values())
-    for run in WORKLOADS.values():
-        run()
+    cache.compiling_all(True)
+    try:
+        for run in WORKLOADS.values():
+            run()
+    finally:
+        cache.compiling_all(False)
+        cache.end_of_compile()
     missing = unreached()
     if missing:
         raise RuntimeError(

@@ -1,7 +1,8 @@
 """The benchmarks' --quick modes run and write complete results (no time is asserted).
 
 benchmarks/run.py (the single filter), benchmarks/fleet.py (its table, figure and JSON, and the
-fleet matching the loop) and benchmarks/dask_bench.py (on a LocalCluster).
+fleet matching the loop), benchmarks/dask_bench.py (on a LocalCluster) and benchmarks/blas_threads.py
+(a large filter's step with the BLAS at its default threads and on one).
 """
 
 from __future__ import annotations
@@ -193,3 +194,20 @@ def test_fleet_profile_splits_the_whole_step():
     assert kernels.KERNELS is table
     assert row["kernels"] > 0 and row["model"] > 0
     assert math.isclose(row["kernels"] + row["model"] + row["rest"], row["whole"])
+
+
+def test_quick_blas_threads_benchmark_writes_results(tmp_path):
+    subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "blas_threads.py"), "--quick", "--out", str(tmp_path)],
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    text = (tmp_path / "blas_threads.md").read_text()
+    arms = ("default threads (squkf's hold on)", "OPENBLAS_NUM_THREADS=1", "default threads, hold off")
+    for arm in arms:
+        (row,) = [line for line in text.splitlines() if line.startswith(f"| {arm}")]
+        assert float(row.split("|")[2]) > 0, row
+    (target,) = [line for line in text.splitlines() if line.startswith("| a step at n = 81")]
+    assert re.search(r"\| \d+\.\d\dx \(per repetition: \d+\.\d\d\) \| (met|\*\*not met\*\*) \|$", target)

@@ -13,23 +13,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import threadpoolctl
 from models import decay_filter
 
 from squkf import blas, sqrt_unscented_transform
 from squkf.errors import NonFiniteError
 
-_TPC = []
-
-
-def _threadpoolctl():
-    """threadpoolctl (the test is skipped without it), kept for when a test hides it from ``import``."""
-    if not _TPC:
-        _TPC.append(pytest.importorskip("threadpoolctl"))
-    return _TPC[0]
-
 
 def _libs():
-    libs = _threadpoolctl().ThreadpoolController().select(user_api="blas").lib_controllers
+    libs = threadpoolctl.ThreadpoolController().select(user_api="blas").lib_controllers
     if not libs:
         pytest.skip("threadpoolctl finds no BLAS library")
     return libs
@@ -43,7 +35,7 @@ def _set_all(libs, n):
     """
     for lib, k in zip(libs, n if isinstance(n, list) else [n] * len(libs)):
         lib.set_num_threads(k)
-    release = getattr(_threadpoolctl().OpenBLASController, "clear_controlling_thread", None)
+    release = getattr(threadpoolctl.OpenBLASController, "clear_controlling_thread", None)
     if release is not None:
         release(force=True)
 
@@ -152,7 +144,6 @@ def test_a_count_changed_during_the_step_is_not_overwritten(libs):
 def test_a_threadpool_limits_block_ending_during_the_step_stands(libs):
     # The block starts before the step (2 -> 3) and ends inside it, putting back 2;
     # the hold, which saw 3 on entry, must not write 3 back over that.
-    threadpoolctl = _threadpoolctl()
     seen = []
     with ExitStack() as stack:
         stack.enter_context(threadpoolctl.threadpool_limits(limits=3, user_api="blas"))
@@ -294,33 +285,10 @@ def test_late_holder_stays_held_until_it_leaves(monkeypatch):
     assert lib.get_num_threads() == 2
 
 
-# ---------------------------------------------------------------- without threadpoolctl
-
-
-def test_without_threadpoolctl_the_hold_does_nothing(monkeypatch):
-    monkeypatch.setitem(sys.modules, "threadpoolctl", None)  # makes `import threadpoolctl` fail
-    monkeypatch.setattr(blas, "_found", None)
-    monkeypatch.setattr(blas, "MIN_DIM", 8)
-    with blas.one_blas_thread():
-        pass
-    f = decay_filter(8)
-    f.predict()
-    f.update(np.zeros(2))
-    assert np.all(np.isfinite(f.x))
-
-
-def test_without_threadpoolctl_counts_are_untouched(libs, monkeypatch):
-    monkeypatch.setitem(sys.modules, "threadpoolctl", None)
-    monkeypatch.setattr(blas, "_found", None)
-    seen = []
-    f = decay_filter(8)
-    f.predict(UT=_recording_ut(seen, libs))
-    assert seen == [[2] * len(libs)]
+# ---------------------------------------------------------------- the lookup
 
 
 def test_a_failed_inspection_warns_and_leaves_the_blas_alone(libs, monkeypatch):
-    threadpoolctl = _threadpoolctl()
-
     def broken():
         raise OSError("no /proc here")
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -27,6 +28,7 @@ from squkf.kernels import cache, phases
 ROOT = Path(squkf.__file__).resolve().parents[1]  # the squkf under test
 TESTS = Path(__file__).resolve().parent
 LINE = "squkf: compiling"  # how the line said on a compile starts
+END = "squkf: compiled in "  # how the line said when that compile has ended starts
 
 #: Counts, in a subprocess, the compiles of squkf's kernels through numba's event API; prints them last.
 COUNT_COMPILES = """
@@ -79,6 +81,12 @@ def said(out: subprocess.CompletedProcess) -> list[str]:
     return [line for line in out.stderr.splitlines() if line.startswith(LINE)]
 
 
+def said_ended(out: subprocess.CompletedProcess) -> list[float]:
+    """The seconds that the lines said at the end of a compile give."""
+    lines = [line for line in out.stderr.splitlines() if line.startswith(END)]
+    return [float(re.fullmatch(r"squkf: compiled in (\d+\.\d) s", line).group(1)) for line in lines]
+
+
 def steps_of_a_filter_and_a_fleet() -> dict[str, list]:
     """A per-point filter's steps over ``CV_Z`` and a fleet's two steps: their state, as lists."""
     f = cv_filter()
@@ -108,6 +116,40 @@ def test_a_compile_is_said_once_with_the_cache_and_a_cache_load_or_a_users_funct
     assert said(warm) == []
 
 
+def test_a_compile_says_how_long_it_usually_takes_what_may_compile_later_and_when_it_ended(tmp_path):
+    cache_dir = tmp_path / "numba"
+    cold = run_python(SOME_KERNELS + "import time\ntime.sleep(0.1)\n" + SOME_KERNELS, cache_dir)
+    (line,) = said(cold)
+    assert "typically 10-60 s, once" in line
+    assert "batch_filter, a Fleet or hooks may compile once more" in line
+    assert "python -m squkf precompile" in line
+    (seconds,) = said_ended(cold)  # several kernels, one compile said, one end
+    lines = cold.stderr.splitlines()
+    assert lines.index(line) < next(i for i, text in enumerate(lines) if text.startswith(END))
+    assert 0.0 < seconds < 600.0
+    warm = run_python(SOME_KERNELS, cache_dir)
+    assert said(warm) == [] and said_ended(warm) == []
+    quiet = run_python(SOME_KERNELS, tmp_path / "other", SQUKF_QUIET_COMPILE="1")
+    assert said(quiet) == [] and said_ended(quiet) == []
+
+
+def test_precompile_says_it_compiles_every_kernel_not_first_use(tmp_path):
+    """Its line (a run cut to squkf.linalg's workload, which leaves kernels unreached) and its end."""
+    code = (
+        "import squkf.first_use as fu\n"
+        "fu.WORKLOADS = {'squkf.linalg': fu._linear_algebra}\n"
+        "try:\n"
+        "    fu.precompile()\n"
+        "except RuntimeError:\n"
+        "    print('unreached', flush=True)\n"
+    )
+    out = run_python(code, tmp_path / "numba")
+    assert "unreached" in out.stdout
+    (line,) = said(out)
+    assert "every kernel" in line and "first use" not in line and "once more" not in line
+    assert len(said_ended(out)) == 1
+
+
 @pytest.mark.parametrize("value, silent", [("1", True), ("0", False)])
 def test_squkf_quiet_compile_silences_the_line(tmp_path, value, silent):
     out = run_python(SOME_KERNELS, tmp_path / "numba", SQUKF_QUIET_COMPILE=value)
@@ -134,7 +176,8 @@ def test_precompile_leaves_nothing_for_a_new_process_to_compile(tmp_path):
         [sys.executable, "-m", "squkf", "precompile"], capture_output=True, text=True, env=environ
     )
     assert cold.returncode == 0, cold.stderr
-    assert len(said(cold)) == 1
+    assert len(said(cold)) == 1 and len(said_ended(cold)) == 1
+    assert "first use" not in cold.stderr
     summary = cold.stdout.strip().splitlines()[-1]
     assert str(cache_dir) in summary and " 0 functions compiled" not in summary
     code = (
@@ -198,6 +241,7 @@ def test_with_no_cache_location_the_kernels_compile_in_memory_after_one_warning(
         monkeypatch.setenv(name, value)
     monkeypatch.setattr(cache, "_functions", set())
     monkeypatch.setattr(cache, "_directories", {})
+    monkeypatch.setattr(cache, "_said", True)  # the compiles below say nothing (nor their end, later)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         double, triple = cache.jit()(module.double), cache.jit()(module.triple)
@@ -206,13 +250,39 @@ def test_with_no_cache_location_the_kernels_compile_in_memory_after_one_warning(
     assert double(1.5) + triple(1.0) == 6.0
 
 
+def _unwritable_copy(tmp_path: Path) -> Path:
+    """A copy of the package whose ``__pycache__`` beside the kernels cannot be made."""
+    copy = tmp_path / "site"
+    shutil.copytree(ROOT / "squkf", copy / "squkf", ignore=shutil.ignore_patterns("__pycache__"))
+    (copy / "squkf" / "kernels" / "__pycache__").write_text("")
+    return copy
+
+
+def test_the_no_cache_warning_points_at_the_users_import(tmp_path):
+    """The warning names the line of the user's program that imported squkf, not squkf's source."""
+    copy = _unwritable_copy(tmp_path)
+    program = tmp_path / "program.py"
+    program.write_text(
+        "import json, warnings\n"
+        "with warnings.catch_warnings(record=True) as caught:\n"
+        "    warnings.simplefilter('always')\n"
+        "    import squkf\n"
+        "print(json.dumps([(w.filename, w.lineno, 'NUMBA_CACHE_DIR' in str(w.message)) for w in caught]))\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("SQUKF_QUIET_COMPILE", "NUMBA_CACHE_DIR")}
+    env.update(_unwritable(tmp_path), PYTHONPATH=str(copy))
+    out = subprocess.run(
+        [sys.executable, str(program)], capture_output=True, text=True, env=env, cwd=tmp_path
+    )
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == [[str(program), 4, True]]
+
+
 @pytest.mark.slow
 def test_import_squkf_and_its_steps_work_with_no_writable_cache(tmp_path):
     """A copy of the package whose ``__pycache__`` cannot be made, and no other cache location: one
     warning naming NUMBA_CACHE_DIR, the line says "in memory", and the numbers equal a normal run's."""
-    copy = tmp_path / "site"
-    shutil.copytree(ROOT / "squkf", copy / "squkf", ignore=shutil.ignore_patterns("__pycache__"))
-    (copy / "squkf" / "kernels" / "__pycache__").write_text("")
+    copy = _unwritable_copy(tmp_path)
     env = _unwritable(tmp_path)
     code = (
         f"import sys, warnings; sys.path.insert(0, {str(TESTS)!r})\n"

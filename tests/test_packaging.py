@@ -112,7 +112,7 @@ def test_wheel_carries_the_licence_and_the_typing_marker(dists):
     assert meta["Version"] == squkf.__version__
     assert meta["License-Expression"] == "MIT"
     extras = set(meta.get_all("Provides-Extra"))
-    assert {"test", "progress", "threads", "notebook"} <= extras
+    assert {"test", "progress", "notebook"} <= extras
 
 
 def installed_is_imported(dist: importlib.metadata.Distribution) -> bool:
@@ -221,6 +221,14 @@ def test_notebook_extra_installs_what_every_notebook_imports(dists):
     assert {"dask", "pandas", "distributed"} <= needed_distributions(
         imported_modules(NOTEBOOKS / "07_dask.ipynb"), meta
     )
+
+
+def test_the_blas_hold_comes_with_the_runtime_dependencies(dists):
+    """squkf.blas holds the BLAS through threadpoolctl: a runtime dependency, so the hold is on by
+    default, not only with an extra (issue 35)."""
+    meta = wheel_metadata(dists["wheel"])
+    assert "threadpoolctl" in requirements(meta, None)
+    assert "threads" not in meta.get_all("Provides-Extra")
 
 
 def test_readme_and_landing_page_name_every_dependency_and_extra(dists):

@@ -688,6 +688,47 @@ def test_two_sensors_equal_one_stacked_update_on_a_linear_model():
     np.testing.assert_allclose(f.P, kf.P, rtol=1e-12)
 
 
+def _two_updates(cls, redraw: bool, model: str):
+    """``predict``, then two ``update``s with no ``predict`` between (README's "What differs" reproducer,
+    or two range-bearing returns a step on the far scenario); ``redraw``: filterpy's line before the
+    second update, ``sigmas_f`` drawn from the estimate that update starts from."""
+    if model == "readme":
+        points = MerweScaledSigmaPoints(1, alpha=0.5, beta=2.0, kappa=2.0)
+        f = cls(dim_x=1, dim_z=1, dt=1.0, hx=lambda x: x + x**3 / 10, fx=lambda x, dt: x, points=points)
+        f.P *= 10
+        z1 = z2 = np.array([1.0])
+    else:
+        f = ct_filter(MerweScaledSigmaPoints(5, 0.3, 2.0, -2.0), cls=cls)
+        z1 = ct_measurements(1, seed=5)[0]
+        z2 = z1 + np.array([3.0, -0.001])
+    f.predict()
+    f.update(z1)
+    if redraw:
+        f.sigmas_f = f.points_fn.sigma_points(f.x, f.P)
+    f.update(z2)
+    return f
+
+
+@pytest.mark.parametrize("model", ["readme", "range-bearing"])
+def test_a_second_update_without_a_predict_is_filterpys_with_its_points_redrawn(model):
+    """The principled difference (README, "What differs"; docs/guide/filterpy.rst): squkf draws a second
+    update's points from the first update's posterior; filterpy reuses the prior's ``sigmas_f``. With
+    ``ukf.sigmas_f = ukf.points_fn.sigma_points(ukf.x, ukf.P)`` before its second update, filterpy gives
+    squkf's numbers to rounding; without it, it gives others (in the README's case a negative variance)."""
+    ours = _two_updates(SquareRootUKF, False, model)
+    redrawn = _two_updates(UnscentedKalmanFilter, True, model)
+    theirs = _two_updates(UnscentedKalmanFilter, False, model)
+    scale = np.sqrt(np.outer(np.diag(ours.P), np.diag(ours.P)))
+    np.testing.assert_allclose(ours.x, redrawn.x, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(ours.P / scale, redrawn.P / scale, rtol=0, atol=1e-11)
+    np.testing.assert_allclose(ours.log_likelihood, redrawn.log_likelihood, rtol=1e-10)
+    assert np.all(np.linalg.eigvalsh(ours.P) > 0)
+    assert not np.allclose(ours.P, theirs.P, rtol=1e-3)
+    if model == "readme":
+        assert theirs.P[0, 0] < 0 < ours.P[0, 0]
+        np.testing.assert_allclose([theirs.P[0, 0], ours.P[0, 0]], [-10.415, 0.215], atol=5e-4)
+
+
 def test_circular_mean_survives_negative_central_weight():
     fam = MerweScaledWeights(0.1, 2.0, 0.0)
     Wm, _ = fam.weights(1)
@@ -789,6 +830,55 @@ def test_a_hook_assigned_between_steps_is_used_from_the_next_step(hook, value, d
     step(back, CV_Z[3])
     np.testing.assert_allclose(f.x, back.x, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(f.P, back.P, rtol=1e-12, atol=1e-12)
+
+
+#: Configuration assigned between a prediction and its update: the set's (the prediction keeps it for
+#: its update) and what the update reads when it runs (as filterpy reads its attributes).
+_SETS_CONFIGURATION = {"points_fn": JulierWeights(1.0), "scheme": "augmented"}
+_UPDATES_CONFIGURATION = {"gate": 0.9, "residual_z": _scaled_residual, "z_mean": _shifted_mean}
+
+
+@pytest.mark.parametrize("name", [*_SETS_CONFIGURATION, *_UPDATES_CONFIGURATION])
+@pytest.mark.parametrize("halves", [False, True])
+def test_configuration_changed_between_predict_and_update(name, halves):
+    """docs/api/promises.rst, "Configuration changed between predict and update": ``points_fn`` and
+    ``scheme`` leave the pending update on the set the prediction drew (the new ones apply from the next
+    prediction); the gate and the measurement hooks apply to that update already."""
+    value = {**_SETS_CONFIGURATION, **_UPDATES_CONFIGURATION}[name]
+    z = CV_Z[1] + np.array([3.0, 0.0])  # far enough off for the gate to reject a component
+
+    def run(when: str) -> SquareRootUKF:
+        f = cv_filter()
+        step(f, CV_Z[0])
+        if when == "before":
+            setattr(f, name, value)
+        if halves:
+            X = f.ask_predict()
+            if when == "between":
+                setattr(f, name, value)
+            f.tell_predict([cv_fx(x, CV_DT) for x in X])
+            Y = f.ask_update()
+            f.tell_update([f.hx(y) for y in Y], z)
+        else:
+            f.predict()
+            if when == "between":
+                setattr(f, name, value)
+            f.update(z)
+        return f
+
+    changed, unchanged, before = run("between"), run("never"), run("before")
+    assert not np.allclose(unchanged.P, before.P, rtol=1e-9)  # the change matters to the numbers
+    same = unchanged if name in _SETS_CONFIGURATION else before
+    np.testing.assert_array_equal(changed.x, same.x)
+    np.testing.assert_array_equal(changed.P, same.P)
+    # from the next prediction on, the filter steps as one built with the new configuration
+    fresh = cv_filter()
+    setattr(fresh, name, value)
+    fresh.x, fresh.P = changed.x, changed.P
+    step(changed, CV_Z[2])
+    step(fresh, CV_Z[2])
+    np.testing.assert_allclose(changed.x, fresh.x, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(changed.P, fresh.P, rtol=1e-12, atol=1e-12)
 
 
 # -- conventions --------------------------------------------------------------------------------

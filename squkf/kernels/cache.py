@@ -11,36 +11,73 @@ code, before anything is decorated, so ``import squkf`` never raises for it.
 
 A listener on numba's ``"numba:compile"`` event writes one line on stderr the
 first time in a process that one of these kernels is really compiled (not
-when it is loaded from the cache, and never for other numba functions),
-unless ``SQUKF_QUIET_COMPILE`` is set: :ref:`first use <first-use>`. Nothing here
-compiles anything.
+when it is loaded from the cache, and never for other numba functions), and
+one more when that compile has ended (no compile of squkf's for
+:data:`QUIET_PERIOD` seconds, or the process exits, or :func:`end_of_compile`),
+with the time it took, unless ``SQUKF_QUIET_COMPILE`` is set:
+:ref:`first use <first-use>`. Nothing here compiles anything.
 """
 
 from __future__ import annotations
 
+import atexit
 import inspect
 import os
 import sys
 import threading
+import time
 import warnings
 from collections import Counter
 from collections.abc import Callable
+from types import FrameType
 from typing import Any
 
 import numba
 from numba.core import event
 from numba.core.caching import FunctionCache
 
-__all__ = ["jit", "cache_directory", "cache_label", "is_kernel", "compiled", "QUIET_VARIABLE"]
+__all__ = [
+    "jit", "cache_directory", "cache_label", "is_kernel", "compiled", "compiling_all", "end_of_compile",
+    "QUIET_VARIABLE", "QUIET_PERIOD",
+]  # fmt: skip
 
-#: Set to anything but ``""`` or ``"0"`` to silence the line said on a compile (read when it is due).
+#: Set to anything but ``""`` or ``"0"`` to silence the lines said on a compile (read when it is due).
 QUIET_VARIABLE = "SQUKF_QUIET_COMPILE"
+
+#: Seconds without a compile of squkf's kernels after which the compile that was said has ended (the
+#: kernels of one step compile one after another, with only the step's Python between them).
+QUIET_PERIOD = 1.0
+
+_PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # squkf's folder
 
 _directories: dict[str, str | None] = {}  # source file -> numba's cache directory for it, None: in memory
 _functions: set[Callable] = set()  # the Python functions of the kernels made by jit
 _lock = threading.Lock()  # guards the two below (compiles run on any thread)
 _said = False
 _compiled: Counter[str] = Counter()  # kernel name -> compiles in this process
+_running = 0  # compiles of squkf's kernels now running (a kernel's helpers compile inside it)
+_said_start: float | None = None  # when the compile that was said began; None once its end is said
+_said_last = 0.0  # when the last compile since then ended
+_timer: threading.Timer | None = None  # says the end after QUIET_PERIOD with no compile
+_all = False  # squkf.precompile is running: the line says that every kernel compiles
+
+
+def _user_stacklevel() -> int:
+    """``warnings.warn``'s ``stacklevel`` for its caller that names the first frame outside squkf.
+
+    Counted as ``warnings`` counts (importlib's own frames skipped), so a warning raised while
+    ``import squkf`` runs points at the user's ``import`` line, not at squkf's source.
+    """
+    frame: FrameType | None = sys._getframe(2)  # the caller of warnings.warn's caller
+    level = 2
+    while frame is not None:
+        name = frame.f_code.co_filename
+        if not ("importlib" in name and "_bootstrap" in name):
+            if not name.startswith(_PACKAGE + os.sep):
+                return level
+            level += 1
+        frame = frame.f_back
+    return level
 
 
 def _in_memory_warning(reason: str) -> str:
@@ -74,7 +111,7 @@ def cache_directory(py_func: Callable) -> str | None:
             path: str | None = os.path.abspath(FunctionCache(py_func).cache_path)
         except RuntimeError as exc:  # numba's "no locator available": no writable place, or a bad list
             path = None
-            warnings.warn(_in_memory_warning(str(exc)), RuntimeWarning, stacklevel=3)
+            warnings.warn(_in_memory_warning(str(exc)), RuntimeWarning, stacklevel=_user_stacklevel())
         _directories[source] = path
     return _directories[source]
 
@@ -124,27 +161,76 @@ def _quiet() -> bool:
 
 def _compiling_line(py_func: Callable) -> str:
     where = cache_label(py_func)
-    if where == "in memory":
-        where = "in memory, no writable cache location: set NUMBA_CACHE_DIR"
-    return f"squkf: compiling its numba kernels on first use (cache: {where}); {QUIET_VARIABLE}=1 hides this"
+    if _all:
+        what = "compiling every kernel of every route"
+        where = f"cache: {where}" if where != "in memory" else "in memory: no writable cache location"
+    elif where == "in memory":
+        what = "compiling its numba kernels, typically 10-60 s, again in every new process"
+        where = "in memory: no writable cache location, set NUMBA_CACHE_DIR"
+    else:
+        what = (
+            "compiling its numba kernels, typically 10-60 s, once; batch_filter, a Fleet or hooks may "
+            "compile once more unless `python -m squkf precompile` was run"
+        )
+        where = f"cache: {where}"
+    return f"squkf: {what} ({where}); {QUIET_VARIABLE}=1 hides this"
+
+
+def compiling_all(on: bool) -> None:
+    """Whether :func:`squkf.precompile` is running: the line said on a compile then says so."""
+    global _all
+    _all = on
+
+
+def end_of_compile() -> None:
+    """Say now that the compile that was said has ended, with its time, if it has not been said yet."""
+    global _said_start, _timer
+    with _lock:
+        if _said_start is None or _running:
+            return
+        seconds = _said_last - _said_start
+        _said_start = None
+        if _timer is not None:
+            _timer.cancel()
+            _timer = None
+    print(f"squkf: compiled in {seconds:.1f} s", file=sys.stderr, flush=True)
 
 
 class _CompileListener(event.Listener):
-    """Counts the compiles of squkf's kernels and says the first one on stderr."""
+    """Counts the compiles of squkf's kernels and says the first one, and its end, on stderr."""
 
     def on_start(self, ev: event.Event) -> None:
-        global _said
+        global _said, _running, _timer, _said_start
         dispatcher = ev.data.get("dispatcher") if isinstance(ev.data, dict) else None
         if dispatcher is None or not is_kernel(dispatcher):
             return
         with _lock:
             _compiled[dispatcher.py_func.__name__] += 1
+            _running += 1
+            if _timer is not None:
+                _timer.cancel()
+                _timer = None
             say, _said = not _said, True
-        if say and not _quiet():
+            say = say and not _quiet()
+            if say:
+                _said_start = time.perf_counter()
+        if say:
             print(_compiling_line(dispatcher.py_func), file=sys.stderr, flush=True)
 
     def on_end(self, ev: event.Event) -> None:
-        pass
+        global _running, _said_last, _timer
+        dispatcher = ev.data.get("dispatcher") if isinstance(ev.data, dict) else None
+        if dispatcher is None or not is_kernel(dispatcher):
+            return
+        with _lock:
+            _running -= 1
+            if _running or _said_start is None:
+                return
+            _said_last = time.perf_counter()
+            _timer = threading.Timer(QUIET_PERIOD, end_of_compile)
+            _timer.daemon = True  # the process may end first: atexit says it then
+            _timer.start()
 
 
 event.register("numba:compile", _CompileListener())
+atexit.register(end_of_compile)
