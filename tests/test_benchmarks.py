@@ -2,7 +2,8 @@
 
 benchmarks/run.py (the single filter), benchmarks/fleet.py (its table, figure and JSON, and the
 fleet matching the loop), benchmarks/dask_bench.py (on a LocalCluster) and benchmarks/blas_threads.py
-(a large filter's step with the BLAS at its default threads and on one).
+(a large filter's step with the BLAS at its default threads and on one), benchmarks/dropin_costs.py
+(filterpy's Saver, deepcopy and a new filter, side by side with filterpy).
 """
 
 from __future__ import annotations
@@ -211,3 +212,20 @@ def test_quick_blas_threads_benchmark_writes_results(tmp_path):
         assert float(row.split("|")[2]) > 0, row
     (target,) = [line for line in text.splitlines() if line.startswith("| a step at n = 81")]
     assert re.search(r"\| \d+\.\d\dx \(per repetition: \d+\.\d\d\) \| (met|\*\*not met\*\*) \|$", target)
+
+
+def test_quick_dropin_costs_benchmark_writes_every_ratio(tmp_path):
+    subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "dropin_costs.py"), "--quick", "--out", str(tmp_path)],
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    text = (tmp_path / "dropin_costs.md").read_text()
+    rows = [line for line in text.splitlines() if line.startswith("| ") and "---" not in line][1:]
+    assert len(rows) == 3
+    for row in rows:
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        fp, sq, ratio = float(cells[1]), float(cells[2]), float(cells[3])
+        assert fp > 0 and sq > 0 and math.isclose(ratio, sq / fp, rel_tol=0.05, abs_tol=0.02), row

@@ -171,3 +171,25 @@ def test_scheme_docstrings_name_every_scheme_by_name():
     for face in (SquareRootUKF, Fleet):
         (documented,) = re.findall(r"scheme : \{([^}]*)\}", face.__doc__)
         assert set(re.findall(r'"(\w+)"', documented)) == accepted, face.__name__
+
+
+def test_every_promise_names_test_files_that_exist_and_the_mid_step_rules_are_promised():
+    """docs/api/promises.rst: each promise ends with the test files that check it, and those exist.
+
+    Among them the rules a migrating program meets mid-step (issue 35): a configuration changed
+    between predict and update, placeholders, the sigma points handed out, written records.
+    """
+    text = (DOCS / "api" / "promises.rst").read_text()
+    labels = re.findall(r"^\.\. _(promise-[\w-]+):$", text, flags=re.M)
+    for label in ("promise-configuration", "promise-placeholders", "promise-sigmas", "promise-records"):
+        assert label in labels, label
+    sections = re.split(r"^\.\. _promise-[\w-]+:$", text, flags=re.M)[1:]
+    assert len(sections) == len(labels)
+    for label, section in zip(labels, sections):
+        named = set(re.findall(r"``(test_\w+\.py)``", section))
+        assert named, f"{label} names no test file"
+        for name in named:
+            assert (ROOT / "tests" / name).is_file(), (label, name)
+    configuration = sections[labels.index("promise-configuration")]
+    for word in ("points_fn", "scheme", "gate", "next"):
+        assert word in configuration, word

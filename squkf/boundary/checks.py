@@ -167,6 +167,8 @@ def written_record(value, name: str, ndim: int) -> np.ndarray:
         want = "a vector" if ndim == 1 else "a matrix"
         raise ShapeError(f"{name} must be {want} ({ndim}-D), got shape {A.shape}")
     return A
+
+
 def model_functions(optional: bool, **functions) -> None:
     """The model functions and hooks a constructor was given, each callable (or None where taken).
 
