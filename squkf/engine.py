@@ -43,7 +43,7 @@ from . import blas, kernels
 from .errors import CallSequenceError, NonFiniteError, SqukfError
 from .generators import SigmaSet, sigma_points_from_factor
 from .linalg import all_finite
-from .measurement import Posterior, measurement_update, observed_noise_factor
+from .measurement import Posterior, keeps_prior_factor, measurement_update, observed_noise_factor
 from .plan import IDLE, PREDICTING, PRIOR, UPDATING, Hooks, Plan
 from .rows import RowForm
 from .statuses import failure, first_status, prior_failure, singular_allowed
@@ -277,10 +277,20 @@ class Route:
     single : bool
         One filter (a block of one whose hooks, ``UT`` and generator see one filter's arrays, with
         no batch axis, as filterpy's do).
+
+    Attributes
+    ----------
+    downdate : bool
+        The updates take the downdate form whatever the set (a ``residual_x`` or ``state_add``:
+        :func:`squkf.measurement.keeps_prior_factor`): the prior factor kept and the gain taken out
+        of it by rank-1 downdates, never the joint QR nor the gain form. Without it, a set takes that
+        form when its moments are not exact (``SigmaSet.moments_exact``; a written set:
+        :meth:`squkf.generators.SigmaSet.rewritten`).
     """
 
     __slots__ = (
-        "plan", "hooks", "gate", "single", "plain_x", "plain_add", "no_set", "_updates", "_observed_R",
+        "plan", "hooks", "gate", "single", "plain_x", "plain_add", "downdate", "no_set", "_updates",
+        "_observed_R",
         "_zeros", "_noise", "_prior_draws",
     )  # fmt: skip
 
@@ -288,6 +298,7 @@ class Route:
         self.plan, self.hooks, self.gate, self.single = plan, hooks, gate, single
         self.plain_x = hooks.x_mean_fn is None and hooks.residual_x is None
         self.plain_add = hooks.state_add is None
+        self.downdate = keeps_prior_factor(hooks.residual_x, hooks.state_add)
         self.no_set = kernels.no_set(plan.n)  # a kernel's set output when it draws none
         self._updates: dict = {}
         self._observed_R = _ObservedR()
@@ -470,7 +481,7 @@ class Route:
             return kept[1]
         hooks = self.hooks
         plain = UT is None and sset.moments_exact and hooks.z_mean_fn is None and hooks.residual_z is None
-        plain = plain and self.plain_x and self.plain_add and rows is not None
+        plain = plain and self.plain_x and not self.downdate and rows is not None
         route = _joint_route(sset) if plain else None
         if len(self._updates) >= _KEPT_ROUTES:
             self._updates.clear()

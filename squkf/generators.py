@@ -17,7 +17,9 @@ called after the time update with
 It returns a :class:`SigmaSet`: the points (rows), their weights, and whether
 their weighted mean and covariance equal ``(x, S @ S.T)`` exactly. The filter
 uses that flag to pick the downdate-free QR form of the measurement update,
-which is identical to the downdate form only when it holds.
+which is identical to the downdate form only when it holds (and with no
+``residual_x`` or ``state_add``, whose deviations need not reproduce ``S``:
+with them the downdate form is always taken, :mod:`squkf.measurement`).
 
 A generator may also offer ``prepare(family, n)``, returning an object with
 ``draw(x, S, propagated, Q1_2, state_add) -> SigmaSet`` that holds what does
@@ -112,6 +114,24 @@ class SigmaSet(NamedTuple):
     offsets: np.ndarray | None = None
     rows: WeightRows | None = None
     axis: bool = False
+
+    def rewritten(self, sigmas: np.ndarray) -> SigmaSet:
+        """This set's weights with points the caller wrote (a written ``sigmas_f``).
+
+        They no longer reproduce the mean and factor the set was drawn for: the set is marked not
+        exact, with no offsets and no axis structure, so that its update keeps the prior factor and
+        takes the gain out of it by downdates (:mod:`squkf.measurement`'s downdate form), on every
+        route (one filter, a fleet, a gate's update again).
+
+        Parameters
+        ----------
+        sigmas : ndarray, shape (..., N, n)
+
+        Returns
+        -------
+        SigmaSet
+        """
+        return self._replace(sigmas=sigmas, moments_exact=False, offsets=None, axis=False)
 
 
 def axis_gamma(xi: np.ndarray) -> float | None:

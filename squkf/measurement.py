@@ -1,11 +1,11 @@
 """The square-root measurement update, as a pure function on stacked arrays.
 
-Three routes, each one compiled kernel (:mod:`squkf.kernels`):
+Three forms, each one compiled kernel (:mod:`squkf.kernels`):
 
 - **the joint QR** (a set whose mean and covariance are the prior's,
-  ``SigmaSet.moments_exact``): the joint rows of the measurement and the
-  state (the "array form" of the square-root Kalman filter) are
-  triangularised at once::
+  ``SigmaSet.moments_exact``, and no ``residual_x`` or ``state_add``): the
+  joint rows of the measurement and the state (the "array form" of the
+  square-root Kalman filter) are triangularised at once::
 
       tria([[Dz, Dx], [R1_2^T, 0]]) = [[Sy, 0], [L21, L22]]
 
@@ -15,19 +15,34 @@ Three routes, each one compiled kernel (:mod:`squkf.kernels`):
   and ``K y = L21 (Sy^-1 y)``), and ``L22 L22^T = Pxx - K Pyy K^T`` is the
   posterior covariance. A negative weight's row is removed from the joint
   factor by a downdate. One QR and two triangular solves; which form the
-  rows take (central or mean) is data in the plan.
-- **g13ej's downdate** (a set whose covariance is not the prior's: the
-  propagated set with process noise, a user's generator): ``Sy`` from the
-  transform of the images, and the prior factor downdated by the columns of
-  ``L21 = K Sy``.
+  rows take (central or mean) is data in the plan. ``L22`` is the posterior
+  only because the state rows ``Dx`` reproduce the prior factor.
+- **g13ej's downdate form**: ``Sy`` from the transform of the images,
+  ``L21 = Pxy Sy^-T``, and the prior factor ``S`` kept and downdated by each
+  column of ``L21``, so that the posterior is exactly filterpy's
+  ``P_prior - K S K^T`` whatever the set's rows. It is taken whenever the
+  state rows need not reproduce the prior factor:
+
+  - a set whose covariance is not the prior's (the propagated set with
+    process noise, a user's generator);
+  - a ``residual_x`` or a ``state_add`` (:func:`keeps_prior_factor`): the
+    deviations ``residual_x(sigma, x)`` of wrapped quantities (angles whose
+    spread passes pi) do not reproduce it;
+  - a set the caller rewrote (a written ``sigmas_f``), which no longer
+    reproduces the prior: :meth:`squkf.generators.SigmaSet.rewritten` marks
+    it so (``moments_exact`` False), and every route takes this form for it.
+
+  A downdate that fails (where the covariance form would return an
+  indefinite ``P``) raises :class:`~squkf.errors.PosteriorFactorError`
+  (IFAIL 303).
 - **no measurement** (:meth:`squkf.engine.Engine.skip_update`).
 
-A user's ``UT`` with a set that reproduces the prior takes the gain form:
-``Sy`` from the ``UT``, the posterior factor the QR of the rows
-``Dx - Dz K^T`` and ``K R1_2`` (Joseph form, no downdate), in the factor
-kernel. The hooks (``z_mean_fn``, ``residual_x``, ``residual_z``,
-``state_add``) are Python, called per filter and point as filterpy calls
-them; their deviations are handed to the kernels as given rows.
+A user's ``UT`` with a set that reproduces the prior (and no ``residual_x``
+or ``state_add``) takes the gain form: ``Sy`` from the ``UT``, the posterior
+factor the QR of the rows ``Dx - Dz K^T`` and ``K R1_2`` (Joseph form, no
+downdate), in the factor kernel. The hooks (``z_mean_fn``, ``residual_x``,
+``residual_z``, ``state_add``) are Python, called per filter and point as
+filterpy calls them; their deviations are handed to the kernels as given rows.
 
 Every array may carry leading batch axes ``(...)``: one filter has none.
 """
@@ -48,7 +63,14 @@ from .statuses import failure, first_status, singular_allowed
 from .transform import deviations, factor_rows, transform_factor, weighted_mean
 from .validate import call_hook, check_hook_result
 
-__all__ = ["Posterior", "measurement_update", "gain_from_factors", "check_gain", "observed_noise_factor"]
+__all__ = [
+    "Posterior",
+    "measurement_update",
+    "keeps_prior_factor",
+    "gain_from_factors",
+    "check_gain",
+    "observed_noise_factor",
+]
 
 _TINY = np.finfo(float).tiny
 _INF = float("inf")
@@ -110,6 +132,24 @@ def gain_from_factors(Sy: np.ndarray, L21: np.ndarray) -> np.ndarray:
     """
     Kt = solve_lower(Sy, np.ascontiguousarray(np.swapaxes(L21, -1, -2)), trans=True)
     return np.swapaxes(Kt, -1, -2)
+
+
+def keeps_prior_factor(residual_x: Callable | None, state_add: Callable | None) -> bool:
+    """Whether the update with these hooks takes the downdate form whatever the set (see the module).
+
+    A ``residual_x`` or a ``state_add`` (None: the plain operation) makes the update keep the prior
+    factor and downdate it by the columns of ``L21``: the deviations they give (wrapped angles) need
+    not reproduce the prior factor, which the joint QR and the gain form need.
+
+    Parameters
+    ----------
+    residual_x, state_add : callable or None
+
+    Returns
+    -------
+    bool
+    """
+    return residual_x is not None or state_add is not None
 
 
 def observed_noise_factor(R1_2: np.ndarray, observed: np.ndarray) -> np.ndarray:
@@ -190,7 +230,9 @@ def measurement_update(
     GainError
         The innovation factor is singular (IFAIL 302).
     PosteriorFactorError
-        The posterior factor could not be formed (IFAIL 303).
+        The posterior factor could not be formed (IFAIL 303): on the downdate
+        form, a downdate of the prior factor failed (``P_prior - K S K^T`` is
+        not positive definite).
     """
     rows = sset.rows if sset.rows is not None else weight_rows(sset.Wm, sset.Wc)
     z_hooks = z_mean_fn is not None or residual_z is not None
@@ -202,15 +244,17 @@ def measurement_update(
             cols = observed
         else:  # the kernels form everything from the measured components alone
             sigmas_h, z = sigmas_h[..., observed], z[..., observed]
-    if UT is None and sset.moments_exact:
-        if z_hooks or residual_x is not None:
+    # the downdate form unless the state rows reproduce the prior factor (see the module)
+    downdate = not sset.moments_exact or keeps_prior_factor(residual_x, state_add)
+    if UT is None and not downdate:
+        if z_hooks:
             form = rows.mean_form
             z_pred = weighted_mean(sigmas_h, rows.Wm, z_mean_fn, "z_mean_fn")
             Dz = deviations(sigmas_h, z_pred, residual_z, "residual_z")
             y = _innovation(_present(z, z_pred, cols), z_pred, residual_z)
             z_pred, Dz, y = z_pred[..., cols], Dz[..., cols], y[..., cols]
             u = kernels.joint_update(
-                Dz, _state_deviations(sset, x, residual_x), y, Ro, x, kernels.GIVEN,
+                Dz, _state_deviations(sset, x), y, Ro, x, kernels.GIVEN,
                 rows.Wm, form.scale, form.sign, zref=z_pred,
             )  # fmt: skip
         else:
@@ -257,12 +301,12 @@ def measurement_update(
             Sy = factor_rows(H - zref[..., None, :], rows.mean_form, Ro, errno=301)
         check_gain(Sy)
         n = x.shape[-1]
-        if residual_x is None:
+        if residual_x is None:  # (a state_add's points: their offsets are filterpy's sigmas - x)
             X, xref = (sset.sigmas, x) if sset.offsets is None else (sset.offsets, np.zeros(n))
         else:
             X, xref = deviations(sset.sigmas, x, residual_x, "residual_x"), np.zeros(n)
         u = kernels.downdate_update(H, zref, X, xref, y, Sy, S, x, rows.Wc)
-        if sset.moments_exact:  # a user's UT with an exact set: the gain form, no downdate
+        if not downdate:  # a user's UT with an exact set and no residual_x/state_add: the gain form
             S_gain = _gain_form_posterior(Sy, u.L21, X - xref[..., None, :], H - zref[..., None, :], rows, Ro)
             if not (all_finite(S_gain) and all_finite(u.x)):
                 raise PosteriorFactorError("the posterior mean or factor is not finite", errno=303)
@@ -329,11 +373,9 @@ def _gain_form_posterior(Sy, L21, Dx, Dz, rows: WeightRows, R1_2) -> np.ndarray:
     )
 
 
-def _state_deviations(sset: SigmaSet, x: np.ndarray, residual_x: Callable | None) -> np.ndarray:
+def _state_deviations(sset: SigmaSet, x: np.ndarray) -> np.ndarray:
     """Deviations of the second set from the prior mean (its exact offsets where known)."""
-    if sset.offsets is not None and residual_x is None:
-        return sset.offsets
-    return deviations(sset.sigmas, x, residual_x, "residual_x")
+    return sset.offsets if sset.offsets is not None else deviations(sset.sigmas, x)
 
 
 def check_gain(Sy: np.ndarray) -> None:

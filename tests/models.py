@@ -16,7 +16,9 @@ tests/README.md lists them by kind. In the order of this file:
 - constant velocity on a line, for the Dask tests: :func:`line_fx`, :func:`line_hx`, the failing
   :func:`slow_line_fx`, :func:`nan_for_big_line_fx`, and :func:`line_fleet` (module level, so that
   Dask's worker processes can import them by name: the cluster fixture puts this folder on their path)
-- Lorenz-96, heading models, plain-arithmetic models (bit-for-bit comparisons)
+- Lorenz-96, heading models; a ``residual_x`` whose deviations wrap (the issue-35 reproducer,
+  :func:`wrapped_pair_filter`, and the wide heading ``WIDE_*``, :func:`wide_heading_filter`, with its
+  oracle :func:`wide_covariance_form_update`); plain-arithmetic models (bit-for-bit comparisons)
 - linear models: the precise sensor ``PRECISE_*`` (filterpy's UKF fails on it), the correlated
   four-state linear model ``LIN4_*``, the one-sensor constant velocity ``LIN2_*`` of the smoother
   tests, the drifting ``DRIFT_*`` of the batch tests, :func:`random_linear_model`,
@@ -44,7 +46,13 @@ from pathlib import Path
 
 import numpy as np
 from filterpy.common import Q_discrete_white_noise
-from filterpy.kalman import KalmanFilter, MerweScaledSigmaPoints, UnscentedKalmanFilter
+from filterpy.kalman import (
+    JulierSigmaPoints,
+    KalmanFilter,
+    MerweScaledSigmaPoints,
+    SimplexSigmaPoints,
+    UnscentedKalmanFilter,
+)
 
 from squkf import CubatureWeights, Fleet, JulierWeights, MerweScaledWeights, SimplexWeights, SquareRootUKF
 from squkf.angles import AngleAdd, AngleMean, AngleResidual, wrap
@@ -865,6 +873,136 @@ def spinning_heading_filter(cls, points, x0):
     f.x, f.P = x0, np.diag([0.1, 0.01])
     f.Q, f.R = np.diag([0.02**2, 0.002**2]), np.eye(1) * 0.05**2
     return f
+
+
+# -- residual_x with wrapped deviations: P is filterpy's P_prior - K S K^T (issue 35, item 4) --------
+
+
+def residual_wrap_first(a, b):
+    """``a - b`` with component 0 wrapped into ``(-pi, pi]`` (the issue's ``residual_x``)."""
+    d = np.subtract(a, b)
+    d[0] = np.pi - (np.pi - d[0]) % (2 * np.pi)
+    return d
+
+
+def pair_fx(x, dt):
+    """The issue's ``fx(x, dt) = x`` (any leading axes)."""
+    return x
+
+
+def pair_hx(x):
+    """The issue's ``hx = x[1:]`` (any leading axes)."""
+    return x[..., 1:]
+
+
+def wrapped_pair_filter(cls, points, R=1.0):
+    """The issue's reproducer (``R = [[1]]``): a residual_x wrapping ``x[0]``, whose spread passes pi.
+
+    With ``R = 0.1`` filterpy's ``P_prior - K S K^T`` is indefinite (its smallest eigenvalue -0.033).
+    """
+    f = cls(2, 1, 1.0, pair_hx, pair_fx, points, residual_x=residual_wrap_first)
+    f.x, f.P = np.zeros(2), np.array([[1.0, 0.5], [0.5, 1.0]])
+    f.Q, f.R = np.diag([4.0, 1e-3]), np.array([[R]])
+    return f
+
+
+def wrapped_pair_fleet(K, points, R):
+    """K filters of :func:`wrapped_pair_filter`, measurement noise ``R[k]`` each."""
+    fleet = Fleet(K, 2, 1, 1.0, pair_hx, pair_fx, points, residual_x=residual_wrap_first)
+    fleet.x, fleet.P = np.zeros((K, 2)), np.array([[1.0, 0.5], [0.5, 1.0]])
+    fleet.Q, fleet.R = np.diag([4.0, 1e-3]), np.asarray(R, dtype=float).reshape(K, 1, 1)
+    return fleet
+
+
+# a wide heading: [heading, turn rate, speed]; its heading's sigma points pass pi (at one step to all six)
+WIDE_X0 = np.array([3.0, 0.4, 2.0])
+WIDE_P0 = np.array([[2.0, 0.5, 0.0], [0.5, 1.0, 0.1], [0.0, 0.1, 1.0]])
+WIDE_Q = np.diag([2.5, 0.01, 0.05])
+WIDE_R = np.diag([0.3, 0.3, 0.1])
+
+#: Families on the wide heading, each with its filterpy points (``subtract``: how they add a deviation).
+WIDE_FAMILIES = {
+    "merwe": (
+        lambda: MerweScaledWeights(1.0, 2.0, 0.0),
+        lambda sub: MerweScaledSigmaPoints(3, 1.0, 2.0, 0.0, subtract=sub),
+    ),
+    "julier": (lambda: JulierWeights(kappa=1.0), lambda sub: JulierSigmaPoints(3, 1.0, subtract=sub)),
+    "simplex": (lambda: SimplexWeights(), lambda sub: SimplexSigmaPoints(3, subtract=sub)),
+    "filterpy-merwe": (
+        lambda: MerweScaledSigmaPoints(3, 1.0, 2.0, 0.0),
+        lambda sub: MerweScaledSigmaPoints(3, 1.0, 2.0, 0.0, subtract=sub),
+    ),
+    "filterpy-julier": (
+        lambda: JulierSigmaPoints(3, 1.0),
+        lambda sub: JulierSigmaPoints(3, 1.0, subtract=sub),
+    ),
+    "filterpy-simplex": (lambda: SimplexSigmaPoints(3), lambda sub: SimplexSigmaPoints(3, subtract=sub)),
+}
+
+
+def wide_fx(x, dt):
+    """The heading advanced by the turn rate (wrapped); rate and speed held (any leading axes)."""
+    return np.stack([wrap(x[..., 0] + x[..., 1] * dt), x[..., 1], x[..., 2]], axis=-1)
+
+
+def wide_hx(x):
+    """The velocity vector and the turn rate: periodic in the heading (any leading axes)."""
+    return np.stack([x[..., 2] * np.cos(x[..., 0]), x[..., 2] * np.sin(x[..., 0]), x[..., 1]], axis=-1)
+
+
+def wide_measurements(T, seed=0):
+    """T measurements of a true wide-heading track, shape ``(T, 3)``."""
+    rng = np.random.default_rng(seed)
+    x, zs = WIDE_X0.copy(), []
+    for _ in range(T):
+        x = wide_fx(x, 1.0)
+        zs.append(wide_hx(x) + rng.normal(0.0, np.sqrt(np.diag(WIDE_R))))
+    return np.array(zs)
+
+
+def wide_hooks(state_add=False):
+    """The wide heading's hooks: circular mean, wrapping ``residual_x`` (and ``state_add``)."""
+    hooks = {"x_mean_fn": AngleMean([0]), "residual_x": AngleResidual([0])}
+    if state_add:
+        hooks["state_add"] = AngleAdd([0])
+    return hooks
+
+
+def wide_heading_filter(cls, points, state_add=False, **kw):
+    """A ``cls`` (SquareRootUKF or filterpy's UKF) for the wide heading, with :func:`wide_hooks`.
+
+    For filterpy's UKF with ``state_add``, give points whose ``subtract`` wraps the heading (its
+    points are ``subtract(x, -dx)``), as squkf draws them with ``state_add``.
+    """
+    f = cls(3, 3, 1.0, wide_hx, wide_fx, points, **wide_hooks(state_add), **kw)
+    f.x, f.P, f.Q, f.R = WIDE_X0.copy(), WIDE_P0.copy(), WIDE_Q, WIDE_R
+    return f
+
+
+def wide_covariance_form_update(x_prior, P_prior, sigmas, H, Wm, Wc, z, state_add=False):
+    """filterpy's update written out on any second set ``sigmas`` and its images ``H``, the wide
+    heading's hooks: ``x`` and ``P_prior - K S K^T`` (the oracle of the schemes filterpy lacks)."""
+    zp = Wm @ H
+    dz = H - zp
+    dx = np.array([AngleResidual([0])(s, x_prior) for s in sigmas])
+    S = (dz.T * Wc) @ dz + WIDE_R
+    K = np.linalg.solve(S, ((dx.T * Wc) @ dz).T).T
+    x = (AngleAdd([0]) if state_add else np.add)(x_prior, K @ (z - zp))
+    return x, P_prior - K @ S @ K.T
+
+
+def wide_heading_fleet(K, points, state_add=False, scheme="redrawn"):
+    """K wide headings (their starts ``WIDE_X0 + k [0.05, 0, 0.1]``) in a Fleet, and the K single
+    filters (``vectorized``, as the fleet calls the model) that it must equal."""
+    x0 = WIDE_X0 + np.arange(K)[:, None] * np.array([0.05, 0.0, 0.1])
+    fleet = Fleet(K, 3, 3, 1.0, wide_hx, wide_fx, points, scheme=scheme, **wide_hooks(state_add))
+    fleet.x, fleet.P, fleet.Q, fleet.R = x0, WIDE_P0, WIDE_Q, WIDE_R
+    singles = []
+    for k in range(K):
+        f = wide_heading_filter(SquareRootUKF, points, state_add, scheme=scheme, vectorized=True)
+        f.x = x0[k]
+        singles.append(f)
+    return fleet, singles
 
 
 # -- plain arithmetic models (no transcendental function), for bit-for-bit comparisons -------------

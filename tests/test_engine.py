@@ -424,6 +424,51 @@ class _VaryingWeights:
         return SigmaSet(x + weights.unit_sigma_points(n) @ S.T, *weights.weights(n), moments_exact=True)
 
 
+@pytest.mark.parametrize(
+    "hooks, downdate",
+    [
+        (Hooks(), False),
+        (Hooks(x_mean_fn=AngleMean([2])), False),
+        (Hooks(z_mean_fn=AngleMean([1]), residual_z=AngleResidual([1])), False),
+        (Hooks(residual_x=AngleResidual([2])), True),
+        (Hooks(state_add=AngleAdd([2])), True),
+        (ANGLES, True),
+    ],
+)
+def test_the_downdate_form_is_decided_with_the_route(hooks, downdate):
+    """A residual_x or state_add: the route's updates keep the prior factor (the downdate form, never
+    the joint QR), decided once from the hooks; a rewritten set takes that form on any route."""
+    plan = build_plan(MerweScaledWeights(alpha=0.5), Redrawn(), 4)
+    route = Route(plan, hooks, None, single=False)
+    assert route.downdate is downdate
+    sset = route.second_set(TURN.x0, TURN.S0, None, None)
+    joint = route.update_route(sset, None)
+    assert (joint is None) is (hooks != Hooks())
+    assert route.update_route(sset.rewritten(sset.sigmas.copy()), None) is None
+
+
+@pytest.mark.parametrize("gate", [None, Gate(0.9999)])
+def test_a_rewritten_pending_set_is_updated_in_the_downdate_form(gate):
+    """A pending set whose points the caller rewrote (``SigmaSet.rewritten``): the engine's update keeps
+    the prior factor, ``P_prior - K S K^T`` with the written points, through the gate too."""
+    plan = build_plan(MerweScaledWeights(alpha=1.0, beta=2.0, kappa=0.0), Redrawn(), 4)
+    e = engine(plan, Hooks(), TURN.x0[0], TURN.S0[0], single=True, gate=gate)
+    e.tell_predict(apply(TURN.fx, e.ask_predict()[0]), TURN.Q1_2)
+    (x, S), sset = e.pending_update()
+    written = sset.rewritten(sset.sigmas + 0.05 * np.random.default_rng(1).standard_normal(sset.sigmas.shape))
+    H = apply(TURN.hx, written.sigmas[0])
+    z = TURN.zs[0][0]
+    e.tell_update(H, z, None, TURN.R1_2, None, ((x, S), written))
+    dz = H - written.Wm @ H
+    dx = written.sigmas[0] - x[0]
+    Pzz = (dz.T * written.Wc) @ dz + TURN.R1_2 @ TURN.R1_2.T
+    K = np.linalg.solve(Pzz, ((dx.T * written.Wc) @ dz).T).T
+    P = S[0] @ S[0].T - K @ Pzz @ K.T
+    assert np.linalg.eigvalsh(P).min() > 1e-3 * np.abs(P).max()
+    np.testing.assert_allclose(e.S[0] @ e.S[0].T, P, rtol=0, atol=1e-10 * np.abs(P).max())
+    np.testing.assert_allclose(e.x[0], x[0] + K @ (z - written.Wm @ H), rtol=1e-12)
+
+
 def test_a_kept_update_route_is_never_another_sets():
     """Routes are kept per set kind, its rows known by identity: rows made afresh at every draw (whose
     ids Python reuses) never run with an earlier set's weights, and the kept routes stay few."""

@@ -20,6 +20,7 @@ import sys
 
 import numpy as np
 import pytest
+from filterpy.kalman import JulierSigmaPoints
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from models import (
@@ -42,6 +43,11 @@ from models import (
     nested_filters,
     range_bearing_hx,
     turn_fx_stacked,
+    wide_covariance_form_update,
+    wide_heading_fleet,
+    wide_measurements,
+    wrapped_pair_filter,
+    wrapped_pair_fleet,
     xy_radar_hx_stacked,
 )
 
@@ -155,6 +161,61 @@ def test_angle_hooks_on_measurement_only():
     fleet, singles, zs = fleet_and_singles(3, "merwe", "redrawn", hooks=fleet_angle_hooks("cv"))
     zs[2, 1] = np.nan
     run_and_compare(fleet, singles, zs)
+
+
+@pytest.mark.parametrize("state_add", [False, True], ids=["residual_x", "state_add"])
+@pytest.mark.parametrize("scheme", ["redrawn", "augmented"])
+def test_wrapped_residual_x_fleet_equals_its_single_filters_bit_for_bit(scheme, state_add):
+    """A residual_x whose deviations wrap (the downdate form): each filter of the fleet, stepped or in
+    batch_filter, is its single filter bit for bit, and its P is P_prior - K S K^T (filterpy's update
+    written out on the single filter's set and images) to 1e-10 of |P|."""
+    K = 3
+    family = MerweScaledWeights(1.0, 2.0, 0.0)
+    fleet, singles = wide_heading_fleet(K, family, state_add, scheme)
+    Wm, Wc = family.augmented(3).weights(6) if scheme == "augmented" else family.weights(3)
+    batch = copy.deepcopy(fleet)
+    zs = wide_measurements(5)
+    for t, z in enumerate(zs):
+        fleet.predict()
+        fleet.update(np.broadcast_to(z, (K, 3)))
+        for k, f in enumerate(singles):
+            f.predict()
+            x_prior, P_prior, sigmas = f.x, f.P, f.sigmas_f
+            f.update(z)
+            for name in ("x", "P1_2", "x_prior", "P1_2_prior", "y"):
+                np.testing.assert_array_equal(
+                    getattr(fleet, name)[k], getattr(f, name), f"{name} t={t} k={k}"
+                )
+            assert fleet.log_likelihood[k] == f.log_likelihood
+            _, P = wide_covariance_form_update(x_prior, P_prior, sigmas, f.sigmas_h, Wm, Wc, z, state_add)
+            np.testing.assert_allclose(
+                fleet.P[k], P, rtol=0, atol=1e-10 * np.abs(P).max(), err_msg=f"t={t} k={k}"
+            )
+    assert not fleet.failed.any()
+    res = batch.batch_filter(np.broadcast_to(zs, (K,) + zs.shape))
+    np.testing.assert_array_equal(res.x, fleet.x)
+    np.testing.assert_array_equal(res.P1_2, fleet.P1_2)
+
+
+def test_a_failing_downdate_flags_that_filter_and_the_others_step_as_alone():
+    """Filter 1's sensor is precise enough that filterpy's P_prior - K S K^T is indefinite: it is
+    flagged (error 303), left as it was, and the others step as their single filters do."""
+    K, k = 3, 1
+    R = [1.0, 0.1, 2.0]
+    fleet = wrapped_pair_fleet(K, JulierSigmaPoints(2, kappa=1), R)
+    fleet.predict()
+    x_k, S_k = fleet.x[k].copy(), fleet.P1_2[k].copy()
+    fleet.update(np.full((K, 1), 0.3))
+    assert fleet.failed.tolist() == [j == k for j in range(K)]
+    assert "PosteriorFactorError" in fleet.failure[k]
+    np.testing.assert_array_equal(fleet.x[k], x_k)
+    np.testing.assert_array_equal(fleet.P1_2[k], S_k)
+    for j in (0, 2):
+        one = wrapped_pair_filter(SquareRootUKF, JulierSigmaPoints(2, kappa=1), R=R[j])
+        one.predict()
+        one.update([0.3])
+        np.testing.assert_array_equal(fleet.x[j], one.x)
+        np.testing.assert_array_equal(fleet.P1_2[j], one.P1_2)
 
 
 def test_augmented_needs_pairs_as_for_one_filter():

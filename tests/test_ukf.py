@@ -42,6 +42,7 @@ from models import (
     PRECISE_H,
     PRECISE_Q,
     PRECISE_R,
+    WIDE_FAMILIES,
     Robot,
     assert_filter_state,
     assert_same_estimate,
@@ -71,6 +72,10 @@ from models import (
     spinning_heading,
     spinning_heading_filter,
     step,
+    wide_covariance_form_update,
+    wide_heading_filter,
+    wide_measurements,
+    wrapped_pair_filter,
 )
 from scipy.linalg import solve_discrete_are
 from scipy.stats import chi2
@@ -84,6 +89,7 @@ from squkf import (
     MerweScaledWeights,
     NotPositiveDefiniteError,
     ParameterError,
+    PosteriorFactorError,
     Propagated,
     Redrawn,
     SimplexWeights,
@@ -778,11 +784,114 @@ def test_angles_nees_consistent_across_the_cut():
     assert lo < nees.mean() < hi, (lo, nees.mean(), hi)
 
 
+# == residual_x and state_add: P is filterpy's P_prior - K S K^T (the downdate form) ================
+
+# Both sides compute P_prior - K S K^T from the same prior and points, squkf by downdating the prior's
+# factor: the differences are rounding, near 1e-15 of |P| here (cond(P) < 1e4), so 1e-10 of |P| is a
+# wide margin that still catches any other formula (the old one was off by 0.1 to 1 of |P|).
+AGREE = 1e-10
+
+
+def assert_P_agrees(P, ref, what=""):
+    np.testing.assert_allclose(P, ref, rtol=0, atol=AGREE * np.abs(ref).max(), err_msg=what)
+
+
+def test_wrapped_residual_x_gives_filterpys_P_on_the_issues_reproducer():
+    """Julier kappa 1, fx = x, hx = x[1:], a residual_x wrapping x[0]: filterpy's P, to 1e-10."""
+    fp = wrapped_pair_filter(UnscentedKalmanFilter, JulierSigmaPoints(2, kappa=1))
+    sq = wrapped_pair_filter(SquareRootUKF, JulierSigmaPoints(2, kappa=1))
+    for f in (fp, sq):
+        f.predict()
+        f.update([0.3])
+    np.testing.assert_allclose(fp.P, [[4.952, 0.656], [0.656, 0.500]], rtol=0, atol=5e-4)
+    assert_P_agrees(sq.P, fp.P)
+    np.testing.assert_allclose(sq.x, fp.x, rtol=0, atol=1e-14)
+
+
+def _wrapped(sigmas, x) -> bool:
+    """Whether the heading's wrapped deviations differ from the plain ones (a point passed pi)."""
+    plain = sigmas[:, 0] - x[0]
+    return bool(np.any(np.abs(wrap(plain) - plain) > 1.0))
+
+
+@pytest.mark.parametrize("state_add", [False, True], ids=["residual_x", "state_add"])
+@pytest.mark.parametrize("name", list(WIDE_FAMILIES))
+def test_wrapped_residual_x_gives_filterpys_P_for_every_family(name, state_add):
+    """The wide heading (its points past pi at every step), six steps, the redrawn scheme."""
+    family, filterpy_points = WIDE_FAMILIES[name]
+    sq = wide_heading_filter(SquareRootUKF, family(), state_add)
+    fp = wide_heading_filter(
+        UnscentedKalmanFilter, filterpy_points(AngleResidual([0]) if state_add else None)
+    )
+    passed_pi = 0
+    for t, z in enumerate(wide_measurements(6)):
+        for f in (sq, fp):
+            f.predict()
+        passed_pi += _wrapped(fp.sigmas_f, fp.x)
+        for f in (sq, fp):
+            f.update(z)
+        assert_P_agrees(sq.P, fp.P, f"P at step {t}")
+        np.testing.assert_allclose(
+            wrap(sq.x - fp.x), 0.0, atol=AGREE * np.abs(fp.x).max(), err_msg=f"x at {t}"
+        )
+        np.testing.assert_allclose(sq.K, fp.K, rtol=0, atol=AGREE * np.abs(fp.K).max(), err_msg=f"K at {t}")
+    assert passed_pi >= 1
+
+
+@pytest.mark.parametrize("state_add", [False, True], ids=["residual_x", "state_add"])
+@pytest.mark.parametrize("scheme", ["augmented", "propagated"])
+def test_wrapped_residual_x_gives_P_prior_minus_KSK_on_the_other_schemes(scheme, state_add):
+    """filterpy has no other scheme: the oracle is its update written out on the scheme's second set.
+
+    (The propagated set with process noise took the downdate form before too: this is its check.)
+    """
+    family = MerweScaledWeights(1.0, 2.0, 0.0)
+    f = wide_heading_filter(SquareRootUKF, family, state_add, scheme=scheme)
+    Wm, Wc = family.augmented(3).weights(6) if scheme == "augmented" else (f.Wm, f.Wc)
+    passed_pi = 0
+    for t, z in enumerate(wide_measurements(6)):
+        f.predict()
+        x_prior, P_prior, sigmas = f.x, f.P, f.sigmas_f
+        passed_pi += _wrapped(sigmas, x_prior)
+        f.update(z)
+        x, P = wide_covariance_form_update(x_prior, P_prior, sigmas, f.sigmas_h, Wm, Wc, z, state_add)
+        assert_P_agrees(f.P, P, f"P at step {t}")
+        np.testing.assert_allclose(wrap(f.x - x), 0.0, atol=AGREE * np.abs(x).max(), err_msg=f"x at {t}")
+    assert passed_pi >= 1
+
+
+def test_a_downdate_that_fails_raises_and_changes_nothing():
+    """Where filterpy's P_prior - K S K^T is indefinite (a sensor ten times as precise), error 303."""
+    fp = wrapped_pair_filter(UnscentedKalmanFilter, JulierSigmaPoints(2, kappa=1), R=0.1)
+    fp.predict()
+    fp.update([0.3])
+    assert np.linalg.eigvalsh(fp.P).min() < -0.01
+    sq = wrapped_pair_filter(SquareRootUKF, JulierSigmaPoints(2, kappa=1), R=0.1)
+    sq.predict()
+    before = filter_state(sq)
+    with pytest.raises(PosteriorFactorError) as err:
+        sq.update([0.3])
+    assert err.value.errno == 303
+    assert_filter_state(sq, before)
+    # and the filter goes on: a less precise measurement is taken
+    sq.update([0.3], R=1.0)
+    ok = wrapped_pair_filter(UnscentedKalmanFilter, JulierSigmaPoints(2, kappa=1))
+    ok.predict()
+    ok.update([0.3])
+    assert_P_agrees(sq.P, ok.P)
+
+
 # == filterpy's conventions: dt, filter banks, scalar noise, hooks assigned between steps ==========
 
 
 def _scaled_residual(a, b):
     return 1.1 * np.subtract(a, b)
+
+
+def _shrunk_residual(a, b):
+    # (shrunk, not stretched: a residual_x stretched by 1.1 makes filterpy's P_prior - K S K^T
+    # indefinite on this model, which the downdate form refuses)
+    return 0.9 * np.subtract(a, b)
 
 
 def _half_step_add(x, dx):
@@ -797,7 +906,7 @@ def _shifted_mean(sigmas, Wm):
     "hook, value, default",
     [
         ("residual_z", _scaled_residual, np.subtract),
-        ("residual_x", _scaled_residual, np.subtract),
+        ("residual_x", _shrunk_residual, np.subtract),
         ("state_add", _half_step_add, np.add),
         ("x_mean", _shifted_mean, None),
         ("z_mean", _shifted_mean, None),
