@@ -983,8 +983,7 @@ class SquareRootUKF:
         plan = (e.step_route if pending[1] is e.sset else e.route).plan
         given = self._given_set(pending[1].sigmas.shape[1:]) if self._sigmas else None
         if given is not None:  # a set the program wrote as sigmas_f: its spread is not the prior's
-            sset = pending[1]._replace(sigmas=given[None], offsets=None, moments_exact=False, axis=False)
-            pending = (pending[0], sset)
+            pending = (pending[0], pending[1].rewritten(given[None]))
         sigmas = pending[1].sigmas[0].copy()  # hx gets its own copy: the update reads the set
         if plan.v_xi is None:
             values = hx(sigmas, **hx_args) if self.vectorized else self._per_point(hx, sigmas, (), hx_args)
