@@ -209,7 +209,10 @@ def as_gate(value) -> Gate | None:
         raise ParameterError(
             f"gate must be None, a squkf.Gate or a chi-square probability in (0, 1), got gate={value!r}"
         )
-    p = float(value)
+    try:
+        p = float(value)
+    except OverflowError:  # a Python integer beyond float64's range: far outside (0, 1)
+        p = float("inf")
     if not 0.0 < p < 1.0:
         raise ParameterError(
             f"gate={value!r} is not a chi-square probability in the open interval (0, 1);"

@@ -29,6 +29,7 @@ from .boundary.covariance import (
     Covariance,
     Estimate,
     FactorSlot,
+    Flag,
     Handed,
     Hook,
     ModelFunction,
@@ -48,7 +49,7 @@ from .measurement import gain_from_factors
 from .noise import call_model, handed_points, noise_points
 from .plan import Plan, build_plan
 from .transform import cross_covariance
-from .validate import as_float_array, check_flag, check_time_step, check_values
+from .validate import as_float_array, check_time_step, check_values
 from .weights import WrittenWeights
 
 __all__ = ["SquareRootUKF"]
@@ -263,8 +264,7 @@ class SquareRootUKF:
     _dim_z: int
     _dt: float | None
     _num_sigmas: int
-    vectorized: bool
-
+    vectorized = Flag()
     x = Estimate()
     P = Estimate()
     Q = Covariance()
@@ -303,7 +303,6 @@ class SquareRootUKF:
             True, hx=hx, fx=fx, sqrt_fn=sqrt_fn, x_mean_fn=x_mean_fn, z_mean_fn=z_mean_fn,
             residual_x=residual_x, residual_z=residual_z, state_add=state_add,
         )  # fmt: skip
-        vectorized_ = check_flag(vectorized, "vectorized")
         fx_noise_, hx_noise_ = checks.model_noise(fx, hx, fx_noise, hx_noise)
         dt_ = None if dt is None else check_time_step(dt)  # None: every predict passes its own
         family, num = checks.sigma_family(points, n, fx_noise_)
@@ -326,7 +325,7 @@ class SquareRootUKF:
         d["residual_x"] = np.subtract if residual_x is None else residual_x
         d["residual_z"] = np.subtract if residual_z is None else residual_z
         d["state_add"] = np.add if state_add is None else state_add
-        self.vectorized = vectorized_
+        self.vectorized = vectorized  # (checked: True or False)
         self.inv = np.linalg.inv
         # P, Q (the noise's own dimension when it enters fx), R; x = 0; the records of no step yet
         initial(self, m, fx_noise_ or n, hx_noise_ or m)

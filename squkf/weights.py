@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 import numpy as np
 
 from .errors import ParameterError
+from .validate import short_repr
 
 __all__ = [
     "SigmaPointFamily",
@@ -92,7 +93,13 @@ def real_number(value, name: str, errno: int | None = None) -> float:
         raise ParameterError(
             f"{name} must be a real number, got {name}={value!r} (a {type(value).__name__})", errno=errno
         )
-    return float(value)
+    try:
+        return float(value)
+    except OverflowError:  # a Python integer beyond float64's range
+        raise ParameterError(
+            f"{name} must be a finite real number, got {name}={short_repr(value)}: beyond float64's range",
+            errno=errno,
+        ) from None
 
 
 class _Described:

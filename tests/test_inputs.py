@@ -666,3 +666,22 @@ def test_vectorized_that_is_not_a_bool_is_refused_naming_it(bad):
     assert near_filter(vectorized=np.False_).vectorized is False
     fl = SquareRootUKF(4, 2, 1.0, positions_hx, cv_fx_nudged, MerweScaledWeights(), vectorized=np.True_)
     assert fl.vectorized is True
+
+
+@pytest.mark.parametrize("bad", ["no", 1, None], ids=repr)
+def test_vectorized_assigned_that_is_not_a_bool_is_refused_and_changes_nothing(bad):
+    f = near_filter()
+    with pytest.raises(ParameterError, match=r"^vectorized must be True or False"):
+        f.vectorized = bad
+    assert f.vectorized is False
+    f.vectorized = np.True_
+    assert f.vectorized is True
+
+
+@pytest.mark.parametrize("where", ["alpha", "gate"])
+def test_a_huge_integer_as_a_points_parameter_or_a_gate_is_named(where):
+    with pytest.raises(ParameterError, match=where):
+        if where == "alpha":
+            MerweScaledWeights(alpha=10**400)
+        else:
+            near_filter(gate=10**400)

@@ -32,7 +32,7 @@ import numpy as np
 from ..errors import NonFiniteError, NotPositiveDefiniteError, ShapeError, SqukfValueError
 from ..linalg import all_finite, factor_covariance
 from ..plan import Hooks
-from ..validate import as_float_array, check_callable
+from ..validate import as_float_array, check_callable, check_flag
 
 __all__ = [
     "as_lower_factor",
@@ -40,6 +40,7 @@ __all__ = [
     "Covariance",
     "Estimate",
     "FactorSlot",
+    "Flag",
     "Handed",
     "HandOut",
     "Hook",
@@ -511,6 +512,22 @@ class ModelFunction:
 
     def __set__(self, obj, value) -> None:
         obj.__dict__[self.name] = check_callable(value, self.name, self.optional, self.why)
+
+
+class Flag:
+    """An option kept in the instance's ``__dict__`` (filterpy's layout, ``vectorized``), checked when
+    assigned: ``True`` or ``False`` (:func:`~squkf.validate.check_flag`)."""
+
+    def __set_name__(self, owner, name: str):
+        self.name = name
+
+    def __get__(self, obj, owner=None) -> Any:
+        if obj is None:
+            return self
+        return obj.__dict__[self.name]
+
+    def __set__(self, obj, value) -> None:
+        obj.__dict__[self.name] = check_flag(value, self.name)
 
 
 def initial(obj, m: int, q: int, r: int) -> None:
