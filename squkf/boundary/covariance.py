@@ -36,6 +36,7 @@ from ..validate import as_float_array, check_callable, check_flag
 
 __all__ = [
     "as_lower_factor",
+    "Checked",
     "as_matrix",
     "Covariance",
     "Estimate",
@@ -467,28 +468,43 @@ class Estimate:
         getattr(obj, "_assign_" + self.name)(value)
 
 
-class Hook:
-    """A hook (``residual_x``, ``state_add``, ...) kept in the instance's ``__dict__``, as filterpy's.
+class Checked:
+    """An attribute kept in the instance's ``__dict__`` (filterpy's layout: a ``Saver`` sees it), checked
+    when assigned by :meth:`check`, which the kinds below define."""
+
+    def __set_name__(self, owner, name: str):
+        self.name = name
+
+    def __get__(self, obj, owner=None) -> Any:
+        if obj is None:
+            return self
+        return obj.__dict__[self.name]
+
+    def __set__(self, obj, value) -> None:
+        obj.__dict__[self.name] = self.check(value)
+
+    def check(self, value):
+        """``value`` as kept (raises, naming the attribute, for what it does not take)."""
+        return value
+
+
+class Hook(Checked):
+    """A hook (``residual_x``, ``state_add``, ...): callable or None.
 
     Setting one tells the filter (``_hooks_assigned``), which builds its
     :class:`~squkf.plan.Hooks` again.
     """
 
-    def __set_name__(self, owner, name: str):
-        self.name = name
-
-    def __get__(self, obj, owner=None):
-        if obj is None:
-            return self
-        return obj.__dict__[self.name]
-
-    def __set__(self, obj, value):
-        obj.__dict__[self.name] = check_callable(value, self.name)
+    def __set__(self, obj, value) -> None:
+        super().__set__(obj, value)
         obj._hooks_assigned()
 
+    def check(self, value):
+        return check_callable(value, self.name)
 
-class ModelFunction:
-    """``fx`` or ``hx``, kept in the instance's ``__dict__`` (filterpy's layout), callable when assigned.
+
+class ModelFunction(Checked):
+    """``fx`` or ``hx``: callable (or None where ``optional``).
 
     Parameters
     ----------
@@ -502,32 +518,15 @@ class ModelFunction:
     def __init__(self, optional: bool, why: str = ""):
         self.optional, self.why = optional, why
 
-    def __set_name__(self, owner, name: str):
-        self.name = name
-
-    def __get__(self, obj, owner=None) -> Any:
-        if obj is None:
-            return self
-        return obj.__dict__[self.name]
-
-    def __set__(self, obj, value) -> None:
-        obj.__dict__[self.name] = check_callable(value, self.name, self.optional, self.why)
+    def check(self, value):
+        return check_callable(value, self.name, self.optional, self.why)
 
 
-class Flag:
-    """An option kept in the instance's ``__dict__`` (filterpy's layout, ``vectorized``), checked when
-    assigned: ``True`` or ``False`` (:func:`~squkf.validate.check_flag`)."""
+class Flag(Checked):
+    """An option that is on or off (``vectorized``): ``True`` or ``False`` (``validate.check_flag``)."""
 
-    def __set_name__(self, owner, name: str):
-        self.name = name
-
-    def __get__(self, obj, owner=None) -> Any:
-        if obj is None:
-            return self
-        return obj.__dict__[self.name]
-
-    def __set__(self, obj, value) -> None:
-        obj.__dict__[self.name] = check_flag(value, self.name)
+    def check(self, value):
+        return check_flag(value, self.name)
 
 
 def initial(obj, m: int, q: int, r: int) -> None:
