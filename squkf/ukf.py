@@ -536,6 +536,11 @@ class SquareRootUKF:
         if self._x is not None or self._Ph is not None:  # handed out since the step: edits are taken
             self._take_edits()
         if self._unset:
+            self._refuse_unset(call)
+
+    def _refuse_unset(self, call: str) -> None:
+        """Raise the UnsetError of a step that meets ``x`` or ``P`` not set (if one is not)."""
+        if self._unset:
             name = "x" if "x" in self._unset else "P"
             raise UnsetError(
                 f"{call} needs {name}, but {name} was never set: it holds the placeholder"
@@ -851,6 +856,7 @@ class SquareRootUKF:
         P1_2_prior : ndarray, shape (dim_x, dim_x)
             Fresh arrays.
         """
+        self._refuse_unset("tell_predict")  # (assigned a placeholder since the ask)
         e = self._engine
         w_xi = e.step_route.plan.w_xi
         checks.refuse_noise_args(w_xi, "Q", Q, UT)
@@ -895,6 +901,7 @@ class SquareRootUKF:
         P1_2_post : ndarray, shape (dim_x, dim_x)
             Fresh arrays.
         """
+        self._refuse_unset("tell_update")  # (assigned a placeholder since the ask)
         e = self._engine
         v_xi = e.step_route.plan.v_xi  # the noise of the set handed out (drawn by the step's route)
         checks.refuse_noise_args(v_xi, "R", R, UT)
@@ -1226,6 +1233,6 @@ class SquareRootUKF:
     def __repr__(self) -> str:
         from filterpy.common import pretty_str
 
-        factors = {"P1_2": self._engine.S[0], "Q1_2": self._Q.factor(), "R1_2": self._R.factor()}
+        factors = {"P1_2": self.P1_2, "Q1_2": self._Q.factor(), "R1_2": self._R.factor()}
         rows = [(_LABELS.get(a, a), factors[a] if a in factors else getattr(self, a)) for a in _SHOWN]
         return "\n".join(["SquareRootUKF object"] + [pretty_str(label, v) for label, v in rows])

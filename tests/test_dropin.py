@@ -24,6 +24,7 @@ from models import (
     CV_Z,
     FLEET_P0,
     assert_filter_state,
+    ct_hx,
     ctrv_fx,
     ctrv_hx,
     ctrv_track,
@@ -93,6 +94,20 @@ def test_a_placeholder_reads_back_and_a_step_refuses_naming_it(name, k, call):
         CALLS[call](f)
     assert_filter_state(f, snap)
     assert getattr(f, name) is shown  # still the placeholder, as assigned
+
+
+@pytest.mark.parametrize("half", ["predict", "update"])
+def test_a_placeholder_assigned_between_ask_and_tell_is_refused_by_the_tell(half):
+    f = cv_filter()
+    X = f.ask_predict() if half == "predict" else (f.predict(), f.ask_update())[1]
+    f.x = None
+    snap = filter_state(f)
+    with pytest.raises(UnsetError, match="tell_"):
+        if half == "predict":
+            f.tell_predict([cv_fx(s, CV_DT) for s in X])
+        else:
+            f.tell_update([ct_hx(s) for s in X], CV_Z[0])
+    assert_filter_state(f, snap)
 
 
 @pytest.mark.parametrize(
