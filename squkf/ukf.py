@@ -59,8 +59,8 @@ _REAL = checks.REAL
 
 # What lives outside the __dict__ (see the class): the engine and the gain formed from its last update,
 # the configuration, the noise slots, and what was handed out or written: the arrays ``x``, ``P`` handed
-# out (``_x``, ``_Ph``; None: none), the records written (``_written``), the sigma points handed out
-# (``_sigmas``).
+# out (``_x``, ``_Ph``; None: none), which of them is a placeholder (``_unset``), the records written
+# (``_written``), the sigma points handed out (``_sigmas``).
 _SLOTS = (
     "_engine", "_gain_of", "_unformed", "_points", "_family", "_generator", "_plan", "_gate", "_fx_noise",
     "_hx_noise", "_noise_cache", "_Q", "_R", "_x", "_Ph", "_unset", "_written", "_sigmas",
@@ -145,8 +145,9 @@ class SquareRootUKF:
     dim_z : int
         Default number of measurement variables (``update`` accepts other
         sizes when given a matching ``R``).
-    dt : float
-        Default time step passed to ``fx``.
+    dt : float or None
+        Default time step passed to ``fx``; None, as in filterpy, when every
+        ``predict`` passes its own (one given none calls ``fx`` with ``dt=None``).
     hx : callable or None
         ``hx(x, **hx_args) -> (dim_z,)``; with ``vectorized=True``
         ``hx(sigmas, **hx_args)`` maps ``(N, dim_x)`` to ``(N, dim_z)``.
@@ -1110,7 +1111,9 @@ class SquareRootUKF:
         d = self.__dict__
         hooks = hooks_of(d)  # the hooks as given, None where filterpy's default is meant
         return Config(
-            self._dim_x, self._dim_z, self._dt, self.hx, self.fx, self._points, self._family, self._generator,
+            self._dim_x, self._dim_z, self._dt, self.hx, self.fx,
+            self._family if isinstance(self._family, WrittenWeights) else self._points,  # (weights written)
+            self._family, self._generator,
             *hooks, self._gate, self.fx_noise, self.hx_noise, self.vectorized,
             self._plan, hooks, self._Q.factor(), self._R.factor(), self._engine.phase,
         )  # fmt: skip

@@ -32,6 +32,7 @@ from models import (
     cv_fleet,
     cv_fx,
     cv_pair,
+    cv_single,
     filter_state,
     step,
 )
@@ -497,3 +498,23 @@ def test_filters_built_in_turn_equal_one_built_alone():
         f = cv_filter(points=MerweScaledSigmaPoints(4, 0.5, 2.0, 0.0))
         step(f, CV_Z[0])
         np.testing.assert_array_equal(f.P, alone.P)
+
+
+def test_filters_with_weights_written_stack_into_a_fleet_that_uses_them():
+    filters = [cv_single(MerweScaledWeights(alpha=0.5)) for _ in range(3)]
+    W = filters[0].Wm
+    W[0] += 0.1
+    W[1:] -= 0.1 / (W.size - 1)
+    for k, f in enumerate(filters):
+        f.Wm = W
+        f.x, f.P = np.array([10.0, 1.0, 5.0, 0.5]) + k, FLEET_P0
+    fleet = Fleet.from_filters(filters)
+    fleet.predict()
+    fleet.update(np.array([[11.0, 0.45]] * 3))
+    for k, f in enumerate(filters):
+        f.predict()
+        f.update(np.array([11.0, 0.45]))
+        np.testing.assert_array_equal(fleet.x[k], f.x)  # fleet = single, bit for bit
+        np.testing.assert_array_equal(fleet.P1_2[k], f.P1_2)
+    with pytest.raises(ParameterError, match="filters"):  # weights written differ: another configuration
+        Fleet.from_filters([filters[0], cv_single(MerweScaledWeights(alpha=0.5))])

@@ -20,7 +20,7 @@ from ..angles import AngleHook
 from ..errors import CallSequenceError, ParameterError
 from ..gating import Gate
 from ..plan import IDLE, PRIOR, Hooks, Plan
-from ..weights import FilterpyPoints
+from ..weights import FilterpyPoints, WrittenWeights
 
 __all__ = [
     "check_pending",
@@ -118,7 +118,10 @@ def _same(h):  # squkf's angle hooks are equal when they wrap the same component
 
 
 def _by_value(family):
-    """A family as compared: a filterpy points object (equal only to itself) by the points it gives."""
+    """A family as compared: a filterpy points object (equal only to itself) by the points it gives, weights
+    a program wrote by the family and weights."""
+    if isinstance(family, WrittenWeights):
+        return (WrittenWeights, _by_value(family.base), family.n, family.Wm.tobytes(), family.Wc.tobytes())
     if not isinstance(family, FilterpyPoints):
         return family
     n = family.n
