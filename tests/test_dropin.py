@@ -39,6 +39,7 @@ from models import (
 
 from squkf import (
     Augmented,
+    Fleet,
     MerweScaledWeights,
     NonFiniteError,
     ParameterError,
