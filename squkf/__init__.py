@@ -25,6 +25,7 @@ from .fleet import Fleet, FleetResult, FleetStepError
 from .gating import Gate
 from .generators import Augmented, Propagated, Redrawn, SigmaSet
 from .kernels import get_num_threads, set_num_threads
+from .simulate import simulate
 from .transform import sqrt_unscented_transform
 from .ukf import SquareRootUKF
 from .ut import unscented_transform
@@ -45,6 +46,7 @@ __all__ = [
     "Gate",
     "sqrt_unscented_transform",
     "unscented_transform",
+    "simulate",
     "MerweScaledWeights",
     "JulierWeights",
     "SimplexWeights",
