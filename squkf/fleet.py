@@ -44,12 +44,12 @@ from .boundary.checks import (
     noise_factors,
     reset_rows,
 )
-from .boundary.config import Config, filter_kwargs, filter_of, stacked
+from .boundary.config import Config, check_pending, filter_kwargs, filter_of, stacked
 from .boundary.covariance import HandOut, Hook, ModelFunction
 from .boundary.loop import Transaction, annotate_step, check_keep, check_progress, progress_callback
 from .boundary.records import FleetResult, Records, failures_error, new_records
 from .engine import Buffers, Route
-from .errors import CallSequenceError, FleetStepError, ParameterError
+from .errors import CallSequenceError, FleetStepError, ParameterError, UnsetError
 from .gating import Gate, as_gate
 from .generators import SigmaSet, as_generator
 from .noise import handed_points, noise_points
@@ -122,6 +122,39 @@ def _as_filters(filters) -> list[SquareRootUKF]:
             raise ParameterError(f"filters[{k}] is filterpy's {kind}, not a squkf.SquareRootUKF:{how}")
         raise ParameterError(f"filters[{k}] is not a squkf.SquareRootUKF: got {short_repr(f)} ({kind})")
     return filters
+
+
+class PerPoint:
+    """A per-point model function called on a fleet's stacked points, point by point.
+
+    ``fx(x, dt, **kw)``, ``hx(x, **kw)``, or with a noise argument ``fx(x, w, dt)``, ``hx(x, v)``
+    (``noise``), as a filter with ``vectorized=False`` calls them; the fleet gives ``(..., N, d)``
+    points (and noise points) and gets ``(..., N, d_out)`` values. A class, so a fleet of it pickles
+    where the function does.
+
+    Parameters
+    ----------
+    fn : callable
+    noise : bool
+        The first argument after the points is their noise points.
+    """
+
+    def __init__(self, fn: Callable, noise: bool):
+        self.fn, self.noise = fn, noise
+
+    def __call__(self, X: np.ndarray, *args, **kwargs) -> np.ndarray:
+        lead = X.shape[:-1]
+        points = X.reshape(-1, X.shape[-1])
+        if self.noise:
+            W, rest = args[0], args[1:]
+            noise = W.reshape(-1, W.shape[-1])
+            values = [self.fn(x, w, *rest, **kwargs) for x, w in zip(points, noise)]
+        else:
+            values = [self.fn(x, *args, **kwargs) for x in points]
+        try:
+            return np.asarray(values, dtype=float).reshape(lead + (-1,))
+        except (TypeError, ValueError):  # values of different shapes, or not numbers: said by the step
+            return np.asarray(values, dtype=object)
 
 
 class Fleet:
@@ -934,6 +967,49 @@ class Fleet:
             len(x), c.dim_x, c.dim_z, c.dt, c.hx, c.fx, c.points, on_error=on_error, **filter_kwargs(c)
         )
         fleet.x, fleet.P1_2, fleet.Q1_2, fleet.R1_2 = x, P1_2, Q1_2, R1_2  # validated by the setters
+        return fleet
+
+    @classmethod
+    def from_template(cls, ukf: SquareRootUKF, n_filters: int, *, on_error: str = "flag") -> Fleet:
+        """A fleet of ``n_filters`` copies of one filter: its configuration, ``x``, ``P``, ``Q`` and ``R``.
+
+        What a Monte Carlo study or a noise fit starts from (:mod:`squkf.consistency`,
+        :mod:`squkf.tune`). Unlike :meth:`from_filters` the template may be per point
+        (``vectorized=False``): its ``fx`` and ``hx`` are then called point by point on the
+        fleet's stacked points (:class:`PerPoint`), with ``fx_args`` and ``hx_args`` as given.
+
+        Parameters
+        ----------
+        ukf : SquareRootUKF
+            Read, never changed.
+        n_filters : int
+        on_error : {"flag", "raise"}
+
+        Raises
+        ------
+        ParameterError
+            ``ukf`` is not a ``SquareRootUKF``, or has no ``fx`` or ``hx``.
+        UnsetError
+            Its ``x`` or ``P`` is a placeholder.
+        CallSequenceError
+            It has a step pending that a fleet cannot carry (an ask not told).
+        """
+        f = _as_filters([ukf])[0]
+        c = f.configuration()
+        check_pending(c.step, c.plan, "the template")
+        for name in ("x", "P"):
+            value = getattr(f, name)
+            if value is None or np.isnan(value).all():
+                raise UnsetError(f"a fleet of the template needs its {name}, but {name} was never set")
+        fx, hx = c.fx, c.hx
+        if fx is None or hx is None:
+            missing = "fx" if fx is None else "hx"
+            raise ParameterError(f"a fleet needs fx and hx, but the template has {missing}=None")
+        if not c.vectorized:
+            fx, hx = PerPoint(fx, bool(c.fx_noise)), PerPoint(hx, bool(c.hx_noise))
+        kwargs = filter_kwargs(c)
+        fleet = cls(n_filters, c.dim_x, c.dim_z, c.dt, hx, fx, c.points, on_error=on_error, **kwargs)
+        fleet.x, fleet.P1_2, fleet.Q1_2, fleet.R1_2 = f.x, f.P1_2, f.Q1_2, f.R1_2
         return fleet
 
     def __copy__(self) -> Fleet:
