@@ -4,6 +4,7 @@
 program; :mod:`squkf.nag` keeps g13ej's reverse-communication calling sequence.
 """
 
+from . import tune
 from ._version import __version__ as __version__
 from .errors import (
     CallSequenceError,
@@ -47,6 +48,7 @@ __all__ = [
     "sqrt_unscented_transform",
     "unscented_transform",
     "simulate",
+    "tune",
     "MerweScaledWeights",
     "JulierWeights",
     "SimplexWeights",
