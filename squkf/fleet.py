@@ -976,7 +976,7 @@ class Fleet:
         What a Monte Carlo study or a noise fit starts from (:mod:`squkf.consistency`,
         :mod:`squkf.tune`). Unlike :meth:`from_filters` the template may be per point
         (``vectorized=False``): its ``fx`` and ``hx`` are then called point by point on the
-        fleet's stacked points (:class:`PerPoint`), with ``fx_args`` and ``hx_args`` as given.
+        fleet's stacked points (``squkf.fleet.PerPoint``), with ``fx_args`` and ``hx_args`` as given.
 
         Parameters
         ----------
