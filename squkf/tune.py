@@ -14,11 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .boundary.covariance import as_matrix
-from .errors import FleetStepError, NonFiniteError, ParameterError, ShapeError, SqukfError
-from .fleet import Fleet
-from .linalg import factor_covariance
-from .validate import as_float_array, as_measurements
+from .candidates import Candidates, all_failed, candidate_factors, check_template, recordings, run
+from .errors import ShapeError
 
 __all__ = ["log_likelihood"]
 
@@ -84,92 +81,25 @@ def log_likelihood(
     (1, {})
     """
     c = ukf.configuration()
-    if c.gate is not None:
-        raise ParameterError(
-            f"the template has a gate ({c.gate!r}): a gated likelihood, which leaves out the measurements"
-            " it rejects, is not the model's; tune a filter without one (ukf.gate = None)"
-        )
-    if isinstance(burn_in, bool) or not isinstance(burn_in, (int, np.integer)) or burn_in < 0:
-        raise ParameterError(f"burn_in must be a non-negative integer, got burn_in={burn_in!r}")
-    Z, single = _recordings(zs, c.dim_z)
-    S, T = Z.shape[:2]
-    if burn_in >= T:
-        raise ParameterError(f"burn_in={burn_in} leaves none of the recordings' {T} steps")
+    Z, single = recordings(zs, c.dim_z)
+    check_template(ukf, burn_in, Z.shape[1])
     q, r = c.fx_noise or c.dim_x, c.hx_noise or c.dim_z
-    Q1_2, K_q, failures = _candidates(Qs, "Qs", q)
-    R1_2, K_r, failed_r = _candidates(Rs, "Rs", r)
-    K = K_q or K_r or 1
+    Q1_2, failures = candidate_factors(Qs, "Qs", q) if Qs is not None else (None, {})
+    R1_2, failed_r = candidate_factors(Rs, "Rs", r) if Rs is not None else (None, {})
+    K_q, K_r = (0 if A is None else A.shape[0] for A in (Q1_2, R1_2))
     if K_q and K_r and K_q != K_r:
         raise ShapeError(f"Qs has {K_q} candidates but Rs has {K_r}")
+    K = K_q or K_r or 1
     for k, why in failed_r.items():
         failures[k] = f"{failures[k]}; {why}" if k in failures else why
-    fleet = Fleet.from_template(ukf, K * S)  # filter k * S + s: candidate k on recording s
-    if Q1_2 is not None:
-        fleet.Q1_2 = np.repeat(Q1_2, S, axis=0) if K_q else Q1_2
-    if R1_2 is not None:
-        fleet.R1_2 = np.repeat(R1_2, S, axis=0) if K_r else R1_2
     if len(failures) == K:  # (a candidate that is not a covariance runs with no noise, and is dropped)
-        raise _all_failed(failures)
-    Zs = np.tile(Z, (K, 1, 1))
-    result = fleet.batch_filter(Zs, dts=dts, keep="means", fx_args=fx_args, hx_args=hx_args)
-    loglik = np.asarray(result.log_likelihood)[:, burn_in:].sum(axis=1).reshape(K, S)
-    for j in np.flatnonzero(np.asarray(result.failed)).tolist():
-        k = j // S
-        if k not in failures:
-            failures[k] = f"recording {j % S}: {fleet.failure[j]}" if S > 1 else str(fleet.failure[j])
+        raise all_failed(failures)
+    kwargs = {"dts": dts, "fx_args": fx_args, "hx_args": hx_args}
+    loglik, failed = run(ukf, Z, Candidates(Q1_2, R1_2), K, burn_in, kwargs)
+    for k, why in failed.items():
+        failures.setdefault(k, why)
     for k in failures:
         loglik[k] = -np.inf
     if len(failures) == K:
-        raise _all_failed(failures)
+        raise all_failed(failures)
     return (loglik[:, 0] if single else loglik), dict(sorted(failures.items()))
-
-
-def _recordings(zs, m: int) -> tuple[np.ndarray, bool]:
-    """``zs`` as ``(S, T, m)`` recordings, NaN-padded to the longest (missing measurements), and whether
-    it was one recording ``(T, m)``."""
-    single = False
-    if isinstance(zs, (list, tuple)) and zs and all(np.ndim(z) == 2 for z in zs):
-        parts = [as_measurements(z, f"zs[{s}]") for s, z in enumerate(zs)]
-        T = max(p.shape[0] for p in parts)
-        Z = np.full((len(parts), T, m), np.nan)
-        for s, p in enumerate(parts):
-            if p.shape[1:] != (m,):
-                raise ShapeError(f"zs[{s}] has shape {p.shape}, expected (T, dim_z={m})")
-            Z[s, : p.shape[0]] = p
-    else:
-        Z = as_measurements(zs, "zs")
-        single = Z.ndim == 2
-        if single:
-            Z = Z[None]
-        if Z.ndim != 3 or Z.shape[2] != m or Z.shape[1] == 0:
-            raise ShapeError(f"zs has shape {Z.shape}, expected (T, dim_z={m}) or (S, T, dim_z={m})")
-    if np.isinf(Z).any():
-        raise NonFiniteError("zs holds inf (a missing measurement is NaN)")
-    if np.isnan(Z).all():
-        raise NonFiniteError("zs holds no measurement: every entry is NaN")
-    return Z, single
-
-
-def _candidates(value, name: str, d: int) -> tuple[np.ndarray | None, int, dict[int, str]]:
-    """Candidate covariances ``(K, d, d)`` as lower factors (zeros for a failed one), K (0: none given),
-    and the candidates that are not covariances, with the reason."""
-    if value is None:
-        return None, 0, {}
-    A = as_float_array(value, name)
-    if A.ndim != 3 or A.shape[1:] != (d, d) or A.shape[0] == 0:
-        raise ShapeError(f"{name} has shape {A.shape}, expected (K, {d}, {d}): one covariance per candidate")
-    factors = np.zeros_like(A)
-    failures: dict[int, str] = {}
-    for k in range(A.shape[0]):
-        try:
-            label = f"{name}[{k}]"
-            factors[k] = factor_covariance(as_matrix(A[k], label, d), label, semidefinite=True)
-        except SqukfError as exc:
-            failures[k] = str(exc)
-    return factors, A.shape[0], failures
-
-
-def _all_failed(failures: dict[int, str]) -> FleetStepError:
-    reasons = "; ".join(f"candidate {k}: {why}" for k, why in sorted(failures.items())[:5])
-    order = sorted(failures)
-    return FleetStepError(f"every candidate failed ({reasons})", order, [failures[k] for k in order])

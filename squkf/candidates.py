@@ -1,0 +1,159 @@
+"""Candidate settings of one template filter, run in one fleet pass (what :mod:`squkf.tune` evaluates).
+
+Each (candidate, recording) pair is one filter of a :class:`~squkf.Fleet` built
+from the template (:meth:`Fleet.from_template`), filter ``k * S + s`` candidate
+``k`` on recording ``s``; a candidate may set the process and measurement
+noise (as lower factors) and the initial state. A candidate whose values are
+not valid, or whose filter fails numerically on a recording, is a failure:
+``-inf`` and its reason, and the others go on.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from .boundary.covariance import as_matrix
+from .errors import FleetStepError, NonFiniteError, ParameterError, ShapeError, SqukfError
+from .fleet import Fleet
+from .linalg import factor_covariance
+from .validate import as_float_array, as_measurements
+
+__all__ = ["Candidates", "all_failed", "candidate_factors", "check_template", "recordings", "run"]
+
+
+class Candidates(NamedTuple):
+    """K candidate settings; None where the template's value is kept.
+
+    Attributes
+    ----------
+    Q1_2 : ndarray, shape (K, q, q), or None
+    R1_2 : ndarray, shape (K, r, r), or None
+        Lower factors of the noise covariances (``q``, ``r``: the noise's dimensions).
+    x : ndarray, shape (K, n), or None
+    P1_2 : ndarray, shape (K, n, n), or None
+        Initial state and the lower factor of its covariance.
+    """
+
+    Q1_2: np.ndarray | None = None
+    R1_2: np.ndarray | None = None
+    x: np.ndarray | None = None
+    P1_2: np.ndarray | None = None
+
+
+def recordings(zs, m: int) -> tuple[np.ndarray, bool]:
+    """``zs`` as ``(S, T, m)`` recordings, NaN-padded to the longest (missing measurements), and whether
+    it was one recording ``(T, m)``.
+
+    Raises
+    ------
+    ShapeError, NonFiniteError
+        Not recordings of ``m`` components; inf; no measurement at all.
+    """
+    single = False
+    if isinstance(zs, (list, tuple)) and zs and all(np.ndim(z) == 2 for z in zs):
+        parts = [as_measurements(z, f"zs[{s}]") for s, z in enumerate(zs)]
+        T = max(p.shape[0] for p in parts)
+        Z = np.full((len(parts), T, m), np.nan)
+        for s, p in enumerate(parts):
+            if p.shape[1:] != (m,):
+                raise ShapeError(f"zs[{s}] has shape {p.shape}, expected (T, dim_z={m})")
+            Z[s, : p.shape[0]] = p
+    else:
+        Z = as_measurements(zs, "zs")
+        single = Z.ndim == 2
+        if single:
+            Z = Z[None]
+        if Z.ndim != 3 or Z.shape[2] != m or Z.shape[1] == 0:
+            raise ShapeError(f"zs has shape {Z.shape}, expected (T, dim_z={m}) or (S, T, dim_z={m})")
+    if np.isinf(Z).any():
+        raise NonFiniteError("zs holds inf (a missing measurement is NaN)")
+    if np.isnan(Z).all():
+        raise NonFiniteError("zs holds no measurement: every entry is NaN")
+    return Z, single
+
+
+def candidate_factors(value, name: str, d: int) -> tuple[np.ndarray, dict[int, str]]:
+    """Candidate covariances ``(K, d, d)`` as lower factors (zeros where one is not a covariance), and
+    the candidates that are not, with the reason.
+
+    Raises
+    ------
+    ShapeError
+        Not ``(K, d, d)``.
+    """
+    A = as_float_array(value, name)
+    if A.ndim != 3 or A.shape[1:] != (d, d) or A.shape[0] == 0:
+        raise ShapeError(f"{name} has shape {A.shape}, expected (K, {d}, {d}): one covariance per candidate")
+    factors = np.zeros_like(A)
+    failures: dict[int, str] = {}
+    for k in range(A.shape[0]):
+        label = f"{name}[{k}]"
+        try:
+            factors[k] = factor_covariance(as_matrix(A[k], label, d), label, semidefinite=True)
+        except SqukfError as exc:
+            failures[k] = str(exc)
+    return factors, failures
+
+
+def run(
+    ukf, Z: np.ndarray, c: Candidates, K: int, burn_in: int, kwargs: dict
+) -> tuple[np.ndarray, dict[int, str]]:
+    """Each candidate's log-likelihood on each recording, in one fleet pass of ``K * S`` filters.
+
+    Parameters
+    ----------
+    ukf : SquareRootUKF
+        The template (read only).
+    Z : ndarray, shape (S, T, m)
+    c : Candidates
+    K : int
+        Number of candidates.
+    burn_in : int
+        Steps left out of the sums.
+    kwargs : dict
+        ``dts``, ``fx_args``, ``hx_args`` of the run.
+
+    Returns
+    -------
+    loglik : ndarray, shape (K, S)
+        Sums over the steps from ``burn_in`` (``-inf`` for a failed filter).
+    failures : dict of int to str
+        Candidate -> why its first failing recording failed.
+    """
+    S = Z.shape[0]
+    fleet = Fleet.from_template(ukf, K * S)
+    for name, value in zip(("Q1_2", "R1_2", "x", "P1_2"), c):
+        if value is not None:
+            setattr(fleet, name, np.repeat(value, S, axis=0))
+    result = fleet.batch_filter(np.tile(Z, (K, 1, 1)), keep="means", **kwargs)
+    loglik = np.asarray(result.log_likelihood)[:, burn_in:].sum(axis=1).reshape(K, S)
+    failures: dict[int, str] = {}
+    for j in np.flatnonzero(np.asarray(result.failed)).tolist():
+        k = j // S
+        loglik[k] = -np.inf
+        if k not in failures:
+            failures[k] = f"recording {j % S}: {fleet.failure[j]}" if S > 1 else str(fleet.failure[j])
+    return loglik, failures
+
+
+def all_failed(failures: dict[int, str], what: str = "candidate") -> FleetStepError:
+    """The error when every candidate failed, naming the first reasons (``filters``, ``reasons``: all)."""
+    order = sorted(failures)
+    reasons = "; ".join(f"{what} {k}: {failures[k]}" for k in order[:5])
+    return FleetStepError(f"every {what} failed ({reasons})", order, [failures[k] for k in order])
+
+
+def check_template(ukf, burn_in: int, T: int) -> None:
+    """Refuse a template with a gate and a ``burn_in`` that is not a count of steps before ``T``."""
+    c = ukf.configuration()
+    if c.gate is not None:
+        raise ParameterError(
+            f"the template has a gate ({c.gate!r}): a gated likelihood, which leaves out the measurements"
+            " it rejects, is not the model's; tune a filter without one (ukf.gate = None)"
+        )
+    if isinstance(burn_in, bool) or not isinstance(burn_in, (int, np.integer)) or burn_in < 0:
+        raise ParameterError(f"burn_in must be a non-negative integer, got burn_in={burn_in!r}")
+    if burn_in >= T:
+        raise ParameterError(f"burn_in={burn_in} leaves none of the recordings' {T} steps")
