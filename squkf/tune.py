@@ -16,8 +16,10 @@ import numpy as np
 
 from .candidates import Candidates, all_failed, candidate_factors, check_template, recordings, run
 from .errors import ShapeError
+from .noise_fit import NoiseFit, fit_noise
+from .parametrise import Custom, Diagonal, Fixed, Full, Scaled
 
-__all__ = ["log_likelihood"]
+__all__ = ["log_likelihood", "fit_noise", "NoiseFit", "Fixed", "Scaled", "Diagonal", "Full", "Custom"]
 
 
 def log_likelihood(

@@ -1,0 +1,518 @@
+"""``Q`` and ``R`` fitted by maximum likelihood, every candidate an optimiser asks for in one fleet pass.
+
+:func:`fit_noise` moves the parameters ``theta`` of two parametrisations
+(:mod:`squkf.parametrise`) to maximise the exact innovation log-likelihood of
+the recordings (:mod:`squkf.candidates`: each candidate a filter of one fleet).
+Whatever an optimiser asks for at once is one fleet pass: a population of
+differential evolution, a grid (in as few passes as ``max_filters`` allows),
+or a point with the central differences of its gradient (``"quasi_newton"``:
+scipy's L-BFGS-B given the value and gradient of each pass). At the optimum the
+observed information, the finite-difference Hessian of ``-log L`` (plus the
+prior's terms), is one pass more; its inverse is ``theta``'s covariance.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize, stats
+
+from .candidates import Candidates, all_failed, candidate_factors, check_template, recordings, run
+from .errors import ParameterError, ShapeError, SqukfError
+from .parametrise import Scaled
+
+__all__ = ["NoiseFit", "fit_noise", "METHODS"]
+
+METHODS = ("quasi_newton", "differential_evolution", "grid")
+
+#: the step of the central differences in theta (log-variances: a relative change of 1e-4)
+GRADIENT_STEP = 1e-4
+#: the step of the Hessian's differences (its rounding error in f, about 1e-9, over h**2 stays small)
+HESSIAN_STEP = 1e-3
+#: an eigenvalue of the information below this times the largest is a direction the data do not fix
+WEAK = 1e-8
+
+
+@dataclass
+class NoiseFit:
+    """What :func:`fit_noise` found.
+
+    Attributes
+    ----------
+    Q, R : ndarray
+        The fitted covariances (the template's where not fitted).
+    x, P : ndarray or None
+        The fitted initial state and covariance, where a ``Custom`` sets them.
+    theta : ndarray, shape (p,)
+        The parameters at the optimum (``Q``'s first, then ``R``'s).
+    names : list of str
+    theta_cov : ndarray, shape (p, p)
+        The inverse of the observed information (inf on a direction the data do not fix).
+    log_likelihood : float
+        The exact log-likelihood at the optimum (summed over the recordings).
+    log_likelihood_template : float
+        At the template's own values.
+    success : bool
+    message : str
+    method : str
+    passes : int
+        Fleet passes run.
+    filter_steps : int
+        Filter-steps run, over all passes.
+    failures : dict
+        Candidate ``theta`` (a tuple) -> why it failed, the first 20.
+    identifiable : bool
+        Whether every eigenvalue of the information is above ``1e-8`` times the largest.
+    weak_directions : list of dict
+        For each eigenvalue that is not: the eigenvector's components by parameter name.
+    surface : tuple (thetas (G, p), log-likelihoods (G,)) or None
+        The grid and its values (``method="grid"``).
+    """
+
+    Q: np.ndarray
+    R: np.ndarray
+    x: np.ndarray | None
+    P: np.ndarray | None
+    theta: np.ndarray
+    names: list[str]
+    theta_cov: np.ndarray
+    log_likelihood: float
+    log_likelihood_template: float
+    success: bool
+    message: str
+    method: str
+    passes: int
+    filter_steps: int
+    failures: dict = field(default_factory=dict)
+    identifiable: bool = True
+    weak_directions: list = field(default_factory=list)
+    surface: tuple | None = None
+    _parts: tuple = field(default=(), repr=False)
+
+    def intervals(self, level: float = 0.95) -> dict:
+        """Confidence intervals of the fitted quantities on their natural scale.
+
+        Computed on ``theta`` (normal, with ``theta_cov``) and mapped through
+        the parametrisation: as endpoints for ``Scaled`` (the scale) and
+        ``Diagonal`` (the variances), by the delta method for ``Full`` (the
+        matrix entries), on ``theta`` itself for ``Custom``.
+
+        Parameters
+        ----------
+        level : float
+            In (0, 1).
+
+        Returns
+        -------
+        dict
+            ``{"Q": {...}, "R": {...}}``, each ``{quantity: (estimate, low, high)}``.
+        """
+        if isinstance(level, bool) or not isinstance(level, (int, float)) or not 0.0 < float(level) < 1.0:
+            raise ParameterError(f"level must be a probability in (0, 1), got level={level!r}")
+        z = float(stats.norm.ppf(0.5 + float(level) / 2))
+        out = {}
+        for label, (param, M0, sl) in zip(("Q", "R"), self._parts):
+            out[label] = param.natural(self.theta[sl], self.theta_cov[sl, sl], M0, z)
+        return out
+
+    def apply(self, ukf) -> None:
+        """Set the fitted ``Q`` and ``R`` (and ``x``, ``P`` where fitted) on the filter ``ukf``."""
+        ukf.Q, ukf.R = self.Q, self.R
+        if self.x is not None:
+            ukf.x = self.x
+        if self.P is not None:
+            ukf.P = self.P
+
+    def __repr__(self) -> str:
+        sd = np.sqrt(np.maximum(np.diagonal(self.theta_cov), 0.0)) if self.theta.size else np.zeros(0)
+        lines = [
+            f"NoiseFit ({self.method}): {'converged' if self.success else 'not converged'}: {self.message}",
+            f"  log-likelihood {self.log_likelihood:.6g} (template's {self.log_likelihood_template:.6g}),"
+            f" {self.passes} fleet passes, {self.filter_steps} filter-steps",
+        ]
+        for name, value, s in zip(self.names, self.theta, sd):
+            lines.append(f"  {name} = {value:.6g} ± {s:.3g}")
+        if not self.identifiable:
+            lines.append(f"  not identifiable: {len(self.weak_directions)} weak direction(s)")
+        if self.failures:
+            lines.append(f"  {len(self.failures)} candidate(s) failed")
+        lines.append(f"  Q = {np.array2string(self.Q, precision=4)}".replace("\n", "\n      "))
+        lines.append(f"  R = {np.array2string(self.R, precision=4)}".replace("\n", "\n      "))
+        return "\n".join(lines)
+
+
+class _Objective:
+    """``-log L(theta) + |prior(theta)|^2 / 2`` of many candidates at once, one fleet pass per call."""
+
+    def __init__(self, ukf, Z, burn_in, parts, prior, kwargs, max_filters):
+        self.ukf, self.Z, self.burn_in, self.parts = ukf, Z, burn_in, parts
+        self.prior, self.kwargs, self.max_filters = prior, kwargs, max_filters
+        self.passes = 0
+        self.filter_steps = 0
+        self.failures: dict[tuple, str] = {}
+
+    def loglik(self, thetas: np.ndarray) -> np.ndarray:
+        """The exact log-likelihood of each candidate, summed over the recordings, ``(K,)`` (-inf: failed)."""
+        thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
+        S = self.Z.shape[0]
+        per_pass = max(1, self.max_filters // S)
+        out = np.empty(thetas.shape[0])
+        for start in range(0, thetas.shape[0], per_pass):
+            out[start : start + per_pass] = self._pass(thetas[start : start + per_pass])
+        return out
+
+    def __call__(self, thetas: np.ndarray) -> np.ndarray:
+        """The objective of each candidate (``+inf`` for a failed one)."""
+        thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
+        f = -self.loglik(thetas)
+        if self.prior is not None:
+            for k, theta in enumerate(thetas):
+                r = np.asarray(self.prior(theta.copy()), dtype=float).reshape(-1)
+                if not np.all(np.isfinite(r)):
+                    raise ParameterError(
+                        f"prior returned values that are not finite at theta={theta.tolist()}"
+                    )
+                f[k] += 0.5 * float(r @ r)
+        return f
+
+    def _pass(self, thetas: np.ndarray) -> np.ndarray:
+        K = thetas.shape[0]
+        cand, failures = self._candidates(thetas)
+        loglik = np.full(K, -np.inf)
+        good = [k for k in range(K) if k not in failures]
+        if good:
+            sub = Candidates(*(None if a is None else a[good] for a in cand))
+            values, failed = run(self.ukf, self.Z, sub, len(good), self.burn_in, self.kwargs)
+            self.passes += 1
+            self.filter_steps += len(good) * self.Z.shape[0] * self.Z.shape[1]
+            for j, k in enumerate(good):
+                if j in failed:
+                    failures[k] = failed[j]
+                else:
+                    loglik[k] = float(np.sum(values[j]))
+        for k, why in failures.items():
+            if len(self.failures) < 20:
+                self.failures.setdefault(tuple(np.round(thetas[k], 12).tolist()), why)
+        return loglik
+
+    def _candidates(self, thetas: np.ndarray) -> tuple[Candidates, dict[int, str]]:
+        """The candidates' factors (and initial states) from their ``theta``, and those that are invalid."""
+        K = thetas.shape[0]
+        failures: dict[int, str] = {}
+        mats: dict[str, list] = {"Q": [None] * K, "R": [None] * K, "x": [None] * K, "P": [None] * K}
+        for label, (param, M0, sl) in zip(("Q", "R"), self.parts):
+            try:
+                out = param.matrices(thetas[:, sl], M0)
+            except SqukfError as exc:
+                raise ParameterError(f"the parametrisation of {label} ({param!r}) failed: {exc}") from None
+            for k in range(K):
+                value = out[k]
+                if isinstance(value, dict):
+                    for key, v in value.items():
+                        if key not in mats:
+                            raise ParameterError(
+                                f"a Custom parametrisation set {key!r}: it may set Q, R, x and P"
+                            )
+                        mats[key][k] = v
+                else:
+                    mats[label][k] = value
+        result: list[np.ndarray | None] = []
+        for key in ("Q", "R", "x", "P"):
+            column = mats[key]
+            if all(v is None for v in column):
+                result.append(None)
+                continue
+            result.append(self._column(key, column, failures))
+        return Candidates(*result), failures
+
+    def _column(self, key: str, column: list, failures: dict[int, str]) -> np.ndarray:
+        ukf = self.ukf
+        default = {"Q": ukf.Q, "R": ukf.R, "x": ukf.x, "P": ukf.P}[key]
+        shape = np.shape(default)
+        values = np.empty((len(column),) + shape)
+        for k, v in enumerate(column):
+            a = np.asarray(default if v is None else v, dtype=float)
+            if a.shape != shape:
+                raise ShapeError(f"the parametrisation gave {key} of shape {a.shape}, expected {shape}")
+            if not np.all(np.isfinite(a)):
+                failures[k] = f"{key} is not finite"
+                a = np.asarray(default, dtype=float)
+            values[k] = a
+        if key == "x":
+            return values
+        factors, bad = candidate_factors(values, key, shape[0])
+        for k, why in bad.items():
+            failures.setdefault(k, why)
+        return factors
+
+
+def fit_noise(
+    ukf,
+    zs,
+    *,
+    Q=None,
+    R=None,
+    method: str = "quasi_newton",
+    grid=None,
+    bounds=None,
+    burn_in: int = 0,
+    prior: Callable | None = None,
+    shared: bool = True,
+    seed=None,
+    maxiter: int | None = None,
+    max_filters: int = 20000,
+    dts=None,
+    fx_args=None,
+    hx_args=None,
+) -> NoiseFit:
+    """Fit ``Q`` and ``R`` of the template ``ukf`` to recordings by maximum (a posteriori) likelihood.
+
+    Parameters
+    ----------
+    ukf : SquareRootUKF
+        The template: model, configuration, ``x``, ``P``, and the ``Q``, ``R``
+        the parametrisations start from. Never changed, whatever the outcome
+        (an interrupt included).
+    zs : array_like, shape (T, dim_z) or (S, T, dim_z), or a list of S recordings
+        As :func:`squkf.tune.log_likelihood` takes them; S recordings fit one
+        ``Q`` and ``R`` (``shared=True``).
+    Q, R : parametrisation, optional
+        :class:`~squkf.parametrise.Fixed`, ``Scaled`` (the default for both),
+        ``Diagonal``, ``Full`` or ``Custom`` (:mod:`squkf.parametrise`).
+        With ``fx_noise``/``hx_noise`` they are the noise's covariances.
+    method : {"quasi_newton", "differential_evolution", "grid"}
+        ``"quasi_newton"``: L-BFGS-B from the template's values, each step one
+        fleet pass of the point and its central differences.
+        ``"differential_evolution"``: scipy's, its population one fleet pass a
+        generation (``bounds`` default to the start ± ln 1000).
+        ``"grid"``: the ``grid`` given, in as few passes as ``max_filters``
+        allows; the surface is kept.
+    grid : array_like, shape (G, p), optional
+        The ``theta`` values of ``method="grid"``.
+    bounds : sequence of p (low, high), optional
+    burn_in : int
+        Early steps left out of the likelihood.
+    prior : callable, optional
+        ``prior(theta) -> residuals``: ``|r|^2 / 2`` is added to ``-log L`` (a
+        maximum a posteriori fit).
+    shared : bool
+        Only ``True`` so far: S recordings fit one ``Q`` and ``R``.
+    seed : optional
+        Of differential evolution.
+    maxiter : int, optional
+        Of the optimiser.
+    max_filters : int
+        The most filters in one fleet pass (memory).
+    dts, fx_args, hx_args : optional
+        As :meth:`squkf.Fleet.batch_filter` takes them.
+
+    Returns
+    -------
+    NoiseFit
+
+    Raises
+    ------
+    ParameterError
+        A gated template, an unknown method, nothing to fit, a bad grid,
+        bounds or start; ``shared=False``.
+    ShapeError, NonFiniteError
+        Recordings of the wrong shape, or with no measurement.
+    FleetStepError
+        Every candidate of a pass failed, at the start or on the whole grid.
+    CallSequenceError
+        The template has an ask pending.
+    """
+    if method not in METHODS:
+        raise ParameterError(f"method must be one of {', '.join(map(repr, METHODS))}, got method={method!r}")
+    if shared is not True:
+        raise ParameterError(
+            "shared=False (one fit per recording, together) needs the batched least squares of the"
+            " whitened innovations, which is not built yet: fit the recordings one at a time"
+        )
+    c = ukf.configuration()
+    Z, _ = recordings(zs, c.dim_z)
+    check_template(ukf, burn_in, Z.shape[1])
+    Q = Scaled() if Q is None else Q
+    R = Scaled() if R is None else R
+    Q0, R0 = np.atleast_2d(np.array(ukf.Q, dtype=float)), np.atleast_2d(np.array(ukf.R, dtype=float))
+    pq, pr = Q.size(Q0), R.size(R0)
+    parts = ((Q, Q0, slice(0, pq)), (R, R0, slice(pq, pq + pr)))
+    theta0 = np.concatenate([Q.start(Q0, ukf.Q1_2), R.start(R0, ukf.R1_2)])
+    p = theta0.size
+    if p == 0:
+        raise ParameterError("nothing to fit: Q and R are both Fixed()")
+    names = Q.names("Q", Q0) + R.names("R", R0)
+    kwargs = {"dts": dts, "fx_args": fx_args, "hx_args": hx_args}
+    if isinstance(max_filters, bool) or not isinstance(max_filters, int) or max_filters < 1:
+        raise ParameterError(f"max_filters must be a positive integer, got {max_filters!r}")
+    objective = _Objective(ukf, Z, burn_in, parts, prior, kwargs, max_filters)
+    lo_hi = _bounds(bounds, theta0, p)
+    surface = None
+    f0: float
+    if method == "grid":
+        G = _grid(grid, p)
+        values = objective(np.vstack([theta0, G]))
+        f0, fg = float(values[0]), values[1:]
+        if not np.any(np.isfinite(fg)):
+            raise all_failed({k: "failed" for k in range(G.shape[0])}, "grid point")
+        best = int(np.argmin(fg))
+        theta, success, message = G[best].copy(), True, f"the best of {G.shape[0]} grid points"
+        surface = (G.copy(), -fg)
+    elif method == "differential_evolution":
+        f0 = float(objective(theta0[None])[0])
+        res = optimize.differential_evolution(
+            lambda X: objective(np.asarray(X).T),
+            list(zip(*lo_hi)),
+            vectorized=True,
+            updating="deferred",
+            seed=seed,
+            polish=False,  # polished below, each step one pass (scipy's polish evaluates one point at a time)
+            tol=1e-6,
+            maxiter=1000 if maxiter is None else maxiter,
+            x0=np.clip(theta0, *lo_hi),
+        )
+        theta, success, message = _quasi_newton(objective, np.asarray(res.x, dtype=float), lo_hi, None)
+        success = success and bool(res.success)
+        message = f"{res.message}; polished: {message}"
+    else:
+        f0 = float(objective(theta0[None])[0])
+        if not math.isfinite(f0):
+            raise all_failed({0: next(iter(objective.failures.values()), "failed")}, "start")
+        theta, success, message = _quasi_newton(
+            objective, theta0, lo_hi if bounds is not None else None, maxiter
+        )
+    H, f_hat = _hessian(objective, theta)
+    cov, identifiable, weak = _covariance(H, names)
+    loglik_hat = float(objective.loglik(theta[None])[0])
+    Qf, Rf, xf, Pf = _fitted(objective, theta)
+    return NoiseFit(
+        Q=Qf, R=Rf, x=xf, P=Pf, theta=theta, names=names, theta_cov=cov, log_likelihood=loglik_hat,
+        log_likelihood_template=-f0 if prior is None else float(objective.loglik(theta0[None])[0]),
+        success=success and math.isfinite(f_hat), message=message, method=method, passes=objective.passes,
+        filter_steps=objective.filter_steps, failures=dict(objective.failures), identifiable=identifiable,
+        weak_directions=weak, surface=surface, _parts=parts,
+    )  # fmt: skip
+
+
+def _quasi_newton(objective: _Objective, theta0: np.ndarray, lo_hi, maxiter: int | None):
+    """L-BFGS-B from ``theta0``, each step the value and gradient of one fleet pass."""
+    res = optimize.minimize(
+        lambda t: _value_and_gradient(objective, t),
+        theta0,
+        jac=True,
+        method="L-BFGS-B",
+        bounds=None if lo_hi is None else list(zip(*lo_hi)),
+        options={"maxiter": 200 if maxiter is None else maxiter},
+    )
+    return np.asarray(res.x, dtype=float), bool(res.success), str(res.message)
+
+
+def _value_and_gradient(objective: _Objective, theta: np.ndarray) -> tuple[float, np.ndarray]:
+    """The objective at ``theta`` and its central-difference gradient, in one fleet pass."""
+    p = theta.size
+    h = GRADIENT_STEP
+    E = h * np.eye(p)
+    values = objective(np.vstack([theta, theta + E, theta - E]))
+    if not np.all(np.isfinite(values)):
+        return 1e300, np.zeros(p)  # a wall: the line search steps back from a failed candidate
+    return float(values[0]), (values[1 : p + 1] - values[p + 1 :]) / (2 * h)
+
+
+def _hessian(objective: _Objective, theta: np.ndarray) -> tuple[np.ndarray, float]:
+    """The finite-difference Hessian of the objective at ``theta``, every point in one fleet pass."""
+    p = theta.size
+    h = HESSIAN_STEP
+    points = [theta]
+    for i in range(p):
+        for s in (1.0, -1.0):
+            e = np.zeros(p)
+            e[i] = s * h
+            points.append(theta + e)
+    pairs = [(i, j) for i in range(p) for j in range(i + 1, p)]
+    for i, j in pairs:
+        for si, sj in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
+            e = np.zeros(p)
+            e[i], e[j] = si * h, sj * h
+            points.append(theta + e)
+    f = objective(np.array(points))
+    f0 = float(f[0])
+    H = np.empty((p, p))
+    for i in range(p):
+        H[i, i] = (f[1 + 2 * i] - 2 * f0 + f[2 + 2 * i]) / (h * h)
+    base = 1 + 2 * p
+    for n, (i, j) in enumerate(pairs):
+        fpp, fpm, fmp, fmm = f[base + 4 * n : base + 4 * n + 4]
+        H[i, j] = H[j, i] = (fpp - fpm - fmp + fmm) / (4 * h * h)
+    return H, f0
+
+
+def _covariance(H: np.ndarray, names: list[str]) -> tuple[np.ndarray, bool, list]:
+    """``theta``'s covariance from the observed information ``H`` (its inverse, by its eigenvectors), whether
+    every direction is fixed by the data, and the weak directions named."""
+    if not np.all(np.isfinite(H)):
+        p = H.shape[0]
+        return np.full((p, p), np.inf), False, [{"reason": "the information is not finite"}]
+    lam, V = np.linalg.eigh(0.5 * (H + H.T))
+    top = float(np.max(np.abs(lam))) if lam.size else 0.0
+    strong = lam > WEAK * top
+    cov = (V[:, strong] / lam[strong]) @ V[:, strong].T
+    weak_idx = np.flatnonzero(~strong).tolist()
+    for i in range(H.shape[0]):  # a parameter on a weak direction is not fixed: its variance is infinite
+        if any(abs(V[i, w]) > 1e-3 for w in weak_idx):
+            cov[i, :] = cov[:, i] = np.inf
+    weak = [
+        {
+            "eigenvalue": float(lam[w]),
+            "direction": {n: float(v) for n, v in zip(names, V[:, w]) if abs(v) > 1e-3},
+        }
+        for w in weak_idx
+    ]
+    return cov, not weak_idx, weak
+
+
+def _fitted(objective: _Objective, theta: np.ndarray):
+    """The covariances (and initial state) the parameters give, as matrices."""
+    out = {}
+    for label, (param, M0, sl) in zip(("Q", "R"), objective.parts):
+        value = param.matrices(theta[None, sl], M0)[0]
+        if isinstance(value, dict):
+            out.update({k: np.asarray(v, dtype=float) for k, v in value.items()})
+        else:
+            out[label] = np.asarray(value, dtype=float)
+    ukf = objective.ukf
+    Q = out.get("Q", np.asarray(ukf.Q, dtype=float))
+    R = out.get("R", np.asarray(ukf.R, dtype=float))
+    return Q, R, out.get("x"), out.get("P")
+
+
+def _bounds(bounds, theta0: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(low, high)`` arrays of ``p`` bounds: as given, else the start ± ln 1000."""
+    if bounds is None:
+        spread = math.log(1000.0)
+        return theta0 - spread, theta0 + spread
+    try:
+        b = np.asarray(bounds, dtype=float)
+    except (TypeError, ValueError):
+        raise ParameterError(f"bounds must be {p} (low, high) pairs, got bounds={bounds!r}") from None
+    if b.shape != (p, 2) or not np.all(np.isfinite(b)) or np.any(b[:, 0] >= b[:, 1]):
+        raise ParameterError(f"bounds must be {p} finite (low, high) pairs with low < high, got {bounds!r}")
+    if np.any(theta0 < b[:, 0]) or np.any(theta0 > b[:, 1]):
+        raise ParameterError(f"the start theta0={theta0.tolist()} is outside bounds={b.tolist()}")
+    return b[:, 0].copy(), b[:, 1].copy()
+
+
+def _grid(grid, p: int) -> np.ndarray:
+    if grid is None:
+        raise ParameterError("method='grid' needs grid=, an array (G, p) of theta values")
+    try:
+        G = np.asarray(grid, dtype=float)
+    except (TypeError, ValueError):
+        raise ParameterError(f"grid must be an array (G, {p}) of numbers, got {grid!r:.100}") from None
+    if G.ndim == 1 and p == 1:
+        G = G[:, None]
+    if G.ndim != 2 or G.shape[1] != p or G.shape[0] == 0 or not np.all(np.isfinite(G)):
+        raise ParameterError(f"grid must be a finite array (G, {p}), got shape {G.shape}")
+    return G
