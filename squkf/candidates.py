@@ -20,7 +20,15 @@ from .fleet import Fleet
 from .linalg import factor_covariance
 from .validate import as_float_array, as_measurements
 
-__all__ = ["Candidates", "all_failed", "candidate_factors", "check_template", "recordings", "run"]
+__all__ = [
+    "Candidates",
+    "all_failed",
+    "candidate_factors",
+    "check_template",
+    "recordings",
+    "run",
+    "run_paired",
+]
 
 
 class Candidates(NamedTuple):
@@ -123,18 +131,49 @@ def run(
         Candidate -> why its first failing recording failed.
     """
     S = Z.shape[0]
-    fleet = Fleet.from_template(ukf, K * S)
-    for name, value in zip(("Q1_2", "R1_2", "x", "P1_2"), c):
-        if value is not None:
-            setattr(fleet, name, np.repeat(value, S, axis=0))
-    result = fleet.batch_filter(np.tile(Z, (K, 1, 1)), keep="means", **kwargs)
-    loglik = np.asarray(result.log_likelihood)[:, burn_in:].sum(axis=1).reshape(K, S)
+    every = Candidates(*(None if v is None else np.repeat(v, S, axis=0) for v in c))
+    values, failed = run_paired(ukf, np.tile(Z, (K, 1, 1)), every, burn_in, kwargs)
+    loglik = values.reshape(K, S)
     failures: dict[int, str] = {}
-    for j in np.flatnonzero(np.asarray(result.failed)).tolist():
+    for j, why in failed.items():
         k = j // S
         loglik[k] = -np.inf
         if k not in failures:
-            failures[k] = f"recording {j % S}: {fleet.failure[j]}" if S > 1 else str(fleet.failure[j])
+            failures[k] = f"recording {j % S}: {why}" if S > 1 else why
+    return loglik, failures
+
+
+def run_paired(
+    ukf, Z: np.ndarray, c: Candidates, burn_in: int, kwargs: dict
+) -> tuple[np.ndarray, dict[int, str]]:
+    """Candidate ``k`` on recording ``Z[k]``, every one in one fleet pass of ``K`` filters.
+
+    Parameters
+    ----------
+    ukf : SquareRootUKF
+    Z : ndarray, shape (K, T, m)
+        Each candidate's own recording.
+    c : Candidates
+        Of ``K`` candidates.
+    burn_in : int
+    kwargs : dict
+
+    Returns
+    -------
+    loglik : ndarray, shape (K,)
+        ``-inf`` for a failed filter.
+    failures : dict of int to str
+    """
+    K = Z.shape[0]
+    fleet = Fleet.from_template(ukf, K)
+    for name, value in zip(("Q1_2", "R1_2", "x", "P1_2"), c):
+        if value is not None:
+            setattr(fleet, name, value)
+    result = fleet.batch_filter(Z, keep="means", **kwargs)
+    loglik = np.asarray(result.log_likelihood)[:, burn_in:].sum(axis=1)
+    failures = {j: str(fleet.failure[j]) for j in np.flatnonzero(np.asarray(result.failed)).tolist()}
+    for j in failures:
+        loglik[j] = -np.inf
     return loglik, failures
 
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import optimize, stats
 
-from .candidates import Candidates, all_failed, candidate_factors, check_template, recordings, run
+from .candidates import Candidates, all_failed, candidate_factors, check_template, recordings, run, run_paired
 from .errors import ParameterError, ShapeError, SqukfError
 from .parametrise import Scaled
 
@@ -154,45 +154,50 @@ class _Objective:
         self.filter_steps = 0
         self.failures: dict[tuple, str] = {}
 
-    def loglik(self, thetas: np.ndarray) -> np.ndarray:
-        """The exact log-likelihood of each candidate, summed over the recordings, ``(K,)`` (-inf: failed)."""
+    def loglik(self, thetas: np.ndarray, rec: np.ndarray | None = None) -> np.ndarray:
+        """The exact log-likelihood of each candidate, ``(K,)`` (-inf: failed): summed over every
+        recording, or (``rec``, ``(K,)``) on its own recording ``Z[rec[k]]``."""
         thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
-        S = self.Z.shape[0]
-        per_pass = max(1, self.max_filters // S)
+        per_pass = self.max_filters if rec is not None else max(1, self.max_filters // self.Z.shape[0])
         out = np.empty(thetas.shape[0])
         for start in range(0, thetas.shape[0], per_pass):
-            out[start : start + per_pass] = self._pass(thetas[start : start + per_pass])
+            part = slice(start, start + per_pass)
+            out[part] = self._pass(thetas[part], None if rec is None else rec[part])
         return out
 
-    def __call__(self, thetas: np.ndarray) -> np.ndarray:
-        """The objective of each candidate (``+inf`` for a failed one)."""
+    def __call__(self, thetas: np.ndarray, rec: np.ndarray | None = None) -> np.ndarray:
+        """The objective of each candidate (``+inf`` for a failed one), as :meth:`loglik` reads ``rec``."""
         thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
-        f = -self.loglik(thetas)
+        f = -self.loglik(thetas, rec)
         if self.prior is not None:
             for k, theta in enumerate(thetas):
                 r = np.asarray(self.prior(theta.copy()), dtype=float).reshape(-1)
                 if not np.all(np.isfinite(r)):
-                    raise ParameterError(
-                        f"prior returned values that are not finite at theta={theta.tolist()}"
-                    )
+                    raise ParameterError(f"prior returned values not finite at theta={theta.tolist()}")
                 f[k] += 0.5 * float(r @ r)
         return f
 
-    def _pass(self, thetas: np.ndarray) -> np.ndarray:
+    def _pass(self, thetas: np.ndarray, rec: np.ndarray | None) -> np.ndarray:
         K = thetas.shape[0]
         cand, failures = self._candidates(thetas)
         loglik = np.full(K, -np.inf)
         good = [k for k in range(K) if k not in failures]
         if good:
             sub = Candidates(*(None if a is None else a[good] for a in cand))
-            values, failed = run(self.ukf, self.Z, sub, len(good), self.burn_in, self.kwargs)
+            S, T = self.Z.shape[:2]
+            if rec is None:
+                values, failed = run(self.ukf, self.Z, sub, len(good), self.burn_in, self.kwargs)
+                totals = values.sum(axis=1)
+                self.filter_steps += len(good) * S * T
+            else:
+                totals, failed = run_paired(self.ukf, self.Z[rec[good]], sub, self.burn_in, self.kwargs)
+                self.filter_steps += len(good) * T
             self.passes += 1
-            self.filter_steps += len(good) * self.Z.shape[0] * self.Z.shape[1]
             for j, k in enumerate(good):
                 if j in failed:
                     failures[k] = failed[j]
                 else:
-                    loglik[k] = float(np.sum(values[j]))
+                    loglik[k] = float(totals[j])
         for k, why in failures.items():
             if len(self.failures) < 20:
                 self.failures.setdefault(tuple(np.round(thetas[k], 12).tolist()), why)
@@ -267,7 +272,7 @@ def fit_noise(
     dts=None,
     fx_args=None,
     hx_args=None,
-) -> NoiseFit:
+) -> NoiseFit | list[NoiseFit]:
     """Fit ``Q`` and ``R`` of the template ``ukf`` to recordings by maximum (a posteriori) likelihood.
 
     Parameters
@@ -299,7 +304,12 @@ def fit_noise(
         ``prior(theta) -> residuals``: ``|r|^2 / 2`` is added to ``-log L`` (a
         maximum a posteriori fit).
     shared : bool
-        Only ``True`` so far: S recordings fit one ``Q`` and ``R``.
+        ``True``: the S recordings fit one ``Q`` and ``R``. ``False``: each
+        recording gets its own fit (one sensor or asset per recording), all
+        advancing together in the same fleet passes by a batched damped
+        Newton method (Levenberg's damping, one factor per problem, on the
+        finite-difference gradient and Hessian of the exact ``-log L``); a
+        list of S fits is returned.
     seed : optional
         Of differential evolution.
     maxiter : int, optional
@@ -311,13 +321,13 @@ def fit_noise(
 
     Returns
     -------
-    NoiseFit
+    NoiseFit, or a list of S with ``shared=False``
 
     Raises
     ------
     ParameterError
-        A gated template, an unknown method, nothing to fit, a bad grid,
-        bounds or start; ``shared=False``.
+        A gated template, an unknown method (or one other than the default
+        with ``shared=False``), nothing to fit, a bad grid, bounds or start.
     ShapeError, NonFiniteError
         Recordings of the wrong shape, or with no measurement.
     FleetStepError
@@ -327,10 +337,12 @@ def fit_noise(
     """
     if method not in METHODS:
         raise ParameterError(f"method must be one of {', '.join(map(repr, METHODS))}, got method={method!r}")
-    if shared is not True:
+    if not isinstance(shared, (bool, np.bool_)):
+        raise ParameterError(f"shared must be True or False, got shared={shared!r}")
+    if not shared and method != "quasi_newton":
         raise ParameterError(
-            "shared=False (one fit per recording, together) needs the batched least squares of the"
-            " whitened innovations, which is not built yet: fit the recordings one at a time"
+            f"shared=False fits every recording together by a batched damped Newton method: method={method!r}"
+            " is for shared fits (leave method at its default)"
         )
     c = ukf.configuration()
     Z, _ = recordings(zs, c.dim_z)
@@ -350,6 +362,8 @@ def fit_noise(
         raise ParameterError(f"max_filters must be a positive integer, got {max_filters!r}")
     objective = _Objective(ukf, Z, burn_in, parts, prior, kwargs, max_filters)
     lo_hi = _bounds(bounds, theta0, p)
+    if not shared:
+        return _fit_each(objective, theta0, names, lo_hi, 50 if maxiter is None else maxiter)
     surface = None
     f0: float
     if method == "grid":
@@ -397,6 +411,47 @@ def fit_noise(
     )  # fmt: skip
 
 
+def _fit_each(
+    objective: _Objective, theta0: np.ndarray, names: list[str], lo_hi, maxiter: int
+) -> list[NoiseFit]:
+    """``shared=False``: one fit per recording, all advancing together (:func:`_batched_newton`)."""
+    B = objective.Z.shape[0]
+    own = np.arange(B)
+    f0 = objective(np.tile(theta0, (B, 1)), own)
+    if not np.any(np.isfinite(f0)):
+        raise all_failed({b: "failed at the start" for b in range(B)}, "recording")
+    thetas, Hs, success = _batched_newton(objective, theta0, B, lo_hi, maxiter)
+    loglik = objective.loglik(thetas, own)
+    t0 = objective.loglik(np.tile(theta0, (B, 1)), own) if objective.prior is not None else -f0
+    fits = []
+    for b in range(B):
+        cov, identifiable, weak = _covariance(Hs[b], names)
+        Qf, Rf, xf, Pf = _fitted(objective, thetas[b])
+        fits.append(
+            NoiseFit(
+                Q=Qf,
+                R=Rf,
+                x=xf,
+                P=Pf,
+                theta=thetas[b],
+                names=names,
+                theta_cov=cov,
+                log_likelihood=float(loglik[b]),
+                log_likelihood_template=float(t0[b]),
+                success=bool(success[b]) and math.isfinite(loglik[b]),
+                message="converged" if success[b] else "stopped: no step decreased -log L further",
+                method="batched_newton",
+                passes=objective.passes,
+                filter_steps=objective.filter_steps,
+                failures=dict(objective.failures),
+                identifiable=identifiable,
+                weak_directions=weak,
+                _parts=objective.parts,
+            )  # fmt: skip
+        )
+    return fits
+
+
 def _quasi_newton(objective: _Objective, theta0: np.ndarray, lo_hi, maxiter: int | None):
     """L-BFGS-B from ``theta0``, each step the value and gradient of one fleet pass."""
     res = optimize.minimize(
@@ -421,32 +476,106 @@ def _value_and_gradient(objective: _Objective, theta: np.ndarray) -> tuple[float
     return float(values[0]), (values[1 : p + 1] - values[p + 1 :]) / (2 * h)
 
 
-def _hessian(objective: _Objective, theta: np.ndarray) -> tuple[np.ndarray, float]:
-    """The finite-difference Hessian of the objective at ``theta``, every point in one fleet pass."""
+def _stencil(theta: np.ndarray, h: float) -> np.ndarray:
+    """The points of the central differences at ``theta``: itself, ``+/- h`` on each axis, and the four
+    corners of each pair of axes, ``(2 p^2 + 1, p)``."""
     p = theta.size
-    h = HESSIAN_STEP
     points = [theta]
     for i in range(p):
         for s in (1.0, -1.0):
             e = np.zeros(p)
             e[i] = s * h
             points.append(theta + e)
-    pairs = [(i, j) for i in range(p) for j in range(i + 1, p)]
-    for i, j in pairs:
-        for si, sj in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
-            e = np.zeros(p)
-            e[i], e[j] = si * h, sj * h
-            points.append(theta + e)
-    f = objective(np.array(points))
+    for i in range(p):
+        for j in range(i + 1, p):
+            for si, sj in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
+                e = np.zeros(p)
+                e[i], e[j] = si * h, sj * h
+                points.append(theta + e)
+    return np.array(points)
+
+
+def _derivatives(f: np.ndarray, p: int, h: float) -> tuple[float, np.ndarray, np.ndarray]:
+    """The value, the gradient and the Hessian from the objective at :func:`_stencil`'s points."""
     f0 = float(f[0])
+    g = np.empty(p)
     H = np.empty((p, p))
     for i in range(p):
-        H[i, i] = (f[1 + 2 * i] - 2 * f0 + f[2 + 2 * i]) / (h * h)
-    base = 1 + 2 * p
-    for n, (i, j) in enumerate(pairs):
-        fpp, fpm, fmp, fmm = f[base + 4 * n : base + 4 * n + 4]
-        H[i, j] = H[j, i] = (fpp - fpm - fmp + fmm) / (4 * h * h)
+        fp, fm = f[1 + 2 * i], f[2 + 2 * i]
+        g[i] = (fp - fm) / (2 * h)
+        H[i, i] = (fp - 2 * f0 + fm) / (h * h)
+    n = 1 + 2 * p
+    for i in range(p):
+        for j in range(i + 1, p):
+            fpp, fpm, fmp, fmm = f[n : n + 4]
+            H[i, j] = H[j, i] = (fpp - fpm - fmp + fmm) / (4 * h * h)
+            n += 4
+    return f0, g, H
+
+
+def _hessian(objective: _Objective, theta: np.ndarray) -> tuple[np.ndarray, float]:
+    """The finite-difference Hessian of the objective at ``theta``, every point in one fleet pass."""
+    f0, _, H = _derivatives(objective(_stencil(theta, HESSIAN_STEP)), theta.size, HESSIAN_STEP)
     return H, f0
+
+
+def _batched_newton(objective: _Objective, theta0: np.ndarray, B: int, lo_hi, maxiter: int):
+    """``B`` fits from ``theta0``, problem ``b`` on recording ``b``, advancing together: a damped Newton
+    method (Levenberg's damping, one factor per problem) on the finite-difference gradient and Hessian
+    of the exact objective, every problem's points in one fleet pass an iteration, the trial steps in
+    another.
+
+    Returns
+    -------
+    thetas : ndarray, shape (B, p)
+    H : ndarray, shape (B, p, p)
+        The Hessian at each optimum.
+    success : ndarray of bool, shape (B,)
+    """
+    p = theta0.size
+    h = HESSIAN_STEP
+    lo, hi = lo_hi
+    thetas = np.tile(theta0, (B, 1))
+    damping = np.full(B, 1e-3)
+    done = np.zeros(B, dtype=bool)
+    success = np.zeros(B, dtype=bool)
+    H_all = np.full((B, p, p), np.nan)
+    n_points = 2 * p * p + 1
+    for _ in range(maxiter + 1):
+        active = np.flatnonzero(~done)
+        if active.size == 0:
+            break
+        points = np.concatenate([_stencil(thetas[b], h) for b in active])
+        f = objective(points, np.repeat(active, n_points)).reshape(active.size, n_points)
+        trials, f_now = [], []
+        for row, b in enumerate(active):
+            f0, g, H = _derivatives(f[row], p, h)
+            H_all[b] = H
+            if not np.all(np.isfinite(f[row])):
+                done[b] = True  # a failed candidate next to this point: it stays where it is
+                continue
+            lam, V = np.linalg.eigh(0.5 * (H + H.T))
+            scale = max(float(np.max(np.abs(lam))), 1e-12)
+            curvature = np.maximum(lam, 1e-8 * scale) + damping[b] * scale
+            step = -(V @ ((V.T @ g) / curvature))
+            trials.append(np.clip(thetas[b] + step, lo, hi))
+            f_now.append(f0)
+        moving = [b for b in active if not done[b]]
+        if not moving:
+            break
+        f_trial = objective(np.array(trials), np.array(moving))
+        for b, theta_new, ft, f0 in zip(moving, trials, f_trial, f_now):
+            if ft <= f0:
+                change = float(np.max(np.abs(theta_new - thetas[b])))
+                thetas[b] = theta_new
+                damping[b] = max(damping[b] / 3, 1e-9)
+                if change < 1e-7 or f0 - ft <= 1e-10 * (1 + abs(f0)):
+                    done[b] = success[b] = True
+            else:
+                damping[b] *= 4
+                if damping[b] > 1e8:
+                    done[b] = True
+    return thetas, H_all, success
 
 
 def _covariance(H: np.ndarray, names: list[str]) -> tuple[np.ndarray, bool, list]:
