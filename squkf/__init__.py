@@ -4,6 +4,7 @@
 program; :mod:`squkf.nag` keeps g13ej's reverse-communication calling sequence.
 """
 
+from . import consistency as consistency
 from ._version import __version__ as __version__
 from .errors import (
     CallSequenceError,
