@@ -27,6 +27,7 @@ MODULES = [
     "squkf.ut",
     "squkf.errors",
     "squkf.dask",
+    "squkf.consistency",
 ]
 
 
