@@ -4,7 +4,8 @@
 program; :mod:`squkf.nag` keeps g13ej's reverse-communication calling sequence.
 """
 
-from . import tune
+from . import consistency as consistency
+from . import tune as tune
 from ._version import __version__ as __version__
 from .errors import (
     CallSequenceError,

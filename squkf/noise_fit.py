@@ -18,7 +18,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import optimize, stats
 
 from .candidates import Candidates, all_failed, candidate_factors, check_template, recordings, run, run_paired
 from .errors import ParameterError, ShapeError, SqukfError
@@ -112,7 +111,9 @@ class NoiseFit:
         """
         if isinstance(level, bool) or not isinstance(level, (int, float)) or not 0.0 < float(level) < 1.0:
             raise ParameterError(f"level must be a probability in (0, 1), got level={level!r}")
-        z = float(stats.norm.ppf(0.5 + float(level) / 2))
+        from scipy.stats import norm  # (imported when used: importing squkf stays light)
+
+        z = float(norm.ppf(0.5 + float(level) / 2))
         out = {}
         for label, (param, M0, sl) in zip(("Q", "R"), self._parts):
             out[label] = param.natural(self.theta[sl], self.theta_cov[sl, sl], M0, z)
@@ -377,7 +378,9 @@ def fit_noise(
         surface = (G.copy(), -fg)
     elif method == "differential_evolution":
         f0 = float(objective(theta0[None])[0])
-        res = optimize.differential_evolution(
+        from scipy.optimize import differential_evolution
+
+        res = differential_evolution(
             lambda X: objective(np.asarray(X).T),
             list(zip(*lo_hi)),
             vectorized=True,
@@ -454,7 +457,9 @@ def _fit_each(
 
 def _quasi_newton(objective: _Objective, theta0: np.ndarray, lo_hi, maxiter: int | None):
     """L-BFGS-B from ``theta0``, each step the value and gradient of one fleet pass."""
-    res = optimize.minimize(
+    from scipy.optimize import minimize
+
+    res = minimize(
         lambda t: _value_and_gradient(objective, t),
         theta0,
         jac=True,

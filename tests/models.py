@@ -1204,6 +1204,16 @@ def spd(rng, n, log10_cond):
     return (U * w) @ U.T
 
 
+def lower_factors(rng, shape, n, log10_cond=2.0):
+    """``shape`` random lower factors ``(*shape, n, n)`` of covariances of condition up to ``10**log10_cond``,
+    scaled by up to 10 either way, each column's sign drawn at random (any lower factor, not only
+    Cholesky's)."""
+    size = int(np.prod(shape, dtype=int))
+    P = [spd(rng, n, rng.uniform(0, log10_cond)) * 10.0 ** rng.uniform(-1, 1) for _ in range(size)]
+    S = np.linalg.cholesky(np.array(P).reshape(size, n, n)) * rng.choice([-1.0, 1.0], (size, 1, n))
+    return S.reshape(tuple(shape) + (n, n))
+
+
 # -- small filters -------------------------------------------------------------------------------
 
 

@@ -219,6 +219,8 @@ LAYERS = {
     "the faces": [
         "squkf", "squkf.__main__", "squkf.ukf", "squkf.fleet", "squkf.smoother", "squkf.nag", "squkf.ut",
         "squkf.dask", "squkf.first_use", "squkf.examples", "squkf.examples.g13ej_example",
+        "squkf.consistency", "squkf.simulate", "squkf.parametrise", "squkf.candidates", "squkf.noise_fit",
+        "squkf.tune",
     ],
 }  # fmt: skip
 LEVEL = {m: k for k, mods in enumerate(LAYERS.values()) for m in mods}

@@ -28,6 +28,7 @@ MODULES = [
     "squkf.errors",
     "squkf.dask",
     "squkf.tune",
+    "squkf.consistency",
 ]
 
 
