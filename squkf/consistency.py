@@ -36,11 +36,15 @@ import numpy as np
 
 from .batch import BatchResult
 from .boundary.records import FleetResult
-from .errors import NonFiniteError, NotPositiveDefiniteError, ParameterError, ShapeError
+from .errors import FleetStepError, NonFiniteError, NotPositiveDefiniteError, ParameterError, ShapeError
+from .fleet import Fleet
 from .linalg import solve_lower, tria
-from .validate import as_float_array, check_flag, short_repr
+from .validate import as_float_array, as_measurements, check_flag, describe_nonfinite, short_repr
 
-__all__ = ["nees", "nis", "check", "Consistency", "whiteness", "Whiteness"]
+__all__ = [
+    "nees", "nis", "check", "Consistency", "whiteness", "Whiteness", "monte_carlo", "MonteCarlo",
+    "MonteCarloRun", "wilson_interval",
+]  # fmt: skip
 
 #: the verdicts of :func:`check`
 CONSISTENT = "consistent"
@@ -388,7 +392,9 @@ class Consistency:
         return ax
 
 
-def check(values: Any, dof: float, *, level: float = 0.95, normalised: bool = False) -> Consistency:
+def check(
+    values: Any, dof: float, *, level: float = 0.95, normalised: bool = False, white: bool = True
+) -> Consistency:
     """Test NEES or NIS values against their chi-square bands.
 
     For a consistent filter, ``M`` independent runs' values at one step are
@@ -419,6 +425,14 @@ def check(values: Any, dof: float, *, level: float = 0.95, normalised: bool = Fa
         The probability each band holds, in (0, 1). Default 0.95.
     normalised : bool, keyword-only
         Report values divided by ``dof``. Default False.
+    white : bool, keyword-only
+        Whether the values are independent from step to step (NIS; the
+        default): the verdict is then the time average's against its band.
+        ``False`` (NEES, whose errors are correlated in time) reads the
+        verdict from the per-step bands instead: consistent while
+        ``fraction_inside`` is at least ``level`` less three binomial
+        standard deviations, ``sqrt(level (1 - level) / N)``; else too large
+        or too small by the side most steps left their band on.
 
     Returns
     -------
@@ -482,12 +496,14 @@ def check(values: Any, dof: float, *, level: float = 0.95, normalised: bool = Fa
     mean = v.mean(axis=0)
     average = float(v.mean())
     inside = (mean >= band[0]) & (mean <= band[1])
-    if average > time_band[1]:
-        verdict = TOO_LARGE
-    elif average < time_band[0]:
-        verdict = TOO_SMALL
+    if check_flag(white, "white"):
+        above, below = average > time_band[1], average < time_band[0]
     else:
-        verdict = CONSISTENT
+        tolerance = 3.0 * math.sqrt(p * (1.0 - p) / N)
+        poor = float(inside.mean()) < p - tolerance
+        high, low = int(np.count_nonzero(mean > band[1])), int(np.count_nonzero(mean < band[0]))
+        above, below = poor and high >= low, poor and low > high
+    verdict = TOO_LARGE if above else TOO_SMALL if below else CONSISTENT
     scale = k if norm else 1.0
     return Consistency(
         mean=mean / scale,
@@ -713,3 +729,241 @@ def whiteness(innovations: Any, S1_2s: Any, lags: int | None = None, *, level: f
         steps=steps[()],
         level=p,
     )
+
+
+# == Monte Carlo: configurations compared on the same runs ==========================================
+
+
+class MonteCarloRun(NamedTuple):
+    """One configuration's Monte Carlo runs (:func:`monte_carlo`).
+
+    Attributes
+    ----------
+    rmse : ndarray, shape (T, n)
+        Root mean squared error of the posterior mean, per step and component, over the runs that did
+        not diverge.
+    nees, nis : Consistency
+        :func:`check` of the NEES (``n`` degrees of freedom) and the NIS (``m``) of those runs.
+    diverged : float
+        The share of runs that diverged: flagged by the fleet (a numerical failure), or with a NEES
+        that is not finite.
+    diverged_interval : tuple of float
+        Wilson's score interval of that share, at the ``level`` asked.
+    runs : int
+    failures : dict
+        Run -> why it diverged.
+    """
+
+    rmse: np.ndarray
+    nees: Consistency
+    nis: Consistency
+    diverged: float
+    diverged_interval: tuple[float, float]
+    runs: int
+    failures: dict
+
+
+class MonteCarlo:
+    """Configurations compared over the same runs (:func:`monte_carlo`): ``mc[name]`` is a
+    :class:`MonteCarloRun`; :meth:`table` and :meth:`plot` put them side by side."""
+
+    def __init__(self, results: dict[str, MonteCarloRun], level: float):
+        self.results = results
+        self.level = level
+
+    def __getitem__(self, name: str) -> MonteCarloRun:
+        return self.results[name]
+
+    def __iter__(self):
+        return iter(self.results)
+
+    def __len__(self) -> int:
+        return len(self.results)
+
+    def table(self):
+        """One row per configuration: RMSE (over steps and components), average NEES and NIS with their
+        bands' verdicts, the share of steps in band, the diverged share and its interval.
+
+        A pandas ``DataFrame`` if pandas is installed, else a dict of arrays (one entry per column).
+        """
+        columns: dict[str, list] = {k: [] for k in _TABLE_COLUMNS}
+        for name, r in self.results.items():
+            values = (
+                name, float(np.sqrt(np.nanmean(r.rmse**2))), r.nees.time_average, r.nees.verdict,
+                r.nees.fraction_inside, r.nis.time_average, r.nis.verdict, r.nis.fraction_inside,
+                r.diverged, r.diverged_interval[0], r.diverged_interval[1],
+            )  # fmt: skip
+            for key, value in zip(_TABLE_COLUMNS, values):
+                columns[key].append(value)
+        try:
+            import pandas
+        except ImportError:
+            return {k: np.array(v) for k, v in columns.items()}
+        return pandas.DataFrame(columns).set_index("configuration")
+
+    def __repr__(self) -> str:
+        lines = [f"MonteCarlo of {len(self)} configuration(s), level {self.level:g}:"]
+        for name, r in self.results.items():
+            rmse = float(np.sqrt(np.nanmean(r.rmse**2)))
+            lines.append(
+                f"  {name}: RMSE {rmse:.4g}, NEES {r.nees.time_average:.3g} ({r.nees.verdict}),"
+                f" NIS {r.nis.time_average:.3g} ({r.nis.verdict}), diverged {r.diverged:.1%} of {r.runs}"
+            )
+        return "\n".join(lines)
+
+    def plot(self, axes=None):
+        """RMSE, NEES and NIS per step, one line per configuration (the ``plot`` extra).
+
+        Parameters
+        ----------
+        axes : sequence of 3 matplotlib Axes, optional
+            Made in a new figure when not given.
+
+        Returns
+        -------
+        axes : the three Axes
+        """
+        try:
+            import matplotlib.pyplot as plt
+        except ImportError as exc:
+            raise ModuleNotFoundError(
+                f'MonteCarlo.plot needs matplotlib, the plot extra: pip install "squkf[plot]" ({exc})',
+                name=exc.name,
+            ) from exc
+        if axes is None:
+            _, axes = plt.subplots(1, 3, figsize=(12, 3.5))
+        for name, r in self.results.items():
+            steps = np.arange(1, r.rmse.shape[0] + 1)
+            axes[0].plot(steps, np.sqrt(np.mean(r.rmse**2, axis=1)), label=name)
+            axes[1].plot(steps, r.nees.mean, label=name)
+            axes[2].plot(steps, r.nis.mean, label=name)
+        for ax, title in zip(axes, ("RMSE", "NEES", "NIS")):
+            ax.set_title(title)
+            ax.set_xlabel("step")
+        axes[0].legend()
+        return axes
+
+
+_TABLE_COLUMNS = (
+    "configuration", "rmse", "nees", "nees verdict", "nees in band", "nis", "nis verdict", "nis in band",
+    "diverged", "diverged low", "diverged high",
+)  # fmt: skip
+
+
+def wilson_interval(successes: int, trials: int, level: float = 0.95) -> tuple[float, float]:
+    """Wilson's score interval for a binomial proportion ``successes / trials`` at confidence ``level``.
+
+    Parameters
+    ----------
+    successes, trials : int
+        ``0 <= successes <= trials``, ``trials >= 1``.
+    level : float
+        In (0, 1).
+
+    Returns
+    -------
+    (low, high) : tuple of float
+    """
+    level = _probability(level)
+    if trials < 1 or not 0 <= successes <= trials:
+        raise ParameterError(f"a proportion needs 0 <= successes <= trials >= 1, got {successes}/{trials}")
+    from scipy.stats import norm  # (imported when used: importing squkf stays light)
+
+    z = float(norm.ppf(0.5 + level / 2))
+    p = successes / trials
+    denom = 1 + z * z / trials
+    centre = (p + z * z / (2 * trials)) / denom
+    half = z * np.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / denom
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def monte_carlo(
+    filters, truth, zs, *, level: float = 0.95, dts=None, fx_args=None, hx_args=None
+) -> MonteCarlo:
+    """Filter every run with each configuration, all runs of one in one fleet, and judge them.
+
+    Parameters
+    ----------
+    filters : SquareRootUKF or dict of str to SquareRootUKF
+        The template(s): each configuration runs from its template's ``x``,
+        ``P``, ``Q`` and ``R`` on every run. The templates are read, never
+        changed. ``fx`` and ``hx`` of a vectorised template must take
+        stacked points ``(..., N, dim_x)`` (a fleet's), as for
+        :meth:`Fleet.from_filters`; a per-point template's are called per
+        point.
+    truth : array_like, shape (runs, T, dim_x)
+        The true states at the measurements (:func:`squkf.simulate`'s, or
+        another model's, for a mismatch study).
+    zs : array_like, shape (runs, T, dim_z)
+        The measurements; NaN entries are missing, as in ``batch_filter``.
+    level : float
+        Of the NEES and NIS bands and of the diverged share's interval, in (0, 1).
+    dts, fx_args, hx_args : optional
+        As :meth:`Fleet.batch_filter` takes them.
+
+    Returns
+    -------
+    MonteCarlo
+        Per configuration a :class:`MonteCarloRun`.
+
+    Raises
+    ------
+    ShapeError
+        ``truth`` and ``zs`` disagree in runs or steps, or with a template's dimensions.
+    NonFiniteError
+        ``truth`` holds NaN or inf.
+    ParameterError
+        ``filters`` is empty or not filters; ``level`` outside (0, 1).
+    """
+    level = _probability(level)
+    templates = _templates(filters)
+    X = as_float_array(truth, "truth")
+    Z = as_measurements(zs, "zs")
+    if X.ndim != 3 or Z.ndim != 3 or X.shape[:2] != Z.shape[:2]:
+        raise ShapeError(
+            f"truth has shape {X.shape} and zs {Z.shape}: expected (runs, T, dim_x) and (runs, T, dim_z)"
+        )
+    if not np.all(np.isfinite(X)):
+        raise NonFiniteError(describe_nonfinite(X, "truth"))
+    runs = X.shape[0]
+    results = {}
+    for name, template in templates.items():
+        c = template.configuration()
+        if (c.dim_x, c.dim_z) != (X.shape[2], Z.shape[2]):
+            raise ShapeError(
+                f"filters[{name!r}] has dim_x={c.dim_x}, dim_z={c.dim_z} but truth and zs have {X.shape[2]}"
+                f" and {Z.shape[2]} components"
+            )
+        fleet = Fleet.from_template(template, runs)
+        result = fleet.batch_filter(Z, dts=dts, keep="all", fx_args=fx_args, hx_args=hx_args)
+        failed = np.asarray(result.failed)
+        failures = {int(k): str(fleet.failure[k]) for k in np.flatnonzero(failed).tolist()}
+        ok = ~failed
+        if not ok.any():
+            order = sorted(failures)
+            raise FleetStepError(f"every run of {name!r} diverged", order, [failures[k] for k in order])
+        means = np.asarray(result.means)[ok]
+        e = nees(X[ok], means, np.asarray(result.P1_2s)[ok])
+        rmse = np.sqrt(np.mean((means - X[ok]) ** 2, axis=0))
+        results[name] = MonteCarloRun(
+            rmse, check(e, c.dim_x, level=level, white=False),
+            check(np.asarray(result.nis)[ok], c.dim_z, level=level),
+            len(failures) / runs, wilson_interval(len(failures), runs, level), runs, failures,
+        )  # fmt: skip
+    return MonteCarlo(results, level)
+
+
+def _templates(filters) -> dict[str, Any]:
+    """``filters`` as named templates: one filter is ``{"filter": it}``."""
+    from .ukf import SquareRootUKF
+
+    if isinstance(filters, SquareRootUKF):
+        return {"filter": filters}
+    if not isinstance(filters, dict) or not filters:
+        raise ParameterError(
+            f"filters must be a SquareRootUKF or a dict of named ones, got {short_repr(filters)}"
+        )
+    for name, f in filters.items():
+        if not isinstance(f, SquareRootUKF):
+            raise ParameterError(f"filters[{name!r}] is not a squkf.SquareRootUKF: got {short_repr(f)}")
+    return {str(k): v for k, v in filters.items()}
