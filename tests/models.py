@@ -1609,3 +1609,28 @@ def rbh_filter(gate=None, m: int = 3, vectorized: bool = False):
     f.x, f.P, f.Q = RBH_X0, RBH_P0, RBH_Q
     f.R = RBH_R if m == 3 else RBH_R[1:, 1:]
     return f
+
+
+# -- tuning and consistency (issue 37): the 2-D constant-velocity model, where the UKF is the Kalman filter
+
+TUNE_Q0 = Q_discrete_white_noise(2, 1.0, 1.0, block_size=2)
+TUNE_TRUE = {"q": 0.1, "r1": 1.0, "r2": 4.0}
+
+
+def tune_cv_fx(X, dt):
+    """Constant velocity in two axes, state [px, vx, py, vy], stacked points ``(..., 4)``."""
+    F = np.kron(np.eye(2), np.array([[1.0, 1.0 if dt is None else dt], [0.0, 1.0]]))
+    return X @ F.T
+
+
+def tune_cv_hx(X):
+    """Both positions."""
+    return X[..., ::2]
+
+
+def tune_cv_filter(q=TUNE_TRUE["q"], r1=TUNE_TRUE["r1"], r2=TUNE_TRUE["r2"], **kw):
+    """The 2-D constant-velocity filter (vectorised), x0 and P0 known, ``Q = q Q0``, ``R = diag(r1, r2)``."""
+    f = SquareRootUKF(4, 2, 1.0, tune_cv_hx, tune_cv_fx, MerweScaledWeights(), vectorized=True, **kw)
+    f.x, f.P = np.array([0.0, 1.0, 0.0, 1.0]), np.eye(4)
+    f.Q, f.R = q * TUNE_Q0, np.diag([r1, r2])
+    return f

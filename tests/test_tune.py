@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
-from models import assert_filter_state, filter_state
+from models import TUNE_Q0, TUNE_TRUE, assert_filter_state, filter_state, tune_cv_filter, tune_cv_fx
 
 from squkf import (
     CallSequenceError,
@@ -160,3 +160,197 @@ def test_the_maximum_is_near_the_truth():
     grid = np.array([0.7, 0.85, 1.0, 1.15, 1.3])
     values, _ = tune.log_likelihood(f, zs, Rs=grid[:, None, None])
     assert grid[np.argmax(values)] == 1.0
+
+
+# == fit_noise ======================================================================================
+# The 2-D constant-velocity model (tests/models.py: tune_cv_*), Q = q Q0 and R = diag(r1, r2) unknown.
+
+TRUTH_THETA = np.log([TUNE_TRUE["q"], TUNE_TRUE["r1"], TUNE_TRUE["r2"]])
+
+
+def tune_template():
+    """The filter to fit: the true model's shape, started off at q = 1, R = I."""
+    return tune_cv_filter(q=1.0, r1=1.0, r2=1.0)
+
+
+@pytest.fixture(scope="module")
+def cv_recordings():
+    return simulate(tune_cv_filter(), 300, 200, seed=11)[1]
+
+
+def test_intervals_cover_the_truth_at_their_level_and_the_errors_are_small(cv_recordings):
+    """200 recordings of T = 300 steps, each its own fit (shared=False, all in the same fleet passes):
+    each 95% interval covers its true value in 88-99% of them, and the median relative error of each
+    variance is under 15%."""
+    f = tune_template()
+    snap = filter_state(f)
+    fits = tune.fit_noise(f, cv_recordings, Q=tune.Scaled(), R=tune.Diagonal(), shared=False)
+    assert len(fits) == 200 and np.mean([fit.success for fit in fits]) >= 0.95
+    truth = [TUNE_TRUE["q"], TUNE_TRUE["r1"], TUNE_TRUE["r2"]]
+    intervals = [fit.intervals() for fit in fits]  # (estimate, low, high) of each quantity
+    estimate, low, high = (
+        np.array([[iv["Q"]["scale"][j], *iv["R"]["variances"][j]] for iv in intervals]) for j in range(3)
+    )
+    covered = (low <= truth) & (truth <= high)
+    assert np.all((covered.mean(axis=0) >= 0.88) & (covered.mean(axis=0) <= 0.99)), covered.mean(axis=0)
+    assert np.all(np.median(np.abs(estimate / truth - 1), axis=0) < 0.15)
+    assert_filter_state(f, snap)
+
+
+@pytest.mark.parametrize("method", ["quasi_newton", "differential_evolution"])
+def test_every_method_reaches_the_same_optimum(cv_recordings, method):
+    z = cv_recordings[0]
+    best = tune.fit_noise(tune_template(), z, R=tune.Diagonal())
+    fit = tune.fit_noise(tune_template(), z, R=tune.Diagonal(), method=method, seed=2)
+    assert abs(fit.log_likelihood - best.log_likelihood) < 1e-3
+    alone = tune.fit_noise(tune_template(), [z], R=tune.Diagonal(), shared=False)[0]
+    assert abs(alone.log_likelihood - best.log_likelihood) < 1e-3
+    # the reported log-likelihood is exact: the template run with the fitted Q and R
+    g = tune_template()
+    fit.apply(g)
+    assert fit.log_likelihood == pytest.approx(float(np.sum(g.batch_filter(z).log_likelihood)), rel=1e-12)
+
+
+def test_a_grid_keeps_its_surface_and_finds_its_best_point(cv_recordings):
+    z = cv_recordings[1]
+    grid = np.array(
+        [[a, b, c] for a in np.log([0.05, 0.1, 0.2]) for b in (0.0,) for c in np.log([2.0, 4.0, 8.0])]
+    )
+    fit = tune.fit_noise(tune_template(), z, R=tune.Diagonal(), method="grid", grid=grid, max_filters=4)
+    thetas, values = fit.surface
+    np.testing.assert_array_equal(thetas, grid)
+    expected, _ = tune.log_likelihood(
+        tune_template(), z, Qs=np.exp(grid[:, 0])[:, None, None] * TUNE_Q0,
+        Rs=np.stack([np.diag(np.exp(t[1:])) for t in grid]),
+    )  # fmt: skip
+    np.testing.assert_allclose(values, expected, rtol=1e-12)
+    np.testing.assert_array_equal(fit.theta, grid[np.argmax(expected)])
+    assert fit.passes >= 3  # (4 filters a pass: the 9 points and the start in 3 passes, and the Hessian's)
+
+
+def test_theta_cov_is_the_inverse_of_the_observed_information(cv_recordings):
+    """Against a Hessian of -log L formed from separate log_likelihood calls, with another step."""
+    z = cv_recordings[2]
+    fit = tune.fit_noise(tune_template(), z, R=tune.Diagonal())
+
+    def minus_loglik(theta):
+        Rs = np.diag(np.exp(theta[1:]))[None]
+        return -tune.log_likelihood(tune_template(), z, Qs=np.exp(theta[0]) * TUNE_Q0[None], Rs=Rs)[0][0]
+
+    h, p = 2e-3, 3
+    H = np.empty((p, p))
+    for i in range(p):
+        for j in range(p):
+            ei, ej = np.eye(p)[i] * h, np.eye(p)[j] * h
+            H[i, j] = (
+                minus_loglik(fit.theta + ei + ej) - minus_loglik(fit.theta + ei - ej)
+                - minus_loglik(fit.theta - ei + ej) + minus_loglik(fit.theta - ei - ej)
+            ) / (4 * h * h)  # fmt: skip
+    np.testing.assert_allclose(fit.theta_cov, np.linalg.inv(H), rtol=2e-2, atol=1e-6)
+    assert fit.identifiable
+
+
+def test_a_direction_the_data_do_not_fix_is_named():
+    f = tune_template()
+    zs = simulate(tune_cv_filter(), 100, 1, seed=5)[1][0]
+    R0 = np.diag([1.0, 4.0])
+    # a second parameter the likelihood never reads: its information is exactly zero
+    R = tune.Custom(lambda t: np.exp(t[0]) * R0, [0.0, 0.0], names=["a", "b"])
+    fit = tune.fit_noise(f, zs, Q=tune.Fixed(), R=R)
+    assert not fit.identifiable
+    (weak,) = fit.weak_directions
+    assert set(weak["direction"]) == {"b"}
+    assert np.isinf(fit.theta_cov[1]).all() and np.isfinite(fit.theta_cov[0, 0])
+    assert "not identifiable" in repr(fit)
+
+
+def test_full_custom_and_prior():
+    zs = simulate(tune_cv_filter(), 300, 1, seed=8)[1][0]
+    full = tune.fit_noise(tune_template(), zs, Q=tune.Fixed(), R=tune.Full())
+    M, low, high = full.intervals()["R"]["matrix"]
+    np.testing.assert_allclose(M, full.R)
+    assert np.all(low <= M) and np.all(M <= high)
+    # the initial state fitted through Custom (its x only: P stays the template's)
+    f = tune_template()
+    f.x = np.array([5.0, 1.0, 5.0, 1.0])
+    x0 = tune.Custom(lambda t: {"x": np.array([t[0], 1.0, t[1], 1.0])}, [5.0, 5.0], names=["px0", "py0"])
+    fit = tune.fit_noise(f, zs, Q=tune.Fixed(), R=x0)
+    assert np.all(np.abs(fit.x[::2]) < 3.0)  # back near the true start (0, 0), from 5
+    np.testing.assert_array_equal(fit.R, f.R)
+    # a strong prior at the template's value holds the fit there
+    free = tune.fit_noise(tune_template(), zs, R=tune.Fixed())
+    held = tune.fit_noise(tune_template(), zs, R=tune.Fixed(), prior=lambda t: 1e3 * t)
+    assert abs(held.theta[0]) < 0.01 < abs(free.theta[0])
+
+
+def test_noise_that_enters_fx_is_fitted_as_its_own_covariance():
+    G = np.array([[0.5], [1.0]])
+
+    def fx(x, w, dt):
+        return np.array([x[0] + x[1], x[1]]) + G @ w
+
+    def make(q):
+        f = SquareRootUKF(2, 1, 1.0, lambda x: x[:1], fx, MerweScaledWeights(), fx_noise=1)
+        f.x, f.P, f.Q, f.R = np.zeros(2), np.eye(2), [[q]], [[1.0]]
+        return f
+
+    zs = simulate(make(0.2), 400, 1, seed=4)[1][0]
+    fit = tune.fit_noise(make(1.0), zs, R=tune.Fixed())
+    lo, hi = fit.intervals()["Q"]["scale"][1:]
+    assert lo < 0.2 < hi
+
+
+def test_an_interrupt_leaves_the_template_as_it_was():
+    calls = {"n": 0}
+
+    def fx(X, dt):
+        calls["n"] += 1
+        if calls["n"] == 40:
+            raise KeyboardInterrupt
+        return tune_cv_fx(X, dt)
+
+    f = tune_template()
+    f.fx = fx
+    snap = filter_state(f)
+    zs = simulate(tune_cv_filter(), 50, 1, seed=1)[1][0]
+    with pytest.raises(KeyboardInterrupt):
+        tune.fit_noise(f, zs)
+    assert_filter_state(f, snap)
+
+
+def test_fit_noise_refuses_bad_input_naming_it_and_changes_nothing(cv_recordings):
+    f = tune_template()
+    snap = filter_state(f)
+    z = cv_recordings[0]
+    for kwargs, exc, match in [
+        ({"method": "nelder"}, ParameterError, "method"),
+        ({"Q": tune.Fixed(), "R": tune.Fixed()}, ParameterError, "nothing to fit"),
+        ({"method": "grid"}, ParameterError, "grid"),
+        ({"method": "grid", "grid": np.zeros((3, 5))}, ParameterError, "grid"),
+        ({"bounds": [(1.0, 2.0), (1.0, 2.0)]}, ParameterError, "bounds"),
+        ({"bounds": [(-1.0, 1.0), (1.0, 2.0)]}, ParameterError, "outside bounds"),
+        ({"shared": False, "method": "grid"}, ParameterError, "shared=False"),
+        ({"shared": "no"}, ParameterError, "shared"),
+        ({"R": tune.Custom(lambda t: np.eye(3), [0.0])}, ShapeError, "R"),
+        ({"max_filters": 0}, ParameterError, "max_filters"),
+    ]:
+        with pytest.raises(exc, match=match):
+            tune.fit_noise(f, z, **kwargs)
+        assert_filter_state(f, snap)
+    with pytest.raises(NonFiniteError, match="zs"):
+        tune.fit_noise(f, np.full((20, 2), np.nan))
+    f.gate = 0.99
+    with pytest.raises(ParameterError, match="gate"):
+        tune.fit_noise(f, z)
+
+
+def test_a_failing_candidate_is_a_wall_and_every_failure_is_an_error(cv_recordings):
+    # R's scale through a Custom that is not a covariance below 0: the optimiser stays above
+    R = tune.Custom(lambda t: (t[0] - 0.2) * np.diag([1.0, 4.0]), [1.0], names=["r"])
+    fit = tune.fit_noise(tune_template(), cv_recordings[0], Q=tune.Fixed(), R=R, method="grid",
+                         grid=np.array([[0.0], [0.5], [1.0], [1.5]]))  # fmt: skip
+    assert len(fit.failures) == 1 and fit.theta[0] > 0.2
+    with pytest.raises(FleetStepError, match="every grid point failed"):
+        tune.fit_noise(
+            tune_template(), cv_recordings[0], Q=tune.Fixed(), R=R, method="grid", grid=np.array([[0.0]])
+        )
