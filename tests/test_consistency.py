@@ -15,10 +15,18 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from models import CV_Z, cv3_zs, cv_filter, lower_factors, make_cv3_fleet
+from models import CV_Z, cv3_zs, cv_filter, lower_factors, make_cv3_fleet, tune_cv_filter, tune_cv_fx
 from scipy.stats import chi2
 
-from squkf import NonFiniteError, NotPositiveDefiniteError, ParameterError, ShapeError, consistency
+from squkf import (
+    Fleet,
+    NonFiniteError,
+    NotPositiveDefiniteError,
+    ParameterError,
+    ShapeError,
+    consistency,
+    simulate,
+)
 from squkf.consistency import Consistency, check, nees, nis, whiteness
 
 seeds = st.integers(0, 2**32 - 1)
@@ -499,3 +507,98 @@ def test_consistency_is_a_submodule_of_squkf_that_imports_nothing_optional():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root, timeout=300)
     assert done.returncode == 0, done.stderr
     assert done.stdout.split("\n")[-2] == "[]"
+
+
+# == Monte Carlo (issue 37): simulate, then every configuration's runs in one fleet =====================
+
+
+def test_the_nis_time_average_and_the_per_step_nees_hold_their_bands_with_the_true_noise():
+    """The 2-D constant-velocity model with its true Q and R: over 400 seeded simulations the time-averaged
+    NIS is inside its band in 92-98% of them, and the per-step NEES band holds at 93-97% of the steps on
+    average (5 studies of 400 runs of 100 steps: the fraction's spread is then about 0.01)."""
+    template = tune_cv_filter()
+    truth, zs = simulate(template, 100, 400, seed=21)
+    result = Fleet.from_template(template, 400).batch_filter(zs)
+    values = consistency.nis(result)
+    inside = [check(values[r], 2).time_band[0] <= values[r].mean() <= check(values[r], 2).time_band[1]
+              for r in range(400)]  # fmt: skip
+    assert 0.92 <= np.mean(inside) <= 0.98
+    fractions = []
+    for seed in range(5):
+        truth, zs = simulate(template, 100, 400, seed=100 + seed)
+        mc = consistency.monte_carlo(template, truth, zs)
+        fractions.append(mc["filter"].nees.fraction_inside)
+        assert mc["filter"].nees.verdict == "consistent" and mc["filter"].diverged == 0.0
+    assert 0.93 <= np.mean(fractions) <= 0.97
+
+
+def test_monte_carlo_is_each_run_filtered_alone():
+    truth, zs = simulate(tune_cv_filter(), 30, 12, seed=3)
+    configs = {"true": tune_cv_filter(), "R too small": tune_cv_filter(r1=0.1, r2=0.4)}
+    mc = consistency.monte_carlo(configs, truth, zs, level=0.9)
+    assert list(mc) == ["true", "R too small"] and len(mc) == 2
+    for name in configs:
+        means, covs = [], []
+        for r in range(12):
+            f = tune_cv_filter(**({} if name == "true" else {"r1": 0.1, "r2": 0.4}))
+            m, S = f.batch_filter(zs[r], return_factors=True)
+            means.append(m)
+            covs.append(S)
+        means, covs = np.array(means), np.array(covs)
+        np.testing.assert_array_equal(mc[name].rmse, np.sqrt(np.mean((means - truth) ** 2, axis=0)))
+        want = check(nees(truth, means, covs), 4, level=0.9, white=False)
+        np.testing.assert_array_equal(mc[name].nees.mean, want.mean)
+        assert mc[name].nees.verdict == want.verdict and mc[name].nees.level == 0.9
+    assert mc["R too small"].nis.verdict.startswith("too large")  # overconfident: S too small
+    table = mc.table()
+    assert list(table.index) == ["true", "R too small"]
+    assert table.loc["true", "rmse"] == pytest.approx(float(np.sqrt(np.mean(mc["true"].rmse ** 2))))
+    assert "R too small" in repr(mc)
+
+
+def test_a_diverged_run_is_counted_with_its_wilson_interval():
+    def fragile(X, dt):  # breaks where run 3's truth is pushed
+        out = tune_cv_fx(X, dt)
+        return np.where(np.abs(out) > 1e3, np.nan, out)
+
+    truth, zs = simulate(tune_cv_filter(), 20, 10, seed=2)
+    zs[3, 5:] = 5e3
+    f = tune_cv_filter()
+    f.fx = fragile
+    mc = consistency.monte_carlo({"fragile": f}, truth, zs)
+    run = mc["fragile"]
+    assert list(run.failures) == [3] and run.diverged == 0.1
+    # Wilson's score interval for 1 in 10 at 95%, written out
+    z = 1.959963984540054
+    p, n = 0.1, 10
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    np.testing.assert_allclose(run.diverged_interval, (centre - half, centre + half), rtol=1e-12)
+    assert run.rmse.shape == (20, 4) and run.nees.runs == 9
+
+
+def test_monte_carlo_refuses_bad_input_naming_it():
+    truth, zs = simulate(tune_cv_filter(), 10, 4, seed=1)
+    f = tune_cv_filter()
+    bad_truth = truth.copy()
+    bad_truth[1, 2, 0] = np.nan
+    for args, kwargs, exc, match in [
+        ((f, truth[:3], zs), {}, ShapeError, "truth"),
+        ((f, truth[..., :3], zs), {}, ShapeError, "dim_x"),
+        ((f, bad_truth, zs), {}, NonFiniteError, "truth"),
+        ((f, truth, zs), {"level": 1.5}, ParameterError, "level"),
+        (({}, truth, zs), {}, ParameterError, "filters"),
+        (({"a": "filter"}, truth, zs), {}, ParameterError, "filters"),
+    ]:
+        with pytest.raises(exc, match=match):
+            consistency.monte_carlo(*args, **kwargs)
+
+
+def test_monte_carlo_plots_its_configurations():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    truth, zs = simulate(tune_cv_filter(), 10, 4, seed=1)
+    mc = consistency.monte_carlo({"a": tune_cv_filter(), "b": tune_cv_filter(q=1.0)}, truth, zs)
+    axes = mc.plot()
+    assert [len(ax.get_lines()) for ax in axes] == [2, 2, 2]
