@@ -293,12 +293,16 @@ def fit_noise(
         ``"quasi_newton"``: L-BFGS-B from the template's values, each step one
         fleet pass of the point and its central differences.
         ``"differential_evolution"``: scipy's, its population one fleet pass a
-        generation (``bounds`` default to the start ± ln 1000).
+        generation, polished by the quasi-Newton method.
         ``"grid"``: the ``grid`` given, in as few passes as ``max_filters``
         allows; the surface is kept.
     grid : array_like, shape (G, p), optional
         The ``theta`` values of ``method="grid"``.
     bounds : sequence of p (low, high), optional
+        On ``theta``, for every method; default the start ± ln 1000 (a
+        variance within a factor of 1000 of the template's), which keeps a
+        fit from collapsing a variance to zero where the likelihood grows
+        without bound (a recording too short to tell ``Q`` from ``R``).
     burn_in : int
         Early steps left out of the likelihood.
     prior : callable, optional
@@ -398,9 +402,7 @@ def fit_noise(
         f0 = float(objective(theta0[None])[0])
         if not math.isfinite(f0):
             raise all_failed({0: next(iter(objective.failures.values()), "failed")}, "start")
-        theta, success, message = _quasi_newton(
-            objective, theta0, lo_hi if bounds is not None else None, maxiter
-        )
+        theta, success, message = _quasi_newton(objective, theta0, lo_hi, maxiter)
     H, f_hat = _hessian(objective, theta)
     cov, identifiable, weak = _covariance(H, names)
     loglik_hat = float(objective.loglik(theta[None])[0])

@@ -1,0 +1,207 @@
+"""Tuning and Monte Carlo at fleet speed, against the loops a filterpy user writes today.
+
+    python benchmarks/tune.py --out benchmarks/results    # a few minutes
+    python benchmarks/tune.py --quick --out DIR           # under a minute: a check that it runs
+
+In one process, side by side (issue 37's speed targets; the ratios count, this machine is shared):
+
+1. One fit of 3 parameters (``Q``'s scale, ``R``'s two variances) to one recording of the g13ej robot
+   (T = 400, its example's ``Q`` and ``R`` the truth, the template started at ``3 Q`` and ``R / 3``):
+   ``tune.fit_noise`` against ``scipy.optimize.minimize(method="Nelder-Mead")`` over the summed
+   ``log_likelihood`` of filterpy's UKF and of one ``SquareRootUKF`` (each evaluation one filter run),
+   from the same start in the same log-parametrisation, ``xatol = fatol = 1e-4``. Each reaches its
+   optimum's log-likelihood, reported.
+2. 20 recordings fitted each on its own (``shared=False``) against 20 filterpy Nelder-Mead fits,
+   measured on 3 and scaled linearly (said so in the table). (The issue's target is stated for 100.)
+3. ``consistency.monte_carlo`` of 4 configurations, 200 runs of T = 200, against a loop of filterpy
+   filters over the same runs, measured on 10 runs a configuration and scaled linearly. (The issue's
+   target is stated for 1,000 runs.)
+
+The robot's bearing wraps: the squkf filters take ``AngleResidual([1])`` as ``residual_z`` and filterpy's
+the same wrapping function, so both fit the same model. Written to ``tune.md`` in ``--out``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from scipy.optimize import minimize
+
+from squkf import JulierWeights, SquareRootUKF, consistency, simulate, tune
+from squkf.angles import AngleResidual
+from squkf.examples import g13ej_example as ex
+
+HERE = Path(__file__).resolve().parent
+DATA = ex.load_data()
+R_WHEEL, D_AXLE, DELTA, A_WALL = (DATA["model"][k] for k in ("r", "d", "Delta", "A"))
+
+
+def fx(x, dt, phi_r=0.4, phi_l=0.1):
+    t1 = 0.5 * R_WHEEL * (phi_r + phi_l)
+    t3 = (R_WHEEL / D_AXLE) * (phi_r - phi_l)
+    return np.array([x[0] + np.cos(x[2]) * t1, x[1] + np.sin(x[2]) * t1, x[2] + t3])
+
+
+def hx(x):
+    return np.array([DELTA - x[0] * np.cos(A_WALL) - x[1] * np.sin(A_WALL), (x[2] - A_WALL) % (2 * np.pi)])
+
+
+def wrap_residual(a, b):
+    d = np.asarray(a, dtype=float) - b
+    d[1] = (d[1] + np.pi) % (2 * np.pi) - np.pi
+    return d
+
+
+Q_TRUE = np.array(DATA["lx"]) @ np.array(DATA["lx"]).T
+R_TRUE = np.array(DATA["ly"]) @ np.array(DATA["ly"]).T
+P0 = np.array(DATA["st0"]) @ np.array(DATA["st0"]).T
+X0 = np.array(DATA["x0"], dtype=float)
+
+
+def squkf_filter(q_scale=1.0, r=(1.0, 1.0), points=None, scheme="redrawn", wrap=True):
+    f = SquareRootUKF(3, 2, 1.0, hx, fx, points or MerweScaledSigmaPoints(3, 1.0, 2.0, 0.0), scheme=scheme,
+                      residual_z=AngleResidual([1]) if wrap else None)  # fmt: skip
+    f.x, f.P = X0, P0
+    f.Q, f.R = q_scale * Q_TRUE, np.diag(np.asarray(r) * np.diag(R_TRUE))
+    return f
+
+
+def filterpy_filter(theta):
+    f = UnscentedKalmanFilter(3, 2, 1.0, hx, fx, MerweScaledSigmaPoints(3, 1.0, 2.0, 0.0),
+                              residual_z=wrap_residual)  # fmt: skip
+    f.x, f.P = X0.copy(), P0.copy()
+    f.Q = np.exp(theta[0]) * 3 * Q_TRUE
+    f.R = np.diag(np.exp(theta[1:]) * np.diag(R_TRUE) / 3)
+    return f
+
+
+def filterpy_loglik(theta, zs):
+    f = filterpy_filter(theta)
+    total = 0.0
+    try:
+        for z in zs:
+            f.predict()
+            f.update(z)
+            total += f.log_likelihood
+    except np.linalg.LinAlgError:
+        return -np.inf
+    return total
+
+
+def squkf_loglik(theta, zs):
+    f = squkf_filter(3 * np.exp(theta[0]), np.exp(theta[1:]) / 3)
+    try:
+        return float(np.sum(f.batch_filter(zs).log_likelihood))
+    except Exception:
+        return -np.inf
+
+
+def nelder_mead(loglik, zs):
+    t = time.perf_counter()
+    res = minimize(lambda th: -loglik(th, zs), np.zeros(3), method="Nelder-Mead",
+                   options={"xatol": 1e-4, "fatol": 1e-4})  # fmt: skip
+    return time.perf_counter() - t, -res.fun, res.nfev
+
+
+def template():
+    return squkf_filter(3.0, (1 / 3, 1 / 3))
+
+
+def fit(zs, shared=True):
+    t = time.perf_counter()
+    out = tune.fit_noise(template(), zs, Q=tune.Scaled(), R=tune.Diagonal(), shared=shared)
+    return time.perf_counter() - t, out
+
+
+def monte_carlo_loop(configs, truth, zs, runs):
+    """The filterpy loop over ``runs`` runs of each configuration (RMSE and NEES by hand)."""
+    t = time.perf_counter()
+    for points in configs:
+        for r in range(runs):
+            f = UnscentedKalmanFilter(3, 2, 1.0, hx, fx, points, residual_z=wrap_residual)
+            f.x, f.P, f.Q, f.R = X0.copy(), P0.copy(), Q_TRUE.copy(), R_TRUE.copy()
+            err = []
+            for k, z in enumerate(zs[r]):
+                f.predict()
+                f.update(z)
+                e = truth[r, k] - f.x
+                err.append(e @ np.linalg.solve(f.P, e))
+    return time.perf_counter() - t
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--out", default=str(HERE / "results"))
+    args = ap.parse_args(argv)
+    # (the issue asks for 100 recordings and 1,000 runs; the robot's wrapping residual_z is a Python hook
+    # called per filter and sigma point until hooks are data (issue 36), so this run takes 20 and 200)
+    T, B, B_fp, M, T_mc, M_fp = (60, 6, 2, 40, 40, 4) if args.quick else (400, 20, 3, 200, 200, 10)
+    truth_filter = squkf_filter(wrap=False)
+    _, zs = simulate(truth_filter, T, B, seed=1)
+    rows = []
+
+    t_fit, one = fit(zs[0])
+    t_nm_fp, ll_fp, n_fp = nelder_mead(filterpy_loglik, zs[0])
+    t_nm_sq, ll_sq, n_sq = nelder_mead(squkf_loglik, zs[0])
+    rows.append(("one fit, 3 parameters: fit_noise", t_fit, one.log_likelihood, f"{one.passes} fleet passes"))
+    rows.append(("Nelder-Mead over filterpy's UKF", t_nm_fp, ll_fp, f"{n_fp} evaluations"))
+    rows.append(("Nelder-Mead over one SquareRootUKF", t_nm_sq, ll_sq, f"{n_sq} evaluations"))
+
+    t_each, fits = fit(zs, shared=False)
+    t_fp_each = sum(nelder_mead(filterpy_loglik, zs[b])[0] for b in range(B_fp)) * B / B_fp
+    rows.append((f"{B} recordings, shared=False", t_each, float(np.mean([f.log_likelihood for f in fits])),
+                 f"{fits[0].passes} fleet passes"))  # fmt: skip
+    rows.append((f"{B} filterpy fits (measured on {B_fp}, scaled)", t_fp_each, float("nan"), ""))
+
+    truth, zs_mc = simulate(truth_filter, T_mc, M, seed=2)
+    configs = {
+        "Merwe": squkf_filter(),
+        "Julier": squkf_filter(points=JulierWeights()),
+        "Merwe augmented": squkf_filter(scheme="augmented"),
+        "Merwe, R x 4": squkf_filter(r=(4.0, 4.0)),
+    }
+    t = time.perf_counter()
+    consistency.monte_carlo(configs, truth, zs_mc)
+    t_mc = time.perf_counter() - t
+    fp_points = [MerweScaledSigmaPoints(3, 1.0, 2.0, 0.0)] * 4
+    t_mc_fp = monte_carlo_loop(fp_points, truth, zs_mc, M_fp) * M / M_fp
+    rows.append((f"monte_carlo, 4 configurations x {M} runs of {T_mc}", t_mc, float("nan"), ""))
+    rows.append(
+        (f"filterpy loop (measured on {M_fp} runs a configuration, scaled)", t_mc_fp, float("nan"), "")
+    )
+
+    ratios = [
+        ("fit_noise / Nelder-Mead over filterpy", t_fit / t_nm_fp, 1 / 20),
+        ("fit_noise / Nelder-Mead over one SquareRootUKF", t_fit / t_nm_sq, 1 / 4),
+        (f"{B} fits shared=False / {B} filterpy fits", t_each / t_fp_each, 1 / 300),
+        ("monte_carlo / filterpy loop", t_mc / t_mc_fp, 1 / 100),
+    ]
+    lines = [
+        "# Tuning and Monte Carlo against the loops written today (g13ej robot)",
+        "",
+        f"`python benchmarks/tune.py{' --quick' if args.quick else ''}`, one process; T = {T} for the fits.",
+        "",
+        "| what | seconds | log-likelihood | |",
+        "|---|---|---|---|",
+    ]
+    for what, sec, ll, note in rows:
+        lines.append(f"| {what} | {sec:.3g} | {'' if np.isnan(ll) else f'{ll:.4f}'} | {note} |")
+    lines += ["", "| ratio | value | target | |", "|---|---|---|---|"]
+    for what, value, target in ratios:
+        lines.append(f"| {what} | {value:.4f} | <= {target:.4f} | {'met' if value <= target else 'missed'} |")
+    text = "\n".join(lines) + "\n"
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "tune.md").write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
