@@ -15,6 +15,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -229,3 +230,28 @@ def test_quick_dropin_costs_benchmark_writes_every_ratio(tmp_path):
         cells = [c.strip() for c in row.strip("|").split("|")]
         fp, sq, ratio = float(cells[1]), float(cells[2]), float(cells[3])
         assert fp > 0 and sq > 0 and math.isclose(ratio, sq / fp, rel_tol=0.05, abs_tol=0.02), row
+
+
+def test_quick_tune_benchmark_writes_every_ratio(tmp_path):
+    subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "tune.py"), "--quick", "--out", str(tmp_path)],
+        check=True,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    text = (tmp_path / "tune.md").read_text()
+    ratios = [
+        line
+        for line in text.split("| ratio |")[1].splitlines()
+        if line.startswith("| ") and "---" not in line
+    ]
+    assert len(ratios) == 4
+    for row in ratios:
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert float(cells[1]) > 0 and cells[3] in ("met", "missed"), row
+    # each optimiser reports the log-likelihood it reached, a finite number
+    reached = [
+        r.split("|")[3].strip() for r in text.splitlines() if "Nelder-Mead over" in r or "fit_noise |" in r
+    ]
+    assert len(reached) == 3 and all(np.isfinite(float(v)) for v in reached)
