@@ -67,8 +67,9 @@ class NoiseFit:
         Whether every eigenvalue of the information is above ``1e-8`` times the largest.
     weak_directions : list of dict
         For each eigenvalue that is not: the eigenvector's components by parameter name.
-    surface : tuple (thetas (G, p), log-likelihoods (G,)) or None
-        The grid and its values (``method="grid"``).
+    surface : tuple (thetas (G, p), values (G,)) or None
+        The grid and its log-likelihoods (``method="grid"``; with a ``prior``,
+        less its ``|r|^2 / 2``: the log-posterior up to a constant).
     """
 
     Q: np.ndarray
