@@ -80,8 +80,8 @@ def filterpy_filter(theta):
     return f
 
 
-def filterpy_loglik(theta, zs):
-    f = filterpy_filter(theta)
+def summed_loglik(f, zs) -> float:
+    """A filterpy filter's ``log_likelihood`` summed over a recording (-inf where it breaks)."""
     total = 0.0
     try:
         for z in zs:
@@ -91,6 +91,10 @@ def filterpy_loglik(theta, zs):
     except np.linalg.LinAlgError:
         return -np.inf
     return total
+
+
+def filterpy_loglik(theta, zs):
+    return summed_loglik(filterpy_filter(theta), zs)
 
 
 def squkf_loglik(theta, zs):
@@ -150,15 +154,7 @@ def cv_filterpy_loglik(theta, zs):
                               MerweScaledSigmaPoints(4, 1.0, 2.0, 0.0))  # fmt: skip
     f.x, f.P = np.array([0.0, 1.0, 0.0, 1.0]), np.eye(4)
     f.Q, f.R = np.exp(theta[0]) * Q_CV, np.diag(np.exp(theta[1:]))
-    total = 0.0
-    try:
-        for z in zs:
-            f.predict()
-            f.update(z)
-            total += f.log_likelihood
-    except np.linalg.LinAlgError:
-        return -np.inf
-    return total
+    return summed_loglik(f, zs)
 
 
 def cv_case(quick: bool):

@@ -55,6 +55,17 @@ TOO_SMALL = "too small: pessimistic (P or S too large)"
 # -- checks of the arguments ---------------------------------------------------------------------
 
 
+def _pyplot(who: str) -> Any:
+    """matplotlib's pyplot, or the ModuleNotFoundError that names the ``plot`` extra."""
+    try:
+        import matplotlib.pyplot as plt
+    except ImportError as exc:
+        raise ModuleNotFoundError(
+            f'{who} needs matplotlib, the plot extra: pip install "squkf[plot]" ({exc})', name=exc.name
+        ) from exc
+    return plt
+
+
 def _probability(level: Any) -> float:
     """``level`` as a float in the open interval (0, 1)."""
     if isinstance(level, (bool, np.bool_)) or not isinstance(level, (Real, np.floating, np.integer)):
@@ -369,16 +380,8 @@ class Consistency:
         ModuleNotFoundError
             matplotlib is not installed (``pip install "squkf[plot]"``).
         """
-        try:
-            import matplotlib  # noqa: F401  (the extra's module: the error names it)
-        except ImportError as exc:
-            raise ModuleNotFoundError(
-                f'Consistency.plot needs matplotlib, the plot extra: pip install "squkf[plot]" ({exc})',
-                name=exc.name,
-            ) from exc
+        plt = _pyplot("Consistency.plot")
         if ax is None:
-            import matplotlib.pyplot as plt
-
             _, ax = plt.subplots()
         k = np.arange(self.steps)
         lo, hi = self.band
@@ -823,13 +826,7 @@ class MonteCarlo:
         -------
         axes : the three Axes
         """
-        try:
-            import matplotlib.pyplot as plt
-        except ImportError as exc:
-            raise ModuleNotFoundError(
-                f'MonteCarlo.plot needs matplotlib, the plot extra: pip install "squkf[plot]" ({exc})',
-                name=exc.name,
-            ) from exc
+        plt = _pyplot("MonteCarlo.plot")
         if axes is None:
             _, axes = plt.subplots(1, 3, figsize=(12, 3.5))
         for name, r in self.results.items():
