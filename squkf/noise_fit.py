@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .boundary.loop import progress_callback
 from .candidates import Candidates, all_failed, candidate_factors, check_template, recordings, run, run_paired
 from .errors import ParameterError, ShapeError, SqukfError
 from .parametrise import Scaled
@@ -155,6 +156,7 @@ class _Objective:
         self.passes = 0
         self.filter_steps = 0
         self.failures: dict[tuple, str] = {}
+        self.after_pass: Callable[[int], object] | None = None  # progress: called with the pass's index
 
     def loglik(self, thetas: np.ndarray, rec: np.ndarray | None = None) -> np.ndarray:
         """The exact log-likelihood of each candidate, ``(K,)`` (-inf: failed): summed over every
@@ -195,6 +197,8 @@ class _Objective:
                 totals, failed = run_paired(self.ukf, self.Z[rec[good]], sub, self.burn_in, self.kwargs)
                 self.filter_steps += len(good) * T
             self.passes += 1
+            if self.after_pass is not None:
+                self.after_pass(self.passes - 1)
             for j, k in enumerate(good):
                 if j in failed:
                     failures[k] = failed[j]
@@ -271,6 +275,7 @@ def fit_noise(
     seed=None,
     maxiter: int | None = None,
     max_filters: int = 20000,
+    progress=False,
     dts=None,
     fx_args=None,
     hx_args=None,
@@ -322,6 +327,9 @@ def fit_noise(
         Of the optimiser.
     max_filters : int
         The most filters in one fleet pass (memory).
+    progress : bool or callable
+        ``True`` shows a tqdm bar over the fleet passes (the ``progress``
+        extra); a callable is called with each pass's index after it.
     dts, fx_args, hx_args : optional
         As :meth:`squkf.Fleet.batch_filter` takes them.
 
@@ -368,6 +376,17 @@ def fit_noise(
         raise ParameterError(f"max_filters must be a positive integer, got {max_filters!r}")
     objective = _Objective(ukf, Z, burn_in, parts, prior, kwargs, max_filters)
     lo_hi = _bounds(bounds, theta0, p)
+    bar, objective.after_pass = progress_callback(progress, None)
+    try:
+        return _fit(objective, method, theta0, names, lo_hi, grid, shared, seed, maxiter)
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def _fit(objective: _Objective, method: str, theta0, names, lo_hi, grid, shared, seed, maxiter):
+    """:func:`fit_noise` once its inputs are checked: the optimiser, then the fit at its optimum."""
+    p = theta0.size
     if not shared:
         return _fit_each(objective, theta0, names, lo_hi, 50 if maxiter is None else maxiter)
     surface = None
@@ -410,10 +429,10 @@ def fit_noise(
     Qf, Rf, xf, Pf = _fitted(objective, theta)
     return NoiseFit(
         Q=Qf, R=Rf, x=xf, P=Pf, theta=theta, names=names, theta_cov=cov, log_likelihood=loglik_hat,
-        log_likelihood_template=-f0 if prior is None else float(objective.loglik(theta0[None])[0]),
+        log_likelihood_template=-f0 if objective.prior is None else float(objective.loglik(theta0[None])[0]),
         success=success and math.isfinite(f_hat), message=message, method=method, passes=objective.passes,
         filter_steps=objective.filter_steps, failures=dict(objective.failures), identifiable=identifiable,
-        weak_directions=weak, surface=surface, _parts=parts,
+        weak_directions=weak, surface=surface, _parts=objective.parts,
     )  # fmt: skip
 
 

@@ -354,3 +354,11 @@ def test_a_failing_candidate_is_a_wall_and_every_failure_is_an_error(cv_recordin
         tune.fit_noise(
             tune_template(), cv_recordings[0], Q=tune.Fixed(), R=R, method="grid", grid=np.array([[0.0]])
         )
+
+
+def test_progress_is_called_after_every_fleet_pass(cv_recordings):
+    seen = []
+    fit = tune.fit_noise(tune_template(), cv_recordings[0], progress=seen.append)
+    assert seen == list(range(fit.passes))
+    with pytest.raises(ParameterError, match="progress"):
+        tune.fit_noise(tune_template(), cv_recordings[0], progress="yes")
