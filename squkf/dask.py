@@ -53,7 +53,10 @@ from .validate import as_measurements
 if TYPE_CHECKING:
     import distributed
 
-__all__ = ["batch_filter", "compute", "filter_frame", "local_cluster", "worker_environ", "MMAP_THRESHOLD"]
+__all__ = [
+    "batch_filter", "compute", "filter_frame", "fit_noise", "local_cluster", "worker_environ",
+    "MMAP_THRESHOLD",
+]  # fmt: skip
 
 MMAP_THRESHOLD = 16 * 2**20
 """Bytes from which glibc's malloc maps fresh pages, in :func:`worker_environ` (16 MiB)."""
@@ -247,6 +250,65 @@ def batch_filter(
     for name, parts in fields.items():
         out[name] = da.concatenate(parts, axis=0) if stored.get(name, True) else None
     return FleetResult(**out)
+
+
+def _fit_chunk(ukf, block: np.ndarray, options: dict) -> list:
+    from .tune import fit_noise as fit_in_process
+
+    fits = fit_in_process(ukf, block, shared=False, **options)
+    assert isinstance(fits, list)  # (shared=False: one fit a recording)
+    return fits
+
+
+def fit_noise(ukf, zs, *, recordings_per_task: int = 1000, **options) -> list:
+    """:func:`squkf.tune.fit_noise` with ``shared=False`` over a Dask cluster, a task per chunk of recordings.
+
+    Each task fits its recordings together (one fleet pass an iteration, as
+    in one process) on a worker; the fits are those of one process, bit for
+    bit, whatever the chunking (each recording's fit reads only its own
+    filters), apart from the counts of passes and filter-steps, which are
+    each task's.
+
+    Parameters
+    ----------
+    ukf : SquareRootUKF
+        The template (pickled to the workers: its model functions must be
+        importable there by name). Never changed.
+    zs : array_like, shape (S, T, dim_z), or a list of S recordings
+        Checked here, before anything is scheduled.
+    recordings_per_task : int
+        Recordings a task fits.
+    **options
+        Of :func:`squkf.tune.fit_noise` (``Q``, ``R``, ``burn_in``, ``bounds``,
+        ``prior``, ``maxiter``, ``max_filters``, ``dts``, ``fx_args``,
+        ``hx_args``); not ``shared`` or ``method``.
+
+    Returns
+    -------
+    list of S :class:`~squkf.tune.NoiseFit`
+        In the recordings' order, computed on the scheduler in use (a
+        ``distributed.Client``'s, or dask's default).
+    """
+    from .candidates import check_template, recordings
+
+    for name in ("shared", "method", "progress"):
+        if name in options:
+            raise ParameterError(
+                f"squkf.dask.fit_noise fits each recording on its own: {name}= is not an option"
+            )
+    if (
+        isinstance(recordings_per_task, bool)
+        or not isinstance(recordings_per_task, int)
+        or recordings_per_task < 1
+    ):
+        raise ParameterError(f"recordings_per_task must be a positive integer, got {recordings_per_task!r}")
+    Z, _ = recordings(zs, ukf.configuration().dim_z)
+    check_template(ukf, options.get("burn_in", 0), Z.shape[1])
+    parts = [
+        dask.delayed(_fit_chunk, pure=True)(ukf, Z[i : i + recordings_per_task], options)
+        for i in range(0, Z.shape[0], recordings_per_task)
+    ]
+    return [fit for part in dask.compute(*parts) for fit in part]
 
 
 def math_nan(v) -> bool:

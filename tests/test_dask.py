@@ -328,3 +328,37 @@ def test_filter_frame_reports_the_series_that_failed():
     )
     assert got["failed"].dtype == bool
     assert got.groupby(level=0)["failed"].all().to_dict() == {k: k == 5 for k in range(12)}
+
+
+# -- squkf.dask.fit_noise (issue 37): the shared=False fits a task per chunk of recordings --------------
+
+
+@pytest.mark.slow
+def test_fit_noise_on_a_cluster_is_the_fits_in_process_whatever_the_chunking(cluster):
+    from models import tune_cv_filter
+
+    from squkf import simulate, tune
+
+    _, zs = simulate(tune_cv_filter(), 80, 6, seed=5)
+    template = tune_cv_filter(q=1.0, r1=1.0, r2=1.0)
+    options = {"Q": tune.Scaled(), "R": tune.Diagonal()}
+    here = tune.fit_noise(template, zs, shared=False, **options)
+    for per_task in (4, 6):
+        there = sd.fit_noise(template, zs, recordings_per_task=per_task, **options)
+        assert len(there) == 6
+        for a, b in zip(here, there):
+            for name in ("theta", "Q", "R", "theta_cov"):
+                np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+            assert a.log_likelihood == b.log_likelihood and a.success == b.success
+
+
+def test_fit_noise_on_a_cluster_refuses_before_scheduling():
+    from models import tune_cv_filter
+
+    template = tune_cv_filter()
+    with pytest.raises(ParameterError, match="shared"):
+        sd.fit_noise(template, np.zeros((2, 10, 2)), shared=True)
+    with pytest.raises(ParameterError, match="recordings_per_task"):
+        sd.fit_noise(template, np.zeros((2, 10, 2)), recordings_per_task=0)
+    with pytest.raises(ShapeError, match="zs"):
+        sd.fit_noise(template, np.zeros((2, 10, 3)))
