@@ -8,6 +8,11 @@ log-likelihood. A candidate whose covariance is not a covariance, or whose
 filter fails numerically, gets ``-inf`` and its reason; the others go on, so
 an optimiser driving it (``scipy.optimize``, a grid, a population) sees a
 candidate it should avoid, not an exception.
+
+:func:`fit_noise` drives its own optimisers over it and returns a
+:class:`NoiseFit` (:mod:`squkf.noise_fit`), with the parametrisations of
+:mod:`squkf.parametrise` (``Fixed``, ``Scaled``, ``Diagonal``, ``Full``,
+``Custom``), all importable from here.
 """
 
 from __future__ import annotations
