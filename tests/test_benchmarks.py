@@ -232,6 +232,7 @@ def test_quick_dropin_costs_benchmark_writes_every_ratio(tmp_path):
         assert fp > 0 and sq > 0 and math.isclose(ratio, sq / fp, rel_tol=0.05, abs_tol=0.02), row
 
 
+@pytest.mark.slow  # about a minute: the robot's fits run at Python speed (its residual_z is a hook)
 def test_quick_tune_benchmark_writes_every_ratio(tmp_path):
     subprocess.run(
         [sys.executable, str(ROOT / "benchmarks" / "tune.py"), "--quick", "--out", str(tmp_path)],
