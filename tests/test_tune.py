@@ -362,3 +362,26 @@ def test_progress_is_called_after_every_fleet_pass(cv_recordings):
     assert seen == list(range(fit.passes))
     with pytest.raises(ParameterError, match="progress"):
         tune.fit_noise(tune_template(), cv_recordings[0], progress="yes")
+
+
+def test_fit_noise_refuses_a_template_between_ask_and_tell_and_bad_parametrisations(cv_recordings):
+    z = cv_recordings[0]
+    f = tune_template()
+    f.ask_predict()
+    snap = filter_state(f)
+    with pytest.raises(CallSequenceError):
+        tune.fit_noise(f, z)
+    assert_filter_state(f, snap)
+    with pytest.raises(ParameterError, match="theta0"):
+        tune.Custom(lambda t: np.eye(2), [np.nan])
+    with pytest.raises(ParameterError, match="callable"):
+        tune.Custom("not a function", [0.0])
+    # a parametrisation giving values that are not finite: that candidate fails, the fit goes on around it
+    R = tune.Custom(
+        lambda t: np.diag([1.0, 4.0]) * (np.nan if t[0] > 0.5 else np.exp(t[0])), [0.0], names=["r"]
+    )
+    fit = tune.fit_noise(tune_template(), z, Q=tune.Fixed(), R=R, method="grid", grid=[[-0.5], [0.0], [1.0]])
+    assert fit.surface[1][2] == -np.inf and any("not finite" in why for why in fit.failures.values())
+    for level in (0.0, 1.0, 1.5, "high"):
+        with pytest.raises(ParameterError, match="level"):
+            fit.intervals(level)
