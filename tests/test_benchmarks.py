@@ -21,15 +21,20 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_quick_benchmark_writes_results(tmp_path):
+def run_quick(script: str, out: Path, result: str, timeout: int = 300) -> str:
+    """Run ``benchmarks/<script> --quick --out <out>`` (it must succeed) and read the ``result`` it wrote."""
     subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "run.py"), "--quick", "--out", str(tmp_path)],
+        [sys.executable, str(ROOT / "benchmarks" / script), "--quick", "--out", str(out)],
         check=True,
         capture_output=True,
         text=True,
-        timeout=300,
+        timeout=timeout,
     )
-    text = (tmp_path / "results.md").read_text()
+    return (out / result).read_text()
+
+
+def test_quick_benchmark_writes_results(tmp_path):
+    text = run_quick("run.py", tmp_path, "results.md")
     for name in ("filterpy UKF", "squkf redrawn per-point", "squkf augmented vectorised"):
         assert f"| g13ej robot n=3 | {name} |" in text
         assert f"| coordinated turn n=5 | {name} |" in text
@@ -92,15 +97,8 @@ def test_inlined_reference_is_the_library_step_bit_for_bit():
 
 
 def test_quick_fleet_benchmark(tmp_path):
-    subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "fleet.py"), "--quick", "--out", str(tmp_path)],
-        check=True,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    text = run_quick("fleet.py", tmp_path, "fleet.md")
     assert (tmp_path / "fleet.png").stat().st_size > 1000
-    text = (tmp_path / "fleet.md").read_text()
     results = json.loads((tmp_path / "fleet.json").read_text())
     assert set(results) >= {"machine", "impls", "skipped", "models", "targets"}
     assert {"fleet", "loop", "filterpy"} <= set(results["impls"])
@@ -152,14 +150,7 @@ def test_quick_fleet_benchmark(tmp_path):
 def test_quick_dask_benchmark_writes_results(tmp_path):
     pytest.importorskip("distributed")
     pytest.importorskip("psutil")
-    subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "dask_bench.py"), "--quick", "--out", str(tmp_path)],
-        check=True,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    text = (tmp_path / "dask.md").read_text()
+    text = run_quick("dask_bench.py", tmp_path, "dask.md")
     rows = {}
     for line in text.splitlines():
         cells = [c.strip() for c in line.strip("|").split("|")]
@@ -199,14 +190,7 @@ def test_fleet_profile_splits_the_whole_step():
 
 
 def test_quick_blas_threads_benchmark_writes_results(tmp_path):
-    subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "blas_threads.py"), "--quick", "--out", str(tmp_path)],
-        check=True,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    text = (tmp_path / "blas_threads.md").read_text()
+    text = run_quick("blas_threads.py", tmp_path, "blas_threads.md")
     arms = ("default threads (squkf's hold on)", "OPENBLAS_NUM_THREADS=1", "default threads, hold off")
     for arm in arms:
         (row,) = [line for line in text.splitlines() if line.startswith(f"| {arm}")]
@@ -216,14 +200,7 @@ def test_quick_blas_threads_benchmark_writes_results(tmp_path):
 
 
 def test_quick_dropin_costs_benchmark_writes_every_ratio(tmp_path):
-    subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "dropin_costs.py"), "--quick", "--out", str(tmp_path)],
-        check=True,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    text = (tmp_path / "dropin_costs.md").read_text()
+    text = run_quick("dropin_costs.py", tmp_path, "dropin_costs.md")
     rows = [line for line in text.splitlines() if line.startswith("| ") and "---" not in line][1:]
     assert len(rows) == 3
     for row in rows:
@@ -234,14 +211,7 @@ def test_quick_dropin_costs_benchmark_writes_every_ratio(tmp_path):
 
 @pytest.mark.slow  # about a minute: the robot's fits run at Python speed (its residual_z is a hook)
 def test_quick_tune_benchmark_writes_every_ratio(tmp_path):
-    subprocess.run(
-        [sys.executable, str(ROOT / "benchmarks" / "tune.py"), "--quick", "--out", str(tmp_path)],
-        check=True,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    text = (tmp_path / "tune.md").read_text()
+    text = run_quick("tune.py", tmp_path, "tune.md", timeout=600)
     ratios = [line for line in text.splitlines() if line.endswith(("| met |", "| missed |"))]
     assert len(ratios) == 6  # the robot's four, the constant-velocity model's two
     for row in ratios:
