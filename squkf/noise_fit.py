@@ -157,6 +157,8 @@ class _Objective:
         self.filter_steps = 0
         self.failures: dict[tuple, str] = {}
         self.after_pass: Callable[[int], object] | None = None  # progress: called with the pass's index
+        # the template's values, read once: what a candidate that does not set one keeps
+        self.template = {k: _as_floats(getattr(ukf, k)) for k in ("Q", "R", "x", "P")}
 
     def loglik(self, thetas: np.ndarray, rec: np.ndarray | None = None) -> np.ndarray:
         """The exact log-likelihood of each candidate, ``(K,)`` (-inf: failed): summed over every
@@ -240,8 +242,7 @@ class _Objective:
         return Candidates(*result), failures
 
     def _column(self, key: str, column: list, failures: dict[int, str]) -> np.ndarray:
-        ukf = self.ukf
-        default = {"Q": ukf.Q, "R": ukf.R, "x": ukf.x, "P": ukf.P}[key]
+        default = self.template[key]
         shape = np.shape(default)
         values = np.empty((len(column),) + shape)
         for k, v in enumerate(column):
@@ -629,6 +630,11 @@ def _covariance(H: np.ndarray, names: list[str]) -> tuple[np.ndarray, bool, list
     return cov, not weak_idx, weak
 
 
+def _as_floats(value) -> np.ndarray | None:
+    """A template's attribute as a float array (None: a placeholder, refused when the fleet is built)."""
+    return None if value is None else np.array(value, dtype=float)
+
+
 def _fitted(objective: _Objective, theta: np.ndarray):
     """The covariances (and initial state) the parameters give, as matrices."""
     out = {}
@@ -638,9 +644,8 @@ def _fitted(objective: _Objective, theta: np.ndarray):
             out.update({k: np.asarray(v, dtype=float) for k, v in value.items()})
         else:
             out[label] = np.asarray(value, dtype=float)
-    ukf = objective.ukf
-    Q = out.get("Q", np.asarray(ukf.Q, dtype=float))
-    R = out.get("R", np.asarray(ukf.R, dtype=float))
+    Q = out.get("Q", objective.template["Q"].copy())
+    R = out.get("R", objective.template["R"].copy())
     return Q, R, out.get("x"), out.get("P")
 
 
