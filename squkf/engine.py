@@ -55,6 +55,8 @@ __all__ = [
     "PREDICTING",
     "PRIOR",
     "UPDATING",
+    "BLOCK",
+    "Block",
     "Engine",
     "Route",
     "Update",
@@ -68,7 +70,13 @@ NOT_FINITE_IMAGES = 306
 
 
 class Update(NamedTuple):
-    """The last update of a block: what the gate saw and what was applied (the records are formed from it).
+    """The last update of a block: what the gate saw and what was applied; the one record of both faces.
+
+    One filter's update is a block of one (:class:`squkf.SquareRootUKF` drops the block axis when it
+    reads a field); a fleet's is a block of K, written a chunk at a time (:class:`squkf.stacks.Chunks`),
+    which keeps no factor of the innovation (``Sy``, ``L21`` and ``K`` None) and whose filters each have
+    their own measured components (``observed`` None, NaN in ``y`` where a component was missing).
+    Batch histories keep their rows (``squkf.boundary.records.Records.keep``).
 
     Attributes
     ----------
@@ -76,15 +84,17 @@ class Update(NamedTuple):
     S : ndarray, shape (B, n, n)
         The posterior (after the gate: the prior where it rejected everything).
     y : ndarray, shape (B, mo)
-        The innovation of the observed components (what the gate tested).
-    Sy : ndarray, shape (B, mo, mo)
-    L21 : ndarray, shape (B, n, mo)
+        The innovation of the observed components (what the gate tested); NaN where a filter had no
+        measurement of a component.
+    Sy : ndarray, shape (B, mo, mo), or None
+    L21 : ndarray, shape (B, n, mo), or None
+        The innovation factor and ``Pxy Sy^-T`` (None: not kept, a fleet's).
     log_likelihood : ndarray, shape (B,)
         Of the components that passed (0 where none did).
     nis : ndarray, shape (B,)
         Of the innovation tested.
     observed : ndarray of bool, shape (m,), or None
-        The measured components (None: all).
+        The measured components, the columns of ``y`` (None: all ``m``).
     rejected : ndarray of bool, shape (B, mo)
         The observed components the gate rejected.
     K : ndarray, shape (B, n, mo), or None
@@ -96,14 +106,22 @@ class Update(NamedTuple):
     x: np.ndarray
     S: np.ndarray
     y: np.ndarray
-    Sy: np.ndarray
-    L21: np.ndarray
+    Sy: np.ndarray | None
+    L21: np.ndarray | None
     log_likelihood: np.ndarray
     nis: np.ndarray
     observed: np.ndarray | None
     rejected: np.ndarray
     K: np.ndarray | None
     m: int
+
+    def rows(self, idx) -> Update:
+        """The update of the filters ``idx`` of the block (their rows of every per-filter field)."""
+        Sy, L21, K = (None if a is None else a[idx] for a in (self.Sy, self.L21, self.K))
+        return Update(
+            self.x[idx], self.S[idx], self.y[idx], Sy, L21, self.log_likelihood[idx], self.nis[idx],
+            self.observed, self.rejected[idx], K, self.m,
+        )  # fmt: skip
 
 
 class _Joint(NamedTuple):
@@ -610,6 +628,7 @@ class Route:
         obs_idx = np.arange(m) if observed is None else np.flatnonzero(observed)
         x, S = post.x.copy(), post.S.copy()
         ll = np.array(post.log_likelihood, dtype=float)
+        assert post.Sy is not None and post.L21 is not None  # (the tested update keeps its factors)
         K = _gain(post.Sy, post.L21).copy()
         none_left = rejected.all(axis=1)
         x[none_left], S[none_left] = x0[none_left], S0[none_left]
@@ -635,11 +654,113 @@ class Route:
         return Update(x, S, post.y, post.Sy, post.L21, ll, post.nis, observed, rejected, K, m), status
 
 
-class Engine:
-    """One block's step as a state machine: its estimate, its pending step, its last records.
+class Block:
+    """How a block's phases run when the block is the whole call: one filter (:class:`squkf.SquareRootUKF`).
 
-    :class:`squkf.SquareRootUKF` holds one (a block of one, ``single``). A call that fails raises
-    (the first failing filter's :func:`failure`) and leaves the engine as it was.
+    The engine passes the model's images at the whole block; a filter's failure raises (the first
+    failing filter's :func:`failure`). A fleet runs its phases a chunk at a time on threads instead,
+    its failures flagged per filter (:class:`squkf.stacks.Chunks`, with the same two methods).
+
+    Attributes
+    ----------
+    defers : bool
+        Whether the second set is drawn at the update (a fleet's, a chunk at a time) rather than with
+        the prior.
+    """
+
+    __slots__ = ()
+    defers = False
+
+    @staticmethod
+    def prior(route: Route, x, S, F, X, Q1_2, UT, name: str, buffers: Buffers, held: tuple) -> tuple:
+        """The numerics of a prediction: the prior and its second set (nothing committed).
+
+        Parameters
+        ----------
+        route : Route
+        x : ndarray, shape (B, n)
+        S : ndarray, shape (B, n, n)
+            The estimate predicted from (the images are its first set's, ``X``).
+        F : array_like, shape (B, N, n) (single: (N, n))
+            The model's images at ``X`` (checked here).
+        X : ndarray, shape (B, N, n)
+        Q1_2, UT, name
+            As :meth:`Engine.tell_predict` takes them.
+        buffers : Buffers
+        held : tuple of ndarray
+            What the committed records hold (a block of one writes its buffers in turn instead).
+
+        Returns
+        -------
+        x, S : ndarray
+            The prior.
+        sset : SigmaSet
+            Its second set.
+        later : None
+            (What a deferred draw reads: nothing, the set is drawn.)
+        """
+        keep = route.plan.keeps_propagated
+        F = _images(F, X.shape, name, keep, route.single)
+        mean, S, status, sset = route.prior(F, Q1_2, UT, True, name, buffers)
+        if np.count_nonzero(status):
+            code = first_status(status)
+            raise _described(code, F, status, name) or prior_failure(code, route.plan.first.rows.best)
+        if sset is None:
+            sset = route.second_set(mean, S, F if keep else None, Q1_2)
+        return mean, S, sset, None
+
+    @staticmethod
+    def posterior(route: Route, pending: tuple, H, z, observed, R1_2, UT, name: str, buffers: Buffers, held):
+        """The numerics of an update through the gate, and the next first set (nothing committed).
+
+        Parameters
+        ----------
+        route : Route
+        pending : tuple
+            :meth:`Engine.pending_update`'s.
+        H, z, observed, R1_2, UT, name
+            As :meth:`Engine.tell_update` takes them (``H`` checked here).
+        buffers : Buffers
+        held : tuple of ndarray
+
+        Returns
+        -------
+        update : Update
+        X1 : ndarray, shape (B, N, n), or None
+            The next first set, drawn with the posterior.
+        H : ndarray, shape (B, N2, m)
+            The images as read (the record of ``sigmas_h``).
+        """
+        (xp, Sp), sset, _ = pending
+        H = _images(H, sset.sigmas.shape[:-1] + (z.shape[-1],), name, True, route.single)
+        if route.single:
+            z = z[None]
+        tested, status, X1 = route.posterior(sset, xp, Sp, H, z, observed, R1_2, UT, True, name, buffers)
+        if np.count_nonzero(status):
+            code = first_status(status)
+            raise _described(code, H, status, name) or failure(code, route.form_of(sset, UT))
+        if route.gate is None:
+            return tested, X1, H
+        update, status = route.gated(tested, status, sset, xp, Sp, H, z, observed, R1_2, UT)
+        if np.count_nonzero(status):
+            raise failure(first_status(status), route.form_of(sset, UT))
+        # a gate's change: the posterior is not the one the next first set was drawn from
+        return update, (X1 if update.x is tested.x else None), H
+
+
+#: The runner of a block that is the whole call (one filter).
+BLOCK = Block()
+
+
+class Engine:
+    """A block's step as a state machine: its estimate, its pending step, its last records, its commit.
+
+    Both faces hold one: :class:`squkf.SquareRootUKF` a block of one (``single`` routes, run by
+    :data:`BLOCK`), :class:`squkf.Fleet` a block of K (run a chunk at a time on threads by
+    :data:`squkf.stacks.CHUNKS`). How a phase runs is the runner's; what is pending, what is committed,
+    and when, is the engine's. A call that fails raises (one filter: the first failing filter's
+    :func:`failure`; a fleet flags its failing filters, or raises for them all) and leaves the engine
+    as it was.
 
     Parameters
     ----------
@@ -647,6 +768,10 @@ class Engine:
     x : ndarray, shape (B, n)
     S : ndarray, shape (B, n, n)
         The initial estimate (kept, not copied: never written in place).
+    sigmas_f, sigmas_h : ndarray or None
+        What ``shown_f`` and ``H`` are before any step (None: not shown, a fleet's).
+    run : Block or squkf.stacks.Chunks
+        How the phases run (default :data:`BLOCK`).
 
     Attributes
     ----------
@@ -656,32 +781,49 @@ class Engine:
     phase : str
     route, step_route : Route
         The configuration's, and the pending step's (the one its points were drawn with).
+    drawn : bool
+        Whether the pending update (``prior``, ``sset``, ``later``) belongs to the current estimate: set
+        by a prediction, cleared when the caller assigns an estimate.
     prior : tuple (x, S) or None
-        The estimate the pending second set ``sset`` was drawn from.
+        The estimate the pending second set was (or is to be) drawn from.
+    sset : SigmaSet or None
+        The pending second set (None: drawn at the update, a fleet's, from ``later``).
+    later : tuple (propagated, Q1_2) or None
+        What a second set drawn at the update reads (the prediction's images where the plan keeps them,
+        and its process-noise factor).
     prior_record, post_record : tuple (x, S)
         The last prediction's and the last update's results (the estimate before any).
     last : Update or None
         The last update.
-    H : ndarray, shape (B, N2, m)
-        The last update's images (zeros before any).
-    shown_f : ndarray
+    H : ndarray, shape (B, N2, m), or None
+        The last update's images (zeros before any; None: not kept, a fleet's).
+    shown_f : ndarray or None
         What filterpy shows as ``sigmas_f``: the second set after a prediction (zeros before any).
     """
 
     __slots__ = (
-        "route", "step_route", "x", "S", "phase", "X", "prior", "sset", "prior_record", "post_record", "last",
-        "H", "shown_f", "_first", "_buffers",
+        "route", "step_route", "run", "x", "S", "phase", "X", "drawn", "prior", "sset", "later",
+        "prior_record", "post_record", "last", "H", "shown_f", "_first", "_buffers",
     )  # fmt: skip
 
     def __init__(
-        self, route: Route, x: np.ndarray, S: np.ndarray, sigmas_f: np.ndarray, sigmas_h: np.ndarray
+        self,
+        route: Route,
+        x: np.ndarray,
+        S: np.ndarray,
+        sigmas_f: np.ndarray | None,
+        sigmas_h: np.ndarray | None,
+        run=BLOCK,
     ):
         self.route = self.step_route = route
+        self.run = run
         self.x, self.S = kernels.kernel_array(x), kernels.kernel_array(S)
         self.phase = IDLE
         self.X: np.ndarray | None = None  # the points handed out by a pending ask_predict
+        self.drawn = False
         self.prior: tuple[np.ndarray, np.ndarray] | None = None
         self.sset: SigmaSet | None = None
+        self.later: tuple | None = None
         self.prior_record = self.post_record = (self.x, self.S)
         self.last: Update | None = None
         self.H, self.shown_f = sigmas_h, sigmas_f
@@ -695,6 +837,11 @@ class Engine:
         return {k: getattr(self, k) for k in self.__slots__ if k not in self._SCRATCH}
 
     def __setstate__(self, state) -> None:
+        state.setdefault("run", BLOCK)  # (pickled before the runner was passed in)
+        state.setdefault("later", None)
+        if "drawn" not in state:  # (pickled when the pending update was known by identity)
+            prior = state.get("prior")
+            state["drawn"] = prior is not None and prior[0] is state["x"] and prior[1] is state["S"]
         for k, v in state.items():
             object.__setattr__(self, k, v)
         self._first = None
@@ -713,18 +860,37 @@ class Engine:
         memo[id(self)] = new
         return new
 
+    def rows(self, idx) -> Engine:
+        """A new idle engine of the filters ``idx`` (an index array): their estimate and records' rows."""
+        new = Engine(self.route, self.x[idx], self.S[idx], None, None, self.run)
+        new.prior_record = (self.prior_record[0][idx], self.prior_record[1][idx])
+        new.post_record = (self.post_record[0][idx], self.post_record[1][idx])
+        new.last = None if self.last is None else self.last.rows(idx)
+        return new
+
     def configure(self, route: Route) -> None:
         """A new configuration (a pending step keeps the route it was drawn with)."""
         self.route = route
         self._first = None
 
-    def assign(self, x: np.ndarray | None = None, S: np.ndarray | None = None) -> None:
-        """A new estimate from the caller (validated; kept): the sets drawn for the old one are dropped."""
+    def assign(self, x: np.ndarray | None = None, S: np.ndarray | None = None, idle: bool = False) -> None:
+        """A new estimate from the caller (validated; kept): the sets drawn for the old one are dropped.
+
+        ``idle``: a step pending is dropped too (a fleet's rule: an assignment ends an ask/tell step).
+        """
         if x is not None:
             self.x = kernels.kernel_array(x)  # (as the kernels take it: a factor from LAPACK is in F order)
         if S is not None:
             self.S = kernels.kernel_array(S)
         self._first = None
+        self.drawn = False
+        if idle:
+            self.phase = IDLE
+            self.X = None
+
+    def _held(self) -> tuple:
+        """The arrays the committed records hold (a step writes none of them)."""
+        return (self.x, self.S, *self.prior_record, *self.post_record)
 
     # -- the prediction -------------------------------------------------------------------------
 
@@ -746,14 +912,16 @@ class Engine:
         return X
 
     def tell_predict(
-        self, F, Q1_2: np.ndarray | None, UT: Callable | None = None, points=None, name: str = "fx values"
-    ) -> None:
+        self, F, Q1_2: np.ndarray | None, UT: Callable | None = None, points=None, name: str = "fx values",
+        whole: bool = False,
+    ) -> None:  # fmt: skip
         """Finish the prediction from the first set's images: the prior and the second set, committed.
 
         Parameters
         ----------
-        F : array_like, shape (B, N, n) (single: (N, n))
-            ``fx`` at the points (checked here).
+        F : array_like, shape (B, N, n) (single: (N, n)), or what the runner takes
+            ``fx`` at the points (checked by the runner; a fleet's runner takes its call,
+            :class:`squkf.stacks.Step`, and calls ``fx`` a chunk at a time).
         Q1_2 : ndarray, shape (n, n) or (B, n, n), or None
             Lower factor of the additive process noise (None: none added).
         UT : callable, optional
@@ -762,8 +930,10 @@ class Engine:
             those of the pending :meth:`ask_predict`.
         name : str
             What the images are called in messages.
+        whole : bool
+            A whole prediction whose runner draws the points itself (a fleet's, a chunk at a time).
         """
-        if points is None:
+        if points is None and not whole:
             if self.phase != PREDICTING:
                 raise CallSequenceError(
                     f"tell_predict needs a pending ask_predict, but the step is {self.phase!r}"
@@ -772,74 +942,58 @@ class Engine:
             route, X = self.step_route, self.X
         else:
             route, X = self.route, points
-        assert X is not None
-        plan = route.plan
-        keep = plan.keeps_propagated
-        F = _images(F, X.shape, name, keep, route.single)
         buffers = self._buffers
         buffers.abandon()
         limit = blas.MIN_DIM
-        if limit is not None and plan.n >= limit:
+        if limit is not None and route.plan.n >= limit:
             with blas.one_blas_thread():
-                done = self._prior(route, F, Q1_2, UT, name, buffers)
+                done = self.run.prior(route, self.x, self.S, F, X, Q1_2, UT, name, buffers, self._held())
         else:
-            done = self._prior(route, F, Q1_2, UT, name, buffers)
+            done = self.run.prior(route, self.x, self.S, F, X, Q1_2, UT, name, buffers, self._held())
         # commit
         buffers.commit()
-        mean, S, sset = done
+        mean, S, sset, later = done
         self.step_route = route
         self.x, self.S = mean, S
         self.prior = self.prior_record = (mean, S)
-        self.sset = sset
-        self.shown_f = sset.sigmas
+        self.sset, self.later = sset, later
+        if sset is not None:
+            self.shown_f = sset.sigmas
+        self.drawn = True
         self._first = None
         self.X = None
         self.phase = PRIOR
 
-    @staticmethod
-    def _prior(route: Route, F, Q1_2, UT, name: str, buffers: Buffers) -> tuple:
-        """The numerics of a prediction: the prior and its second set (nothing committed)."""
-        mean, S, status, sset = route.prior(F, Q1_2, UT, True, name, buffers)
-        if np.count_nonzero(status):
-            code = first_status(status)
-            raise _described(code, F, status, name) or prior_failure(code, route.plan.first.rows.best)
-        if sset is None:
-            sset = route.second_set(mean, S, F if route.plan.keeps_propagated else None, Q1_2)
-        return mean, S, sset
-
     # -- the update ------------------------------------------------------------------------------
 
-    def pending_update(self) -> tuple[tuple[np.ndarray, np.ndarray], SigmaSet]:
-        """The prior and second set of the update pending for the current estimate (nothing committed).
+    def pending_update(self) -> tuple:
+        """The update pending for the current estimate: ``(prior, sset, later)`` (nothing committed).
 
-        After a prediction, its prior and the set drawn with it; if the estimate was assigned since (or
-        no prediction precedes), the estimate and a set drawn from it alone.
+        After a prediction, its prior and the set drawn with it (or what a set drawn at the update
+        reads, ``later``); if the estimate was assigned since (or no prediction precedes), the estimate
+        and a set drawn from it alone (by a runner that defers the draw, at the update: None).
         """
         if self.phase == PREDICTING:
             raise CallSequenceError(
                 "ask_update called while a prediction is pending: tell_predict the fx values first"
             )
-        prior = self.prior
-        if (
-            self.phase in (PRIOR, UPDATING)
-            and prior is not None
-            and prior[0] is self.x
-            and prior[1] is self.S
-        ):
-            return prior, self.sset  # type: ignore[return-value]  # drawn with the prior
-        return (self.x, self.S), self.route.second_set(self.x, self.S, None, None)
+        if self.drawn and self.phase != IDLE:
+            return self.prior, self.sset, self.later  # drawn with the prior
+        x, S = self.x, self.S
+        return (x, S), None if self.run.defers else self.route.second_set(x, S, None, None), None
 
     def ask_update(self) -> np.ndarray:
         """:meth:`pending_update`, kept as the pending update: its second set ``(B, N2, n)`` (engine's)."""
-        prior, sset = self.pending_update()
-        self._keep(prior, sset)
-        self.phase = UPDATING
-        return sset.sigmas
-
-    def _keep(self, prior, sset) -> None:
+        prior, sset, later = self.pending_update()
+        if sset is None:  # a runner that draws at the update: the whole set, handed out
+            propagated, Q1_2 = (None, None) if later is None else later
+            sset = self.route.second_set(prior[0], prior[1], propagated, Q1_2)
         if sset is not self.sset:  # drawn from the estimate alone, by the current route
             self.step_route = self.route
-        self.prior, self.sset = prior, sset
+        self.prior, self.sset, self.later = prior, sset, later
+        self.drawn = True
+        self.phase = UPDATING
+        return sset.sigmas
 
     def tell_update(
         self, H, z: np.ndarray, observed: np.ndarray | None, R1_2: np.ndarray, UT: Callable | None = None,
@@ -849,18 +1003,19 @@ class Engine:
 
         Parameters
         ----------
-        H : array_like, shape (B, N2, m) (single: (N2, m))
-            ``hx`` at the points of the second set (checked here).
+        H : array_like, shape (B, N2, m) (single: (N2, m)), or what the runner takes
+            ``hx`` at the points of the second set (checked by the runner; a fleet's runner takes its
+            call, :class:`squkf.stacks.Step`, and calls ``hx`` a chunk at a time).
         z : ndarray, shape (B, m) (single: (m,))
             The measurement (missing components hold NaN).
         observed : ndarray of bool, shape (m,), or None
-            The measured components (None: all).
+            The measured components (None: all, or, for a fleet, those not NaN per filter).
         R1_2 : ndarray, shape (m, m) or (B, m, m)
             Lower factor of the measurement noise (zeros: none).
         UT : callable, optional
         pending : tuple, optional
-            The prior and set of a whole update (:meth:`pending_update`, with no ask pending);
-            default: those of the pending :meth:`ask_update`.
+            The update of a whole call (:meth:`pending_update`, with no ask pending);
+            default: that of the pending :meth:`ask_update`.
         name : str
             What the images are called in messages.
         """
@@ -870,25 +1025,26 @@ class Engine:
                     f"tell_update needs a pending ask_update, but the step is {self.phase!r}"
                     + (" (the update was already told)" if self.phase == IDLE else "")
                 )
-            pending = (self.prior, self.sset)
-        (xp, Sp), sset = pending
+            pending = (self.prior, self.sset, self.later)
         route = self.route
-        H = _images(H, sset.sigmas.shape[:-1] + (z.shape[-1],), name, True, route.single)
-        if route.single:
-            z = z[None]
         buffers = self._buffers
         buffers.abandon()
         limit = blas.MIN_DIM
         if limit is not None and route.plan.n >= limit:
             with blas.one_blas_thread():
-                update, X1 = self._posterior(route, sset, xp, Sp, H, z, observed, R1_2, UT, name, buffers)
+                update, X1, H = self.run.posterior(
+                    route, pending, H, z, observed, R1_2, UT, name, buffers, self._held()
+                )
         else:
-            update, X1 = self._posterior(route, sset, xp, Sp, H, z, observed, R1_2, UT, name, buffers)
+            update, X1, H = self.run.posterior(
+                route, pending, H, z, observed, R1_2, UT, name, buffers, self._held()
+            )
         # commit
         buffers.commit()
-        if sset is not self.sset:  # (as _keep, written out: one call fewer on every update)
+        prior, sset, later = pending
+        if sset is not self.sset:
             self.step_route = route
-        self.prior, self.sset = (xp, Sp), sset
+        self.prior, self.sset, self.later = prior, sset, later
         self.x, self.S = update.x, update.S
         self.post_record = (update.x, update.S)
         self.last = update
@@ -896,29 +1052,20 @@ class Engine:
         self._first = X1
         self.phase = IDLE
 
-    @staticmethod
-    def _posterior(route: Route, sset, xp, Sp, H, z, observed, R1_2, UT, name: str, buffers: Buffers):
-        """The numerics of an update through the gate, and the next first set (nothing committed)."""
-        tested, status, X1 = route.posterior(sset, xp, Sp, H, z, observed, R1_2, UT, True, name, buffers)
-        if np.count_nonzero(status):
-            code = first_status(status)
-            raise _described(code, H, status, name) or failure(code, route.form_of(sset, UT))
-        if route.gate is None:
-            return tested, X1
-        update, status = route.gated(tested, status, sset, xp, Sp, H, z, observed, R1_2, UT)
-        if np.count_nonzero(status):
-            raise failure(first_status(status), route.form_of(sset, UT))
-        return update, (X1 if update.x is tested.x else None)  # a gate's change: not the set's posterior
+    def skip_update(self, last: Update | None = None) -> None:
+        """End the step without a measurement: the estimate stays, and the last update's records too.
 
-    def skip_update(self) -> None:
-        """End the step without a measurement: the estimate stays, and the last update's records too."""
+        ``last``: the update record of the skipped step instead (a fleet's: no innovation, no likelihood).
+        """
         if self.phase == PREDICTING:
             raise CallSequenceError(
                 "update without a measurement called while a prediction is pending: "
                 "tell_predict the fx values first"
             )
         # the record's own copies: the estimate may live in the buffers the next prediction writes
-        self.post_record = (self.x.copy(), self.S.copy())
+        self.post_record = (self.x.copy(), self.S.copy()) if last is None else (last.x, last.S)
+        if last is not None:
+            self.last = last
         self.phase = IDLE
 
 

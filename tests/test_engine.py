@@ -378,18 +378,26 @@ def test_a_steady_step_allocates_its_buffers_once():
         fleet.predict()
         fleet.update(np.tile(z, (3, 1)))
     scratch = stacks._spare.free[-1]  # the chunk arrays this thread's next chunk takes
-    before = (_array_ids(f._engine._buffers.sets), _array_ids(fleet._buffers.sets), _array_ids(scratch.sets))
+    before = (
+        _array_ids(f._engine._buffers.sets),
+        _array_ids(fleet._engine._buffers.sets),
+        _array_ids(scratch.sets),
+    )
     for _ in range(5):
         f.predict()
         f.update(z)
         fleet.predict()
         fleet.update(np.tile(z, (3, 1)))
-    after = (_array_ids(f._engine._buffers.sets), _array_ids(fleet._buffers.sets), _array_ids(scratch.sets))
+    after = (
+        _array_ids(f._engine._buffers.sets),
+        _array_ids(fleet._engine._buffers.sets),
+        _array_ids(scratch.sets),
+    )
     assert after == before and all(before)
-    assert f._engine._buffers.taken == [] and fleet._buffers.taken == [] and scratch.taken == []
+    assert f._engine._buffers.taken == [] and fleet._engine._buffers.taken == [] and scratch.taken == []
     # the fleet's estimates in three sets, as many as a step held before the engine: the posterior it
     # starts from, the prior it keeps as a record, and the new one
-    estimates = [sets for key, sets in fleet._buffers.sets.items() if key[0] == "spare"]
+    estimates = [sets for key, sets in fleet._engine._buffers.sets.items() if key[0] == "spare"]
     assert [len(sets) for sets in estimates] == [3]
 
 
@@ -454,11 +462,11 @@ def test_a_rewritten_pending_set_is_updated_in_the_downdate_form(gate):
     plan = build_plan(MerweScaledWeights(alpha=1.0, beta=2.0, kappa=0.0), Redrawn(), 4)
     e = engine(plan, Hooks(), TURN.x0[0], TURN.S0[0], single=True, gate=gate)
     e.tell_predict(apply(TURN.fx, e.ask_predict()[0]), TURN.Q1_2)
-    (x, S), sset = e.pending_update()
+    (x, S), sset, _ = e.pending_update()
     written = sset.rewritten(sset.sigmas + 0.05 * np.random.default_rng(1).standard_normal(sset.sigmas.shape))
     H = apply(TURN.hx, written.sigmas[0])
     z = TURN.zs[0][0]
-    e.tell_update(H, z, None, TURN.R1_2, None, ((x, S), written))
+    e.tell_update(H, z, None, TURN.R1_2, None, ((x, S), written, None))
     dz = H - written.Wm @ H
     dx = written.sigmas[0] - x[0]
     Pzz = (dz.T * written.Wc) @ dz + TURN.R1_2 @ TURN.R1_2.T
