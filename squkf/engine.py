@@ -155,6 +155,14 @@ def _ro(a: np.ndarray) -> np.ndarray:
     return kernels.plan_array(a)
 
 
+class _Zeros(dict):
+    """Shared rows of zeros ``(1, d)`` by size ``d`` (references the kernels read), made on first use."""
+
+    def __missing__(self, d: int) -> np.ndarray:
+        z = self[d] = kernels.zeros_row(d)
+        return z
+
+
 class _ObservedR:
     """The factor of R's observed block, kept for the last (R, observed) pair: repeated, nothing is formed.
 
@@ -307,9 +315,8 @@ class Route:
     """
 
     __slots__ = (
-        "plan", "hooks", "gate", "single", "plain_x", "plain_add", "downdate", "no_set", "_updates",
-        "_observed_R",
-        "_zeros", "_noise", "_prior_draws",
+        "plan", "hooks", "gate", "single", "plain_x", "plain_add", "downdate", "no_set", "zeros", "_updates",
+        "_observed_R", "_noise", "_prior_draws",
     )  # fmt: skip
 
     def __init__(self, plan: Plan, hooks: Hooks, gate, single: bool):
@@ -320,9 +327,7 @@ class Route:
         self.no_set = kernels.no_set(plan.n)  # a kernel's set output when it draws none
         self._updates: dict = {}
         self._observed_R = _ObservedR()
-        self._zeros: dict[
-            int, np.ndarray
-        ] = {}  # a shared row of zeros per size (a reference the kernels read)
+        self.zeros = _Zeros()
         self._noise: dict[int, tuple] = {}  # per noise factor given: (that array, as the kernels take it)
         self._prior_draws: dict[tuple[bool, bool], tuple] = {}  # (draw, Q given) -> _prior_draw's
 
@@ -336,13 +341,6 @@ class Route:
     def _block(self, a):
         """One filter's result as a block of one (if single)."""
         return a[None] if self.single and a is not None else a
-
-    def zeros(self, d: int) -> np.ndarray:
-        """A shared row of zeros ``(1, d)``, made once."""
-        z = self._zeros.get(d)
-        if z is None:
-            z = self._zeros[d] = kernels.zeros_row(d)
-        return z
 
     def stacked(self, factor: np.ndarray, which: int) -> np.ndarray:
         """A noise factor ``(d, d)`` (or ``(B, d, d)``) as the kernels take it, ``(1 or B, d, d)``.
@@ -359,8 +357,8 @@ class Route:
 
     # -- the phases -------------------------------------------------------------------------
 
-    def first_points(self, x: np.ndarray, S: np.ndarray, buffers: Buffers | None = None) -> np.ndarray:
-        """The first sigma-point set of ``(x, S)``, ``(B, N, n)`` (in ``buffers``' array where given)."""
+    def first_points(self, x: np.ndarray, S: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """The first sigma-point set of ``(x, S)``, ``(B, N, n)`` (written into ``out`` where given)."""
         plan = self.plan
         add = self.hooks.state_add
         if add is not None:  # the hook sees one filter's vectors (a filter of a block at a time)
@@ -368,7 +366,7 @@ class Route:
             return self._block(sigma_points_from_factor(self._one(x), self._one(S), first.xi, add))
         B, n = x.shape
         N = plan.xi1.shape[0]
-        X = (_points_out(B, N, n, False) if buffers is None else buffers.take(_points_out, B, N, n, False))[0]
+        X = np.empty((B, N, n)) if out is None else out
         kernels.KERNELS.points(x, S, plan.xi1, plan.gamma1, X, self.no_set)
         return X
 
@@ -429,9 +427,13 @@ class Route:
                 mean, S, status, X2, D2 = _prior_out(B, n, N2, with_offsets)
             else:
                 mean, S, status, X2, D2 = buffers.take(_prior_out, B, n, N2, with_offsets)
-            noise = kernels.no_noise(n) if Q1_2 is None else self.stacked(Q1_2, 0)
+            if Q1_2 is None:
+                noise = kernels.no_noise(n)
+            else:  # (stacked's kept factor, looked up here: no call when it is the one given last)
+                kept = self._noise.get(0)
+                noise = kept[1] if kept is not None and kept[0] is Q1_2 else self.stacked(Q1_2, 0)
             kernels.KERNELS.transform(
-                F, self.zeros(n), plan.mode1, plan.wm1, plan.scale1, plan.sign1, noise, mean, S, status,
+                F, self.zeros[n], plan.mode1, plan.wm1, plan.scale1, plan.sign1, noise, mean, S, status,
                 code, xi2, gamma2, X2, D2,
             )  # fmt: skip
             sset = None
@@ -542,7 +544,10 @@ class Route:
         status : ndarray of int, shape (B,)
         X1 : ndarray, shape (B, N, n), or None
         """
-        route = self.update_route(sset, UT)
+        # update_route's kept route, looked up here (no call on a repeated key), else decided there
+        rows = sset.rows
+        kept = self._updates.get((id(rows), sset.moments_exact, sset.offsets is None, sset.axis, UT is None))
+        route = kept[1] if kept is not None and kept[0] is rows else self.update_route(sset, UT)
         B = x.shape[0]
         m_all = z.shape[-1]
         if route is None:
@@ -558,7 +563,7 @@ class Route:
             )  # fmt: skip
             if self.single:
                 post = Posterior(*(a[None] for a in post))
-            none = _none_rejected(post.y.shape)
+            none = _NONE_REJECTED[post.y.shape]
             ll, nis = post.log_likelihood, post.nis
             update = Update(post.x, post.S, post.y, post.Sy, post.L21, ll, nis, observed, none, None, m_all)
             return update, np.zeros(B, dtype=np.int64), None
@@ -578,20 +583,21 @@ class Route:
                 _posterior_out(B, n, m, N1) if buffers is None else buffers.take(_posterior_out, B, n, m, N1)
             )
         zp, y, w, Sy, L21, dx, xo, So, ll, ww, status, X1 = out
-        Rs = self.stacked(Ro, 1)
+        kept = self._noise.get(1)
+        Rs = kept[1] if kept is not None and kept[0] is Ro else self.stacked(Ro, 1)
         Xs = sset.offsets if route.offsets else sset.sigmas
         f = Xs.flags
         if not (f.c_contiguous and f.writeable and Xs.dtype is _FLOAT64):  # a user generator's set
             Xs = kernels.kernel_array(Xs)
         kernels.KERNELS.joint_update(
-            H, self.zeros(m), Xs, x if route.xref else self.zeros(n), z, Rs, x, route.mode, route.wm,
+            H, self.zeros[m], Xs, x if route.xref else self.zeros[n], z, Rs, x, route.mode, route.wm,
             route.scale, route.sign, route.pair, *out[:11], plan.xi1, plan.gamma1, X1,
         )  # fmt: skip
         if whole is not None:
             status[~np.isfinite(whole).reshape(B, -1).all(axis=1)] = NOT_FINITE_IMAGES
         if np.count_nonzero(status):
             status = singular_allowed(status, S, Rs)
-        update = Update(xo, So, y, Sy, L21, ll, ww, observed, _none_rejected(y.shape), None, m_all)
+        update = Update(xo, So, y, Sy, L21, ll, ww, observed, _NONE_REJECTED[y.shape], None, m_all)
         return update, status, (X1 if draw else None)
 
     def form_of(self, sset: SigmaSet, UT) -> RowForm | None:
@@ -671,6 +677,9 @@ class Block:
     __slots__ = ()
     defers = False
 
+    def __reduce__(self) -> str:
+        return "BLOCK"  # the one runner, by name: a pickled engine gets it back (``run is BLOCK``)
+
     @staticmethod
     def prior(route: Route, x, S, F, X, Q1_2, UT, name: str, buffers: Buffers, held: tuple) -> tuple:
         """The numerics of a prediction: the prior and its second set (nothing committed).
@@ -681,8 +690,9 @@ class Block:
         x : ndarray, shape (B, n)
         S : ndarray, shape (B, n, n)
             The estimate predicted from (the images are its first set's, ``X``).
-        F : array_like, shape (B, N, n) (single: (N, n))
-            The model's images at ``X`` (checked here).
+        F : ndarray, shape (B, N, n)
+            The model's images at ``X`` (as the engine read them: float64, C-contiguous, a private copy
+            where the plan keeps them).
         X : ndarray, shape (B, N, n)
         Q1_2, UT, name
             As :meth:`Engine.tell_predict` takes them.
@@ -700,7 +710,6 @@ class Block:
             (What a deferred draw reads: nothing, the set is drawn.)
         """
         keep = route.plan.keeps_propagated
-        F = _images(F, X.shape, name, keep, route.single)
         mean, S, status, sset = route.prior(F, Q1_2, UT, True, name, buffers)
         if np.count_nonzero(status):
             code = first_status(status)
@@ -718,8 +727,10 @@ class Block:
         route : Route
         pending : tuple
             :meth:`Engine.pending_update`'s.
-        H, z, observed, R1_2, UT, name
-            As :meth:`Engine.tell_update` takes them (``H`` checked here).
+        H : ndarray, shape (B, N2, m)
+            The images, as the engine read them (a private copy).
+        z, observed, R1_2, UT, name
+            As :meth:`Engine.tell_update` takes them.
         buffers : Buffers
         held : tuple of ndarray
 
@@ -732,7 +743,6 @@ class Block:
             The images as read (the record of ``sigmas_h``).
         """
         (xp, Sp), sset, _ = pending
-        H = _images(H, sset.sigmas.shape[:-1] + (z.shape[-1],), name, True, route.single)
         if route.single:
             z = z[None]
         tested, status, X1 = route.posterior(sset, xp, Sp, H, z, observed, R1_2, UT, True, name, buffers)
@@ -888,10 +898,6 @@ class Engine:
             self.phase = IDLE
             self.X = None
 
-    def _held(self) -> tuple:
-        """The arrays the committed records hold (a step writes none of them)."""
-        return (self.x, self.S, *self.prior_record, *self.post_record)
-
     # -- the prediction -------------------------------------------------------------------------
 
     def first_set(self) -> np.ndarray:
@@ -942,16 +948,21 @@ class Engine:
             route, X = self.step_route, self.X
         else:
             route, X = self.route, points
+        if self.run is BLOCK:  # the images of the whole block, read as the kernels take them
+            assert X is not None
+            F = _images(F, X.shape, name, route.plan.keeps_propagated, route.single)
         buffers = self._buffers
-        buffers.abandon()
+        buffers.taken.clear()  # (abandon(): what a failed call took is written again)
+        held = (self.x, self.S, *self.prior_record, *self.post_record)  # what the step must not write
         limit = blas.MIN_DIM
         if limit is not None and route.plan.n >= limit:
             with blas.one_blas_thread():
-                done = self.run.prior(route, self.x, self.S, F, X, Q1_2, UT, name, buffers, self._held())
+                done = self.run.prior(route, self.x, self.S, F, X, Q1_2, UT, name, buffers, held)
         else:
-            done = self.run.prior(route, self.x, self.S, F, X, Q1_2, UT, name, buffers, self._held())
-        # commit
-        buffers.commit()
+            done = self.run.prior(route, self.x, self.S, F, X, Q1_2, UT, name, buffers, held)
+        for pair in buffers.taken:  # commit(): the sets taken hold the committed records now
+            pair[2] ^= 1
+        buffers.taken.clear()
         mean, S, sset, later = done
         self.step_route = route
         self.x, self.S = mean, S
@@ -1027,20 +1038,23 @@ class Engine:
                 )
             pending = (self.prior, self.sset, self.later)
         route = self.route
+        if self.run is BLOCK:  # the images of the whole block, read as the kernels take them
+            sset = pending[1]
+            H = _images(H, sset.sigmas.shape[:-1] + (z.shape[-1],), name, True, route.single)
         buffers = self._buffers
-        buffers.abandon()
+        buffers.taken.clear()  # (abandon(): what a failed call took is written again)
+        held = (self.x, self.S, *self.prior_record, *self.post_record)  # what the step must not write
         limit = blas.MIN_DIM
         if limit is not None and route.plan.n >= limit:
             with blas.one_blas_thread():
                 update, X1, H = self.run.posterior(
-                    route, pending, H, z, observed, R1_2, UT, name, buffers, self._held()
+                    route, pending, H, z, observed, R1_2, UT, name, buffers, held
                 )
         else:
-            update, X1, H = self.run.posterior(
-                route, pending, H, z, observed, R1_2, UT, name, buffers, self._held()
-            )
-        # commit
-        buffers.commit()
+            update, X1, H = self.run.posterior(route, pending, H, z, observed, R1_2, UT, name, buffers, held)
+        for pair in buffers.taken:  # commit(): the sets taken hold the committed records now
+            pair[2] ^= 1
+        buffers.taken.clear()
         prior, sset, later = pending
         if sset is not self.sset:
             self.step_route = route
@@ -1080,16 +1094,16 @@ def _gain(Sy: np.ndarray, L21: np.ndarray) -> np.ndarray:
     return gain_from_factors(Sy, L21)
 
 
-_NONE_REJECTED: dict[tuple, np.ndarray] = {}
+class _NoneRejected(dict):
+    """All False, read-only, by shape: the record of an update without a gate (made once per shape)."""
 
-
-def _none_rejected(shape: tuple) -> np.ndarray:
-    """All False, read-only: the record of an update without a gate (made once per shape)."""
-    a = _NONE_REJECTED.get(shape)
-    if a is None:
-        a = _NONE_REJECTED[shape] = np.zeros(shape, dtype=bool)
+    def __missing__(self, shape: tuple) -> np.ndarray:
+        a = self[shape] = np.zeros(shape, dtype=bool)
         a.setflags(write=False)
-    return a
+        return a
+
+
+_NONE_REJECTED = _NoneRejected()
 
 
 def _described(code: int, images: np.ndarray, status: np.ndarray, name: str) -> SqukfError | None:

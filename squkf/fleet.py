@@ -641,13 +641,17 @@ class Fleet:
         """``images(rows, X)``: ``fx`` at the first sets ``X`` of the filters ``rows``, arguments cut."""
         kwargs = checks.with_filter_axis(fx_args, self._K) if fx_args else fx_args
         K, plan, Q = self._K, self._plan, self._Q1_2
-        fx = self.fx
+        fx = self.__dict__["fx"]  # (as the descriptor reads it)
 
         def images(rows: slice, X: np.ndarray):
             kw = checks.chunk_args(kwargs, K, rows) if kwargs else kwargs
             # the points themselves: the step reads only their shape afterwards
             W = None if plan.w_xi is None else noise_points(plan.w_xi, rows_of(Q, rows, 2), (X.shape[0],))
-            return checks.call_stack(fx, "fx", X, W, (dt,), kw)
+            try:
+                return fx(X, dt, **kw) if W is None else fx(X, W, dt, **kw)
+            except Exception as exc:
+                checks.note_stack_call(exc, "fx", X, W)
+                raise
 
         return images
 
@@ -655,23 +659,26 @@ class Fleet:
         """``images(rows, sset)``: ``hx`` at the second sets of the filters ``rows``, arguments cut."""
         kwargs = checks.with_filter_axis(hx_args, self._K) if hx_args else hx_args
         K, plan = self._K, self._plan
-        hx = self.hx
+        hx = self.__dict__["hx"]  # (as the descriptor reads it)
 
         def images(rows: slice, sset):
             kw = checks.chunk_args(kwargs, K, rows) if kwargs else kwargs
             k = sset.sigmas.shape[0]
             V = None if plan.v_xi is None else noise_points(plan.v_xi, rows_of(R1_2, rows, 2), (k,))
-            return checks.call_stack(hx, "hx", sset.sigmas.copy(), V, (), kw)
+            X = sset.sigmas.copy()  # hx gets its own copy: the update reads the set
+            try:
+                return hx(X, **kw) if V is None else hx(X, V, **kw)
+            except Exception as exc:
+                checks.note_stack_call(exc, "hx", X, V)
+                raise
 
         return images
 
     def _step_of(self, images: Callable) -> Step:
-        """The engine's call for a half step (its runner's, ``stacks.Chunks``): the filters to step, and
-        those flagged for an ``x`` or ``P`` not set (an all-NaN row), with the reason."""
+        """The engine's call for a half step (its runner's, ``stacks.Chunks``) when some ``x`` or ``P`` is not
+        set (an all-NaN row): those filters are flagged, with the reason, and the others stepped."""
         unset = self._unset_x | self._unset_P
         fails: dict[int, str] = {}
-        if not unset.any():
-            return Step(images, ~self._failed, fails, self._chunk, self.on_error == "raise")
         for k in np.flatnonzero(unset & ~self._failed).tolist():
             names = " and ".join(name for name, u in (("x", self._unset_x), ("P", self._unset_P)) if u[k])
             fails[k] = f"{names} of filter {k} was never set (a placeholder, all NaN): assign it, reset({k})"
@@ -679,7 +686,10 @@ class Fleet:
 
     def _predict(self, images: Callable, whole: bool) -> None:
         """A prediction (``whole``: its points drawn a chunk at a time; else those of the pending ask)."""
-        step = self._step_of(images)
+        if self._unset_x.any() or self._unset_P.any():
+            step = self._step_of(images)
+        else:  # (the usual step, built here)
+            step = Step(images, ~self._failed, {}, self._chunk, self.on_error == "raise")
         Q = None if self._plan.w_xi is not None else self._Q1_2  # noise entering fx is in the points already
         self._engine.tell_predict(step, Q, None, None, "fx values", whole)
         # committed: the arrays handed out for the old estimate are history, the failing filters flagged
@@ -691,7 +701,10 @@ class Fleet:
 
     def _update(self, images: Callable, z: np.ndarray, R1_2, pending: tuple | None) -> None:
         """An update (``pending``: the engine's pending update of a whole call; None: the asked one)."""
-        step = self._step_of(images)
+        if self._unset_x.any() or self._unset_P.any():
+            step = self._step_of(images)
+        else:  # (the usual step, built here)
+            step = Step(images, ~self._failed, {}, self._chunk, self.on_error == "raise")
         if self._plan.v_xi is not None:  # noise entering hx is in the points: the update adds none
             R1_2 = np.zeros((self._m, self._m))
         self._engine.tell_update(step, z, None, R1_2, None, pending)

@@ -53,6 +53,8 @@ __all__ = [
     "take_set",
 ]
 
+_FLOAT64 = np.dtype(np.float64)
+
 #: Filters per chunk of a fleet's step on one thread (their arrays stay in cache; see the module docstring).
 CHUNK = 2048
 
@@ -239,15 +241,17 @@ def _second_size(plan, Q1_2) -> int:
     return fused.xi.shape[0] + (N if fused.augmented else 0)
 
 
-def _statuses(k: int) -> tuple:
-    return (np.empty(k, dtype=np.int64),)
+def _chunk_prior(k: int, N: int, n: int) -> tuple:
+    """A chunk's first set ``(k, N, n)`` and the transform kernel's statuses."""
+    return np.empty((k, N, n)), np.empty(k, dtype=np.int64)
 
 
 def _chunk_update(k: int, n: int, m: int) -> tuple:
-    """The joint kernel's outputs a chunk does not keep: ``zp, w, Sy, L21, dx, status``."""
+    """A chunk's rows of ``z``, and the joint kernel's outputs it does not keep: ``zp, w, Sy, L21, dx,
+    status``."""
     return (
-        np.empty((k, m)), np.empty((k, m)), np.empty((k, m, m)), np.empty((k, n, m)), np.empty((k, n)),
-        np.empty(k, dtype=np.int64),
+        np.empty((k, m)), np.empty((k, m)), np.empty((k, m)), np.empty((k, m, m)), np.empty((k, n, m)),
+        np.empty((k, n)), np.empty(k, dtype=np.int64),
     )  # fmt: skip
 
 
@@ -441,6 +445,9 @@ class Chunks:
     __slots__ = ()
     defers = True  # the second set is drawn at the update, a chunk at a time: no (K, N2, n) set is kept
 
+    def __reduce__(self) -> str:
+        return "CHUNKS"  # the one runner, by name
+
     @staticmethod
     def prior(route: Route, x, S, step: Step, first, Q1_2, UT, name: str, buffers: Buffers, held: tuple):
         """The prediction of the fleet's filters, a chunk at a time (nothing committed).
@@ -487,17 +494,17 @@ class Chunks:
             xs, Ss = x[rows], S[rows]  # (the engine's C-contiguous arrays: their rows are as kernels take)
             free = _spare.free
             scratch = free.pop() if free else Scratch()  # this chunk's alone, until given back (_Spare)
-            X = route.first_points(xs, Ss, scratch) if first is None else first[rows]
-            label = "fx values" if rows.stop - rows.start == K else _label("fx values", rows, K)
-            F = stacked_shape(images(rows, X), X.shape, label, False, ("fx", X.shape))
-            f = F.flags  # (a model's array of another layout: copied once, as the kernels take it)
-            if not (f.c_contiguous and f.writeable):
-                F = kernels.kernel_array(F)
+            X, status = scratch.take(_chunk_prior, xs.shape[0], N, n)
+            X = route.first_points(xs, Ss, X) if first is None else first[rows]
+            F = images(rows, X)
+            f = F.flags if type(F) is np.ndarray and F.dtype == _FLOAT64 and F.shape == X.shape else None
+            if f is None or not (f.c_contiguous and f.writeable):  # checked, copied once as kernels take it
+                label = "fx values" if rows.stop - rows.start == K else _label("fx values", rows, K)
+                F = kernels.kernel_array(stacked_shape(F, X.shape, label, False, ("fx", X.shape)))
             on = active[rows]
             Qr = Q1_2 if Q1_2 is None or Q1_2.ndim == 2 else Q1_2[rows]
             xo, So = x_new[rows], S_new[rows]
             if route.plain_x:  # the kernel checks the images and reports each filter's failure
-                status = scratch.take(_statuses, xs.shape[0])[0]
                 route.prior(F, Qr, None, False, out=(xo, So, status, none, none))  # into the step's results
                 if np.count_nonzero(status) or not on.all():
                     bad = ~_flag(status, on, found, form, "prior", F, "fx values")
@@ -566,6 +573,7 @@ class Chunks:
 
         def one(rows: slice) -> dict[int, str]:
             found: dict[int, str] = {}
+            k = rows.stop - rows.start
             xs, Ss = x[rows], S[rows]  # (the engine's C-contiguous arrays: their rows are as kernels take)
             free = _spare.free
             scratch = free.pop() if free else Scratch()  # this chunk's alone, until given back (_Spare)
@@ -573,25 +581,37 @@ class Chunks:
                 s = take_set(sset, rows)
             else:
                 prop = None if propagated is None else propagated[rows]
-                s = route.second_set(xs, Ss, prop, rows_of(Q1_2, rows, 2), scratch)
+                Qr = Q1_2 if Q1_2 is None or Q1_2.ndim == 2 else Q1_2[rows]
+                s = route.second_set(xs, Ss, prop, Qr, scratch)
             shape = s.sigmas.shape[:-1] + (m,)
-            label = "hx values" if rows.stop - rows.start == K else _label("hx values", rows, K)
-            H = stacked_shape(images(rows, s), shape, label, False, ("hx", s.sigmas.shape))
-            f = H.flags
-            if not (f.c_contiguous and f.writeable):
-                H = kernels.kernel_array(H)
+            H = images(rows, s)
+            f = H.flags if type(H) is np.ndarray and H.dtype == _FLOAT64 and H.shape == shape else None
+            if f is None or not (f.c_contiguous and f.writeable):  # checked, copied once as kernels take it
+                label = "hx values" if k == K else _label("hx values", rows, K)
+                H = kernels.kernel_array(stacked_shape(H, shape, label, False, ("hx", s.sigmas.shape)))
             # the chunk's rows of z in its own array, checked as read: what the kernels use is what
             # was checked, even if the model functions wrote into the caller's z (and no (K, m) copy)
-            zr = scratch.take(_rows_of_z, rows.stop - rows.start, m)[0]
+            zr, zp, w, Sy, L21, dx, status = scratch.take(_chunk_update, k, n, m)
             np.copyto(zr, z[rows])
-            obs = ~np.isnan(zr)
             if np.isinf(zr).any():
-                k = rows.start + int(np.flatnonzero(np.isinf(zr).any(axis=1))[0])
-                raise NonFiniteError(f"z contains inf (row {k}; NaN means a missing component)")
+                i = rows.start + int(np.flatnonzero(np.isinf(zr).any(axis=1))[0])
+                raise NonFiniteError(f"z contains inf (row {i}; NaN means a missing component)")
+            obs = ~np.isnan(zr)
             on = active[rows] & obs.any(axis=1)
             Rr = R1_2 if R1_2.ndim == 2 else R1_2[rows]
-            part = out if rows.stop - rows.start == K else [a[rows] for a in out]
-            _chunk(route, s, xs, Ss, H, zr, obs, Rr, on, found, part, scratch)
+            part = out if k == K else [a[rows] for a in out]
+            joint = route.update_route(s, None)
+            if joint is not None and route.gate is None and obs.all():  # the usual case: one kernel call
+                xo, So, y, ll, nis, rejected = part  # written by the kernel, into the step's records
+                kernel_out = (zp, y, w, Sy, L21, dx, xo, So, ll, nis, status, route.no_set)
+                route.posterior(s, xs, Ss, H, zr, None, Rr, None, False, out=kernel_out)
+                rejected[...] = False
+                if np.count_nonzero(status) or not on.all():  # a failing or inactive filter keeps its prior
+                    bad = ~_flag(status, on, found, joint.form, "update", H, "hx values")
+                    xo[bad], So[bad] = xs[bad], Ss[bad]
+                    y[bad], ll[bad], nis[bad] = np.nan, 0.0, 0.0
+            else:
+                _grouped(route, joint, s, xs, Ss, H, zr, obs, Rr, on, found, part)
             free.append(scratch)
             return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
 
@@ -606,33 +626,12 @@ class Chunks:
 CHUNKS = Chunks()
 
 
-def _measured_update(route: Route, joint, sset, x0, S0, H, z, R1_2, on, found, out, scratch: Scratch) -> None:
-    """A chunk's update with every component measured and no gate, the joint kernel writing the step's
-    arrays ``out`` (``x, S, y, loglik, nis, rejected`` rows) directly; a failing or inactive filter keeps its
-    prior, with no innovation and no likelihood. ``joint``: the route's update route."""
-    x, S, y, ll, nis, rejected = out
-    k, m = z.shape
-    n = x0.shape[1]
-    zp, w, Sy, L21, dx, status = scratch.take(_chunk_update, k, n, m)
-    kernel_out = (zp, y, w, Sy, L21, dx, x, S, ll, nis, status, route.no_set)
-    route.posterior(sset, x0, S0, H, z, None, R1_2, None, False, out=kernel_out)
-    rejected[...] = False
-    if np.count_nonzero(status) or not on.all():
-        bad = ~_flag(status, on, found, joint.form, "update", H, "hx values")
-        x[bad], S[bad] = x0[bad], S0[bad]
-        y[bad], ll[bad], nis[bad] = np.nan, 0.0, 0.0
-
-
-def _chunk(route: Route, sset, x0, S0, H, z, observed, R1_2, todo, found, out, scratch: Scratch) -> None:
-    """A chunk's update through the gate, written into its rows ``out`` of the step's records
-    (``x, S, y, loglik, nis, rejected``): the filters grouped by their measured components, each group
-    through :meth:`Route.posterior` and :meth:`Route.gated` as one filter's update is; a filter no update
-    reaches keeps its prior, with no innovation and no likelihood."""
-    joint = route.update_route(sset, None)
-    if joint is not None and route.gate is None and observed.all():  # the usual case: into the step's
-        _measured_update(route, joint, sset, x0, S0, H, z, R1_2, todo, found, out, scratch)
-        return
-    k, m = z.shape
+def _grouped(route: Route, joint, sset, x0, S0, H, z, observed, R1_2, todo, found, out) -> None:
+    """A chunk's update through the gate or with missing components (or on a route that raises),
+    written into its rows ``out`` of the step's records (``x, S, y, loglik, nis, rejected``): the filters
+    grouped by their measured components, each group through :meth:`Route.posterior` and
+    :meth:`Route.gated` as one filter's update is; a filter no update reaches keeps its prior, with no
+    innovation and no likelihood. ``joint``: the set's update route (None: the hooks' or a ``UT``'s)."""
     if joint is None:  # the hooks raise: images that are not finite flagged first
         todo = todo & finite_images(H, "hx values", todo, found)
     x, S, y, ll, nis, rej = out
@@ -685,10 +684,6 @@ def _isolated(route: Route, s, x0, S0, H, z, mask, R1_2, found: dict[int, str]):
 def _records(update: Update) -> tuple:
     """What a fleet keeps of a group's update, per filter: ``x, S, y, loglik, nis, rejected``."""
     return update.x, update.S, update.y, update.log_likelihood, update.nis, update.rejected
-
-
-def _rows_of_z(k: int, m: int) -> tuple:
-    return (np.empty((k, m)),)
 
 
 def _one_or_all(route: Route, ix):
