@@ -1,7 +1,8 @@
 """The engine: the step of a block of B filters, its routes fixed by the plan, the kernels called directly.
 
-One filter is a block of one (:class:`squkf.SquareRootUKF`); a fleet's chunk is
-a block of B (:mod:`squkf.stacks`). The step, as data::
+One filter is a block of one (:class:`squkf.SquareRootUKF`, its phases run by
+:data:`BLOCK`); a fleet is a block of K (:class:`squkf.Fleet`, its phases run a
+chunk at a time on threads by :data:`squkf.stacks.CHUNKS`). The step, as data::
 
     x, S --points--> X --fx--> F --prior + second set--> Y --hx--> H --posterior + first set--> x, S
 

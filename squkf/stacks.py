@@ -1,12 +1,14 @@
-"""A fleet's step, a chunk of filters at a time: the engine's route on each chunk, failures flagged alone.
+"""A fleet's step, a chunk of filters at a time: the runner of a fleet's engine, failures flagged alone.
 
-A step of K filters runs chunk by chunk, at most ``Fleet.chunk`` filters each
-(by default :func:`default_chunk`, :data:`CHUNK` on one thread): a chunk's
-first set is drawn, the model is called with the chunk's points, and the
-chunk's prior computed (a prediction); or its second set is drawn, the model
-called, and its posterior computed (an update). Each is a phase of the
-engine's :class:`~squkf.engine.Route` on a block of the chunk's filters, the
-same kernels as one filter's step. The step's temporary arrays are then the
+A fleet's :class:`~squkf.engine.Engine` keeps its pending step and commits;
+how its phases run is :class:`Chunks` (:data:`CHUNKS`). A step of K filters
+runs chunk by chunk, at most ``Fleet.chunk`` filters each (by default
+:func:`default_chunk`, :data:`CHUNK` on one thread): a chunk's first set is
+drawn, the model is called with the chunk's points, and the chunk's prior
+computed (a prediction); or its second set is drawn, the model called, and
+its posterior computed (an update). Each is a phase of the engine's
+:class:`~squkf.engine.Route` on a block of the chunk's filters, the same
+kernels as one filter's step. The step's temporary arrays are then the
 size of a chunk, not of the fleet, and the chunks can run on the threads of
 :func:`squkf.set_num_threads`. Each filter's arithmetic is its own, so its
 numbers are the same, bit for bit, whatever chunk or thread it is in.

@@ -16,11 +16,15 @@ alone. (The linalg functions' stacked forms: tests/test_linalg.py.)
 
 from __future__ import annotations
 
+import os
+import sys
+
 import numpy as np
 import pytest
 from filterpy.kalman import MerweScaledSigmaPoints
-from models import heading_fx, l96_fx, l96_hx, xy_radar_hx
+from models import cv_fleet, cv_single, heading_fx, l96_fx, l96_hx, range_bearing_hx, xy_radar_hx
 
+import squkf
 from squkf import (
     Augmented,
     CubatureWeights,
@@ -572,3 +576,47 @@ def test_every_route_reads_the_kernel_table(monkeypatch):
     monkeypatch.setattr(kernels, "KERNELS", table)
     for a, b in zip(_every_route(hooked, fleet()), expected):
         np.testing.assert_array_equal(a, b)
+
+
+def _python_calls(step) -> int:
+    """The Python calls ``step()`` makes in squkf's own files (``sys.setprofile``'s call events)."""
+    root = os.path.dirname(os.path.abspath(squkf.__file__)) + os.sep
+    count = 0
+
+    def profile(frame, event, arg):
+        nonlocal count
+        if event == "call" and frame.f_code.co_filename.startswith(root):
+            count += 1
+
+    sys.setprofile(profile)
+    try:
+        step()
+    finally:
+        sys.setprofile(None)
+    return count
+
+
+def test_a_steady_step_makes_few_python_calls():
+    """Counted, not timed: one filter's vectorised predict + update makes at most 32 calls in squkf's
+    files, and a fleet's step of one chunk at most 40 (both faces on the engine, issue 36;
+    ``benchmarks/python_per_step.py`` says where they go)."""
+    x0 = np.array([1000.0, 5.0, 1500.0, -3.0])
+    f, fleet = cv_single(MerweScaledWeights()), cv_fleet(500, MerweScaledWeights())
+    for g in (f, fleet):
+        g.x, g.P, g.Q, g.R = x0, np.diag([900.0, 4, 900, 4]), 0.01 * np.eye(4), np.diag([25.0, 4e-6])
+    z = range_bearing_hx(x0)
+    zs = np.tile(z, (500, 1))
+
+    def single():
+        f.predict()
+        f.update(z)
+
+    def many():
+        fleet.predict()
+        fleet.update(zs)
+
+    for _ in range(3):  # the routes decided, the buffers made
+        single()
+        many()
+    assert _python_calls(single) <= 32
+    assert _python_calls(many) <= 40
