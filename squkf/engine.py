@@ -254,12 +254,15 @@ class Scratch(Buffers):
         key = (make, *args)
         made = self.sets.get(key)
         if made is None or made[0] < B:
-            made = self.sets[key] = [B, make(B, *args)]
-        size, arrays = made
+            made = self.sets[key] = [B, make(B, *args), {}]
+        size, arrays, smaller = made
         if size == B:
             return arrays
-        # the leading rows of a C-contiguous array are C-contiguous: the kernels take them as they are
-        return tuple(a[:B] if a.shape[:1] == (size,) else a for a in arrays)
+        rows = smaller.get(B)  # (made once per smaller size: a steady step makes no view)
+        if rows is None:
+            # the leading rows of a C-contiguous array are C-contiguous: the kernels take them as they are
+            rows = smaller[B] = tuple(a[:B] if a.shape[:1] == (size,) else a for a in arrays)
+        return rows
 
 
 def _prior_out(B: int, n: int, N2: int, offsets: bool) -> tuple:
@@ -952,9 +955,11 @@ class Engine:
         if self.run is BLOCK:  # the images of the whole block, read as the kernels take them
             assert X is not None
             F = _images(F, X.shape, name, route.plan.keeps_propagated, route.single)
+            held: tuple = ()
+        else:  # what the step must not write: the arrays the records hold
+            held = (self.x, self.S, *self.prior_record, *self.post_record)
         buffers = self._buffers
         buffers.taken.clear()  # (abandon(): what a failed call took is written again)
-        held = (self.x, self.S, *self.prior_record, *self.post_record)  # what the step must not write
         limit = blas.MIN_DIM
         if limit is not None and route.plan.n >= limit:
             with blas.one_blas_thread():
@@ -1042,9 +1047,11 @@ class Engine:
         if self.run is BLOCK:  # the images of the whole block, read as the kernels take them
             sset = pending[1]
             H = _images(H, sset.sigmas.shape[:-1] + (z.shape[-1],), name, True, route.single)
+            held: tuple = ()
+        else:  # what the step must not write: the arrays the records hold
+            held = (self.x, self.S, *self.prior_record, *self.post_record)
         buffers = self._buffers
         buffers.taken.clear()  # (abandon(): what a failed call took is written again)
-        held = (self.x, self.S, *self.prior_record, *self.post_record)  # what the step must not write
         limit = blas.MIN_DIM
         if limit is not None and route.plan.n >= limit:
             with blas.one_blas_thread():

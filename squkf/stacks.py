@@ -638,13 +638,20 @@ def _grouped(route: Route, joint, sset, x0, S0, H, z, observed, R1_2, todo, foun
         todo = todo & finite_images(H, "hx values", todo, found)
     x, S, y, ll, nis, rej = out
     x[...], S[...], y[...], ll[...], nis[...], rej[...] = x0, S0, np.nan, 0.0, 0.0, False
-    todo_idx = np.flatnonzero(todo)
-    patterns, which = np.unique(observed[todo], axis=0, return_inverse=True)
-    which = which.reshape(-1)
-    for p, obs in enumerate(patterns):
-        ix = todo_idx[which == p]
-        mask = None if obs.all() else obs
-        s, xi, Si, Hi, zi, Ri = take_set(sset, ix), x0[ix], S0[ix], H[ix], z[ix], rows_of(R1_2, ix, 2)
+    groups: list[tuple[np.ndarray, np.ndarray | slice, np.ndarray | None]]
+    if todo.all() and observed.all():  # (a gate's usual chunk: one group, the chunk's arrays as they are)
+        groups = [(np.arange(todo.size), slice(None), None)]
+    else:
+        todo_idx = np.flatnonzero(todo)
+        patterns, which = np.unique(observed[todo], axis=0, return_inverse=True)
+        which = which.reshape(-1)
+        groups = []
+        for p, obs in enumerate(patterns):
+            ix = todo_idx[which == p]
+            groups.append((ix, ix, None if obs.all() else obs))
+    for ix, sel, mask in groups:
+        s = sset if isinstance(sel, slice) else take_set(sset, ix)
+        xi, Si, Hi, zi, Ri = x0[sel], S0[sel], H[sel], z[sel], rows_of(R1_2, sel, 2)
         found_rows: dict[int, str] = {}
         if joint is not None:  # the kernels report each filter's failure
             post, status, _ = route.posterior(s, xi, Si, Hi, zi, mask, Ri, None, False)
