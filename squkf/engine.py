@@ -91,6 +91,8 @@ class Update(NamedTuple):
         The gain applied when the gate rejected something (None: ``L21 Sy^-1``).
     m : int
         The measurement's length.
+    w : ndarray, shape (B, mo)
+        The whitened innovation ``Sy^-1 y`` of the innovation tested (``nis`` is its squared norm).
     """
 
     x: np.ndarray
@@ -104,6 +106,7 @@ class Update(NamedTuple):
     rejected: np.ndarray
     K: np.ndarray | None
     m: int
+    w: np.ndarray
 
 
 class _Joint(NamedTuple):
@@ -542,7 +545,9 @@ class Route:
                 post = Posterior(*(a[None] for a in post))
             none = _none_rejected(post.y.shape)
             ll, nis = post.log_likelihood, post.nis
-            update = Update(post.x, post.S, post.y, post.Sy, post.L21, ll, nis, observed, none, None, m_all)
+            update = Update(
+                post.x, post.S, post.y, post.Sy, post.L21, ll, nis, observed, none, None, m_all, post.w
+            )
             return update, np.zeros(B, dtype=np.int64), None
         Ro = R1_2
         whole = None
@@ -573,7 +578,7 @@ class Route:
             status[~np.isfinite(whole).reshape(B, -1).all(axis=1)] = NOT_FINITE_IMAGES
         if np.count_nonzero(status):
             status = singular_allowed(status, S, Rs)
-        update = Update(xo, So, y, Sy, L21, ll, ww, observed, _none_rejected(y.shape), None, m_all)
+        update = Update(xo, So, y, Sy, L21, ll, ww, observed, _none_rejected(y.shape), None, m_all, w)
         return update, status, (X1 if draw else None)
 
     def form_of(self, sset: SigmaSet, UT) -> RowForm | None:
@@ -632,7 +637,7 @@ class Route:
                 Kp = np.zeros((ix.size, n, mo))
                 Kp[:, :, ~pattern] = _gain(part.Sy, part.L21)
                 K[ix] = Kp
-        return Update(x, S, post.y, post.Sy, post.L21, ll, post.nis, observed, rejected, K, m), status
+        return Update(x, S, post.y, post.Sy, post.L21, ll, post.nis, observed, rejected, K, m, post.w), status
 
 
 class Engine:

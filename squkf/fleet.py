@@ -307,6 +307,7 @@ class Fleet:
         self._loglik = np.zeros(K)
         self._nis = np.zeros(K)
         self._rejected = np.zeros((K, m), dtype=bool)
+        self._y_whitened, self._log_det = np.zeros((K, m)), np.zeros(K)
         self.chunk = chunk
 
     # -- configuration and sizes ----------------------------------------------
@@ -537,6 +538,23 @@ class Fleet:
     def nis(self) -> np.ndarray:
         """Normalised innovation squared of each filter's last update, shape ``(K,)`` (a copy)."""
         return self._nis.copy()
+
+    @property
+    def y_whitened(self) -> np.ndarray:
+        """Whitened innovations ``S1_2^-1 y`` of the last update, shape ``(K, dim_z)`` (a copy).
+
+        NaN where a component was not measured (or a filter not updated); ``nis`` is each row's squared
+        norm, as :attr:`SquareRootUKF.y_whitened`.
+        """
+        return self._y_whitened.copy()
+
+    @property
+    def log_det_S1_2(self) -> np.ndarray:
+        """``log det S1_2`` of each filter's last update (its measured block), shape ``(K,)`` (a copy).
+
+        0 where a filter was not updated.
+        """
+        return self._log_det.copy()
 
     @property
     def rejected(self) -> np.ndarray:
@@ -779,6 +797,7 @@ class Fleet:
         self._x_post, self._S_post = post.x, post.S  # not written while held (_held): copied when read
         self._y, self._loglik = post.y, post.log_likelihood
         self._nis, self._rejected = post.nis, post.rejected
+        self._y_whitened, self._log_det = post.y_whitened, post.log_det_S1_2
 
     def _no_update(self) -> None:
         """The records of a step in which no filter had a measurement, as :meth:`update` would leave them."""
@@ -788,11 +807,12 @@ class Fleet:
         self._x_post, self._S_post = self._x.copy(), self._S.copy()
         self._y, self._loglik = np.full((K, m), np.nan), np.zeros(K)
         self._nis, self._rejected = np.zeros(K), np.zeros((K, m), dtype=bool)
+        self._y_whitened, self._log_det = np.full((K, m), np.nan), np.zeros(K)
 
     # -- many steps ---------------------------------------------------------------
 
     def batch_filter(
-        self, zs, *, dts=None, keep: str = "all", fx_args=None, hx_args=None, progress=False
+        self, zs, *, dts=None, keep: str | tuple[str, ...] = "all", fx_args=None, hx_args=None, progress=False
     ) -> FleetResult:
         """Filter ``T`` steps of measurements for every filter.
 
@@ -810,9 +830,12 @@ class Fleet:
         dts : float or array_like of shape (T,), optional
             Time step of each prediction (default: the constructor's), as
             :ref:`promise-dt` says.
-        keep : {"all", "diagonals", "means", "final"}
+        keep : {"all", "diagonals", "means", "final"} or tuple
             What to store: everything; means and the covariances' diagonals;
-            means only; or only the final state (for long runs).
+            means only; or only the final state (for long runs). A tuple of
+            one of the first three and ``"whitened"`` (``("means", "whitened")``)
+            keeps each step's whitened innovations and ``log det S1_2`` too
+            (``FleetResult.y_whitened``, ``log_det_S1_2``).
         fx_args, hx_args : dict, optional
             Passed to ``fx`` and ``hx`` at every step, and to nothing else: a
             key that names an argument of the step (``dt``, ``z``, ``R``, ...,
@@ -827,7 +850,7 @@ class Fleet:
             The fleet itself is left after the last step, as after a loop of
             ``predict`` and ``update``; an error leaves it as it was before the call.
         """
-        check_keep(keep)
+        state, whitened = check_keep(keep)
         check_progress(progress)
         Z = checks.measurement_series(zs, self._K, self._m)
         T = Z.shape[1]
@@ -835,7 +858,7 @@ class Fleet:
         Z = np.ascontiguousarray(np.swapaxes(Z, 0, 1))
         dt_list = per_step(dts, T, "dts", "dt", default=self._dt, ref="zs")
         fx_args, hx_args = model_kwargs(fx_args, "fx_args"), model_kwargs(hx_args, "hx_args")
-        records = new_records(keep, self._K, T, self._n, self._m)
+        records = new_records(state, self._K, T, self._n, self._m, whitened)
         self._take_edits()
         bar, callback = progress_callback(progress, T)
         t = 0
@@ -854,7 +877,7 @@ class Fleet:
         r = records
         return FleetResult(
             r.means, r.factors, r.variances, r.loglik, self._failed.copy(), self._x.copy(), self._S.copy(),
-            r.rejected, r.nis,
+            r.rejected, r.nis, r.y_whitened, r.log_det,
         )  # fmt: skip
 
     def _step(self, t: int, z: np.ndarray, dt: float, fx_args: dict, hx_args: dict, records: Records) -> None:
@@ -866,7 +889,9 @@ class Fleet:
         else:
             self._take_edits()
             self._update(self._pending_update(), self._hx_images(self._R1_2, hx_args), z, self._R1_2)
-        records.keep(t, self._x, self._S, self._loglik, self._rejected, self._nis)
+        records.keep(
+            t, self._x, self._S, self._loglik, self._rejected, self._nis, self._y_whitened, self._log_det
+        )
 
     def transaction(self) -> Transaction:
         """A context manager that puts the fleet back as it was on entry if anything inside raises.
@@ -946,6 +971,7 @@ class Fleet:
         new._S_prior, new._S_post = self._S_prior[idx], self._S_post[idx]
         new._y, new._loglik = self._y[idx], self._loglik[idx]
         new._nis, new._rejected = self._nis[idx], self._rejected[idx]
+        new._y_whitened, new._log_det = self._y_whitened[idx], self._log_det[idx]
         return new
 
     @classmethod
@@ -1049,6 +1075,8 @@ class Fleet:
             state = {("_points" if k == "points_fn" else k): v for k, v in state.items()}
         state.setdefault("_unset_x", np.zeros(state["_K"], dtype=bool))  # pickled before placeholders
         state.setdefault("_unset_P", np.zeros(state["_K"], dtype=bool))
+        state.setdefault("_y_whitened", np.full(state["_y"].shape, np.nan))  # pickled before the record
+        state.setdefault("_log_det", np.zeros(state["_K"]))
         self.__dict__.update(state)
         self._buffers = Buffers()
         if isinstance(self._failure, np.ndarray):  # pickled before the reasons were kept as a dict

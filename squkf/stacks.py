@@ -31,6 +31,7 @@ import numpy as np
 
 from . import kernels
 from .boundary.checks import finite_images, stacked_shape
+from .boundary.records import log_det as log_det_of
 from .engine import Buffers, Route, Scratch
 from .errors import NonFiniteError, NotPositiveDefiniteError, SqukfError
 from .generators import SigmaSet
@@ -224,8 +225,12 @@ def _propagated(K: int, N: int, n: int) -> tuple:
 
 
 def _update_records(K: int, m: int) -> tuple:
-    """A fleet update's records besides the estimate: ``y``, log-likelihoods, NIS, ``rejected``."""
-    return np.empty((K, m)), np.empty(K), np.empty(K), np.empty((K, m), dtype=bool)
+    """A fleet update's records besides the estimate: ``y``, log-likelihoods, NIS, ``rejected``, the
+    whitened innovations and ``log det S1_2``."""
+    return (
+        np.empty((K, m)), np.empty(K), np.empty(K), np.empty((K, m), dtype=bool),
+        np.empty((K, m)), np.empty(K),
+    )  # fmt: skip
 
 
 def _second_size(plan, Q1_2) -> int:
@@ -256,9 +261,9 @@ def _statuses(k: int) -> tuple:
 
 
 def _chunk_update(k: int, n: int, m: int) -> tuple:
-    """The joint kernel's outputs a chunk does not keep: ``zp, w, Sy, L21, dx, status``."""
+    """The joint kernel's outputs a chunk does not keep: ``zp, Sy, L21, dx, status``."""
     return (
-        np.empty((k, m)), np.empty((k, m)), np.empty((k, m, m)), np.empty((k, n, m)), np.empty((k, n)),
+        np.empty((k, m)), np.empty((k, m, m)), np.empty((k, n, m)), np.empty((k, n)),
         np.empty(k, dtype=np.int64),
     )  # fmt: skip
 
@@ -545,6 +550,10 @@ class Posteriors(NamedTuple):
     log_likelihood, nis : ndarray, shape (K,)
         (The Mahalanobis distance is ``sqrt(nis)``.)
     rejected : ndarray of bool, shape (K, m)
+    y_whitened : ndarray, shape (K, m)
+        ``S1_2^-1 y`` (NaN as ``y``).
+    log_det_S1_2 : ndarray, shape (K,)
+        Of the measured block (0 where a filter was not updated).
     """
 
     x: np.ndarray
@@ -553,6 +562,8 @@ class Posteriors(NamedTuple):
     log_likelihood: np.ndarray
     nis: np.ndarray
     rejected: np.ndarray
+    y_whitened: np.ndarray
+    log_det_S1_2: np.ndarray
 
 
 def update(
@@ -670,25 +681,28 @@ def _whole_chunk(
     route: Route, form: RowForm, sset, x0, S0, H, z, R1_2, on, found, out, scratch: Scratch
 ) -> None:
     """A chunk's update with every component measured and no gate, the joint kernel writing the step's
-    arrays ``out`` (``x, S, y, loglik, nis, rejected`` rows) directly; a failing or inactive filter keeps its
-    prior, with no innovation and no likelihood. ``form``: the joint route's rows (a failure's words)."""
-    x, S, y, ll, nis, rejected = out
+    arrays ``out`` (``x, S, y, loglik, nis, rejected, y_whitened, log_det_S1_2`` rows) directly; a failing
+    or inactive filter keeps its prior, with no innovation and no likelihood. ``form``: the joint route's
+    rows (a failure's words)."""
+    x, S, y, ll, nis, rejected, w, log_det = out
     k, m = z.shape
     n = x0.shape[1]
-    zp, w, Sy, L21, dx, status = scratch.take(_chunk_update, k, n, m)
+    zp, Sy, L21, dx, status = scratch.take(_chunk_update, k, n, m)
     kernel_out = (zp, y, w, Sy, L21, dx, x, S, ll, nis, status, route.no_set)
     _, status, _ = route.posterior(sset, x0, S0, H, z, None, R1_2, None, False, out=kernel_out)
+    log_det_of(Sy, out=log_det)
     good = _flag(status, on, found, form, "update", H, "hx values")
     rejected[...] = False
     if not good.all():
         bad = ~good
         x[bad], S[bad] = x0[bad], S0[bad]
-        y[bad], ll[bad], nis[bad] = np.nan, 0.0, 0.0
+        y[bad], ll[bad], nis[bad], w[bad], log_det[bad] = np.nan, 0.0, 0.0, np.nan, 0.0
 
 
 def _posteriors(route: Route, sset, x0, S0, H, z, observed, R1_2, todo, found) -> tuple:
     """A chunk's gated updates, grouped by their missing components; a filter no update reaches keeps its
-    prior, with no innovation and no likelihood. The records ``x, S, y, loglik, nis, rejected``."""
+    prior, with no innovation and no likelihood. The records ``x, S, y, loglik, nis, rejected, y_whitened,
+    log_det_S1_2``."""
     k, m = z.shape
     if todo.all() and observed.all():  # the usual case: every filter, every component, one group
         groups: list[tuple[np.ndarray | slice, np.ndarray | None]] = [(slice(None), None)]
@@ -700,35 +714,37 @@ def _posteriors(route: Route, sset, x0, S0, H, z, observed, R1_2, todo, found) -
     records = None
     for ix, mask in groups:
         part = _gated_group(route, sset, x0, S0, H, z, R1_2, ix, mask, found)
-        if isinstance(ix, slice) and part[6].all():
-            return part[:6]  # every filter, all measured, all good: the kernels' arrays as they are
+        if isinstance(ix, slice) and part[8].all():
+            return part[:8]  # every filter, all measured, all good: the kernels' arrays as they are
         if records is None:
-            records = (
-                x0.copy(), S0.copy(), np.full((k, m), np.nan), np.zeros(k), np.zeros(k),
-                np.zeros((k, m), dtype=bool),
-            )  # fmt: skip
-        x, S, y, ll, nis, rej = records
-        good = part[6]
+            records = _unchanged(x0, S0, m)
+        x, S, y, ll, nis, rej, w, log_det = records
+        good = part[8]
         gi = np.arange(k)[ix][good]
         x[gi], S[gi] = part[0][good], part[1][good]
-        ll[gi], nis[gi] = part[3][good], part[4][good]
+        ll[gi], nis[gi], log_det[gi] = part[3][good], part[4][good], part[7][good]
         if mask is None:
-            y[gi], rej[gi] = part[2][good], part[5][good]
+            y[gi], rej[gi], w[gi] = part[2][good], part[5][good], part[6][good]
         else:
             cols = np.ix_(gi, np.flatnonzero(mask))
-            y[cols], rej[cols] = part[2][good], part[5][good]
-    if records is None:
-        return (
-            x0.copy(), S0.copy(), np.full((k, m), np.nan), np.zeros(k), np.zeros(k),
-            np.zeros((k, m), dtype=bool),
-        )  # fmt: skip
-    return records
+            y[cols], rej[cols], w[cols] = part[2][good], part[5][good], part[6][good]
+    return _unchanged(x0, S0, m) if records is None else records
+
+
+def _unchanged(x0: np.ndarray, S0: np.ndarray, m: int) -> tuple:
+    """The records of filters that keep their prior: no innovation, no likelihood."""
+    k = x0.shape[0]
+    return (
+        x0.copy(), S0.copy(), np.full((k, m), np.nan), np.zeros(k), np.zeros(k), np.zeros((k, m), dtype=bool),
+        np.full((k, m), np.nan), np.zeros(k),
+    )  # fmt: skip
 
 
 def _gated_group(route: Route, sset, x0, S0, H, z, R1_2, ix, mask, found):
     """The gated update of the filters ``ix`` of a chunk (one pattern of missing components ``mask``).
 
-    Returns ``x, S, y, loglik, nis, rejected`` over ``ix`` and the mask of the filters that succeeded.
+    Returns ``x, S, y, loglik, nis, rejected, y_whitened, log_det_S1_2`` over ``ix`` (the measured
+    components of ``mask``) and the mask of the filters that succeeded.
     """
     s = sset if isinstance(ix, slice) else take_set(sset, ix)
     xi, Si, Hi, zi, Ri = x0[ix], S0[ix], H[ix], z[ix], rows_of(R1_2, ix, 2)
@@ -740,7 +756,7 @@ def _gated_group(route: Route, sset, x0, S0, H, z, R1_2, ix, mask, found):
         form = route.form_of(s, None)
         good = _flag(status, np.ones(B, dtype=bool), found_rows, form, "update", Hi, "hx values")
         _renumber(found_rows, ix, found)
-        return upd.x, upd.S, upd.y, upd.log_likelihood, upd.nis, upd.rejected, good
+        return (*_records_of(upd), good)
 
     def posterior(j):  # the hooks or a generator's set raise: a filter at a time after a failure
         r, j = _one_or_all(route, j)
@@ -748,20 +764,25 @@ def _gated_group(route: Route, sset, x0, S0, H, z, R1_2, ix, mask, found):
         post, _, _ = r.posterior(sub, xi[j], Si[j], Hi[j], zi[j], mask, Rj, None, False)
         ok = np.zeros(xi[j].shape[0], dtype=np.int64)
         upd, _ = r.gated(post, ok, sub, xi[j], Si[j], Hi[j], zi[j], mask, Rj, None)
-        return upd.x, upd.S, upd.y, upd.log_likelihood, upd.nis, upd.rejected
+        return _records_of(upd)
 
     good_idx, res = run_isolated(posterior, np.arange(B), B, found_rows)
     _renumber(found_rows, ix, found)
     n = xi.shape[-1]
     mo = Hi.shape[-1] if mask is None else int(mask.sum())
     full = (np.zeros((B, n)), np.zeros((B, n, n)), np.zeros((B, mo)), np.zeros(B), np.zeros(B),
-            np.zeros((B, mo), dtype=bool))  # fmt: skip
+            np.zeros((B, mo), dtype=bool), np.zeros((B, mo)), np.zeros(B))  # fmt: skip
     good = np.zeros(B, dtype=bool)
     good[good_idx] = True
     if res is not None:
         for a, r in zip(full, res):
             a[good_idx] = r
     return (*full, good)
+
+
+def _records_of(upd) -> tuple:
+    """A group's update as its records (over its measured components)."""
+    return upd.x, upd.S, upd.y, upd.log_likelihood, upd.nis, upd.rejected, upd.w, log_det_of(upd.Sy)
 
 
 def _one_or_all(route: Route, ix):
