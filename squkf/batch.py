@@ -298,19 +298,37 @@ class BatchResult(tuple):
     log_likelihood : ndarray, shape (T,)
         Each step's log-likelihood of the components used (0 without a
         measurement, or when the gate rejected them all).
+    y_whitened : ndarray, shape (T, dim_z)
+        Each step's whitened innovation ``S1_2^-1 y`` (NaN where a component,
+        or the whole step, was not measured): ``nis`` is its squared norm.
+    log_det_S1_2 : ndarray, shape (T,)
+        Each step's ``log det S1_2`` of the measured block (0 without a measurement).
     """
 
     rejected: np.ndarray
     nis: np.ndarray
     log_likelihood: np.ndarray
+    y_whitened: np.ndarray
+    log_det_S1_2: np.ndarray
 
-    def __new__(cls, means: np.ndarray, covariances: np.ndarray, rejected, nis, log_likelihood):
+    def __new__(
+        cls,
+        means: np.ndarray,
+        covariances: np.ndarray,
+        rejected,
+        nis,
+        log_likelihood,
+        y_whitened,
+        log_det_S1_2,
+    ):
         self = super().__new__(cls, (means, covariances))
         self.rejected, self.nis, self.log_likelihood = rejected, nis, log_likelihood
+        self.y_whitened, self.log_det_S1_2 = y_whitened, log_det_S1_2
         return self
 
     def __reduce__(self):
-        return (type(self), (self[0], self[1], self.rejected, self.nis, self.log_likelihood))
+        fields = (self.rejected, self.nis, self.log_likelihood, self.y_whitened, self.log_det_S1_2)
+        return (type(self), (self[0], self[1], *fields))
 
 
 def _stack_rows(rows: list, width: int, dtype) -> np.ndarray:
@@ -481,6 +499,8 @@ def batch_filter(
     rejected: list[np.ndarray] = []
     nis: list[float] = []
     loglik: list[float] = []
+    whitened: list[np.ndarray] = []
+    log_dets: list[float] = []
     bar, callback = progress_callback(progress, T)
     k = 0
     at_step = True
@@ -497,6 +517,8 @@ def batch_filter(
                 rejected.append(ukf.rejected if measured else np.zeros(ukf.dim_z, dtype=bool))
                 nis.append(ukf.nis if measured else 0.0)
                 loglik.append(ukf.log_likelihood if measured else 0.0)
+                whitened.append(ukf.y_whitened if measured else np.full(ukf.dim_z, np.nan))
+                log_dets.append(ukf.log_det_S1_2 if measured else 0.0)
                 means.append(ukf.x)
                 S = ukf.P1_2
                 covs.append(S if return_factors else S @ S.T)
@@ -518,5 +540,6 @@ def batch_filter(
             it.close()
     m = ukf.dim_z
     return BatchResult(
-        means.result(), covs.result(), _stack_rows(rejected, m, bool), np.array(nis), np.array(loglik)
-    )
+        means.result(), covs.result(), _stack_rows(rejected, m, bool), np.array(nis), np.array(loglik),
+        _stack_rows(whitened, m, float), np.array(log_dets),
+    )  # fmt: skip

@@ -28,6 +28,7 @@ __all__ = [
     "recordings",
     "run",
     "run_paired",
+    "run_whitened",
 ]
 
 
@@ -164,17 +165,60 @@ def run_paired(
         ``-inf`` for a failed filter.
     failures : dict of int to str
     """
-    K = Z.shape[0]
-    fleet = Fleet.from_template(ukf, K)
-    for name, value in zip(("Q1_2", "R1_2", "x", "P1_2"), c):
-        if value is not None:
-            setattr(fleet, name, value)
-    result = fleet.batch_filter(Z, keep="means", **kwargs)
+    result, failures = _pass(ukf, Z, c, "means", kwargs)
     loglik = np.asarray(result.log_likelihood)[:, burn_in:].sum(axis=1)
-    failures = {j: str(fleet.failure[j]) for j in np.flatnonzero(np.asarray(result.failed)).tolist()}
     for j in failures:
         loglik[j] = -np.inf
     return loglik, failures
+
+
+def run_whitened(
+    ukf, Z: np.ndarray, c: Candidates, K: int, burn_in: int, kwargs: dict
+) -> tuple[np.ndarray, np.ndarray, dict[int, str]]:
+    """Each candidate's whitened innovations and ``log det S1_2`` on each recording, in one fleet pass.
+
+    The records the log-likelihood is made of (``-log L = sum |w|^2 / 2 + log det S1_2 + const``):
+    what ``fit_noise(method="least_squares")`` takes as residuals.
+
+    Parameters
+    ----------
+    ukf, Z, c, K, burn_in, kwargs
+        As :func:`run`.
+
+    Returns
+    -------
+    y_whitened : ndarray, shape (K, S, T - burn_in, m)
+        NaN where nothing was measured; all NaN for a failed candidate.
+    log_det_S1_2 : ndarray, shape (K, S, T - burn_in)
+        0 where nothing was measured; NaN for a failed candidate.
+    failures : dict of int to str
+        As :func:`run`'s.
+    """
+    S, T, m = Z.shape
+    every = Candidates(*(None if v is None else np.repeat(v, S, axis=0) for v in c))
+    result, failed = _pass(ukf, np.tile(Z, (K, 1, 1)), every, ("means", "whitened"), kwargs)
+    assert result.y_whitened is not None and result.log_det_S1_2 is not None
+    w = result.y_whitened.reshape(K, S, T, m)[:, :, burn_in:]
+    log_det = result.log_det_S1_2.reshape(K, S, T)[:, :, burn_in:]
+    failures: dict[int, str] = {}
+    for j, why in failed.items():
+        k = j // S
+        w[k], log_det[k] = np.nan, np.nan
+        if k not in failures:
+            failures[k] = f"recording {j % S}: {why}" if S > 1 else why
+    return w, log_det, failures
+
+
+def _pass(ukf, Z: np.ndarray, c: Candidates, keep, kwargs: dict):
+    """One fleet of ``K`` filters from the template, candidate ``k`` on ``Z[k]``, run: its result and the
+    filters that failed, with their reasons."""
+    fleet = Fleet.from_template(ukf, Z.shape[0])
+    for name, value in zip(("Q1_2", "R1_2", "x", "P1_2"), c):
+        if value is not None:
+            setattr(fleet, name, value)
+    result = fleet.batch_filter(Z, keep=keep, **kwargs)
+    failures = {j: str(fleet.failure[j]) for j in np.flatnonzero(np.asarray(result.failed)).tolist()}
+    return result, failures
 
 
 def all_failed(failures: dict[int, str], what: str = "candidate") -> FleetStepError:

@@ -45,7 +45,7 @@ except ImportError as exc:  # say which extra brings them
 
 from .batch import model_kwargs, per_step
 from .boundary import checks
-from .boundary.loop import KEEP
+from .boundary.loop import check_keep
 from .errors import ParameterError, ShapeError
 from .fleet import Fleet, FleetResult
 from .validate import as_measurements
@@ -61,8 +61,10 @@ __all__ = [
 MMAP_THRESHOLD = 16 * 2**20
 """Bytes from which glibc's malloc maps fresh pages, in :func:`worker_environ` (16 MiB)."""
 
-_KEEP = KEEP
-_FIELDS = ("means", "P1_2s", "variances", "log_likelihood", "failed", "x", "P1_2", "rejected", "nis")
+_FIELDS = (
+    "means", "P1_2s", "variances", "log_likelihood", "failed", "x", "P1_2", "rejected", "nis", "y_whitened",
+    "log_det_S1_2",
+)  # fmt: skip
 
 
 def worker_environ() -> dict[str, Any]:
@@ -145,7 +147,7 @@ def batch_filter(
     fleet: Fleet,
     zs,
     *,
-    keep: str = "all",
+    keep: str | tuple[str, ...] = "all",
     dts=None,
     fx_args: dict | None = None,
     hx_args: dict | None = None,
@@ -162,9 +164,10 @@ def batch_filter(
         array of masked chunks) where missing. Chunked along the filters axis; any
         chunking of the other two axes is merged into one chunk (the time
         recursion runs through all steps of a filter in one task).
-    keep : {"all", "diagonals", "means", "final"}
+    keep : {"all", "diagonals", "means", "final"} or tuple
         What to store, as for :meth:`squkf.Fleet.batch_filter` (``"means"`` or
-        ``"final"`` for runs too large to keep every factor).
+        ``"final"`` for runs too large to keep every factor; ``"whitened"`` in a
+        tuple adds the whitened innovations).
     dts, fx_args, hx_args
         As for :meth:`squkf.Fleet.batch_filter`; a per-filter array (leading
         axis ``K``) is cut into the chunks' rows, so that each filter gets its
@@ -189,8 +192,7 @@ def batch_filter(
     """
     if not isinstance(fleet, Fleet):
         raise ParameterError(f"fleet must be a squkf.Fleet, got {type(fleet).__name__}")
-    if keep not in _KEEP:
-        raise ParameterError(f"keep must be one of {_KEEP}, got keep={keep!r}")
+    state, whitened = check_keep(keep)
     # an array in memory is read here, before anything is scheduled: text refused, masked entries NaN
     Z = zs if isinstance(zs, da.Array) else da.from_array(as_measurements(zs, "zs"))
     if Z.ndim != 3:
@@ -228,23 +230,27 @@ def batch_filter(
             "means": (size, T, n),
             "P1_2s": (size, T, n, n),
             "variances": (size, T, n),
-            "log_likelihood": (size,) if keep == "final" else (size, T),
+            "log_likelihood": (size,) if state == "final" else (size, T),
             "failed": (size,),
             "x": (size, n),
             "P1_2": (size, n, n),
-            "rejected": (size, m) if keep == "final" else (size, T, m),
+            "rejected": (size, m) if state == "final" else (size, T, m),
             "nis": (size, T),
+            "y_whitened": (size, T, m),
+            "log_det_S1_2": (size, T),
         }
-        dtypes = {"failed": bool, "rejected": np.int64 if keep == "final" else bool}
+        dtypes = {"failed": bool, "rejected": np.int64 if state == "final" else bool}
         for name, shape in shapes.items():
             dtype = dtypes.get(name, float)
             fields[name].append(da.from_delayed(getattr(part, name), shape, dtype=dtype))
         lo += size
     stored = {
-        "means": keep != "final",
-        "P1_2s": keep == "all",
-        "variances": keep in ("all", "diagonals"),
-        "nis": keep != "final",
+        "means": state != "final",
+        "P1_2s": state == "all",
+        "variances": state in ("all", "diagonals"),
+        "nis": state != "final",
+        "y_whitened": whitened,
+        "log_det_S1_2": whitened,
     }
     out: dict[str, Any] = {}
     for name, parts in fields.items():

@@ -75,8 +75,9 @@ class Update(NamedTuple):
 
     One filter's update is a block of one (:class:`squkf.SquareRootUKF` drops the block axis when it
     reads a field); a fleet's is a block of K, written a chunk at a time (:class:`squkf.stacks.Chunks`),
-    which keeps no factor of the innovation (``Sy``, ``L21`` and ``K`` None) and whose filters each have
-    their own measured components (``observed`` None, NaN in ``y`` where a component was missing).
+    which keeps no factor of the innovation (``Sy``, ``L21`` and ``K`` None; ``log_det_S1_2`` kept instead)
+    and whose filters each have their own measured components (``observed`` None, NaN in ``y`` and ``w``
+    where a component was missing).
     Batch histories keep their rows (``squkf.boundary.records.Records.keep``).
 
     Attributes
@@ -102,6 +103,12 @@ class Update(NamedTuple):
         The gain applied when the gate rejected something (None: ``L21 Sy^-1``).
     m : int
         The measurement's length.
+    w : ndarray, shape (B, mo)
+        The whitened innovation ``Sy^-1 y`` of the innovation tested (``nis`` is its squared norm; NaN
+        as in ``y``).
+    log_det_S1_2 : ndarray, shape (B,), or None
+        ``log det Sy`` of the measured block, where the factor is not kept (a fleet's: 0 where a filter
+        was not updated); None: formed from ``Sy`` when read.
     """
 
     x: np.ndarray
@@ -115,13 +122,17 @@ class Update(NamedTuple):
     rejected: np.ndarray
     K: np.ndarray | None
     m: int
+    w: np.ndarray
+    log_det_S1_2: np.ndarray | None = None
 
     def rows(self, idx) -> Update:
         """The update of the filters ``idx`` of the block (their rows of every per-filter field)."""
-        Sy, L21, K = (None if a is None else a[idx] for a in (self.Sy, self.L21, self.K))
+        Sy, L21, K, ld = (
+            None if a is None else a[idx] for a in (self.Sy, self.L21, self.K, self.log_det_S1_2)
+        )
         return Update(
             self.x[idx], self.S[idx], self.y[idx], Sy, L21, self.log_likelihood[idx], self.nis[idx],
-            self.observed, self.rejected[idx], K, self.m,
+            self.observed, self.rejected[idx], K, self.m, self.w[idx], ld,
         )  # fmt: skip
 
 
@@ -319,8 +330,8 @@ class Route:
     """
 
     __slots__ = (
-        "plan", "hooks", "gate", "single", "plain_x", "plain_add", "downdate", "no_set", "zeros", "_updates",
-        "_observed_R", "_noise", "_prior_draws",
+        "plan", "hooks", "gate", "single", "plain_x", "plain_add", "downdate", "plain_update", "no_set",
+        "zeros", "_updates", "_observed_R", "_noise", "_prior_draws",
     )  # fmt: skip
 
     def __init__(self, plan: Plan, hooks: Hooks, gate, single: bool):
@@ -328,6 +339,10 @@ class Route:
         self.plain_x = hooks.x_mean_fn is None and hooks.residual_x is None
         self.plain_add = hooks.state_add is None
         self.downdate = keeps_prior_factor(hooks.residual_x, hooks.state_add)
+        # no hook in the way of the joint QR (the set must still reproduce the prior: update_route)
+        self.plain_update = (
+            self.plain_x and not self.downdate and hooks.z_mean_fn is None and hooks.residual_z is None
+        )
         self.no_set = kernels.no_set(plan.n)  # a kernel's set output when it draws none
         self._updates: dict = {}
         self._observed_R = _ObservedR()
@@ -503,9 +518,7 @@ class Route:
         kept = self._updates.get(key)
         if kept is not None and kept[0] is rows:
             return kept[1]
-        hooks = self.hooks
-        plain = UT is None and sset.moments_exact and hooks.z_mean_fn is None and hooks.residual_z is None
-        plain = plain and self.plain_x and not self.downdate and rows is not None
+        plain = UT is None and sset.moments_exact and self.plain_update and rows is not None
         route = _joint_route(sset) if plain else None
         if len(self._updates) >= _KEPT_ROUTES:
             self._updates.clear()
@@ -569,7 +582,9 @@ class Route:
                 post = Posterior(*(a[None] for a in post))
             none = _NONE_REJECTED[post.y.shape]
             ll, nis = post.log_likelihood, post.nis
-            update = Update(post.x, post.S, post.y, post.Sy, post.L21, ll, nis, observed, none, None, m_all)
+            update = Update(
+                post.x, post.S, post.y, post.Sy, post.L21, ll, nis, observed, none, None, m_all, post.w
+            )
             return update, np.zeros(B, dtype=np.int64), None
         Ro = R1_2
         whole = None
@@ -601,7 +616,7 @@ class Route:
             status[~np.isfinite(whole).reshape(B, -1).all(axis=1)] = NOT_FINITE_IMAGES
         if np.count_nonzero(status):
             status = singular_allowed(status, S, Rs)
-        update = Update(xo, So, y, Sy, L21, ll, ww, observed, _NONE_REJECTED[y.shape], None, m_all)
+        update = Update(xo, So, y, Sy, L21, ll, ww, observed, _NONE_REJECTED[y.shape], None, m_all, w)
         return update, status, (X1 if draw else None)
 
     def form_of(self, sset: SigmaSet, UT) -> RowForm | None:
@@ -661,7 +676,7 @@ class Route:
                 Kp = np.zeros((ix.size, n, mo))
                 Kp[:, :, ~pattern] = _gain(part.Sy, part.L21)
                 K[ix] = Kp
-        return Update(x, S, post.y, post.Sy, post.L21, ll, post.nis, observed, rejected, K, m), status
+        return Update(x, S, post.y, post.Sy, post.L21, ll, post.nis, observed, rejected, K, m, post.w), status
 
 
 class Block:

@@ -67,7 +67,7 @@ HANDED = ("x", "P", "Q", "R")
 # what a fleet pickled before it held an engine kept in its __dict__
 _BEFORE_ENGINE = (
     "_x", "_S", "_pending", "_route", "_x_prior", "_S_prior", "_x_post", "_S_post", "_y", "_loglik", "_nis",
-    "_rejected",
+    "_rejected", "_y_whitened", "_log_det",
 )  # fmt: skip
 
 
@@ -496,7 +496,7 @@ class Fleet:
             K, m = self._K, self._m
             x, S = self._engine.post_record
             last = Update(x, S, np.zeros((K, m)), None, None, np.zeros(K), np.zeros(K), None,
-                          np.zeros((K, m), dtype=bool), None, m)  # fmt: skip
+                          np.zeros((K, m), dtype=bool), None, m, np.zeros((K, m)), np.zeros(K))  # fmt: skip
         return last
 
     @property
@@ -523,6 +523,23 @@ class Fleet:
     def nis(self) -> np.ndarray:
         """Normalised innovation squared of each filter's last update, shape ``(K,)`` (a copy)."""
         return self._last().nis.copy()
+
+    @property
+    def y_whitened(self) -> np.ndarray:
+        """Whitened innovations ``S1_2^-1 y`` of the last update, shape ``(K, dim_z)`` (a copy).
+
+        NaN where a component was not measured (or a filter not updated); ``nis`` is each row's squared
+        norm, as :attr:`SquareRootUKF.y_whitened`.
+        """
+        return self._last().w.copy()
+
+    @property
+    def log_det_S1_2(self) -> np.ndarray:
+        """``log det S1_2`` of each filter's last update (its measured block), shape ``(K,)`` (a copy).
+
+        0 where a filter was not updated.
+        """
+        return self._last().log_det_S1_2.copy()  # type: ignore[union-attr]  # (a fleet's record keeps it)
 
     @property
     def rejected(self) -> np.ndarray:
@@ -721,14 +738,14 @@ class Fleet:
         # the record's own copies: the estimate may live in the arrays the next prediction writes
         none = Update(
             e.x.copy(), e.S.copy(), np.full((K, m), np.nan), None, None, np.zeros(K), np.zeros(K), None,
-            np.zeros((K, m), dtype=bool), None, m,
+            np.zeros((K, m), dtype=bool), None, m, np.full((K, m), np.nan), np.zeros(K),
         )  # fmt: skip
         e.skip_update(none)
 
     # -- many steps ---------------------------------------------------------------
 
     def batch_filter(
-        self, zs, *, dts=None, keep: str = "all", fx_args=None, hx_args=None, progress=False
+        self, zs, *, dts=None, keep: str | tuple[str, ...] = "all", fx_args=None, hx_args=None, progress=False
     ) -> FleetResult:
         """Filter ``T`` steps of measurements for every filter.
 
@@ -746,9 +763,12 @@ class Fleet:
         dts : float or array_like of shape (T,), optional
             Time step of each prediction (default: the constructor's), as
             :ref:`promise-dt` says.
-        keep : {"all", "diagonals", "means", "final"}
+        keep : {"all", "diagonals", "means", "final"} or tuple
             What to store: everything; means and the covariances' diagonals;
-            means only; or only the final state (for long runs).
+            means only; or only the final state (for long runs). A tuple of
+            one of the first three and ``"whitened"`` (``("means", "whitened")``)
+            keeps each step's whitened innovations and ``log det S1_2`` too
+            (``FleetResult.y_whitened``, ``log_det_S1_2``).
         fx_args, hx_args : dict, optional
             Passed to ``fx`` and ``hx`` at every step, and to nothing else: a
             key that names an argument of the step (``dt``, ``z``, ``R``, ...,
@@ -763,7 +783,7 @@ class Fleet:
             The fleet itself is left after the last step, as after a loop of
             ``predict`` and ``update``; an error leaves it as it was before the call.
         """
-        check_keep(keep)
+        state, whitened = check_keep(keep)
         check_progress(progress)
         Z = checks.measurement_series(zs, self._K, self._m)
         T = Z.shape[1]
@@ -771,7 +791,7 @@ class Fleet:
         Z = np.ascontiguousarray(np.swapaxes(Z, 0, 1))
         dt_list = per_step(dts, T, "dts", "dt", default=self._dt, ref="zs")
         fx_args, hx_args = model_kwargs(fx_args, "fx_args"), model_kwargs(hx_args, "hx_args")
-        records = new_records(keep, self._K, T, self._n, self._m)
+        records = new_records(state, self._K, T, self._n, self._m, whitened)
         self._take_edits()
         bar, callback = progress_callback(progress, T)
         t = 0
@@ -791,7 +811,7 @@ class Fleet:
         return FleetResult(
             r.means, r.factors, r.variances, r.loglik, self._failed.copy(), self._engine.x.copy(),
             self._engine.S.copy(),
-            r.rejected, r.nis,
+            r.rejected, r.nis, r.y_whitened, r.log_det,
         )  # fmt: skip
 
     def _step(self, t: int, z: np.ndarray, dt: float, fx_args: dict, hx_args: dict, records: Records) -> None:
@@ -983,9 +1003,11 @@ class Fleet:
             engine.prior_record = (old["_x_prior"], old["_S_prior"])
             engine.post_record = (old["_x_post"], old["_S_post"])
             m = self._m
+            w, ld = old["_y_whitened"], old["_log_det"]  # (pickled before the record: NaN and 0)
             engine.last = Update(
                 old["_x_post"], old["_S_post"], old["_y"], None, None, old["_loglik"], old["_nis"], None,
-                old["_rejected"], None, m,
+                old["_rejected"], None, m, np.full(old["_y"].shape, np.nan) if w is None else w,
+                np.zeros(self._K) if ld is None else ld,
             )  # fmt: skip
         self._engine = engine
         if isinstance(self._failure, np.ndarray):  # pickled before the reasons were kept as a dict

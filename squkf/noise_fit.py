@@ -3,12 +3,24 @@
 :func:`fit_noise` moves the parameters ``theta`` of two parametrisations
 (:mod:`squkf.parametrise`) to maximise the exact innovation log-likelihood of
 the recordings (:mod:`squkf.candidates`: each candidate a filter of one fleet).
-Whatever an optimiser asks for at once is one fleet pass: a population of
-differential evolution, a grid (in as few passes as ``max_filters`` allows),
-or a point with the central differences of its gradient (``"quasi_newton"``:
-scipy's L-BFGS-B given the value and gradient of each pass). At the optimum the
-observed information, the finite-difference Hessian of ``-log L`` (plus the
-prior's terms), is one pass more; its inverse is ``theta``'s covariance.
+Whatever an optimiser asks for at once is one fleet pass: a point with the
+forward differences of its residuals (``"least_squares"``, the default: the
+log-likelihood written as residuals, below, for scipy's ``least_squares``), a
+point with the central differences of its gradient (``"quasi_newton"``: scipy's
+L-BFGS-B given the value and gradient of each pass), a population of
+differential evolution, or a grid (in as few passes as ``max_filters``
+allows). At the optimum the observed information, the finite-difference Hessian
+of ``-log L`` (plus the prior's terms), is one pass more; its inverse is
+``theta``'s covariance.
+
+As residuals (as LowLevelParticleFilters.jl writes it): each update's whitened
+innovation ``S1_2^-1 y`` (its measured components) and one residual per update,
+``sqrt(2 log det S1_2 + c)``, so that half their sum of squares is
+``-log L`` up to a constant; ``c`` keeps every root real (it is fixed from the
+start's values with a margin, and a candidate below it restarts the solver from
+the best point so far with a larger ``c``). The Gauss-Newton matrix of these
+residuals is not the information of a variance, so the fit's covariance comes
+from the Hessian of the exact ``-log L`` all the same.
 """
 
 from __future__ import annotations
@@ -20,16 +32,33 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .boundary.loop import progress_callback
-from .candidates import Candidates, all_failed, candidate_factors, check_template, recordings, run, run_paired
+from .candidates import (
+    Candidates,
+    all_failed,
+    candidate_factors,
+    check_template,
+    recordings,
+    run,
+    run_paired,
+    run_whitened,
+)
 from .errors import ParameterError, ShapeError, SqukfError
 from .parametrise import Scaled
 
 __all__ = ["NoiseFit", "fit_noise", "METHODS"]
 
-METHODS = ("quasi_newton", "differential_evolution", "grid")
+METHODS = ("least_squares", "quasi_newton", "differential_evolution", "grid")
 
 #: the step of the central differences in theta (log-variances: a relative change of 1e-4)
 GRADIENT_STEP = 1e-4
+#: the step of the residuals' forward differences (their rounding, about 1e-15, over it stays near 1e-9)
+RESIDUAL_STEP = 1e-6
+#: what ``c`` leaves above ``-2 log det S1_2`` at the start (a candidate may have a smaller det: e**-8 of it)
+C_MARGIN = 16.0
+#: the margin a restart adds above the lowest ``-2 log det S1_2`` seen, more at each restart
+RESTART_MARGIN = 16.0
+#: restarts of the least-squares solver before it stops where it is
+MAX_RESTARTS = 8
 #: the step of the Hessian's differences (its rounding error in f, about 1e-9, over h**2 stays small)
 HESSIAN_STEP = 1e-3
 #: an eigenvalue of the information below this times the largest is a direction the data do not fix
@@ -171,15 +200,57 @@ class _Objective:
             out[part] = self._pass(thetas[part], None if rec is None else rec[part])
         return out
 
+    def whitened(self, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each candidate's whitened innovations ``(K, S, T', m)`` and ``log det S1_2`` ``(K, S, T')`` on
+        every recording after the burn-in (NaN for a failed candidate), as few passes as ``max_filters``
+        allows (usually one)."""
+        thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
+        K = thetas.shape[0]
+        S, T, m = self.Z.shape
+        W = np.full((K, S, T - self.burn_in, m), np.nan)
+        L = np.full((K, S, T - self.burn_in), np.nan)
+        per_pass = max(1, self.max_filters // S)
+        for start in range(0, K, per_pass):
+            part = np.arange(start, min(K, start + per_pass))
+            cand, failures = self._candidates(thetas[part])
+            good = [j for j in range(part.size) if j not in failures]
+            if good:
+                sub = Candidates(*(None if a is None else a[good] for a in cand))
+                w, ld, failed = run_whitened(self.ukf, self.Z, sub, len(good), self.burn_in, self.kwargs)
+                W[part[good]], L[part[good]] = w, ld
+                self._counted(len(good) * S * T)
+                for j, why in failed.items():
+                    failures[good[j]] = why
+            self._note(thetas[part], failures)
+        return W, L
+
+    def prior_residuals(self, theta: np.ndarray) -> np.ndarray:
+        """The prior's residuals at ``theta`` (none without a prior), checked finite."""
+        if self.prior is None:
+            return np.zeros(0)
+        r = np.asarray(self.prior(theta.copy()), dtype=float).reshape(-1)
+        if not np.all(np.isfinite(r)):
+            raise ParameterError(f"prior returned values not finite at theta={theta.tolist()}")
+        return r
+
+    def _counted(self, filter_steps: int) -> None:
+        self.filter_steps += filter_steps
+        self.passes += 1
+        if self.after_pass is not None:
+            self.after_pass(self.passes - 1)
+
+    def _note(self, thetas: np.ndarray, failures: dict[int, str]) -> None:
+        for k, why in failures.items():
+            if len(self.failures) < 20:
+                self.failures.setdefault(tuple(np.round(thetas[k], 12).tolist()), why)
+
     def __call__(self, thetas: np.ndarray, rec: np.ndarray | None = None) -> np.ndarray:
         """The objective of each candidate (``+inf`` for a failed one), as :meth:`loglik` reads ``rec``."""
         thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
         f = -self.loglik(thetas, rec)
         if self.prior is not None:
             for k, theta in enumerate(thetas):
-                r = np.asarray(self.prior(theta.copy()), dtype=float).reshape(-1)
-                if not np.all(np.isfinite(r)):
-                    raise ParameterError(f"prior returned values not finite at theta={theta.tolist()}")
+                r = self.prior_residuals(theta)
                 f[k] += 0.5 * float(r @ r)
         return f
 
@@ -194,21 +265,16 @@ class _Objective:
             if rec is None:
                 values, failed = run(self.ukf, self.Z, sub, len(good), self.burn_in, self.kwargs)
                 totals = values.sum(axis=1)
-                self.filter_steps += len(good) * S * T
+                self._counted(len(good) * S * T)
             else:
                 totals, failed = run_paired(self.ukf, self.Z[rec[good]], sub, self.burn_in, self.kwargs)
-                self.filter_steps += len(good) * T
-            self.passes += 1
-            if self.after_pass is not None:
-                self.after_pass(self.passes - 1)
+                self._counted(len(good) * T)
             for j, k in enumerate(good):
                 if j in failed:
                     failures[k] = failed[j]
                 else:
                     loglik[k] = float(totals[j])
-        for k, why in failures.items():
-            if len(self.failures) < 20:
-                self.failures.setdefault(tuple(np.round(thetas[k], 12).tolist()), why)
+        self._note(thetas, failures)
         return loglik
 
     def _candidates(self, thetas: np.ndarray) -> tuple[Candidates, dict[int, str]]:
@@ -267,7 +333,7 @@ def fit_noise(
     *,
     Q=None,
     R=None,
-    method: str = "quasi_newton",
+    method: str = "least_squares",
     grid=None,
     bounds=None,
     burn_in: int = 0,
@@ -296,7 +362,12 @@ def fit_noise(
         :class:`~squkf.parametrise.Fixed`, ``Scaled`` (the default for both),
         ``Diagonal``, ``Full`` or ``Custom`` (:mod:`squkf.parametrise`).
         With ``fx_noise``/``hx_noise`` they are the noise's covariances.
-    method : {"quasi_newton", "differential_evolution", "grid"}
+    method : {"least_squares", "quasi_newton", "differential_evolution", "grid"}
+        ``"least_squares"``: scipy's ``least_squares`` on the log-likelihood
+        written as residuals (the whitened innovations and one
+        ``sqrt(2 log det S1_2 + c)`` per update, the module's docstring says
+        more), from the template's values, each evaluation one fleet pass of
+        the point and its forward differences (the Jacobian).
         ``"quasi_newton"``: L-BFGS-B from the template's values, each step one
         fleet pass of the point and its central differences.
         ``"differential_evolution"``: scipy's, its population one fleet pass a
@@ -321,7 +392,8 @@ def fit_noise(
         advancing together in the same fleet passes by a batched damped
         Newton method (Levenberg's damping, one factor per problem, on the
         finite-difference gradient and Hessian of the exact ``-log L``); a
-        list of S fits is returned.
+        list of S fits is returned. ``method`` is then the default (or
+        ``"quasi_newton"``, the same).
     seed : optional
         Of differential evolution.
     maxiter : int, optional
@@ -354,7 +426,7 @@ def fit_noise(
         raise ParameterError(f"method must be one of {', '.join(map(repr, METHODS))}, got method={method!r}")
     if not isinstance(shared, (bool, np.bool_)):
         raise ParameterError(f"shared must be True or False, got shared={shared!r}")
-    if not shared and method != "quasi_newton":
+    if not shared and method not in ("least_squares", "quasi_newton"):
         raise ParameterError(
             f"shared=False fits every recording together by a batched damped Newton method: method={method!r}"
             " is for shared fits (leave method at its default)"
@@ -423,7 +495,10 @@ def _fit(objective: _Objective, method: str, theta0, names, lo_hi, grid, shared,
         f0 = float(objective(theta0[None])[0])
         if not math.isfinite(f0):
             raise all_failed({0: next(iter(objective.failures.values()), "failed")}, "start")
-        theta, success, message = _quasi_newton(objective, theta0, lo_hi, maxiter)
+        if method == "least_squares":
+            theta, success, message = _least_squares(objective, theta0, lo_hi, maxiter)
+        else:
+            theta, success, message = _quasi_newton(objective, theta0, lo_hi, maxiter)
     H, f_hat = _hessian(objective, theta)
     cov, identifiable, weak = _covariance(H, names)
     loglik_hat = float(objective.loglik(theta[None])[0])
@@ -476,6 +551,100 @@ def _fit_each(
             )  # fmt: skip
         )
     return fits
+
+
+class _RestartError(Exception):
+    """A candidate's ``log det S1_2`` fell below ``-c / 2``: the solver restarts with a larger ``c``."""
+
+    def __init__(self, c: float):
+        self.c = c
+
+
+class _Residuals:
+    """The log-likelihood as residuals at a point, with their forward-difference Jacobian from the same
+    fleet pass (kept for the solver's ``jac`` call at that point)."""
+
+    def __init__(self, objective: _Objective):
+        self.objective = objective
+        Z = objective.Z[:, objective.burn_in :]
+        self.measured = ~np.isnan(Z)  # (S, T', m): the whitened innovation's entries that are residuals
+        self.updated = self.measured.any(axis=-1)  # (S, T'): the updates, each a log det residual
+        self.c = math.nan
+        self.restarts = 0
+        self.best: tuple[float, np.ndarray] | None = None  # (-log L + prior, theta): where a restart starts
+        self._kept: tuple[bytes, np.ndarray, np.ndarray] | None = None
+
+    def rows(self, thetas: np.ndarray) -> np.ndarray:
+        """The residuals of each candidate ``(K, r)`` (inf for a failed one), from one fleet pass."""
+        W, L = self.objective.whitened(thetas)
+        logdets = L[:, self.updated]
+        if math.isnan(self.c):  # the first point: c from its own values
+            self.c = -2.0 * float(np.nanmin(logdets[0])) + C_MARGIN
+        lowest = np.nanmin(logdets, initial=np.inf)
+        if 2.0 * lowest + self.c < 0.0 and self.restarts < MAX_RESTARTS:
+            self.restarts += 1
+            raise _RestartError(-2.0 * lowest + RESTART_MARGIN * self.restarts)
+        prior = [self.objective.prior_residuals(theta) for theta in thetas]
+        with np.errstate(invalid="ignore"):
+            roots = np.sqrt(2.0 * logdets + self.c)
+        rows = np.concatenate([W[:, self.measured], roots, np.array(prior)], axis=1)
+        rows[~np.all(np.isfinite(rows), axis=1)] = np.inf  # (an imaginary root too, past the restarts)
+        for theta, logdet, w, r in zip(thetas, logdets, W[:, self.measured], prior):
+            if np.all(np.isfinite(logdet)):
+                f = 0.5 * float(w @ w) + float(logdet.sum()) + 0.5 * float(r @ r)
+                if self.best is None or f < self.best[0]:
+                    self.best = (f, theta.copy())
+        return rows
+
+    def __call__(self, theta: np.ndarray) -> np.ndarray:
+        """The residuals at ``theta``, and (kept) their Jacobian: ``theta`` and its steps in one pass."""
+        p, h = theta.size, RESIDUAL_STEP
+        rows = self.rows(np.vstack([theta, theta + h * np.eye(p)]))
+        r = rows[0]
+        if np.all(np.isfinite(r)):
+            J = (rows[1:] - r) / h
+            back = np.flatnonzero(~np.all(np.isfinite(J), axis=1))
+            if back.size:  # a step that failed: backward differences on those axes (one pass more)
+                J[back] = (r - self.rows(theta - h * np.eye(p)[back])) / h
+            self._kept = (theta.tobytes(), r, J.T)
+        return r
+
+    def jacobian(self, theta: np.ndarray, r: np.ndarray | None = None) -> np.ndarray:
+        """The Jacobian at ``theta`` ``(r, p)``: the one kept by the call at ``theta``."""
+        if self._kept is None or self._kept[0] != theta.tobytes():
+            self(theta)
+        assert self._kept is not None
+        return self._kept[2]
+
+
+def _least_squares(objective: _Objective, theta0: np.ndarray, lo_hi, maxiter: int | None):
+    """scipy's ``least_squares`` (trust region, within the bounds) on the log-likelihood's residuals, each
+    evaluation one fleet pass of the point and its forward steps."""
+    from scipy.optimize import least_squares
+
+    residuals = _Residuals(objective)
+    theta = theta0
+    budget = 200 if maxiter is None else maxiter
+    while True:
+        try:
+            res = least_squares(
+                residuals,
+                theta,
+                jac=residuals.jacobian,
+                bounds=lo_hi,
+                method="trf",
+                x_scale="jac",
+                ftol=1e-9,
+                xtol=1e-9,
+                gtol=1e-9,
+                max_nfev=budget,
+            )
+        except _RestartError as restart:
+            residuals.c = restart.c
+            assert residuals.best is not None
+            theta = np.clip(residuals.best[1], *lo_hi)
+            continue
+        return np.asarray(res.x, dtype=float), bool(res.status > 0), str(res.message)
 
 
 def _quasi_newton(objective: _Objective, theta0: np.ndarray, lo_hi, maxiter: int | None):

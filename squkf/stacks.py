@@ -34,6 +34,7 @@ import numpy as np
 from . import kernels
 from .boundary.checks import finite_images, stacked_shape
 from .boundary.records import failures_error
+from .boundary.records import log_det as log_det_of
 from .engine import Buffers, Route, Scratch, Update
 from .errors import NonFiniteError, NotPositiveDefiniteError, SqukfError
 from .generators import SigmaSet
@@ -227,8 +228,12 @@ def _propagated(K: int, N: int, n: int) -> tuple:
 
 
 def _update_records(K: int, m: int) -> tuple:
-    """A fleet update's records besides the estimate: ``y``, log-likelihoods, NIS, ``rejected``."""
-    return np.empty((K, m)), np.empty(K), np.empty(K), np.empty((K, m), dtype=bool)
+    """A fleet update's records besides the estimate: ``y``, log-likelihoods, NIS, ``rejected``, the
+    whitened innovations and ``log det S1_2``."""
+    return (
+        np.empty((K, m)), np.empty(K), np.empty(K), np.empty((K, m), dtype=bool),
+        np.empty((K, m)), np.empty(K),
+    )  # fmt: skip
 
 
 def _second_size(plan, Q1_2) -> int:
@@ -249,11 +254,11 @@ def _chunk_prior(k: int, N: int, n: int) -> tuple:
 
 
 def _chunk_update(k: int, n: int, m: int) -> tuple:
-    """A chunk's rows of ``z``, and the joint kernel's outputs it does not keep: ``zp, w, Sy, L21, dx,
+    """A chunk's rows of ``z``, and the joint kernel's outputs it does not keep: ``zp, Sy, L21, dx,
     status``."""
     return (
-        np.empty((k, m)), np.empty((k, m)), np.empty((k, m)), np.empty((k, m, m)), np.empty((k, n, m)),
-        np.empty((k, n)), np.empty(k, dtype=np.int64),
+        np.empty((k, m)), np.empty((k, m)), np.empty((k, m, m)), np.empty((k, n, m)), np.empty((k, n)),
+        np.empty(k, dtype=np.int64),
     )  # fmt: skip
 
 
@@ -593,7 +598,7 @@ class Chunks:
                 H = kernels.kernel_array(stacked_shape(H, shape, label, False, ("hx", s.sigmas.shape)))
             # the chunk's rows of z in its own array, checked as read: what the kernels use is what
             # was checked, even if the model functions wrote into the caller's z (and no (K, m) copy)
-            zr, zp, w, Sy, L21, dx, status = scratch.take(_chunk_update, k, n, m)
+            zr, zp, Sy, L21, dx, status = scratch.take(_chunk_update, k, n, m)
             np.copyto(zr, z[rows])
             if np.isinf(zr).any():
                 i = rows.start + int(np.flatnonzero(np.isinf(zr).any(axis=1))[0])
@@ -602,26 +607,35 @@ class Chunks:
             on = active[rows] & obs.any(axis=1)
             Rr = R1_2 if R1_2.ndim == 2 else R1_2[rows]
             part = out if k == K else [a[rows] for a in out]
-            joint = route.update_route(s, None)
-            if joint is not None and route.gate is None and obs.all():  # the usual case: one kernel call
-                xo, So, y, ll, nis, rejected = part  # written by the kernel, into the step's records
+            # the usual case, one kernel call: the joint route (decided by the route's and the set's
+            # attributes here, its kept rows looked up in posterior), no gate, every component measured
+            if (
+                route.plain_update
+                and s.moments_exact
+                and s.rows is not None
+                and route.gate is None
+                and obs.all()
+            ):
+                xo, So, y, ll, nis, rejected, w, log_det = part  # written into the step's records
                 kernel_out = (zp, y, w, Sy, L21, dx, xo, So, ll, nis, status, route.no_set)
                 route.posterior(s, xs, Ss, H, zr, None, Rr, None, False, out=kernel_out)
+                log_det_of(Sy, out=log_det)
                 rejected[...] = False
                 if np.count_nonzero(status) or not on.all():  # a failing or inactive filter keeps its prior
-                    bad = ~_flag(status, on, found, joint.form, "update", H, "hx values")
+                    form = route.form_of(s, None)
+                    bad = ~_flag(status, on, found, form, "update", H, "hx values")
                     xo[bad], So[bad] = xs[bad], Ss[bad]
-                    y[bad], ll[bad], nis[bad] = np.nan, 0.0, 0.0
+                    y[bad], ll[bad], nis[bad], w[bad], log_det[bad] = np.nan, 0.0, 0.0, np.nan, 0.0
             else:
-                _grouped(route, joint, s, xs, Ss, H, zr, obs, Rr, on, found, part)
+                _grouped(route, route.update_route(s, None), s, xs, Ss, H, zr, obs, Rr, on, found, part)
             free.append(scratch)
             return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
 
         _map_chunks(one, K, step.size, found_all, 8 * _second_size(route.plan, Q1_2) * max(n, m))
         if found_all and step.raises:
             raise failures_error(found_all)
-        x_new, S_new, y, ll, nis, rejected = out
-        return Update(x_new, S_new, y, None, None, ll, nis, None, rejected, None, m), None, None
+        x_new, S_new, y, ll, nis, rejected, w, log_det = out
+        return Update(x_new, S_new, y, None, None, ll, nis, None, rejected, None, m, w, log_det), None, None
 
 
 #: The runner of a fleet's engine.
@@ -636,8 +650,9 @@ def _grouped(route: Route, joint, sset, x0, S0, H, z, observed, R1_2, todo, foun
     innovation and no likelihood. ``joint``: the set's update route (None: the hooks' or a ``UT``'s)."""
     if joint is None:  # the hooks raise: images that are not finite flagged first
         todo = todo & finite_images(H, "hx values", todo, found)
-    x, S, y, ll, nis, rej = out
+    x, S, y, ll, nis, rej, w, log_det = out
     x[...], S[...], y[...], ll[...], nis[...], rej[...] = x0, S0, np.nan, 0.0, 0.0, False
+    w[...], log_det[...] = np.nan, 0.0
     groups: list[tuple[np.ndarray, np.ndarray | slice, np.ndarray | None]]
     if todo.all() and observed.all():  # (a gate's usual chunk: one group, the chunk's arrays as they are)
         groups = [(np.arange(todo.size), slice(None), None)]
@@ -668,12 +683,12 @@ def _grouped(route: Route, joint, sset, x0, S0, H, z, observed, R1_2, todo, foun
         if res is None:
             continue
         gi = ix[good_ix]
-        x[gi], S[gi], ll[gi], nis[gi] = res[0], res[1], res[3], res[4]
+        x[gi], S[gi], ll[gi], nis[gi], log_det[gi] = res[0], res[1], res[3], res[4], res[7]
         if mask is None:
-            y[gi], rej[gi] = res[2], res[5]
+            y[gi], rej[gi], w[gi] = res[2], res[5], res[6]
         else:
             cols = np.ix_(gi, np.flatnonzero(mask))
-            y[cols], rej[cols] = res[2], res[5]
+            y[cols], rej[cols], w[cols] = res[2], res[5], res[6]
 
 
 def _isolated(route: Route, s, x0, S0, H, z, mask, R1_2, found: dict[int, str]):
@@ -691,8 +706,13 @@ def _isolated(route: Route, s, x0, S0, H, z, mask, R1_2, found: dict[int, str]):
 
 
 def _records(update: Update) -> tuple:
-    """What a fleet keeps of a group's update, per filter: ``x, S, y, loglik, nis, rejected``."""
-    return update.x, update.S, update.y, update.log_likelihood, update.nis, update.rejected
+    """What a fleet keeps of a group's update, per filter: ``x, S, y, loglik, nis, rejected``, the whitened
+    innovations and ``log det S1_2`` (over the group's measured components)."""
+    assert update.Sy is not None  # (a group's update keeps its factor)
+    return (
+        update.x, update.S, update.y, update.log_likelihood, update.nis, update.rejected, update.w,
+        log_det_of(update.Sy),
+    )  # fmt: skip
 
 
 def _one_or_all(route: Route, ix):

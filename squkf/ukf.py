@@ -40,7 +40,7 @@ from .boundary.covariance import (
     set_factor,
 )
 from .boundary.loop import Transaction
-from .boundary.records import embed, innovation_inverse
+from .boundary.records import embed, innovation_inverse, log_det, whitened
 from .engine import Engine, Route, Update
 from .errors import NonFiniteError, ParameterError, ShapeError, UnsetError
 from .gating import Gate, as_gate
@@ -788,6 +788,32 @@ class SquareRootUKF:
         """
         last = self._last()
         return float(last.nis[0]) if last is not None else 0.0
+
+    @property
+    def y_whitened(self) -> np.ndarray:
+        """The last update's whitened innovation ``S1_2^-1 y``, shape ``(dim_z,)`` (a fresh array).
+
+        NaN where a component was not measured; ``nis`` is its squared norm. With ``log_det_S1_2``
+        it is the whole of the step's log-likelihood,
+        ``-(m log 2 pi + nis) / 2 - log_det_S1_2`` over the ``m`` measured components
+        (:func:`squkf.tune.fit_noise` reads them as least-squares residuals). Zeros before any update.
+        """
+        last = self._last()
+        if last is None:
+            return np.zeros(self._dim_z)
+        return whitened(last.w, last.observed, last.m)[0]
+
+    @property
+    def log_det_S1_2(self) -> float:
+        """``log det S1_2`` of the last update: the log-determinant of the innovation factor's measured block.
+
+        0 before any update (and when nothing was measured).
+        """
+        last = self._last()
+        if last is None:
+            return 0.0
+        assert last.Sy is not None  # (one filter's update keeps its factors)
+        return float(log_det(last.Sy)[0])
 
     @property
     def rejected(self) -> np.ndarray:

@@ -30,7 +30,10 @@ import squkf.dask as sd  # noqa: E402
 from squkf import ParameterError, ShapeError  # noqa: E402
 
 TESTS = Path(__file__).resolve().parent
-FIELDS = ("means", "P1_2s", "variances", "log_likelihood", "failed", "x", "P1_2")
+FIELDS = (
+    "means", "P1_2s", "variances", "log_likelihood", "failed", "x", "P1_2", "rejected", "nis", "y_whitened",
+    "log_det_S1_2",
+)  # fmt: skip
 
 
 def same(a, b):
@@ -38,7 +41,8 @@ def same(a, b):
         x, y = getattr(a, name), getattr(b, name)
         assert (x is None) == (y is None), name
         if x is not None:
-            assert np.array_equal(x, y), name
+            x, y = np.asarray(x), np.asarray(y)
+            assert np.array_equal(x, y, equal_nan=x.dtype.kind == "f"), name
 
 
 def in_process(fleet, zs, **options):
@@ -46,7 +50,7 @@ def in_process(fleet, zs, **options):
 
 
 @pytest.mark.parametrize("chunks", [(40, 12, 2), (7, 5, 1), (1, 12, 2), (25, -1, -1)])
-@pytest.mark.parametrize("keep", ["all", "diagonals", "means", "final"])
+@pytest.mark.parametrize("keep", ["all", "diagonals", "means", "final", ("means", "whitened")])
 def test_bit_identical_to_the_fleet_whatever_the_chunking(chunks, keep):
     fleet = line_fleet(40, per_filter_R=True)
     zs = line_measurements(40, 12)
@@ -55,6 +59,7 @@ def test_bit_identical_to_the_fleet_whatever_the_chunking(chunks, keep):
     assert isinstance(lazy.log_likelihood, da.Array)
     got = sd.compute(lazy, scheduler="synchronous")
     same(got, in_process(fleet, zs, keep=keep))
+    assert (got.y_whitened is not None) == (keep == ("means", "whitened"))
     assert np.array_equal(fleet.x, before[0]) and np.array_equal(fleet.P1_2, before[1])  # template unchanged
 
 
@@ -102,6 +107,8 @@ def test_bad_input_raises_before_anything_is_scheduled(zs, error):
 def test_bad_options():
     with pytest.raises(ParameterError):
         sd.batch_filter(line_fleet(4), da.zeros((4, 3, 2)), keep="some")
+    with pytest.raises(ParameterError):
+        sd.batch_filter(line_fleet(4), da.zeros((4, 3, 2)), keep=("final", "whitened"))
     with pytest.raises(ParameterError):
         sd.batch_filter(line_fleet(4), da.zeros((4, 3, 2)), hx_args=[1])
     with pytest.raises(ParameterError):

@@ -30,7 +30,9 @@ from models import (
     cv3_zs,
     cv_filter,
     cv_fx,
+    cv_measurements,
     filter_state,
+    fleet_batch_setup,
     fleet_state,
     linear_pair,
     make_cv3_fleet,
@@ -43,9 +45,11 @@ from models import (
 )
 
 from squkf import (
+    Gate,
     JulierWeights,
     MerweScaledWeights,
     NonFiniteError,
+    ParameterError,
     SquareRootUKF,
 )
 
@@ -428,8 +432,9 @@ def test_saver_history_is_never_rewritten():
 #: 0cdce8e, before the engine: unchanged by it.
 SAVER_KEYS = set(
     "K P P1_2 P1_2_post P1_2_prior P_post P_prior Q Q1_2 R R1_2 S S1_2 SI Wc Wm dim_x dim_z fx fx_noise"
-    " gate hx hx_noise inv likelihood log_likelihood mahalanobis msqrt nis points_fn rejected residual_x"
-    " residual_z scheme sigmas_f sigmas_h state_add vectorized x x_mean x_post x_prior y z z_mean".split()
+    " gate hx hx_noise inv likelihood log_det_S1_2 log_likelihood mahalanobis msqrt nis points_fn rejected"
+    " residual_x residual_z scheme sigmas_f sigmas_h state_add vectorized x x_mean x_post x_prior y"
+    " y_whitened z z_mean".split()
 )
 
 
@@ -782,3 +787,98 @@ def test_arrays_read_before_a_step_are_never_rewritten():
     np.testing.assert_array_equal(x, kept[0])
     np.testing.assert_array_equal(P, kept[1])
     assert fl.x is not x and not np.array_equal(fl.x, x)
+
+
+# -- the whitened innovations and log det S1_2: the records the likelihood is made of -----------------
+
+
+def _whitened_oracle(f):
+    """``S1_2^-1 y`` and ``log det S1_2`` from filterpy's records ``S`` and ``y`` (measured components)."""
+    obs = ~np.isnan(f.S.diagonal())
+    S, y = f.S[np.ix_(obs, obs)], f.y[obs]
+    L = np.linalg.cholesky(S)
+    w = np.full(f.dim_z, np.nan)
+    w[obs] = np.linalg.solve(L, y)
+    return w, 0.5 * np.linalg.slogdet(S)[1]
+
+
+@pytest.mark.parametrize("z", [[10.5, 0.4], [np.nan, 0.4], [10.5, np.nan]])
+def test_whitened_innovation_and_log_det_are_the_innovations_and_make_the_likelihood(z):
+    f = cv_filter()
+    assert np.array_equal(f.y_whitened, np.zeros(2)) and f.log_det_S1_2 == 0.0  # before any update
+    f.predict()
+    f.update(np.array(z))
+    w, log_det = _whitened_oracle(f)
+    obs = ~np.isnan(np.array(z))
+    # a triangular solve of a 2x2 against numpy's: a few ulps of the innovation
+    assert np.array_equal(np.isnan(f.y_whitened), ~obs)
+    assert np.allclose(f.y_whitened[obs], w[obs], rtol=1e-12, atol=1e-14)
+    assert math.isclose(f.log_det_S1_2, log_det, rel_tol=1e-12, abs_tol=1e-14)
+    assert math.isclose(float(np.nansum(f.y_whitened**2)), f.nis, rel_tol=1e-12)
+    mo = int(obs.sum())
+    ll = -0.5 * (mo * math.log(2 * math.pi) + f.nis) - f.log_det_S1_2
+    assert math.isclose(ll, f.log_likelihood, rel_tol=1e-12)
+    w_read = f.y_whitened
+    w_read[:] = 99.0  # a fresh array: the record is not the caller's to change
+    assert not np.any(f.y_whitened == 99.0)
+
+
+def test_batch_filter_keeps_each_steps_whitened_innovation_and_log_det():
+    f, g = cv_filter(), cv_filter()
+    zs = np.array(cv_measurements(6))
+    zs[2] = np.nan  # a step without a measurement
+    zs[4, 1] = np.nan
+    result = f.batch_filter(zs)
+    assert result.y_whitened.shape == (6, 2) and result.log_det_S1_2.shape == (6,)
+    for t, z in enumerate(zs):
+        g.predict()
+        if np.isnan(z).all():
+            g.update(None)
+            assert np.isnan(result.y_whitened[t]).all() and result.log_det_S1_2[t] == 0.0
+            continue
+        g.update(z)
+        assert np.array_equal(result.y_whitened[t], g.y_whitened, equal_nan=True)
+        assert result.log_det_S1_2[t] == g.log_det_S1_2
+    again = pickle.loads(pickle.dumps(result))
+    assert np.array_equal(again.y_whitened, result.y_whitened, equal_nan=True)
+    assert np.array_equal(again.log_det_S1_2, result.log_det_S1_2)
+
+
+@pytest.mark.parametrize("gate", [None, Gate(0.9, per_component=True)], ids=repr)
+def test_a_fleets_whitened_records_equal_its_single_filters_bit_for_bit(gate):
+    fleet, singles, zs = fleet_batch_setup(K=3, T=7)
+    fleet.gate = gate
+    for f in singles:
+        f.gate = gate
+    result = fleet.subset(slice(None)).batch_filter(zs, keep=("means", "whitened"))
+    assert result.y_whitened.shape == (3, 7, 2) and result.log_det_S1_2.shape == (3, 7)
+    for k, f in enumerate(singles):
+        one = f.batch_filter(zs[k])
+        assert np.array_equal(result.y_whitened[k], one.y_whitened, equal_nan=True)
+        assert np.array_equal(result.log_det_S1_2[k], one.log_det_S1_2)
+    # the fleet's own records after a step (fresh filters: the singles above have run)
+    fleet, singles, zs = fleet_batch_setup(K=3, T=7)
+    fleet.gate = gate
+    for f in singles:
+        f.gate = gate
+    fleet.batch_filter(zs[:, :3])
+    fleet.predict()
+    fleet.update(zs[:, 3])
+    for k, f in enumerate(singles):
+        f.batch_filter(zs[k, :3])
+        f.predict()
+        f.update(zs[k, 3])
+        assert np.array_equal(fleet.y_whitened[k], f.y_whitened, equal_nan=True)
+        assert fleet.log_det_S1_2[k] == f.log_det_S1_2
+    assert fleet.subset([2]).y_whitened[0].tolist() == fleet.y_whitened[2].tolist()
+
+
+def test_whitened_records_are_kept_only_when_asked_and_keep_is_checked():
+    fleet, _, zs = fleet_batch_setup(K=2, T=4)
+    assert fleet.subset(slice(None)).batch_filter(zs).y_whitened is None
+    assert fleet.subset(slice(None)).batch_filter(zs, keep="means").log_det_S1_2 is None
+    for bad in ("whitened", ("final", "whitened"), ("means", "all"), ("means", "whitened", "x"), ["means"]):
+        before = fleet.x
+        with pytest.raises(ParameterError, match="keep"):
+            fleet.batch_filter(zs, keep=bad)
+        assert np.array_equal(fleet.x, before)

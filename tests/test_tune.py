@@ -385,3 +385,52 @@ def test_fit_noise_refuses_a_template_between_ask_and_tell_and_bad_parametrisati
     for level in (0.0, 1.0, 1.5, "high"):
         with pytest.raises(ParameterError, match="level"):
             fit.intervals(level)
+
+
+# -- the least-squares form -------------------------------------------------------------------------
+
+
+def test_the_whitened_records_are_the_log_likelihood_of_each_candidate(recordings):
+    """``log L = sum -(|w|^2 + m log 2 pi) / 2 - log det S1_2`` over the updates, per candidate and
+    recording: the residuals the least-squares fit minimises are the likelihood, to rounding."""
+    from squkf.candidates import Candidates, candidate_factors, run, run_whitened
+
+    (Q1_2, _), (R1_2, _) = candidate_factors(CANDIDATES_Q, "Qs", 4), candidate_factors(CANDIDATES_R, "Rs", 2)
+    c = Candidates(Q1_2=Q1_2, R1_2=R1_2)
+    z = recordings.copy()
+    z[0, 5, 1] = np.nan  # a missing component and a missing step: no residuals of theirs
+    z[1, 7] = np.nan
+    W, L, failures = run_whitened(template(), z, c, 3, 2, {})
+    loglik, _ = run(template(), z, c, 3, 2, {})
+    assert not failures and W.shape == (3, 3, T - 2, 2) and L.shape == (3, 3, T - 2)
+    measured = ~np.isnan(z[:, 2:])
+    assert np.array_equal(~np.isnan(W[0]), measured)
+    mo = measured.sum(axis=-1)
+    from_records = (-0.5 * (np.nansum(W**2, axis=-1) + mo * np.log(2 * np.pi)) - L).sum(axis=-1)
+    # T sums of terms of size about 1: a relative 1e-12 of the total
+    np.testing.assert_allclose(from_records, loglik, rtol=1e-12)
+
+
+def test_least_squares_restarts_with_a_larger_constant_and_reaches_the_optimum(cv_recordings, monkeypatch):
+    """With no margin above the start's ``-2 log det S1_2`` the first smaller innovation factor makes a
+    root imaginary: the solver restarts from its best point with a larger constant, to the same optimum."""
+    from squkf import noise_fit
+
+    z = cv_recordings[2]
+    best = tune.fit_noise(tune_template(), z, R=tune.Diagonal(), method="quasi_newton")
+    f = tune_cv_filter(q=1.0, r1=10.0, r2=40.0)  # the start's factors larger than the optimum's
+    calls = []
+    restart = noise_fit._RestartError.__init__
+
+    def counted(self, c):
+        calls.append(c)
+        restart(self, c)
+
+    monkeypatch.setattr(noise_fit, "C_MARGIN", 0.0)
+    monkeypatch.setattr(noise_fit._RestartError, "__init__", counted)
+    snap = filter_state(f)
+    fit = tune.fit_noise(f, z, R=tune.Diagonal())
+    assert calls, "no restart: the test no longer reaches a smaller innovation factor"
+    assert fit.method == "least_squares" and fit.success
+    assert abs(fit.log_likelihood - best.log_likelihood) < 1e-3
+    assert_filter_state(f, snap)

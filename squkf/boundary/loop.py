@@ -17,9 +17,19 @@ import numpy as np
 
 from ..errors import ParameterError, SqukfError
 
-__all__ = ["KEEP", "Transaction", "annotate_step", "check_keep", "check_progress", "progress_callback"]
+__all__ = [
+    "KEEP",
+    "WHITENED",
+    "Transaction",
+    "annotate_step",
+    "check_keep",
+    "check_progress",
+    "progress_callback",
+]
 
 KEEP = ("all", "diagonals", "means", "final")
+#: The word of ``keep`` that adds each step's whitened innovations and ``log det S1_2`` to a fleet's run.
+WHITENED = "whitened"
 
 
 class Transaction:
@@ -49,20 +59,37 @@ class Transaction:
         self._state = None
 
 
-def check_keep(keep) -> str:
-    """``keep`` of a fleet's run: one of ``"all"``, ``"diagonals"``, ``"means"``, ``"final"``.
+def check_keep(keep) -> tuple[str, bool]:
+    """``keep`` of a fleet's run, as what to keep of the state and whether the whitened record too.
 
     Parameters
     ----------
-    keep : str
+    keep : str or tuple of str
+        One of :data:`KEEP` (``"all"``, ``"diagonals"``, ``"means"``, ``"final"``), or a tuple of one of
+        them and ``"whitened"``: each step's whitened innovations and ``log det S1_2`` kept as well
+        (not with ``"final"``, which keeps no step's records).
 
     Returns
     -------
-    str
+    state : str
+        One of :data:`KEEP`.
+    whitened : bool
     """
-    if keep not in KEEP:
-        raise ParameterError(f"keep must be 'all', 'diagonals', 'means' or 'final', got keep={keep!r}")
-    return keep
+    words = keep if isinstance(keep, tuple) else (keep,)
+    states = [w for w in words if isinstance(w, str) and w in KEEP]
+    rest = [w for w in words if not (isinstance(w, str) and w in KEEP)]
+    if len(states) != 1 or rest not in ([], [WHITENED]):
+        raise ParameterError(
+            "keep must be 'all', 'diagonals', 'means' or 'final', or a tuple of one of them and 'whitened',"
+            f" got keep={keep!r}"
+        )
+    whitened = bool(rest)
+    if whitened and states[0] == "final":
+        raise ParameterError(
+            f"keep={keep!r}: 'final' keeps no step's records, so not the whitened innovations of every step;"
+            " keep ('means', 'whitened') for them"
+        )
+    return states[0], whitened
 
 
 def check_progress(progress) -> None:

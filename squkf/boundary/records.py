@@ -13,7 +13,16 @@ import numpy as np
 from ..errors import FleetStepError
 from ..linalg import solve_lower
 
-__all__ = ["FleetResult", "Records", "embed", "failures_error", "innovation_inverse", "new_records"]
+__all__ = [
+    "FleetResult",
+    "Records",
+    "embed",
+    "failures_error",
+    "innovation_inverse",
+    "new_records",
+    "log_det",
+    "whitened",
+]
 
 
 @dataclass
@@ -42,6 +51,14 @@ class FleetResult:
     nis : ndarray, shape (K, T), or None with ``keep="final"``
         Each step's normalised innovation squared (0 where a filter had no
         measurement or had failed).
+    y_whitened : ndarray, shape (K, T, m), or None
+        Each step's whitened innovation ``S1_2^-1 y`` (NaN where a component was
+        not measured or a filter not updated), kept when ``keep`` names
+        ``"whitened"``: with ``log_det_S1_2`` the log-likelihood as residuals
+        (what :func:`squkf.tune.fit_noise` reads).
+    log_det_S1_2 : ndarray, shape (K, T), or None
+        Each step's ``log det S1_2`` of the measured block (0 where none), kept
+        with ``y_whitened``.
     """
 
     means: np.ndarray | None
@@ -53,6 +70,8 @@ class FleetResult:
     P1_2: np.ndarray
     rejected: np.ndarray | None = None
     nis: np.ndarray | None = None
+    y_whitened: np.ndarray | None = None
+    log_det_S1_2: np.ndarray | None = None
 
 
 class Records(NamedTuple):
@@ -64,6 +83,8 @@ class Records(NamedTuple):
     loglik: np.ndarray
     rejected: np.ndarray
     nis: np.ndarray | None
+    y_whitened: np.ndarray | None
+    log_det: np.ndarray | None
 
     def keep(self, t: int, update) -> None:
         """Keep step ``t``'s update: its estimates ``x (K, n)``, ``S (K, n, n)`` and its records.
@@ -79,6 +100,8 @@ class Records(NamedTuple):
             self.loglik[:, t], self.rejected[:, t], self.nis[:, t] = (
                 update.log_likelihood, update.rejected, update.nis,
             )  # fmt: skip
+        if self.y_whitened is not None and self.log_det is not None:
+            self.y_whitened[:, t], self.log_det[:, t] = update.w, update.log_det_S1_2
         if self.means is not None:
             self.means[:, t] = x
         if self.factors is not None:
@@ -94,7 +117,7 @@ class Records(NamedTuple):
         )
 
 
-def new_records(keep: str, K: int, T: int, n: int, m: int) -> Records:
+def new_records(keep: str, K: int, T: int, n: int, m: int, whitened: bool = False) -> Records:
     """The arrays of a run of ``T`` steps of ``K`` filters that ``keep`` asks for.
 
     Parameters
@@ -102,6 +125,8 @@ def new_records(keep: str, K: int, T: int, n: int, m: int) -> Records:
     keep : {"all", "diagonals", "means", "final"}
     K, T, n, m : int
         Filters, steps, state and measurement sizes.
+    whitened : bool
+        Keep the whitened innovations ``(K, T, m)`` and ``log det S1_2`` ``(K, T)`` too.
 
     Returns
     -------
@@ -116,7 +141,9 @@ def new_records(keep: str, K: int, T: int, n: int, m: int) -> Records:
     loglik = np.zeros((K, T)) if keep != "final" else np.zeros(K)
     rejected = np.zeros((K, T, m), dtype=bool) if keep != "final" else np.zeros((K, m), dtype=np.int64)
     nis = np.zeros((K, T)) if keep != "final" else None
-    return Records(means, factors, variances, loglik, rejected, nis)
+    w = np.empty((K, T, m)) if whitened else None
+    log_det = np.empty((K, T)) if whitened else None
+    return Records(means, factors, variances, loglik, rejected, nis, w, log_det)
 
 
 def failures_error(fails: dict[int, str], during: str = "") -> FleetStepError:
@@ -186,3 +213,45 @@ def innovation_inverse(Sy: np.ndarray, observed: np.ndarray | None) -> np.ndarra
         return embed(np.zeros((m, m)), observed, np.nan)
     W = solve_lower(Sy, np.eye(m))
     return embed(W.T @ W, observed, np.nan)
+
+
+def whitened(w: np.ndarray, observed: np.ndarray | None, m: int) -> np.ndarray:
+    """The whitened innovations ``Sy^-1 y`` of an update in the measured components' places.
+
+    Parameters
+    ----------
+    w : ndarray, shape (B, o)
+        Over the ``o`` measured components.
+    observed : ndarray of bool, shape (m,), or None
+        The measured components (None: all).
+    m : int
+
+    Returns
+    -------
+    ndarray, shape (B, m)
+        NaN where a component was not measured (a new array).
+    """
+    if observed is None:
+        return w.copy()
+    full = np.full((w.shape[0], m), np.nan)
+    full[:, observed] = w
+    return full
+
+
+def log_det(Sy: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """``log det Sy`` of each innovation factor (over its measured block: 0 for an empty one).
+
+    Parameters
+    ----------
+    Sy : ndarray, shape (B, o, o)
+        Triangular.
+    out : ndarray, shape (B,), optional
+        Where to write it.
+
+    Returns
+    -------
+    ndarray, shape (B,)
+        (``-inf`` for a singular factor: a failed filter's, which its caller replaces.)
+    """
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.log(np.abs(np.diagonal(Sy, axis1=1, axis2=2))).sum(axis=1, out=out)
