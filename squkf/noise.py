@@ -24,8 +24,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from . import kernels
 from .errors import ParameterError
+from .kernels import wrappers
 from .validate import note_on_user_error
 
 __all__ = ["check_noise_dim", "check_accepts_noise", "noise_points", "handed_points", "call_model"]
@@ -110,7 +110,7 @@ def noise_points(xi: np.ndarray, factor: np.ndarray | None, batch: tuple[int, ..
     if factor is None:
         return np.zeros(batch + (N, d))
     factor = np.broadcast_to(factor, batch + (d, d))
-    _, offsets = kernels.sigma_points(np.zeros(batch + (d,)), factor, xi, 0.0)
+    _, offsets = wrappers.sigma_points(np.zeros(batch + (d,)), factor, xi, 0.0)
     assert offsets is not None
     return offsets
 

@@ -55,7 +55,6 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from . import kernels
 from .batch import model_kwargs, per_step
 from .boundary.checks import evaluate, finite_images, model_function, noise_factor, with_filter_axis
 from .boundary.covariance import FactorSlot, as_lower_factor
@@ -68,6 +67,7 @@ from .errors import (
     SqukfError,
 )
 from .generators import UnitSet, sigma_points_from_factor
+from .kernels import wrappers
 from .linalg import chol_downdate_columns, kalman_gain, tria
 from .plan import Hooks
 from .stacks import rows_of, run_isolated
@@ -511,7 +511,7 @@ def _finite_per_filter(arrays: tuple[np.ndarray, ...]) -> np.ndarray:
     """Whether each filter's slice (leading axis) of every array is finite."""
     ok = np.ones(arrays[0].shape[0], dtype=bool)
     for a in arrays:
-        ok &= kernels.finite_rows(a)
+        ok &= wrappers.finite_rows(a)
     return ok
 
 

@@ -203,7 +203,10 @@ def test_the_front_ends_and_the_smoother_import_each_other_in_no_cycle():
 #: squkf's layers, bottom up (ARCHITECTURE.md): a module imports from its own layer and those below only.
 LAYERS = {
     "the exceptions": ["squkf._version", "squkf.errors"],
-    "kernels": ["squkf.kernels", "squkf.kernels.phases", "squkf.kernels.cache"],
+    "kernels": [
+        "squkf.kernels", "squkf.kernels.phases", "squkf.kernels.cache", "squkf.kernels.threads",
+        "squkf.kernels.table", "squkf.kernels.wrappers",
+    ],
     "plug-ins and support": [
         "squkf.angles", "squkf.blas", "squkf.rows", "squkf.weights", "squkf.generators", "squkf.gating",
         "squkf.noise", "squkf.validate", "squkf.linalg", "squkf.transform", "squkf.statuses",

@@ -16,10 +16,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .. import kernels
 from ..batch import iter_measurements
 from ..errors import NonFiniteError, ParameterError, ShapeError
 from ..generators import as_generator, noise_family
+from ..kernels import wrappers
 from ..linalg import all_finite, factor_covariance
 from ..noise import check_accepts_noise, check_noise_dim
 from ..plan import check_built_for
@@ -634,7 +634,7 @@ def finite_images(A: np.ndarray, name: str, active, fails: dict) -> np.ndarray:
     -------
     ndarray of bool, shape (K,)
     """
-    finite = kernels.finite_rows(A)
+    finite = wrappers.finite_rows(A)
     for k in np.flatnonzero(active & ~finite).tolist():
         fails.setdefault(int(k), f"NonFiniteError: {describe_nonfinite(A[k], name)}")
     return finite
