@@ -5,7 +5,7 @@ a block of B (:mod:`squkf.stacks`). The step, as data::
 
     x, S --points--> X --fx--> F --prior + second set--> Y --hx--> H --posterior + first set--> x, S
 
-Every arrow but ``fx`` and ``hx`` is a kernel of the table :data:`squkf.table.KERNELS`.
+Every arrow but ``fx`` and ``hx`` is a kernel of the table :data:`squkf.kernels.table.KERNELS`.
 On the default route (no hooks, no ``UT``, a second set that reproduces the
 prior) a step is two kernel calls: after ``fx``, one gives the prior and the
 second set; after ``hx``, one gives the posterior and the next first set. Other
