@@ -44,7 +44,7 @@ from .boundary.checks import (
     noise_factors,
     reset_rows,
 )
-from .boundary.config import Config, check_pending, filter_kwargs, filter_of, stacked
+from .boundary.config import Config, check_pending, filter_kwargs, filter_of, model_noise, stacked
 from .boundary.covariance import HandOut, Hook, ModelFunction
 from .boundary.loop import Transaction, annotate_step, check_keep, check_progress, progress_callback
 from .boundary.records import FleetResult, Records, failures_error, new_records
@@ -271,7 +271,7 @@ class Fleet:
         )  # fmt: skip
         if on_error not in ("flag", "raise"):
             raise ParameterError(f"on_error must be 'flag' or 'raise', got on_error={on_error!r}")
-        self._fx_noise, self._hx_noise = checks.model_noise(fx, hx, fx_noise, hx_noise)
+        self._fx_noise, self._hx_noise = model_noise(fx, hx, fx_noise, hx_noise)
         self._qd, self._rd = self._fx_noise or n, self._hx_noise or m  # the dimensions of Q and R
         self._handed = HandOut()  # x, P, Q, R: the arrays handed out, for edits in place
         self._K, self._n, self._m = K, n, m

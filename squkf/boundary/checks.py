@@ -18,11 +18,8 @@ import numpy as np
 
 from ..batch import iter_measurements
 from ..errors import NonFiniteError, ParameterError, ShapeError
-from ..generators import as_generator, noise_family
 from ..kernels import wrappers
 from ..linalg import all_finite, factor_covariance
-from ..noise import check_accepts_noise, check_noise_dim
-from ..plan import check_built_for
 from ..validate import (
     as_float_array,
     as_measurements,
@@ -30,7 +27,6 @@ from ..validate import (
     describe_nonfinite,
     note_on_user_error,
 )
-from ..weights import FilterpyPoints, as_family
 from .covariance import FactorSlot, as_lower_factor, as_matrix
 
 _FLOAT64 = np.dtype(np.float64)
@@ -53,7 +49,6 @@ __all__ = [
     "measurements",
     "model_function",
     "model_functions",
-    "model_noise",
     "noise_factor",
     "noise_factors",
     "per_filter",
@@ -62,8 +57,6 @@ __all__ = [
     "refuse_noise_args",
     "refuse_smoother_noise",
     "reset_rows",
-    "second_set",
-    "sigma_family",
     "stack_call_note",
     "stacked_shape",
     "with_filter_axis",
@@ -640,29 +633,6 @@ def finite_images(A: np.ndarray, name: str, active, fails: dict) -> np.ndarray:
     return finite
 
 
-def model_noise(fx: Callable | None, hx: Callable | None, fx_noise, hx_noise) -> tuple[int, int]:
-    """The dimensions of the noise entering ``fx`` and ``hx``, checked with the functions that take it.
-
-    Parameters
-    ----------
-    fx, hx : callable or None
-        With noise, ``fx(x, w, dt)`` and ``hx(x, v)`` must take it (:mod:`squkf.noise`);
-        None (a function given per call) is not checked.
-    fx_noise, hx_noise : int or None
-        None: additive noise.
-
-    Returns
-    -------
-    (int, int)
-        The dimensions, 0 for additive noise.
-    """
-    dw = check_noise_dim(fx_noise, "fx_noise")
-    dv = check_noise_dim(hx_noise, "hx_noise")
-    check_accepts_noise(fx, "fx", dw, 3)
-    check_accepts_noise(hx, "hx", dv, 2)
-    return dw, dv
-
-
 def refuse_smoother_noise(fx_noise: int, who: str) -> None:
     """The RTS smoothers take additive process noise only: refuse a ``filter`` or ``fleet`` with ``fx_noise``.
 
@@ -701,62 +671,6 @@ def refuse_noise_args(noise_xi, name: str, value, UT) -> None:
         )
     if UT is not None:
         raise ParameterError(f"UT cannot be given with {which}: the transform has no noise to add")
-
-
-def sigma_family(points, n: int, fx_noise: int) -> tuple[object, int]:
-    """``points`` as a sigma-point family, checked to serve dimension ``n``, and its number of points.
-
-    Parameters
-    ----------
-    points : sigma-point family or filterpy points object
-    n : int
-        State dimension.
-    fx_noise : int
-        Dimension of the noise entering ``fx`` (0: additive); the first set is then augmented.
-
-    Returns
-    -------
-    family : squkf.weights.SigmaPointFamily
-    num : int
-        Number of points of the first set.
-
-    Notes
-    -----
-    The dimension a filterpy points object was built for is checked against
-    every set it serves with the plan (:func:`squkf.plan.check_built_for`),
-    which the filter builds next; here only the first set is known.
-    """
-    family = as_family(points)
-    if isinstance(family, FilterpyPoints) and family.as_native() is None:
-        check_built_for(family, "points", n, fx_noise)  # it serves the first set as it is, or not at all
-    try:
-        num = noise_family(family, n, fx_noise).num_sigmas(n + fx_noise)
-    except ParameterError:
-        raise
-    except Exception as exc:  # a user's family that cannot serve this dimension
-        raise ParameterError(f"points cannot give sigma points for dim_x={n}: {exc}") from exc
-    return family, num
-
-
-def second_set(scheme, n: int, family, hx_noise: int):
-    """The second-set generator of ``scheme``, checked against the family at dimension ``n`` now.
-
-    Parameters
-    ----------
-    scheme : {"redrawn", "augmented", "propagated"} or generator
-    n : int
-    family : squkf.weights.SigmaPointFamily
-    hx_noise : int
-        Dimension of the noise entering ``hx`` (0: additive).
-
-    Returns
-    -------
-    generator
-    """
-    gen = as_generator(scheme)
-    if hasattr(gen, "num_sigmas") and not hx_noise:
-        gen.num_sigmas(n, noise_family(family, n, 0))  # fails now, not at the first update
-    return gen
 
 
 def noise_factor(
