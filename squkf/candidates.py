@@ -14,7 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .boundary.covariance import as_matrix
+from .boundary.checks import as_matrix
 from .errors import FleetStepError, NonFiniteError, ParameterError, ShapeError, SqukfError
 from .fleet import Fleet
 from .linalg import factor_covariance

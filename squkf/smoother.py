@@ -56,8 +56,15 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from .batch import model_kwargs, per_step
-from .boundary.checks import evaluate, finite_images, model_function, noise_factor, with_filter_axis
-from .boundary.covariance import FactorSlot, as_lower_factor
+from .boundary.checks import (
+    as_lower_factor,
+    evaluate,
+    finite_images,
+    model_function,
+    noise_factor,
+    with_filter_axis,
+)
+from .boundary.covariance import FactorSlot
 from .boundary.records import FleetResult, failures_error
 from .errors import (
     NonFiniteError,

@@ -22,7 +22,7 @@ import numpy as np
 from . import smoother
 from .batch import batch_filter
 from .boundary import checks
-from .boundary.checks import noise_factor
+from .boundary.checks import as_lower_factor, noise_factor
 from .boundary.config import Config, model_noise, second_set, sigma_family
 from .boundary.covariance import (
     NOISES,
@@ -34,7 +34,6 @@ from .boundary.covariance import (
     Hook,
     ModelFunction,
     Unformed,
-    as_lower_factor,
     hooks_of,
     initial,
     set_factor,

@@ -6,7 +6,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .boundary.covariance import as_lower_factor
+from .boundary.checks import as_lower_factor
 from .errors import ShapeError
 from .generators import sigma_points_from_factor
 from .transform import deviations, sqrt_unscented_transform
