@@ -12,11 +12,10 @@ a model function's images) is :mod:`squkf.validate`'s.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Mapping, Set
 
 import numpy as np
 
-from ..batch import iter_measurements
 from ..errors import NonFiniteError, NotPositiveDefiniteError, ParameterError, ShapeError, SqukfValueError
 from ..kernels import wrappers
 from ..linalg import all_finite, factor_covariance
@@ -44,6 +43,7 @@ __all__ = [
     "finite_images",
     "given_noise_factors",
     "is_per_filter",
+    "iter_measurements",
     "lower_factors",
     "measurement",
     "measurement_series",
@@ -376,6 +376,42 @@ def measurements(z, K: int, m: int, name: str = "z") -> np.ndarray:
         k = int(np.flatnonzero(np.isinf(zz).any(axis=1))[0])
         raise NonFiniteError(f"{name} contains inf (row {k}; NaN means a missing component)")
     return zz
+
+
+def iter_measurements(zs) -> Iterator:
+    """An iterator over the steps of ``zs``, after checking that ``zs`` is an ordered iterable.
+
+    The one check of what ``zs`` itself may be, for ``SquareRootUKF.batch_filter``
+    and ``Fleet.batch_filter`` alike; what each step yields is checked by the
+    filter, naming the step.
+
+    Parameters
+    ----------
+    zs : iterable
+        A list, a tuple, an array (one row per step), a generator, ``tqdm(...)``.
+
+    Returns
+    -------
+    iterator
+
+    Raises
+    ------
+    ShapeError
+        ``zs`` is a string, bytes, a dict or a set (no steps in an order), or
+        not iterable at all.
+    """
+    if isinstance(zs, (str, bytes, Mapping, Set)):
+        raise ShapeError(
+            "zs must be an iterable of measurements in step order (a list, an array, a generator), "
+            f"got {type(zs).__name__}: {zs!r:.100}"
+        )
+    try:
+        return iter(zs)
+    except TypeError:
+        raise ShapeError(
+            f"zs must be an iterable of measurements (a list, an array, a generator), "
+            f"got {type(zs).__name__}: {zs!r:.200}"
+        ) from None
 
 
 def measurement_series(zs, K: int, m: int) -> np.ndarray:
