@@ -192,7 +192,7 @@ def step_profile(sc, reps: int = 1000) -> dict[str, float]:
     :class:`InlineStep` calls them); the facade's and engine's share is what
     remains of the whole step's time.
     """
-    from squkf.boundary import checks
+    from squkf import checks
     from squkf.engine import _images
 
     n, m = sc.dim_x, sc.dim_z

@@ -24,10 +24,9 @@ from typing import Any, cast
 
 import numpy as np
 
-from .boundary.checks import iter_measurements
 from .boundary.loop import annotate_step, progress_callback
+from .checks import check_time_step, iter_measurements
 from .errors import ParameterError, ShapeError
-from .validate import check_time_step
 
 __all__ = ["batch_filter", "model_kwargs", "per_step"]
 

@@ -40,6 +40,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import blas
+from .checks import check_hook_result, check_values, describe_nonfinite
 from .errors import CallSequenceError, NonFiniteError, SqukfError
 from .generators import SigmaSet, sigma_points_from_factor
 from .kernels import table
@@ -49,7 +50,6 @@ from .plan import IDLE, PREDICTING, PRIOR, UPDATING, Hooks, Plan
 from .rows import RowForm
 from .statuses import failure, first_status, prior_failure, singular_allowed
 from .transform import transform_factor
-from .validate import check_hook_result, check_values, describe_nonfinite
 
 __all__ = [
     "IDLE",

@@ -36,10 +36,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .checks import call_hook
 from .errors import ParameterError
 from .kernels import wrappers
 from .rows import WeightRows, weight_rows
-from .validate import call_hook
 from .weights import FilterpyPoints, as_family
 
 __all__ = [

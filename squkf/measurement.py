@@ -54,6 +54,7 @@ from typing import NamedTuple, cast
 
 import numpy as np
 
+from .checks import call_hook, check_hook_result
 from .errors import GainError, PosteriorFactorError
 from .generators import SigmaSet
 from .kernels import wrappers
@@ -62,7 +63,6 @@ from .linalg import all_finite, solve_lower, tria
 from .rows import RowForm, WeightRows, weight_rows
 from .statuses import failure, first_status, singular_allowed
 from .transform import deviations, factor_rows, transform_factor, weighted_mean
-from .validate import call_hook, check_hook_result
 
 __all__ = [
     "Posterior",

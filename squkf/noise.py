@@ -24,9 +24,9 @@ from collections.abc import Callable
 
 import numpy as np
 
+from .checks import note_on_user_error
 from .errors import ParameterError
 from .kernels import wrappers
-from .validate import note_on_user_error
 
 __all__ = ["check_noise_dim", "check_accepts_noise", "noise_points", "handed_points", "call_model"]
 
@@ -152,7 +152,7 @@ def call_model(
     An exception ``fn`` raises propagates unchanged (the same object), as
     every exception from ``fx``/``hx`` does; on Python >= 3.11 it carries a
     note naming ``{name}_noise`` and the shape of the noise given
-    (:func:`squkf.validate.note_on_user_error`).
+    (:func:`squkf.checks.note_on_user_error`).
 
     Parameters
     ----------

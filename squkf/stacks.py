@@ -29,7 +29,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .boundary.checks import finite_images, stacked_shape
+from .checks import describe_nonfinite, finite_images, stacked_shape
 from .engine import Buffers, Route, Scratch
 from .errors import NonFiniteError, NotPositiveDefiniteError, SqukfError
 from .generators import SigmaSet
@@ -37,7 +37,6 @@ from .kernels.table import kernel_array
 from .kernels.threads import enter_step, exit_step, thread_map
 from .rows import RowForm
 from .statuses import failure
-from .validate import describe_nonfinite
 
 __all__ = [
     "BLOCK",

@@ -15,12 +15,12 @@ from collections.abc import Callable
 
 import numpy as np
 
+from .checks import as_float_array, call_hook
 from .errors import DowndateError, NonFiniteError, NotPositiveDefiniteError, ShapeError
 from .kernels import wrappers
 from .kernels.table import CENTRAL, GIVEN, MEAN
 from .linalg import all_finite
 from .rows import RowForm, WeightRows, weight_rows
-from .validate import as_float_array, call_hook
 
 __all__ = [
     "weighted_mean",

@@ -19,10 +19,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from . import smoother
+from . import checks, smoother
 from .batch import batch_filter
-from .boundary import checks
-from .boundary.checks import as_lower_factor, noise_factor
 from .boundary.config import Config, model_noise, second_set, sigma_family
 from .boundary.covariance import (
     NOISES,
@@ -40,6 +38,7 @@ from .boundary.covariance import (
 )
 from .boundary.loop import Transaction
 from .boundary.records import embed, innovation_inverse
+from .checks import as_float_array, as_lower_factor, check_time_step, check_values, noise_factor
 from .engine import Engine, Route, Update
 from .errors import NonFiniteError, ParameterError, ShapeError, UnsetError
 from .gating import Gate, as_gate
@@ -48,7 +47,6 @@ from .measurement import gain_from_factors
 from .noise import call_model, handed_points, noise_points
 from .plan import Plan, build_plan
 from .transform import cross_covariance
-from .validate import as_float_array, check_time_step, check_values
 from .weights import WrittenWeights
 
 __all__ = ["SquareRootUKF"]

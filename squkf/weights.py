@@ -29,8 +29,8 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 
+from .checks import short_repr
 from .errors import ParameterError
-from .validate import short_repr
 
 __all__ = [
     "SigmaPointFamily",

@@ -16,7 +16,8 @@ import pytest
 from models import CV3_K, CV3_NZ, assert_fleet_state, fleet_state, make_cv3_fleet
 
 import squkf
-from squkf.boundary import checks, config, covariance, loop, records
+from squkf import checks
+from squkf.boundary import config, covariance, loop, records
 from squkf.errors import FleetStepError, NonFiniteError, ParameterError, ShapeError
 
 PACKAGE = Path(squkf.__file__).resolve().parent
@@ -209,12 +210,12 @@ LAYERS = {
     ],
     "plug-ins and support": [
         "squkf.angles", "squkf.blas", "squkf.rows", "squkf.weights", "squkf.generators", "squkf.gating",
-        "squkf.noise", "squkf.validate", "squkf.linalg", "squkf.transform", "squkf.statuses",
+        "squkf.noise", "squkf.checks", "squkf.linalg", "squkf.transform", "squkf.statuses",
         "squkf.measurement",
     ],
     "the plan": ["squkf.plan"],
     "the boundary": [
-        "squkf.boundary", "squkf.boundary.checks", "squkf.boundary.covariance", "squkf.boundary.records",
+        "squkf.boundary", "squkf.boundary.covariance", "squkf.boundary.records",
         "squkf.boundary.loop", "squkf.boundary.config", "squkf.batch",
     ],
     "the engine": ["squkf.engine"],

@@ -12,7 +12,7 @@ in place as often as it assigns them (``ukf.P *= 10``, ``ukf.Q[2:4, 2:4] = ...``
 - :class:`FactorSlot`: a covariance (``Q``, ``R`` of one filter; a ``P``
   being assigned, validated and factored) held as its lower factor, the
   truth, and handed out as a matrix formed when read;
-  :func:`squkf.boundary.checks.as_matrix` and :func:`~squkf.boundary.checks.as_lower_factor`
+  :func:`squkf.checks.as_matrix` and :func:`~squkf.checks.as_lower_factor`
   validate what is assigned.
 - one filter's attributes in its ``__dict__``, as filterpy keeps them
   (filterpy's ``Saver`` deep-copies the ``__dict__``): data descriptors
@@ -30,11 +30,10 @@ from typing import Any
 
 import numpy as np
 
+from ..checks import as_lower_factor, as_matrix, check_callable, check_flag
 from ..errors import SqukfValueError
 from ..linalg import factor_covariance
 from ..plan import Hooks
-from ..validate import check_callable, check_flag
-from .checks import as_lower_factor, as_matrix
 
 __all__ = [
     "Checked",
@@ -414,7 +413,7 @@ class ModelFunction(Checked):
 
 
 class Flag(Checked):
-    """An option that is on or off (``vectorized``): ``True`` or ``False`` (``validate.check_flag``)."""
+    """An option that is on or off (``vectorized``): ``True`` or ``False`` (``checks.check_flag``)."""
 
     def check(self, value):
         return check_flag(value, self.name)
