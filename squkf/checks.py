@@ -1302,7 +1302,7 @@ def noise_factor(
         The size the step needs (the state's or the measurement's).
     default : callable
         The factor of the filter's own covariance (None: zero), e.g. a
-        :class:`~squkf.boundary.covariance.FactorSlot`'s ``factor``.
+        :class:`~squkf.boundary.attributes.FactorSlot`'s ``factor``.
     cache : dict
         ``name -> (array, its copy, factor)``: an ndarray given again unchanged
         is not factored again.

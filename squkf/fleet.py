@@ -36,8 +36,8 @@ import numpy as np
 
 from . import checks, stacks
 from .batch import model_kwargs, per_step
+from .boundary.attributes import HandOut, Hook, ModelFunction
 from .boundary.config import Config, check_pending, filter_kwargs, filter_of, model_noise, stacked
-from .boundary.covariance import HandOut, Hook, ModelFunction
 from .boundary.loop import Transaction, annotate_step, check_keep, check_progress, progress_callback
 from .boundary.records import FleetResult, Records, failures_error, new_records
 from .checks import (

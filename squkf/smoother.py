@@ -56,7 +56,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from .batch import model_kwargs, per_step
-from .boundary.covariance import FactorSlot
+from .boundary.attributes import FactorSlot
 from .boundary.records import FleetResult, failures_error
 from .checks import (
     as_float_array,

@@ -21,8 +21,7 @@ import numpy as np
 
 from . import checks, smoother
 from .batch import batch_filter
-from .boundary.config import Config, model_noise, second_set, sigma_family
-from .boundary.covariance import (
+from .boundary.attributes import (
     NOISES,
     Covariance,
     Estimate,
@@ -36,6 +35,7 @@ from .boundary.covariance import (
     initial,
     set_factor,
 )
+from .boundary.config import Config, model_noise, second_set, sigma_family
 from .boundary.loop import Transaction
 from .boundary.records import embed, innovation_inverse
 from .checks import as_float_array, as_lower_factor, check_time_step, check_values, noise_factor

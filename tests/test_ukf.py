@@ -80,7 +80,7 @@ from models import (
 from scipy.linalg import solve_discrete_are
 from scipy.stats import chi2
 
-import squkf.boundary.covariance
+import squkf.boundary.attributes
 from squkf import (
     Augmented,
     CallSequenceError,
@@ -1210,9 +1210,9 @@ def test_a_large_state_keeps_its_covariance():
 
 def test_user_matrices_are_factored_once_not_per_step(monkeypatch):
     calls = []
-    real = squkf.boundary.covariance.factor_covariance
+    real = squkf.boundary.attributes.factor_covariance
     monkeypatch.setattr(
-        squkf.boundary.covariance, "factor_covariance", lambda *a, **k: calls.append(a[1]) or real(*a, **k)
+        squkf.boundary.attributes, "factor_covariance", lambda *a, **k: calls.append(a[1]) or real(*a, **k)
     )
     kf, ukf, rng = linear_pair()
     assert calls == ["P", "Q", "R"]  # assigned: factored once each

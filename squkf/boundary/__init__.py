@@ -4,10 +4,11 @@ One layer between the callers and the engine (:mod:`squkf.engine`), used by
 :class:`squkf.SquareRootUKF` (batch shape ``()``), :class:`squkf.Fleet`
 (batch shape ``(K,)``) and :mod:`squkf.dask` (before anything is scheduled):
 
-- :mod:`squkf.boundary.covariance`: a covariance held as its factor and read
-  as a matrix (``FactorSlot``), the edits in place of what is handed out
-  (``Handed``, ``HandOut``), and one filter's attributes in its ``__dict__``
-  as filterpy keeps them (its ``Saver`` copies them);
+- :mod:`squkf.boundary.attributes`: the storage of a filter's attributes: a
+  covariance held as its factor and read as a matrix (``FactorSlot``), the
+  edits in place of what is handed out (``Handed``, ``HandOut``), and one
+  filter's attributes in its ``__dict__`` as filterpy keeps them (its
+  ``Saver`` copies them: ``Estimate``, ``Covariance``, ``Hook``, ...);
 - :mod:`squkf.boundary.records`: what a fleet's run hands out
   (:class:`FleetResult`), the error of its failing filters, the records formed
   from one filter's last update;

@@ -1,4 +1,4 @@
-"""Covariances carried as factors, read and written as matrices, and edits in place of what is handed out.
+"""A filter's attributes as filterpy keeps them: covariances carried as factors, and edits in place.
 
 filterpy code reads and writes a filter's arrays as matrices, and edits them
 in place as often as it assigns them (``ukf.P *= 10``, ``ukf.Q[2:4, 2:4] = ...``,
