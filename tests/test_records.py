@@ -30,6 +30,7 @@ from models import (
     cv3_zs,
     cv_filter,
     cv_fx,
+    edited_pair,
     filter_state,
     fleet_state,
     linear_pair,
@@ -718,15 +719,6 @@ def test_a_one_element_covariance_survives_copies_and_pickles():
 
 
 # -- 10. an in-place edit of fleet.x, P, Q or R is never lost: taken at the next call --------------
-
-
-def edited_pair(edit):
-    """A fleet edited in place by ``edit``, and one given the same values by assignment."""
-    fl, ref = make_cv3_fleet(), make_cv3_fleet()
-    edit(fl)
-    for name in ("x", "P", "Q", "R"):
-        setattr(ref, name, np.array(getattr(fl, name)))
-    return fl, ref
 
 
 EDITS = {
