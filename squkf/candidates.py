@@ -14,11 +14,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .boundary.covariance import as_matrix
+from .checks import as_float_array, as_matrix, as_measurements
 from .errors import FleetStepError, NonFiniteError, ParameterError, ShapeError, SqukfError
 from .fleet import Fleet
 from .linalg import factor_covariance
-from .validate import as_float_array, as_measurements
 
 __all__ = [
     "Candidates",

@@ -5,7 +5,7 @@ a block of B (:mod:`squkf.stacks`). The step, as data::
 
     x, S --points--> X --fx--> F --prior + second set--> Y --hx--> H --posterior + first set--> x, S
 
-Every arrow but ``fx`` and ``hx`` is a kernel of the table :data:`squkf.kernels.KERNELS`.
+Every arrow but ``fx`` and ``hx`` is a kernel of the table :data:`squkf.kernels.table.KERNELS`.
 On the default route (no hooks, no ``UT``, a second set that reproduces the
 prior) a step is two kernel calls: after ``fx``, one gives the prior and the
 second set; after ``hx``, one gives the posterior and the next first set. Other
@@ -39,16 +39,17 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import blas, kernels
+from . import blas
+from .checks import check_hook_result, check_values, describe_nonfinite
 from .errors import CallSequenceError, NonFiniteError, SqukfError
 from .generators import SigmaSet, sigma_points_from_factor
+from .kernels import table
 from .linalg import all_finite
 from .measurement import Posterior, keeps_prior_factor, measurement_update, observed_noise_factor
 from .plan import IDLE, PREDICTING, PRIOR, UPDATING, Hooks, Plan
 from .rows import RowForm
 from .statuses import failure, first_status, prior_failure, singular_allowed
 from .transform import transform_factor
-from .validate import check_hook_result, check_values, describe_nonfinite
 
 __all__ = [
     "IDLE",
@@ -129,15 +130,15 @@ def _joint_route(sset: SigmaSet) -> _Joint:
     form = rows.best
     have = sset.offsets is not None
     if form.central:
-        mode, xref = kernels.CENTRAL, False
+        mode, xref = table.CENTRAL, False
         pair = rows.pair_scale if (sset.axis and have) else 0.0
     else:
-        mode, xref, pair = kernels.MEAN, not have, 0.0
+        mode, xref, pair = table.MEAN, not have, 0.0
     return _Joint(form, mode, have, xref, pair, _ro(rows.Wm), _ro(form.scale), _ro(form.sign))
 
 
 def _ro(a: np.ndarray) -> np.ndarray:
-    return kernels.plan_array(a)
+    return table.plan_array(a)
 
 
 class _ObservedR:
@@ -241,13 +242,13 @@ class Scratch(Buffers):
 def _prior_out(B: int, n: int, N2: int, offsets: bool) -> tuple:
     """The prediction kernel's outputs: mean, factor, status, the second set and its offsets."""
     X2 = np.empty((B, N2, n))
-    D2 = np.empty(X2.shape) if offsets else kernels.no_set(n)
+    D2 = np.empty(X2.shape) if offsets else table.no_set(n)
     return np.empty((B, n)), np.empty((B, n, n)), np.empty(B, dtype=np.int64), X2, D2
 
 
 def _points_out(B: int, N: int, n: int, offsets: bool) -> tuple:
     """A set of points ``(B, N, n)`` and their offsets (or no array for them)."""
-    return np.empty((B, N, n)), np.empty((B, N, n)) if offsets else kernels.no_set(n)
+    return np.empty((B, N, n)), np.empty((B, N, n)) if offsets else table.no_set(n)
 
 
 def _posterior_out(B: int, n: int, m: int, N1: int) -> tuple:
@@ -255,7 +256,7 @@ def _posterior_out(B: int, n: int, m: int, N1: int) -> tuple:
     return (
         np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m)), np.empty((B, n, m)),
         np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B),
-        np.empty(B, dtype=np.int64), np.empty((B, N1, n)) if N1 else kernels.no_set(n),
+        np.empty(B, dtype=np.int64), np.empty((B, N1, n)) if N1 else table.no_set(n),
     )  # fmt: skip
 
 
@@ -302,7 +303,7 @@ class Route:
         self.plain_x = hooks.x_mean_fn is None and hooks.residual_x is None
         self.plain_add = hooks.state_add is None
         self.downdate = keeps_prior_factor(hooks.residual_x, hooks.state_add)
-        self.no_set = kernels.no_set(plan.n)  # a kernel's set output when it draws none
+        self.no_set = table.no_set(plan.n)  # a kernel's set output when it draws none
         self._updates: dict = {}
         self._observed_R = _ObservedR()
         self._zeros: dict[
@@ -326,7 +327,7 @@ class Route:
         """A shared row of zeros ``(1, d)``, made once."""
         z = self._zeros.get(d)
         if z is None:
-            z = self._zeros[d] = kernels.zeros_row(d)
+            z = self._zeros[d] = table.zeros_row(d)
         return z
 
     def stacked(self, factor: np.ndarray, which: int) -> np.ndarray:
@@ -338,7 +339,7 @@ class Route:
         kept = self._noise.get(which)
         if kept is not None and kept[0] is factor:
             return kept[1]
-        st = kernels.kernel_array(factor[None] if factor.ndim == 2 else factor)
+        st = table.kernel_array(factor[None] if factor.ndim == 2 else factor)
         self._noise[which] = (factor, st)
         return st
 
@@ -354,7 +355,7 @@ class Route:
         B, n = x.shape
         N = plan.xi1.shape[0]
         X = (_points_out(B, N, n, False) if buffers is None else buffers.take(_points_out, B, N, n, False))[0]
-        kernels.KERNELS.points(x, S, plan.xi1, plan.gamma1, X, self.no_set)
+        table.KERNELS.points(x, S, plan.xi1, plan.gamma1, X, self.no_set)
         return X
 
     def _prior_draw(self, draw: bool, with_Q: bool) -> tuple:
@@ -369,7 +370,7 @@ class Route:
         if fused is not None and fused.augmented and not with_Q:
             fused = None  # the augmented set without noise is the propagated set itself
         if fused is None:
-            drawn: tuple = (None, 0, kernels.no_points(n), 0.0, 0, False)
+            drawn: tuple = (None, 0, table.no_points(n), 0.0, 0, False)
         else:
             N2 = fused.xi.shape[0] + (N if fused.augmented else 0)
             drawn = (fused, 2 if fused.augmented else 1, fused.xi, fused.gamma, N2, not fused.augmented)
@@ -414,8 +415,8 @@ class Route:
                 mean, S, status, X2, D2 = _prior_out(B, n, N2, with_offsets)
             else:
                 mean, S, status, X2, D2 = buffers.take(_prior_out, B, n, N2, with_offsets)
-            noise = kernels.no_noise(n) if Q1_2 is None else self.stacked(Q1_2, 0)
-            kernels.KERNELS.transform(
+            noise = table.no_noise(n) if Q1_2 is None else self.stacked(Q1_2, 0)
+            table.KERNELS.transform(
                 F, self.zeros(n), plan.mode1, plan.wm1, plan.scale1, plan.sign1, noise, mean, S, status,
                 code, xi2, gamma2, X2, D2,
             )  # fmt: skip
@@ -461,7 +462,7 @@ class Route:
             X2, D2 = (
                 _points_out(B, N2, n, True) if buffers is None else buffers.take(_points_out, B, N2, n, True)
             )
-            kernels.KERNELS.points(x, S, fused.xi, fused.gamma, X2, D2)
+            table.KERNELS.points(x, S, fused.xi, fused.gamma, X2, D2)
             rows = fused.rows
             return SigmaSet(X2, rows.Wm, rows.Wc, fused.exact, D2, rows, fused.axis)
         if not self.single:
@@ -569,8 +570,8 @@ class Route:
         Xs = sset.offsets if route.offsets else sset.sigmas
         f = Xs.flags
         if not (f.c_contiguous and f.writeable and Xs.dtype is _FLOAT64):  # a user generator's set
-            Xs = kernels.kernel_array(Xs)
-        kernels.KERNELS.joint_update(
+            Xs = table.kernel_array(Xs)
+        table.KERNELS.joint_update(
             H, self.zeros(m), Xs, x if route.xref else self.zeros(n), z, Rs, x, route.mode, route.wm,
             route.scale, route.sign, route.pair, *out[:11], plan.xi1, plan.gamma1, X1,
         )  # fmt: skip
@@ -682,7 +683,7 @@ class Engine:
         self, route: Route, x: np.ndarray, S: np.ndarray, sigmas_f: np.ndarray, sigmas_h: np.ndarray
     ):
         self.route = self.step_route = route
-        self.x, self.S = kernels.kernel_array(x), kernels.kernel_array(S)
+        self.x, self.S = table.kernel_array(x), table.kernel_array(S)
         self.phase = IDLE
         self.X: np.ndarray | None = None  # the points handed out by a pending ask_predict
         self.prior: tuple[np.ndarray, np.ndarray] | None = None
@@ -726,9 +727,9 @@ class Engine:
     def assign(self, x: np.ndarray | None = None, S: np.ndarray | None = None) -> None:
         """A new estimate from the caller (validated; kept): the sets drawn for the old one are dropped."""
         if x is not None:
-            self.x = kernels.kernel_array(x)  # (as the kernels take it: a factor from LAPACK is in F order)
+            self.x = table.kernel_array(x)  # (as the kernels take it: a factor from LAPACK is in F order)
         if S is not None:
-            self.S = kernels.kernel_array(S)
+            self.S = table.kernel_array(S)
         self._first = None
 
     # -- the prediction -------------------------------------------------------------------------

@@ -34,20 +34,21 @@ from typing import Any
 
 import numpy as np
 
-from . import stacks
+from . import checks, stacks
 from .batch import model_kwargs, per_step
-from .boundary import checks
-from .boundary.checks import (
+from .boundary.attributes import HandOut, Hook, ModelFunction
+from .boundary.config import Config, check_pending, filter_kwargs, filter_of, model_noise, stacked
+from .boundary.loop import Transaction, annotate_step, check_keep, check_progress, progress_callback
+from .boundary.records import FleetResult, Records, failures_error, new_records
+from .checks import (
+    check_time_step,
     covariance_factors,
     given_noise_factors,
     lower_factors,
     noise_factors,
     reset_rows,
+    short_repr,
 )
-from .boundary.config import Config, check_pending, filter_kwargs, filter_of, stacked
-from .boundary.covariance import HandOut, Hook, ModelFunction
-from .boundary.loop import Transaction, annotate_step, check_keep, check_progress, progress_callback
-from .boundary.records import FleetResult, Records, failures_error, new_records
 from .engine import Buffers, Route
 from .errors import CallSequenceError, FleetStepError, ParameterError, UnsetError
 from .gating import Gate, as_gate
@@ -57,7 +58,6 @@ from .plan import IDLE, PREDICTING, PRIOR, UPDATING, Hooks, build_plan
 from .smoother import fleet_rts_smoother
 from .stacks import rows_of
 from .ukf import SquareRootUKF
-from .validate import check_time_step, short_repr
 from .weights import as_family
 
 __all__ = ["Fleet", "FleetResult", "FleetStepError"]
@@ -271,7 +271,7 @@ class Fleet:
         )  # fmt: skip
         if on_error not in ("flag", "raise"):
             raise ParameterError(f"on_error must be 'flag' or 'raise', got on_error={on_error!r}")
-        self._fx_noise, self._hx_noise = checks.model_noise(fx, hx, fx_noise, hx_noise)
+        self._fx_noise, self._hx_noise = model_noise(fx, hx, fx_noise, hx_noise)
         self._qd, self._rd = self._fx_noise or n, self._hx_noise or m  # the dimensions of Q and R
         self._handed = HandOut()  # x, P, Q, R: the arrays handed out, for edits in place
         self._K, self._n, self._m = K, n, m
@@ -388,7 +388,7 @@ class Fleet:
     def _hooks_assigned(self) -> None:
         self._route = None
 
-    # -- state and noise: handed out (edits in place taken by boundary.covariance.HandOut) -------
+    # -- state and noise: handed out (edits in place taken by boundary.attributes.HandOut) -------
 
     @property
     def x(self) -> np.ndarray:

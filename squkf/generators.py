@@ -36,10 +36,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import kernels
+from .checks import call_hook
 from .errors import ParameterError
+from .kernels import wrappers
 from .rows import WeightRows, weight_rows
-from .validate import call_hook
 from .weights import FilterpyPoints, as_family
 
 __all__ = [
@@ -183,7 +183,7 @@ def sigma_points_and_offsets(
     sigmas : ndarray, shape (..., N, n)
     offsets : ndarray, shape (..., N, n)
     """
-    sigmas, dx = kernels.sigma_points(x, S, xi, 0.0 if gamma is None else gamma)
+    sigmas, dx = wrappers.sigma_points(x, S, xi, 0.0 if gamma is None else gamma)
     assert dx is not None
     if _plain_sum(state_add):
         return sigmas, dx
@@ -202,7 +202,7 @@ def sigma_points_from_factor(
 ) -> np.ndarray:
     """The sigma points of :func:`sigma_points_and_offsets` alone, shape ``(..., N, n)``."""
     if _plain_sum(state_add):  # the offsets are not needed: not formed
-        return kernels.sigma_points(x, S, xi, 0.0 if gamma is None else gamma, offsets=False)[0]
+        return wrappers.sigma_points(x, S, xi, 0.0 if gamma is None else gamma, offsets=False)[0]
     return sigma_points_and_offsets(x, S, xi, state_add, gamma)[0]
 
 

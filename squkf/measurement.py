@@ -54,14 +54,15 @@ from typing import NamedTuple, cast
 
 import numpy as np
 
-from . import kernels
+from .checks import call_hook, check_hook_result
 from .errors import GainError, PosteriorFactorError
 from .generators import SigmaSet
+from .kernels import wrappers
+from .kernels.table import CENTRAL, GIVEN, MEAN
 from .linalg import all_finite, solve_lower, tria
 from .rows import RowForm, WeightRows, weight_rows
 from .statuses import failure, first_status, singular_allowed
 from .transform import deviations, factor_rows, transform_factor, weighted_mean
-from .validate import call_hook, check_hook_result
 
 __all__ = [
     "Posterior",
@@ -253,22 +254,22 @@ def measurement_update(
             Dz = deviations(sigmas_h, z_pred, residual_z, "residual_z")
             y = _innovation(_present(z, z_pred, cols), z_pred, residual_z)
             z_pred, Dz, y = z_pred[..., cols], Dz[..., cols], y[..., cols]
-            u = kernels.joint_update(
-                Dz, _state_deviations(sset, x), y, Ro, x, kernels.GIVEN,
+            u = wrappers.joint_update(
+                Dz, _state_deviations(sset, x), y, Ro, x, GIVEN,
                 rows.Wm, form.scale, form.sign, zref=z_pred,
             )  # fmt: skip
         else:
             form = rows.best
             pair = 0.0
             if form.central:  # deviations from the central point: the offsets' own differences
-                X, xref, mode = (sset.sigmas if sset.offsets is None else sset.offsets), None, kernels.CENTRAL
+                X, xref, mode = (sset.sigmas if sset.offsets is None else sset.offsets), None, CENTRAL
                 if sset.axis and sset.offsets is not None:
                     pair = rows.pair_scale  # 0 unless every +/- row has one weight, none negative
             elif sset.offsets is not None:
-                X, xref, mode = sset.offsets, None, kernels.MEAN
+                X, xref, mode = sset.offsets, None, MEAN
             else:
-                X, xref, mode = sset.sigmas, x, kernels.MEAN
-            u = kernels.joint_update(
+                X, xref, mode = sset.sigmas, x, MEAN
+            u = wrappers.joint_update(
                 sigmas_h, X, z, Ro, x, mode, rows.Wm, form.scale, form.sign, xref=xref, pair=pair
             )
             z_pred = cast(np.ndarray, u.z_pred)
@@ -305,7 +306,7 @@ def measurement_update(
             X, xref = (sset.sigmas, x) if sset.offsets is None else (sset.offsets, np.zeros(n))
         else:
             X, xref = deviations(sset.sigmas, x, residual_x, "residual_x"), np.zeros(n)
-        u = kernels.downdate_update(H, zref, X, xref, y, Sy, S, x, rows.Wc)
+        u = wrappers.downdate_update(H, zref, X, xref, y, Sy, S, x, rows.Wc)
         if not downdate:  # a user's UT with an exact set and no residual_x/state_add: the gain form
             S_gain = _gain_form_posterior(Sy, u.L21, X - xref[..., None, :], H - zref[..., None, :], rows, Ro)
             if not (all_finite(S_gain) and all_finite(u.x)):

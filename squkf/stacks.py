@@ -29,15 +29,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import kernels
-from .boundary.checks import finite_images, stacked_shape
 from .boundary.records import log_det as log_det_of
+from .checks import describe_nonfinite, finite_images, stacked_shape
 from .engine import Buffers, Route, Scratch
 from .errors import NonFiniteError, NotPositiveDefiniteError, SqukfError
 from .generators import SigmaSet
+from .kernels.table import kernel_array
+from .kernels.threads import enter_step, exit_step, thread_map
 from .rows import RowForm
 from .statuses import failure
-from .validate import describe_nonfinite
 
 __all__ = [
     "BLOCK",
@@ -178,10 +178,10 @@ def _map_chunks(
 ) -> None:
     """``one`` over the chunks of a step of ``K`` filters, on the threads of :func:`squkf.set_num_threads`.
 
-    The step holds the thread count it starts with (:func:`squkf.kernels.enter_step`):
+    The step holds the thread count it starts with (:func:`squkf.kernels.threads.enter_step`):
     its chunks are cut for it and run on its threads whatever the count is set to meanwhile.
     """
-    held, own = kernels.enter_step()
+    held, own = enter_step()
     try:
         threads = held.n
         if size is None:
@@ -191,10 +191,10 @@ def _map_chunks(
             if found:
                 fails.update(found)
             return
-        for part in kernels.thread_map(one, chunks(K, size, threads)):
+        for part in thread_map(one, chunks(K, size, threads)):
             fails.update(part)
     finally:
-        kernels.exit_step(held, own)
+        exit_step(held, own)
 
 
 class _Spare(threading.local):
@@ -248,12 +248,12 @@ def _second_size(plan, Q1_2) -> int:
 def _as_kernels_take(x: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The estimates as the kernels take them (float64, C-contiguous, writeable): so are their chunks.
 
-    :func:`squkf.kernels.kernel_array` of each, with the usual case (both already so) in one call.
+    :func:`squkf.kernels.table.kernel_array` of each, with the usual case (both already so) in one call.
     """
     fx, fS = x.flags, S.flags
     if fx.c_contiguous and fx.writeable and fS.c_contiguous and fS.writeable and x.dtype == S.dtype == float:
         return x, S
-    return kernels.kernel_array(x), kernels.kernel_array(S)
+    return kernel_array(x), kernel_array(S)
 
 
 def _statuses(k: int) -> tuple:
@@ -501,7 +501,7 @@ def predict(
         X = route.first_points(xs, Ss, scratch) if first is None else first[rows]
         label = "fx values" if rows.stop - rows.start == K else _label("fx values", rows, K)
         F = stacked_shape(images(rows, X), X.shape, label, False, ("fx", X.shape))
-        F = kernels.kernel_array(F)  # (a model's array of another layout: copied once, as kernels take it)
+        F = kernel_array(F)  # (a model's array of another layout: copied once, as kernels take it)
         on = active[rows]
         Qr = Q1_2 if Q1_2 is None or Q1_2.ndim == 2 else Q1_2[rows]
         xo, So = x_new[rows], S_new[rows]
@@ -635,7 +635,7 @@ def update(
             s = route.second_set(xs, Ss, prop, rows_of(Q1_2, rows, 2), scratch)
         shape = s.sigmas.shape[:-1] + (m,)
         label = "hx values" if rows.stop - rows.start == K else _label("hx values", rows, K)
-        H = kernels.kernel_array(stacked_shape(images(rows, s), shape, label, False, ("hx", s.sigmas.shape)))
+        H = kernel_array(stacked_shape(images(rows, s), shape, label, False, ("hx", s.sigmas.shape)))
         zr = _measured_rows(z, rows, scratch)
         obs = ~np.isnan(zr)
         on = active[rows] & obs.any(axis=1)

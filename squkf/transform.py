@@ -15,11 +15,12 @@ from collections.abc import Callable
 
 import numpy as np
 
-from . import kernels
+from .checks import as_float_array, call_hook
 from .errors import DowndateError, NonFiniteError, NotPositiveDefiniteError, ShapeError
+from .kernels import wrappers
+from .kernels.table import CENTRAL, GIVEN, MEAN
 from .linalg import all_finite
 from .rows import RowForm, WeightRows, weight_rows
-from .validate import as_float_array, call_hook
 
 __all__ = [
     "weighted_mean",
@@ -189,7 +190,7 @@ def factor_rows(
         If a negative weight's downdate would lose positive-definiteness.
     """
     # given rows: the kernel reads no mean weights
-    _, S, status = kernels.transform(D, kernels.GIVEN, form.scale, form.scale, form.sign, noise_sqrt)
+    _, S, status = wrappers.transform(D, GIVEN, form.scale, form.scale, form.sign, noise_sqrt)
     _raise_status(status, form, errno, error)
     return S
 
@@ -232,13 +233,13 @@ def transform_factor(
     plain = mean_fn is None and (residual_fn is None or residual_fn is np.subtract)
     if plain:
         form = rows.best
-        mode = kernels.CENTRAL if form.central else kernels.MEAN
-        mean, S, status = kernels.transform(sigmas, mode, rows.Wm, form.scale, form.sign, noise_sqrt)
+        mode = CENTRAL if form.central else MEAN
+        mean, S, status = wrappers.transform(sigmas, mode, rows.Wm, form.scale, form.sign, noise_sqrt)
     else:
         form = rows.mean_form
         mean = weighted_mean(sigmas, rows.Wm, mean_fn, hooks[0])
         D = deviations(sigmas, mean, residual_fn, hooks[1])
-        _, S, status = kernels.transform(D, kernels.GIVEN, rows.Wm, form.scale, form.sign, noise_sqrt, mean)
+        _, S, status = wrappers.transform(D, GIVEN, rows.Wm, form.scale, form.sign, noise_sqrt, mean)
     _raise_status(status, form, errno, error)
     return mean, S
 
