@@ -53,6 +53,7 @@ from .errors import CallSequenceError, FleetStepError, ParameterError, UnsetErro
 from .gating import Gate, as_gate
 from .generators import SigmaSet, as_generator
 from .noise import handed_points, noise_points
+from .angles import check_angle_hooks
 from .plan import IDLE, PREDICTING, PRIOR, UPDATING, Hooks, build_plan
 from .smoother import fleet_rts_smoother
 from .stacks import rows_of
@@ -268,6 +269,10 @@ class Fleet:
         checks.model_functions(
             False, hx=hx, fx=fx, x_mean_fn=x_mean_fn, z_mean_fn=z_mean_fn, residual_x=residual_x,
             residual_z=residual_z, state_add=state_add,
+        )  # fmt: skip
+        check_angle_hooks(
+            n, m, x_mean_fn=x_mean_fn, z_mean_fn=z_mean_fn, residual_x=residual_x, residual_z=residual_z,
+            state_add=state_add,
         )  # fmt: skip
         if on_error not in ("flag", "raise"):
             raise ParameterError(f"on_error must be 'flag' or 'raise', got on_error={on_error!r}")

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from ..angles import check_angle_hook
 from ..errors import NonFiniteError, NotPositiveDefiniteError, ShapeError, SqukfValueError
 from ..linalg import all_finite, factor_covariance
 from ..plan import Hooks
@@ -492,11 +493,15 @@ class Hook(Checked):
     """A hook (``residual_x``, ``state_add``, ...): callable or None.
 
     Setting one tells the filter (``_hooks_assigned``), which builds its
-    :class:`~squkf.plan.Hooks` again.
+    :class:`~squkf.plan.Hooks` again. squkf's own angle hooks have their
+    indices checked against the filter's ``dim_x`` or ``dim_z`` first.
     """
 
     def __set__(self, obj, value) -> None:
-        super().__set__(obj, value)
+        value = self.check(value)
+        axis = "z" if self.name in ("z_mean", "residual_z") else "x"
+        check_angle_hook(value, self.name, getattr(obj, "dim_" + axis), "dim_" + axis)
+        obj.__dict__[self.name] = value
         obj._hooks_assigned()
 
     def check(self, value):

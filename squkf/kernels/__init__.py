@@ -60,6 +60,8 @@ __all__ = [
 
 #: Row forms (:mod:`squkf.kernels.phases`).
 CENTRAL, MEAN, GIVEN = 0, 1, 2
+#: What :func:`phases.angle_rows_kernel` does with a component (bits): a circular mean, a wrapped residual.
+CIRCULAR_MEAN, WRAPPED = 1, 2
 
 #: Below this many filters a stack is never split between threads (the hand-off costs more).
 MIN_FILTERS_PER_THREAD = 2048
@@ -440,6 +442,7 @@ class KernelTable(NamedTuple):
     tria: Callable
     solve: Callable
     chol_update: Callable
+    angle_rows: Callable
 
 
 #: The CPU table: the numba kernels.
@@ -452,6 +455,7 @@ KERNELS = KernelTable(
     phases.tria_kernel,
     phases.solve_kernel,
     phases.chol_update_kernel,
+    phases.angle_rows_kernel,  # squkf's angle hooks as data (compiled on first use of one)
 )
 
 _NO_NOISE: dict[int, np.ndarray] = {}
