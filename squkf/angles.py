@@ -148,8 +148,10 @@ def _as_indices(angle_indices) -> tuple[int, ...]:
         items = list(angle_indices)
     except TypeError:
         items = None
-    if isinstance(angle_indices, (str, bytes)) or items is None or not all(
-        isinstance(i, (int, np.integer)) and not isinstance(i, (bool, np.bool_)) for i in items
+    if (
+        isinstance(angle_indices, (str, bytes))
+        or items is None
+        or not all(isinstance(i, (int, np.integer)) and not isinstance(i, (bool, np.bool_)) for i in items)
     ):
         raise ParameterError(f"angle_indices must be a sequence of integers, got angle_indices={said}")
     return tuple(int(i) for i in items)

@@ -40,10 +40,10 @@ from typing import NamedTuple
 import numpy as np
 
 from . import blas, kernels
+from .angles import measurement_angles, measurement_hooks_are_data
 from .errors import CallSequenceError, NonFiniteError, SqukfError
 from .generators import SigmaSet, sigma_points_from_factor
 from .linalg import all_finite
-from .angles import measurement_angles, measurement_hooks_are_data
 from .measurement import Posterior, keeps_prior_factor, measurement_update, observed_noise_factor
 from .plan import IDLE, PREDICTING, PRIOR, UPDATING, Hooks, Plan
 from .rows import RowForm
@@ -149,8 +149,8 @@ def _angle_route(sset: SigmaSet) -> _Joint:
     form = rows.mean_form
     wm = _ro(rows.Wm)
     ref = int(np.argmax(np.abs(wm)))
-    return _Joint(form, kernels.GIVEN, sset.offsets is not None, False, 0.0, wm, _ro(form.scale), _ro(form.sign),
-                  True, ref)  # fmt: skip
+    have = sset.offsets is not None
+    return _Joint(form, kernels.GIVEN, have, False, 0.0, wm, _ro(form.scale), _ro(form.sign), True, ref)
 
 
 def _angle_out(B: int, N: int, m: int) -> tuple:

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from . import stacks
+from .angles import check_angle_hooks
 from .batch import model_kwargs, per_step
 from .boundary import checks
 from .boundary.checks import (
@@ -53,7 +54,6 @@ from .errors import CallSequenceError, FleetStepError, ParameterError, UnsetErro
 from .gating import Gate, as_gate
 from .generators import SigmaSet, as_generator
 from .noise import handed_points, noise_points
-from .angles import check_angle_hooks
 from .plan import IDLE, PREDICTING, PRIOR, UPDATING, Hooks, build_plan
 from .smoother import fleet_rts_smoother
 from .stacks import rows_of
