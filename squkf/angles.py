@@ -66,15 +66,15 @@ def circular_mean(angles: np.ndarray, W: np.ndarray, reference: float | None = N
 
     Parameters
     ----------
-    angles : ndarray, shape (N,) or (..., N)
+    angles : ndarray, shape (N,)
     W : ndarray, shape (N,)
         Weights summing to 1.
-    reference : float or ndarray of shape (...), optional
+    reference : float, optional
 
     Returns
     -------
-    float or ndarray, shape (...)
-        The mean, wrapped into ``[-pi, pi)`` (a float for one set of angles).
+    float
+        The mean, wrapped into ``[-pi, pi)``.
 
     Examples
     --------
@@ -93,9 +93,6 @@ def circular_mean(angles: np.ndarray, W: np.ndarray, reference: float | None = N
     -3.0168
     """
     angles = np.asarray(angles, dtype=float)
-    if angles.ndim > 1:  # stacked: (..., N) -> (...)
-        ref = angles[..., int(np.argmax(np.abs(W)))] if reference is None else np.asarray(reference)
-        return wrap(ref + wrap(angles - ref[..., None]) @ W)
     ref = angles[int(np.argmax(np.abs(W)))] if reference is None else reference
     return float(wrap(ref + np.dot(W, wrap(angles - ref))))
 
@@ -253,7 +250,7 @@ class AngleMean(AngleHook):
         sigmas = np.asarray(sigmas, dtype=float)
         m = Wm @ sigmas
         for i in self.angle_indices:
-            m[..., i] = circular_mean(sigmas[..., :, i], Wm)
+            m[i] = circular_mean(sigmas[:, i], Wm)
         return m
 
 
@@ -262,8 +259,8 @@ class AngleResidual(AngleHook):
 
     def __call__(self, a, b) -> np.ndarray:
         d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
-        idx = list(self.angle_indices)
-        d[..., idx] = wrap(d[..., idx])
+        idx = list(self.angle_indices)  # (the first axis: filterpy's points objects pass (n, N) arrays)
+        d[idx] = wrap(d[idx])
         return d
 
 
@@ -281,5 +278,5 @@ class AngleAdd(AngleHook):
     def __call__(self, x, dx) -> np.ndarray:
         s = np.asarray(x, dtype=float) + np.asarray(dx, dtype=float)
         idx = list(self.angle_indices)
-        s[..., idx] = wrap(s[..., idx])
+        s[idx] = wrap(s[idx])
         return s
