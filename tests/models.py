@@ -1620,7 +1620,7 @@ class SubclassedResidual(AngleResidual):
 
 
 def rbh_hooks(which: str = "both", python: bool = False) -> dict:
-    """The bearing's hooks (index 1 of z): ``"residual"``, ``"mean"`` or ``"both"``; subclasses if ``python``."""
+    """The bearing's hooks (z[1]): ``"residual"``, ``"mean"`` or ``"both"``; subclasses if ``python``."""
     mean, residual = (SubclassedMean, SubclassedResidual) if python else (AngleMean, AngleResidual)
     hooks = {}
     if which in ("residual", "both"):
