@@ -40,6 +40,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import blas
+from .angles import measurement_angles, measurement_hooks_are_data
 from .checks import check_hook_result, check_values, describe_nonfinite
 from .errors import CallSequenceError, NonFiniteError, SqukfError
 from .generators import SigmaSet, sigma_points_from_factor
@@ -111,7 +112,12 @@ class Update(NamedTuple):
 
 
 class _Joint(NamedTuple):
-    """The route of an update by the joint QR kernel with no hook: fixed per set kind and measurement."""
+    """The route of an update by the joint QR kernel: fixed per set kind and measurement.
+
+    With no hook; or with squkf's angle hooks on the measurement (``angles``): the angle kernel forms
+    the given rows (mode 2) of the images, about the point ``ref``, and the state rows are the set's
+    deviations from the prior mean (its offsets where it has them).
+    """
 
     form: RowForm
     mode: int
@@ -121,6 +127,8 @@ class _Joint(NamedTuple):
     wm: np.ndarray
     scale: np.ndarray
     sign: np.ndarray
+    angles: bool = False
+    ref: int = 0
 
 
 def _joint_route(sset: SigmaSet) -> _Joint:
@@ -135,6 +143,23 @@ def _joint_route(sset: SigmaSet) -> _Joint:
     else:
         mode, xref, pair = table.MEAN, not have, 0.0
     return _Joint(form, mode, have, xref, pair, _ro(rows.Wm), _ro(form.scale), _ro(form.sign))
+
+
+def _angle_route(sset: SigmaSet) -> _Joint:
+    """The joint kernel's route for squkf's angle hooks on the measurement: the mean form's given rows
+    (as the hooks' Python route weighs them), the circular means about the point of the largest ``|Wm|``."""
+    rows = sset.rows
+    assert rows is not None
+    form = rows.mean_form
+    wm = _ro(rows.Wm)
+    ref = int(np.argmax(np.abs(wm)))
+    have = sset.offsets is not None
+    return _Joint(form, table.GIVEN, have, False, 0.0, wm, _ro(form.scale), _ro(form.sign), True, ref)
+
+
+def _angle_out(B: int, N: int, m: int) -> tuple:
+    """The angle kernel's outputs: the predicted measurement, the rows, the innovation."""
+    return np.empty((B, m)), np.empty((B, N, m)), np.empty((B, m))
 
 
 def _ro(a: np.ndarray) -> np.ndarray:
@@ -284,6 +309,10 @@ class Route:
 
     Attributes
     ----------
+    z_angles : bool
+        The measurement's hooks are squkf's angle hooks (exact :class:`~squkf.angles.AngleMean`,
+        :class:`~squkf.angles.AngleResidual`): their indices go to the kernels, which form the
+        predicted measurement, rows and innovation (:func:`squkf.kernels.phases.angle_rows_kernel`).
     downdate : bool
         The updates take the downdate form whatever the set (a ``residual_x`` or ``state_add``:
         :func:`squkf.measurement.keeps_prior_factor`): the prior factor kept and the gain taken out
@@ -295,7 +324,7 @@ class Route:
     __slots__ = (
         "plan", "hooks", "gate", "single", "plain_x", "plain_add", "downdate", "no_set", "_updates",
         "_observed_R",
-        "_zeros", "_noise", "_prior_draws",
+        "_zeros", "_noise", "_prior_draws", "z_angles", "_angle_kinds",
     )  # fmt: skip
 
     def __init__(self, plan: Plan, hooks: Hooks, gate, single: bool):
@@ -303,6 +332,9 @@ class Route:
         self.plain_x = hooks.x_mean_fn is None and hooks.residual_x is None
         self.plain_add = hooks.state_add is None
         self.downdate = keeps_prior_factor(hooks.residual_x, hooks.state_add)
+        # squkf's angle hooks on the measurement are data: the angle kernel does what they would
+        self.z_angles = measurement_hooks_are_data(hooks.z_mean_fn, hooks.residual_z)
+        self._angle_kinds: dict[int, np.ndarray] = {}  # per measurement size: what the kernel does
         self.no_set = table.no_set(plan.n)  # a kernel's set output when it draws none
         self._updates: dict = {}
         self._observed_R = _ObservedR()
@@ -484,9 +516,13 @@ class Route:
         if kept is not None and kept[0] is rows:
             return kept[1]
         hooks = self.hooks
-        plain = UT is None and sset.moments_exact and hooks.z_mean_fn is None and hooks.residual_z is None
-        plain = plain and self.plain_x and not self.downdate and rows is not None
-        route = _joint_route(sset) if plain else None
+        plain = UT is None and sset.moments_exact and self.plain_x and not self.downdate and rows is not None
+        if plain and self.z_angles:
+            route: _Joint | None = _angle_route(sset)
+        elif plain and hooks.z_mean_fn is None and hooks.residual_z is None:
+            route = _joint_route(sset)
+        else:
+            route = None
         if len(self._updates) >= _KEPT_ROUTES:
             self._updates.clear()
         self._updates[key] = (rows, route)
@@ -552,12 +588,20 @@ class Route:
             return update, np.zeros(B, dtype=np.int64), None
         Ro = R1_2
         whole = None
+        zref = None
+        images = H
+        if route.angles:  # given rows: the hooks' predicted measurement, rows and innovation, every component
+            zref, H, z = self._angle_rows(route, H, z, buffers)
         if observed is not None and not observed.all():
-            whole = H  # (a missing component's images count too: all of them are checked finite)
+            whole = images  # (a missing component's images count too: all of them are checked finite)
             H, z = np.ascontiguousarray(H[..., observed]), np.ascontiguousarray(z[..., observed])
+            if zref is not None:
+                zref = np.ascontiguousarray(zref[..., observed])
             Ro = self._observed_R.of(R1_2, observed)
         m = H.shape[2]
         n = x.shape[1]
+        if zref is None:
+            zref = self.zeros(m)
         plan = self.plan
         draw = draw_first and plan.w_xi is None  # (noise entering fx: the first set has a noise part)
         N1 = plan.xi1.shape[0] if draw else 0
@@ -568,11 +612,13 @@ class Route:
         zp, y, w, Sy, L21, dx, xo, So, ll, ww, status, X1 = out
         Rs = self.stacked(Ro, 1)
         Xs = sset.offsets if route.offsets else sset.sigmas
+        if route.angles and not route.offsets:  # given state rows: the deviations from the prior mean
+            Xs = Xs - x[:, None, :]
         f = Xs.flags
         if not (f.c_contiguous and f.writeable and Xs.dtype is _FLOAT64):  # a user generator's set
             Xs = table.kernel_array(Xs)
         table.KERNELS.joint_update(
-            H, self.zeros(m), Xs, x if route.xref else self.zeros(n), z, Rs, x, route.mode, route.wm,
+            H, zref, Xs, x if route.xref else self.zeros(n), z, Rs, x, route.mode, route.wm,
             route.scale, route.sign, route.pair, *out[:11], plan.xi1, plan.gamma1, X1,
         )  # fmt: skip
         if whole is not None:
@@ -581,6 +627,20 @@ class Route:
             status = singular_allowed(status, S, Rs)
         update = Update(xo, So, y, Sy, L21, ll, ww, observed, _none_rejected(y.shape), None, m_all, w)
         return update, status, (X1 if draw else None)
+
+    def _angle_rows(self, route: _Joint, H, z, buffers: Buffers | None) -> tuple:
+        """The angle kernel's predicted measurement, rows and innovation of the images ``H`` ``(B, N, m)``
+        and the measurement ``z`` ``(B, m)``, every component (in ``buffers``' arrays where given)."""
+        B, N, m = H.shape
+        kinds = self._angle_kinds.get(m)
+        if kinds is None:
+            made = measurement_angles(self.hooks.z_mean_fn, self.hooks.residual_z, m)
+            assert made is not None
+            made.setflags(write=False)  # (a plan's array: read-only, one signature)
+            kinds = self._angle_kinds[m] = made
+        zp, D, y = _angle_out(B, N, m) if buffers is None else buffers.take(_angle_out, B, N, m)
+        table.KERNELS.angle_rows(H, z, route.wm, route.ref, kinds, zp, D, y)
+        return zp, D, y
 
     def form_of(self, sset: SigmaSet, UT) -> RowForm | None:
         """The row form a failed update's status refers to (its negative weights)."""

@@ -40,6 +40,7 @@ from .checks import call_hook
 from .errors import ParameterError
 from .kernels import wrappers
 from .rows import WeightRows, weight_rows
+from .transform import StackedHook
 from .weights import FilterpyPoints, as_family
 
 __all__ = [
@@ -187,8 +188,13 @@ def sigma_points_and_offsets(
     assert dx is not None
     if _plain_sum(state_add):
         return sigmas, dx
-    out = np.empty(sigmas.shape)
     n = x.shape[-1]
+    if isinstance(state_add, StackedHook):  # once: (k, 1, n) and (k, N, n)
+        shape = sigmas.shape
+        k, N = int(np.prod(shape[:-2], dtype=np.int64)), shape[-2]
+        xs = np.broadcast_to(x[..., None, :], shape[:-2] + (1, n)).reshape(k, 1, n)
+        return call_hook(state_add.fn, (xs, dx.reshape(k, N, n)), (k, N, n), "state_add").reshape(shape), dx
+    out = np.empty(sigmas.shape)
     for idx in np.ndindex(out.shape[:-2]):
         xk = x[idx] if x.ndim > 1 else x
         dk = dx[idx] if dx.ndim > 2 else dx

@@ -689,7 +689,9 @@ def _whole_chunk(
     n = x0.shape[1]
     zp, Sy, L21, dx, status = scratch.take(_chunk_update, k, n, m)
     kernel_out = (zp, y, w, Sy, L21, dx, x, S, ll, nis, status, route.no_set)
-    _, status, _ = route.posterior(sset, x0, S0, H, z, None, R1_2, None, False, out=kernel_out)
+    _, status, _ = route.posterior(
+        sset, x0, S0, H, z, None, R1_2, None, False, buffers=scratch, out=kernel_out
+    )  # (the scratch: the angle kernel's rows, for squkf's angle hooks)
     log_det_of(Sy, out=log_det)
     good = _flag(status, on, found, form, "update", H, "hx values")
     rejected[...] = False

@@ -20,6 +20,7 @@ from collections.abc import Callable
 import numpy as np
 
 from . import checks, smoother
+from .angles import check_angle_hooks
 from .batch import batch_filter
 from .boundary.attributes import (
     NOISES,
@@ -300,6 +301,10 @@ class SquareRootUKF:
         checks.model_functions(
             True, hx=hx, fx=fx, sqrt_fn=sqrt_fn, x_mean_fn=x_mean_fn, z_mean_fn=z_mean_fn,
             residual_x=residual_x, residual_z=residual_z, state_add=state_add,
+        )  # fmt: skip
+        check_angle_hooks(
+            n, m, x_mean_fn=x_mean_fn, z_mean_fn=z_mean_fn, residual_x=residual_x, residual_z=residual_z,
+            state_add=state_add,
         )  # fmt: skip
         fx_noise_, hx_noise_ = model_noise(fx, hx, fx_noise, hx_noise)
         dt_ = None if dt is None else check_time_step(dt)  # None: every predict passes its own

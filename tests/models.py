@@ -1893,6 +1893,69 @@ def rbh_filter(gate=None, m: int = 3, vectorized: bool = False):
     return f
 
 
+class SubclassedMean(AngleMean):
+    """squkf's AngleMean as a user's hook (a subclass): called in Python, the oracle of the kernels' route."""
+
+
+class SubclassedResidual(AngleResidual):
+    """squkf's AngleResidual as a user's hook (a subclass): called in Python."""
+
+
+def rbh_hooks(which: str = "both", python: bool = False) -> dict:
+    """The bearing's hooks (z[1]): ``"residual"``, ``"mean"`` or ``"both"``; subclasses if ``python``."""
+    mean, residual = (SubclassedMean, SubclassedResidual) if python else (AngleMean, AngleResidual)
+    hooks = {}
+    if which in ("residual", "both"):
+        hooks["residual_z"] = residual([1])
+    if which in ("mean", "both"):
+        hooks["z_mean_fn"] = mean([1])
+    return hooks
+
+
+def rbh_single(hooks: dict, points=None, **kw) -> SquareRootUKF:
+    """One vectorised filter of the [range, bearing, heading] sensor with ``hooks``, at ``RBH_X0``."""
+    f = SquareRootUKF(
+        4, 3, 1.0, range_bearing_heading_hx, turn_fx_stacked, points or MerweScaledWeights(alpha=0.5),
+        vectorized=True, **hooks, **kw,
+    )  # fmt: skip
+    f.x, f.P, f.Q, f.R = RBH_X0, RBH_P0, RBH_Q, RBH_R
+    return f
+
+
+def rbh_starts(K: int) -> np.ndarray:
+    """K starts about ``RBH_X0`` (their bearings either side of pi), ``(K, 4)``."""
+    return RBH_X0 + np.outer(np.arange(K) - K // 2, [0.0, 1.5, 0.02, 0.05])
+
+
+def rbh_fleet_and_singles(K: int, hooks: dict, points=None, **kw):
+    """A Fleet of K [range, bearing, heading] filters from :func:`rbh_starts`, and the K single filters."""
+    make = points or (lambda: MerweScaledWeights(alpha=0.5))
+    fleet = Fleet(K, 4, 3, 1.0, range_bearing_heading_hx, turn_fx_stacked, make(), **hooks, **kw)
+    x0 = rbh_starts(K)
+    fleet.x, fleet.P, fleet.Q, fleet.R = x0, RBH_P0, RBH_Q, RBH_R
+    singles = []
+    for k in range(K):
+        f = rbh_single(hooks, make(), **{a: v for a, v in kw.items() if a in ("gate", "scheme")})
+        f.x = x0[k]
+        singles.append(f)
+    return fleet, singles
+
+
+def rbh_measurements(K: int, T: int, seed: int = 0) -> np.ndarray:
+    """``(K, T, 3)`` noisy measurements of the K tracks from :func:`rbh_starts`, some missing."""
+    rng = np.random.default_rng(seed)
+    x, zs = rbh_starts(K), []
+    for _ in range(T):
+        x = turn_fx_stacked(x, 1.0)
+        z = range_bearing_heading_hx(x) + rng.normal(size=(K, 3)) * np.sqrt(np.diag(RBH_R))
+        zs.append(wrap(z))  # (the bearing as a sensor reports it; the range and heading are small)
+    zs = np.stack(zs, axis=1)
+    zs[0, 2 % T, 0] = np.nan  # a missing range
+    zs[K - 1, 1 % T, 1] = np.nan  # a missing bearing
+    zs[K // 2, 3 % T] = np.nan  # no measurement
+    return zs
+
+
 # -- tuning and consistency (issue 37): the 2-D constant-velocity model, where the UKF is the Kalman filter
 
 TUNE_Q0 = Q_discrete_white_noise(2, 1.0, 1.0, block_size=2)

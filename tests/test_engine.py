@@ -443,7 +443,9 @@ def test_the_downdate_form_is_decided_with_the_route(hooks, downdate):
     assert route.downdate is downdate
     sset = route.second_set(TURN.x0, TURN.S0, None, None)
     joint = route.update_route(sset, None)
-    assert (joint is None) is (hooks != Hooks())
+    z_angles = hooks.z_mean_fn is not None and hooks.x_mean_fn is None and not downdate
+    assert (joint is None) is (hooks != Hooks() and not z_angles)  # squkf's angle hooks on z: data
+    assert joint is None or joint.angles is z_angles
     assert route.update_route(sset.rewritten(sset.sigmas.copy()), None) is None
 
 

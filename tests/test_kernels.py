@@ -25,6 +25,7 @@ from models import plain_fx, plain_hx, plain_scenario
 
 import squkf.stacks
 from squkf import Fleet, JulierWeights, MerweScaledWeights, SquareRootUKF
+from squkf.angles import AngleMean, AngleResidual
 from squkf.kernels import phases, wrappers
 from squkf.kernels import threads as kernel_threads
 from squkf.linalg import chol_update
@@ -37,6 +38,13 @@ CONFIGS = {
     "merwe-negative-central-weight": dict(points=MerweScaledWeights(0.3, 0.0, 0.0)),
     "julier-augmented": dict(points=JulierWeights(1.0), scheme="augmented"),
     "merwe-propagated": dict(points=MerweScaledWeights(1.0, 2.0, 0.0), scheme="propagated"),
+    # squkf's angle hooks on the measurement: the angle kernel forms the joint kernel's given rows
+    "merwe-angle-hooks": dict(
+        points=MerweScaledWeights(0.5, 2.0, 0.0), z_mean_fn=AngleMean([1]), residual_z=AngleResidual([1])
+    ),
+    "julier-augmented-angle-residual": dict(
+        points=JulierWeights(1.0), scheme="augmented", residual_z=AngleResidual([1])
+    ),
 }
 
 
@@ -72,7 +80,7 @@ def test_a_fleet_filter_equals_its_single_filter_bit_for_bit(name):
                 assert f.log_likelihood == ll[k], f"filter {k}, step {t}"
 
 
-@pytest.mark.parametrize("name", ["merwe", "merwe-propagated"])
+@pytest.mark.parametrize("name", ["merwe", "merwe-propagated", "merwe-angle-hooks"])
 def test_results_do_not_depend_on_chunk_block_size_or_thread_count(monkeypatch, name):
     """Chunks of the fleet's step (squkf.stacks), blocks of the isolation, threads: the same bits."""
     K = 300
@@ -173,7 +181,7 @@ def test_importing_squkf_compiles_nothing():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     compiled, count = map(int, out.split())
-    assert count == len(ENTRY_KERNELS) == 8 and compiled == 0
+    assert count == len(ENTRY_KERNELS) == 9 and compiled == 0
 
 
 @pytest.mark.parametrize("columns", [phases.LAPACK_MIN_COLUMNS - 1, phases.LAPACK_MIN_COLUMNS, 40])

@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from ..angles import check_angle_hook
 from ..checks import as_lower_factor, as_matrix, check_callable, check_flag
 from ..errors import SqukfValueError
 from ..linalg import factor_covariance
@@ -382,11 +383,15 @@ class Hook(Checked):
     """A hook (``residual_x``, ``state_add``, ...): callable or None.
 
     Setting one tells the filter (``_hooks_assigned``), which builds its
-    :class:`~squkf.plan.Hooks` again.
+    :class:`~squkf.plan.Hooks` again. squkf's own angle hooks have their
+    indices checked against the filter's ``dim_x`` or ``dim_z`` first.
     """
 
     def __set__(self, obj, value) -> None:
-        super().__set__(obj, value)
+        value = self.check(value)
+        axis = "z" if self.name in ("z_mean", "residual_z") else "x"
+        check_angle_hook(value, self.name, getattr(obj, "dim_" + axis), "dim_" + axis)
+        obj.__dict__[self.name] = value
         obj._hooks_assigned()
 
     def check(self, value):

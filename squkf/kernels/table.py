@@ -40,6 +40,8 @@ __all__ = [
 
 #: Row forms (:mod:`squkf.kernels.phases`).
 CENTRAL, MEAN, GIVEN = 0, 1, 2
+#: What :func:`phases.angle_rows_kernel` does with a component (bits): a circular mean, a wrapped residual.
+CIRCULAR_MEAN, WRAPPED = 1, 2
 
 
 class KernelTable(NamedTuple):
@@ -61,6 +63,7 @@ class KernelTable(NamedTuple):
     tria: Callable
     solve: Callable
     chol_update: Callable
+    angle_rows: Callable
 
 
 #: The CPU table: the numba kernels.
@@ -73,6 +76,7 @@ KERNELS = KernelTable(
     phases.tria_kernel,
     phases.solve_kernel,
     phases.chol_update_kernel,
+    phases.angle_rows_kernel,  # squkf's angle hooks as data (compiled on first use of one)
 )
 
 
