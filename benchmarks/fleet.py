@@ -6,6 +6,7 @@
     python benchmarks/fleet.py --Ks 10000 --models n4 --out DIR   # one K of one model
     python benchmarks/fleet.py --cores 2  # the main tables with two CPUs (default: one)
     python benchmarks/fleet.py --ref REV  # the step's peak memory against REV's (default 0cdce8e)
+    python benchmarks/fleet.py --hooks    # only the angle hooks' table (hooks_bench.py): fleet.md's section
 
 Two models: a 2-D constant-velocity target seen by a range-bearing sensor
 (n = 4, m = 2) and five independent 2-D oscillators seen through cubic sensors
@@ -122,6 +123,9 @@ def _parse(argv):
         "none with --quick); 'none': not measured",
     )
     ap.add_argument("--no-malloc-trim", action="store_true", help="no MALLOC_TRIM_THRESHOLD_ comparison")
+    ap.add_argument(
+        "--hooks", action="store_true", help="only the angle hooks' table: its section of fleet.md rewritten"
+    )
     ap.add_argument("--rss-child", nargs=2, metavar=("MODEL", "K"), help=argparse.SUPPRESS)
     ap.add_argument("--ref-folder", metavar="FOLDER", help=argparse.SUPPRESS)
     ap.add_argument("--malloc-child", nargs=3, metavar=("MODEL", "K", "T"), help=argparse.SUPPRESS)
@@ -1121,8 +1125,38 @@ def _ref_package(folder: str | None):
     return squkf_ref
 
 
+def hooks_table(out: Path, quick: bool) -> dict:
+    """A fleet of 1,000 with a wrapping bearing (``hooks_bench.fleet``), its section of fleet.md rewritten
+    (the other sections kept) and its results under ``"hooks"`` in fleet.json."""
+    import hooks_bench
+
+    K, steps, reps = (50, 3, 1) if quick else (1000, 20, 7)
+    res = hooks_bench.fleet(K, steps, reps, python_steps=1 if quick else 2)
+    lines = hooks_bench.fleet_section(res, K, steps, reps)
+    md = out / "fleet.md"
+    text = md.read_text() if md.exists() else "# Fleet benchmark: K filters at once\n"
+    title = lines[0].split(":")[0]
+    if title in text:  # the section up to the next "## "
+        before, rest = text.split(title, 1)
+        after = rest.split("\n## ", 1)[1] if "\n## " in rest else None
+        text = before + "\n".join(lines) + ("" if after is None else "\n## " + after)
+    else:
+        text = text.rstrip("\n") + "\n\n" + "\n".join(lines) + "\n"
+    out.mkdir(parents=True, exist_ok=True)
+    md.write_text(text)
+    js = out / "fleet.json"
+    data = json.loads(js.read_text()) if js.exists() else {}
+    data["hooks"] = {"K": K, "steps": steps, "reps": reps, "results": res}
+    js.write_text(json.dumps(data, indent=1, default=str))
+    return res
+
+
 def main(args) -> int:
     models = {"n4": ConstantVelocity, "n10": Oscillators}
+    if args.hooks:
+        res = hooks_table(Path(args.out), args.quick)
+        print(json.dumps(res, indent=1))
+        return 0
     if args.rss_child:
         lib = _ref_package(args.ref_folder)
         print(json.dumps(rss_child(models[args.rss_child[0]](), int(args.rss_child[1]), 7, lib)))
@@ -1216,6 +1250,7 @@ def main(args) -> int:
     write_markdown(out, results, command)
     plot(out, results)
     (out / "fleet.json").write_text(json.dumps(results, indent=1, default=str))
+    hooks_table(out, args.quick)
     for t in results["targets"]:
         log(f"  target {t['target']}: {t['measured']} ({t['met']})")
     if not ok:

@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 import squkf
-from squkf import kernels
+from squkf.kernels import table
 
 
 def fx(X, dt):
@@ -52,8 +52,8 @@ def split(K: int, steps: int, reps: int) -> dict[str, float]:
     for _ in range(3):  # the kernels loaded, the buffers made
         fleet.predict()
         fleet.update(z)
-    real = kernels.KERNELS
-    kernels.KERNELS = kernels.KernelTable(*(timed(k, "kernels") for k in real))
+    real = table.KERNELS
+    table.KERNELS = table.KernelTable(*(timed(k, "kernels") for k in real))
     best: dict[str, float] | None = None
     try:
         for _ in range(reps):
@@ -68,7 +68,7 @@ def split(K: int, steps: int, reps: int) -> dict[str, float]:
             if best is None or row["whole"] < best["whole"]:
                 best = row
     finally:
-        kernels.KERNELS = real
+        table.KERNELS = real
     assert best is not None
     best["rest"] = best["whole"] - best["kernels"] - best["model"]
     return best

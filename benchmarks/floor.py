@@ -9,7 +9,7 @@ Two references, neither of them a filter anyone should use:
   timed alone on fresh random rows with LAPACK's ``dgeqrfp``.
 - ``inline_impls``: the library's default step (redrawn Merwe points, the
   fused route of :mod:`squkf.engine`) written as one straight function: the
-  same two kernels of :data:`squkf.kernels.KERNELS` called directly (after
+  same two kernels of :data:`squkf.kernels.table.KERNELS` called directly (after
   ``fx``, the transform kernel gives the prior and the second set; after
   ``hx``, the joint-update kernel gives the posterior and the next first set)
   into buffers allocated once, with no validation, no error handling, no
@@ -68,7 +68,7 @@ def fused_route(f) -> SimpleNamespace:
     block of one filter, allocated here, and the state is ``f``'s current estimate.
     """
     from squkf.generators import SigmaSet
-    from squkf.kernels import KERNELS, kernel_array, no_set, zeros_row
+    from squkf.kernels.table import KERNELS, kernel_array, no_set, zeros_row
 
     plan, engine = f._plan, f._engine
     route = engine.route
@@ -192,7 +192,7 @@ def step_profile(sc, reps: int = 1000) -> dict[str, float]:
     :class:`InlineStep` calls them); the facade's and engine's share is what
     remains of the whole step's time.
     """
-    from squkf.boundary import checks
+    from squkf import checks
     from squkf.engine import _images
 
     n, m = sc.dim_x, sc.dim_z

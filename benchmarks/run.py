@@ -4,6 +4,7 @@
     python benchmarks/run.py --quick    # smoke test (CI), well under a minute
     python benchmarks/run.py --figures [scaling|sweep]  # only those (both by default), a few minutes
     python benchmarks/run.py --replot   # redraw both figures from results/figures.json, no measuring
+    python benchmarks/run.py --hooks    # only the angle hooks' table (hooks_bench.py), a minute
 
 Implementations are interleaved over repetitions in one process; times are
 medians of time per predict+update step, and ratios to filterpy are taken per
@@ -66,6 +67,11 @@ def _parse(argv):
         "rewrite their sections of results.md, leaving the other tables as they are",
     )
     ap.add_argument("--replot", action="store_true", help="redraw the figures from figures.json only")
+    ap.add_argument(
+        "--hooks",
+        action="store_true",
+        help="measure only the angle hooks' table (hooks_bench.py) and rewrite its section of results.md",
+    )
     ap.add_argument("--ref", default="0cdce8e", help="the fleet's Python per chunk: its reference")
     return ap.parse_args(argv)
 
@@ -643,8 +649,25 @@ def figures_only(out: Path, impls, size, part: str) -> None:
     _plots(out, scale, dims, swept, P0s, names)
 
 
+def hooks_only(out: Path, quick: bool) -> None:
+    """Measure one filter with a wrapping bearing (``hooks_bench.single``) and rewrite its section of
+    results.md, the other tables kept."""
+    import hooks_bench
+
+    steps, reps = (20, 1) if quick else (300, 9)
+    lines = hooks_bench.single_section(hooks_bench.single(steps, reps), steps, reps)
+    md = out / "results.md"
+    text = md.read_text() if md.exists() else "# Benchmark results\n"
+    out.mkdir(parents=True, exist_ok=True)
+    md.write_text(_replace_section(text, lines))
+
+
 def main() -> int:
     args = ARGS
+    if args.hooks:
+        hooks_only(Path(args.out), args.quick)
+        print((Path(args.out) / "results.md").read_text())
+        return 0
     if args.replot:
         _plots(Path(args.out), *_load_figure_data(Path(args.out)))
         return 0
@@ -681,6 +704,7 @@ def main() -> int:
         Path(args.out),
         table, scale, size["dims"], swept, P0s, skipped, impls, threaded, qr, profile, large, pycalls,
     )  # fmt: skip
+    hooks_only(Path(args.out), args.quick)
     print((Path(args.out) / "results.md").read_text())
     return 0
 

@@ -26,7 +26,7 @@ from .first_use import Precompiled, precompile
 from .fleet import Fleet, FleetResult, FleetStepError
 from .gating import Gate
 from .generators import Augmented, Propagated, Redrawn, SigmaSet
-from .kernels import get_num_threads, set_num_threads
+from .kernels.threads import get_num_threads, set_num_threads
 from .simulate import simulate
 from .transform import sqrt_unscented_transform
 from .ukf import SquareRootUKF

@@ -26,6 +26,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from .errors import ParameterError
+
 __all__ = ["wrap", "circular_mean", "AngleMean", "AngleResidual", "AngleAdd"]
 
 
@@ -96,13 +98,149 @@ def circular_mean(angles: np.ndarray, W: np.ndarray, reference: float | None = N
 
 
 class AngleHook:
-    """Base of the picklable angle hooks: remembers which components are angles."""
+    """Base of the picklable angle hooks: remembers which components are angles.
+
+    Parameters
+    ----------
+    angle_indices : sequence of int
+        The components that are angles (radians). Kept as a read-only tuple; a negative index counts
+        from the end, as numpy's do. Whether each is in range is checked when the hook is given to a
+        filter (its ``dim_x`` or ``dim_z``).
+
+    Raises
+    ------
+    ParameterError
+        ``angle_indices`` is not a sequence of integers.
+
+    Notes
+    -----
+    The exact classes :class:`AngleMean`, :class:`AngleResidual` and :class:`AngleAdd` are data to a
+    filter: it reads their indices when they are assigned and its compiled update wraps the residuals
+    and takes the circular means itself, with no Python call per point (the measurement's hooks
+    ``z_mean_fn`` and ``residual_z``). A subclass is called as any user's hook is.
+    """
 
     def __init__(self, angle_indices: Sequence[int]):
-        self.angle_indices = [int(i) for i in angle_indices]
+        self._indices = _as_indices(angle_indices)
+
+    @property
+    def angle_indices(self) -> tuple[int, ...]:
+        """The components that are angles (read-only)."""
+        return self._indices
+
+    def __setstate__(self, state) -> None:
+        state = dict(state)
+        if "angle_indices" in state:  # a pickle from before the indices were a tuple (a list in __dict__)
+            state["_indices"] = _as_indices(state.pop("angle_indices"))
+        self.__dict__.update(state)
 
     def __repr__(self):
-        return f"{type(self).__name__}({self.angle_indices})"
+        return f"{type(self).__name__}({list(self._indices)})"
+
+
+def _as_indices(angle_indices) -> tuple[int, ...]:
+    """``angle_indices`` as a tuple of ints; ParameterError naming it unless it is a sequence of integers."""
+    said = f"{angle_indices!r:.100}"
+    try:
+        items = list(angle_indices)
+    except TypeError:
+        items = None
+    if (
+        isinstance(angle_indices, (str, bytes))
+        or items is None
+        or not all(isinstance(i, (int, np.integer)) and not isinstance(i, (bool, np.bool_)) for i in items)
+    ):
+        raise ParameterError(f"angle_indices must be a sequence of integers, got angle_indices={said}")
+    return tuple(int(i) for i in items)
+
+
+def is_data(hook) -> bool:
+    """Whether ``hook`` is an exact :class:`AngleMean`, :class:`AngleResidual` or :class:`AngleAdd`."""
+    return type(hook) in (AngleMean, AngleResidual, AngleAdd)
+
+
+def check_angle_hook(hook, name: str, dim: int, dim_name: str) -> None:
+    """Refuse squkf's angle hook ``hook``, given as ``name``, if an index is out of range for ``dim``.
+
+    Parameters
+    ----------
+    hook : object
+        Anything but an exact squkf angle hook passes (:func:`is_data`).
+    name : str
+        The argument or attribute it was given as (``"residual_z"``), for the message.
+    dim : int
+        The dimension it indexes.
+    dim_name : str
+        That dimension's name (``"dim_z"``).
+
+    Raises
+    ------
+    ParameterError
+    """
+    if not is_data(hook):
+        return
+    bad = [i for i in hook.angle_indices if not -dim <= i < dim]
+    if bad:
+        raise ParameterError(
+            f"{name}={hook!r}: angle index {bad[0]} is out of range for {dim_name}={dim}"
+            f" (an index is in {-dim}..{dim - 1})"
+        )
+
+
+def check_angle_hooks(dim_x: int, dim_z: int, **hooks) -> None:
+    """:func:`check_angle_hook` for each of a constructor's hooks, by its argument's name.
+
+    Parameters
+    ----------
+    dim_x, dim_z : int
+    **hooks
+        ``x_mean_fn``, ``z_mean_fn``, ``residual_x``, ``residual_z``, ``state_add``, any of them.
+
+    Raises
+    ------
+    ParameterError
+    """
+    for name, hook in hooks.items():
+        if name in ("z_mean_fn", "residual_z"):
+            check_angle_hook(hook, name, dim_z, "dim_z")
+        else:
+            check_angle_hook(hook, name, dim_x, "dim_x")
+
+
+def measurement_hooks_are_data(z_mean_fn, residual_z) -> bool:
+    """Whether the measurement's hooks are squkf's (an exact :class:`AngleMean`, :class:`AngleResidual`,
+    or None), at least one of them given: the kernels then do what they would (:func:`measurement_angles`)."""
+    if z_mean_fn is None and residual_z is None:
+        return False
+    return (z_mean_fn is None or type(z_mean_fn) is AngleMean) and (
+        residual_z is None or type(residual_z) is AngleResidual
+    )
+
+
+def measurement_angles(z_mean_fn, residual_z, m: int) -> np.ndarray | None:
+    """What the kernels do with each measured component, when the measurement's hooks are data.
+
+    Parameters
+    ----------
+    z_mean_fn, residual_z : callable or None
+    m : int
+        The measurement's dimension.
+
+    Returns
+    -------
+    ndarray of int64, shape (m,), or None
+        Per component, 1 for a circular mean (``z_mean_fn``'s angles), plus 2 for a wrapped residual
+        (``residual_z``'s); None when a hook is neither None nor an exact :class:`AngleMean`,
+        :class:`AngleResidual` respectively, or both are None (nothing to do).
+    """
+    if not measurement_hooks_are_data(z_mean_fn, residual_z):
+        return None
+    kind = np.zeros(m, dtype=np.int64)
+    if z_mean_fn is not None:
+        kind[list(z_mean_fn.angle_indices)] |= 1
+    if residual_z is not None:
+        kind[list(residual_z.angle_indices)] |= 2
+    return kind
 
 
 class AngleMean(AngleHook):
@@ -121,7 +259,8 @@ class AngleResidual(AngleHook):
 
     def __call__(self, a, b) -> np.ndarray:
         d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
-        d[self.angle_indices] = wrap(d[self.angle_indices])
+        idx = list(self.angle_indices)  # (the first axis: filterpy's points objects pass (n, N) arrays)
+        d[idx] = wrap(d[idx])
         return d
 
 
@@ -138,5 +277,6 @@ class AngleAdd(AngleHook):
 
     def __call__(self, x, dx) -> np.ndarray:
         s = np.asarray(x, dtype=float) + np.asarray(dx, dtype=float)
-        s[self.angle_indices] = wrap(s[self.angle_indices])
+        idx = list(self.angle_indices)
+        s[idx] = wrap(s[idx])
         return s

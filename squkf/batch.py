@@ -19,16 +19,16 @@ is found before any step is run, otherwise as soon as one runs out.
 from __future__ import annotations
 
 import numbers
-from collections.abc import Callable, Iterable, Iterator, Mapping, Set, Sized
+from collections.abc import Callable, Iterable, Mapping, Set, Sized
 from typing import Any, cast
 
 import numpy as np
 
 from .boundary.loop import annotate_step, progress_callback
+from .checks import check_time_step, iter_measurements
 from .errors import ParameterError, ShapeError
-from .validate import check_time_step
 
-__all__ = ["batch_filter", "iter_measurements", "model_kwargs", "per_step"]
+__all__ = ["batch_filter", "model_kwargs", "per_step"]
 
 # predict()/update() take these themselves, so they cannot be passed through to fx/hx
 _RESERVED = {"fx_args": ("dt", "UT", "fx", "Q"), "hx_args": ("z", "R", "UT", "hx")}
@@ -234,42 +234,6 @@ class _Rows:
         if self.n == self.buf.shape[0]:
             return self.buf
         return self.buf[: self.n].copy()
-
-
-def iter_measurements(zs) -> Iterator:
-    """An iterator over the steps of ``zs``, after checking that ``zs`` is an ordered iterable.
-
-    The one check of what ``zs`` itself may be, for ``SquareRootUKF.batch_filter``
-    and ``Fleet.batch_filter`` alike; what each step yields is checked by the
-    filter, naming the step.
-
-    Parameters
-    ----------
-    zs : iterable
-        A list, a tuple, an array (one row per step), a generator, ``tqdm(...)``.
-
-    Returns
-    -------
-    iterator
-
-    Raises
-    ------
-    ShapeError
-        ``zs`` is a string, bytes, a dict or a set (no steps in an order), or
-        not iterable at all.
-    """
-    if isinstance(zs, (str, bytes, Mapping, Set)):
-        raise ShapeError(
-            "zs must be an iterable of measurements in step order (a list, an array, a generator), "
-            f"got {type(zs).__name__}: {zs!r:.100}"
-        )
-    try:
-        return iter(zs)
-    except TypeError:
-        raise ShapeError(
-            f"zs must be an iterable of measurements (a list, an array, a generator), "
-            f"got {type(zs).__name__}: {zs!r:.200}"
-        ) from None
 
 
 def _known_length(zs) -> int | None:

@@ -36,10 +36,10 @@ import numpy as np
 
 from .batch import BatchResult
 from .boundary.records import FleetResult
+from .checks import as_float_array, as_measurements, check_flag, describe_nonfinite, short_repr
 from .errors import FleetStepError, NonFiniteError, NotPositiveDefiniteError, ParameterError, ShapeError
 from .fleet import Fleet
 from .linalg import solve_lower, tria
-from .validate import as_float_array, as_measurements, check_flag, describe_nonfinite, short_repr
 
 __all__ = [
     "nees", "nis", "check", "Consistency", "whiteness", "Whiteness", "monte_carlo", "MonteCarlo",

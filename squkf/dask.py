@@ -43,12 +43,12 @@ except ImportError as exc:  # say which extra brings them
         f'squkf.dask needs its extra: pip install "squkf[dask]" ({exc})', name=exc.name
     ) from exc
 
+from . import checks
 from .batch import model_kwargs, per_step
-from .boundary import checks
 from .boundary.loop import check_keep
+from .checks import as_measurements
 from .errors import ParameterError, ShapeError
 from .fleet import Fleet, FleetResult
-from .validate import as_measurements
 
 if TYPE_CHECKING:
     import distributed

@@ -6,7 +6,7 @@ chunk at a time on threads by :data:`squkf.stacks.CHUNKS`). The step, as data::
 
     x, S --points--> X --fx--> F --prior + second set--> Y --hx--> H --posterior + first set--> x, S
 
-Every arrow but ``fx`` and ``hx`` is a kernel of the table :data:`squkf.kernels.KERNELS`.
+Every arrow but ``fx`` and ``hx`` is a kernel of the table :data:`squkf.kernels.table.KERNELS`.
 On the default route (no hooks, no ``UT``, a second set that reproduces the
 prior) a step is two kernel calls: after ``fx``, one gives the prior and the
 second set; after ``hx``, one gives the posterior and the next first set. Other
@@ -40,16 +40,18 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import blas, kernels
+from . import blas
+from .angles import measurement_angles, measurement_hooks_are_data
+from .checks import check_hook_result, check_values, describe_nonfinite
 from .errors import CallSequenceError, NonFiniteError, SqukfError
 from .generators import SigmaSet, sigma_points_from_factor
+from .kernels import table
 from .linalg import all_finite
 from .measurement import Posterior, keeps_prior_factor, measurement_update, observed_noise_factor
 from .plan import IDLE, PREDICTING, PRIOR, UPDATING, Hooks, Plan
 from .rows import RowForm
 from .statuses import failure, first_status, prior_failure, singular_allowed
 from .transform import transform_factor
-from .validate import check_hook_result, check_values, describe_nonfinite
 
 __all__ = [
     "IDLE",
@@ -137,7 +139,12 @@ class Update(NamedTuple):
 
 
 class _Joint(NamedTuple):
-    """The route of an update by the joint QR kernel with no hook: fixed per set kind and measurement."""
+    """The route of an update by the joint QR kernel: fixed per set kind and measurement.
+
+    With no hook; or with squkf's angle hooks on the measurement (``angles``): the angle kernel forms
+    the given rows (mode 2) of the images, about the point ``ref``, and the state rows are the set's
+    deviations from the prior mean (its offsets where it has them).
+    """
 
     form: RowForm
     mode: int
@@ -147,6 +154,8 @@ class _Joint(NamedTuple):
     wm: np.ndarray
     scale: np.ndarray
     sign: np.ndarray
+    angles: bool = False
+    ref: int = 0
 
 
 def _joint_route(sset: SigmaSet) -> _Joint:
@@ -156,22 +165,39 @@ def _joint_route(sset: SigmaSet) -> _Joint:
     form = rows.best
     have = sset.offsets is not None
     if form.central:
-        mode, xref = kernels.CENTRAL, False
+        mode, xref = table.CENTRAL, False
         pair = rows.pair_scale if (sset.axis and have) else 0.0
     else:
-        mode, xref, pair = kernels.MEAN, not have, 0.0
+        mode, xref, pair = table.MEAN, not have, 0.0
     return _Joint(form, mode, have, xref, pair, _ro(rows.Wm), _ro(form.scale), _ro(form.sign))
 
 
+def _angle_route(sset: SigmaSet) -> _Joint:
+    """The joint kernel's route for squkf's angle hooks on the measurement: the mean form's given rows
+    (as the hooks' Python route weighs them), the circular means about the point of the largest ``|Wm|``."""
+    rows = sset.rows
+    assert rows is not None
+    form = rows.mean_form
+    wm = _ro(rows.Wm)
+    ref = int(np.argmax(np.abs(wm)))
+    have = sset.offsets is not None
+    return _Joint(form, table.GIVEN, have, False, 0.0, wm, _ro(form.scale), _ro(form.sign), True, ref)
+
+
+def _angle_out(B: int, N: int, m: int) -> tuple:
+    """The angle kernel's outputs: the predicted measurement, the rows, the innovation."""
+    return np.empty((B, m)), np.empty((B, N, m)), np.empty((B, m))
+
+
 def _ro(a: np.ndarray) -> np.ndarray:
-    return kernels.plan_array(a)
+    return table.plan_array(a)
 
 
 class _Zeros(dict):
     """Shared rows of zeros ``(1, d)`` by size ``d`` (references the kernels read), made on first use."""
 
     def __missing__(self, d: int) -> np.ndarray:
-        z = self[d] = kernels.zeros_row(d)
+        z = self[d] = table.zeros_row(d)
         return z
 
 
@@ -279,13 +305,13 @@ class Scratch(Buffers):
 def _prior_out(B: int, n: int, N2: int, offsets: bool) -> tuple:
     """The prediction kernel's outputs: mean, factor, status, the second set and its offsets."""
     X2 = np.empty((B, N2, n))
-    D2 = np.empty(X2.shape) if offsets else kernels.no_set(n)
+    D2 = np.empty(X2.shape) if offsets else table.no_set(n)
     return np.empty((B, n)), np.empty((B, n, n)), np.empty(B, dtype=np.int64), X2, D2
 
 
 def _points_out(B: int, N: int, n: int, offsets: bool) -> tuple:
     """A set of points ``(B, N, n)`` and their offsets (or no array for them)."""
-    return np.empty((B, N, n)), np.empty((B, N, n)) if offsets else kernels.no_set(n)
+    return np.empty((B, N, n)), np.empty((B, N, n)) if offsets else table.no_set(n)
 
 
 def _posterior_out(B: int, n: int, m: int, N1: int) -> tuple:
@@ -293,7 +319,7 @@ def _posterior_out(B: int, n: int, m: int, N1: int) -> tuple:
     return (
         np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m)), np.empty((B, n, m)),
         np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B),
-        np.empty(B, dtype=np.int64), np.empty((B, N1, n)) if N1 else kernels.no_set(n),
+        np.empty(B, dtype=np.int64), np.empty((B, N1, n)) if N1 else table.no_set(n),
     )  # fmt: skip
 
 
@@ -321,6 +347,10 @@ class Route:
 
     Attributes
     ----------
+    z_angles : bool
+        The measurement's hooks are squkf's angle hooks (exact :class:`~squkf.angles.AngleMean`,
+        :class:`~squkf.angles.AngleResidual`): their indices go to the kernels, which form the
+        predicted measurement, rows and innovation (:func:`squkf.kernels.phases.angle_rows_kernel`).
     downdate : bool
         The updates take the downdate form whatever the set (a ``residual_x`` or ``state_add``:
         :func:`squkf.measurement.keeps_prior_factor`): the prior factor kept and the gain taken out
@@ -330,8 +360,8 @@ class Route:
     """
 
     __slots__ = (
-        "plan", "hooks", "gate", "single", "plain_x", "plain_add", "downdate", "plain_update", "no_set",
-        "zeros", "_updates", "_observed_R", "_noise", "_prior_draws",
+        "plan", "hooks", "gate", "single", "plain_x", "plain_add", "downdate", "plain_update", "z_angles",
+        "no_set", "zeros", "_updates", "_observed_R", "_noise", "_prior_draws", "_angle_kinds",
     )  # fmt: skip
 
     def __init__(self, plan: Plan, hooks: Hooks, gate, single: bool):
@@ -339,11 +369,13 @@ class Route:
         self.plain_x = hooks.x_mean_fn is None and hooks.residual_x is None
         self.plain_add = hooks.state_add is None
         self.downdate = keeps_prior_factor(hooks.residual_x, hooks.state_add)
+        # squkf's angle hooks on the measurement are data: the angle kernel does what they would
+        self.z_angles = measurement_hooks_are_data(hooks.z_mean_fn, hooks.residual_z)
+        self._angle_kinds: dict[int, np.ndarray] = {}  # per measurement size: what the kernel does
         # no hook in the way of the joint QR (the set must still reproduce the prior: update_route)
-        self.plain_update = (
-            self.plain_x and not self.downdate and hooks.z_mean_fn is None and hooks.residual_z is None
-        )
-        self.no_set = kernels.no_set(plan.n)  # a kernel's set output when it draws none
+        plain_z = self.z_angles or (hooks.z_mean_fn is None and hooks.residual_z is None)
+        self.plain_update = self.plain_x and not self.downdate and plain_z
+        self.no_set = table.no_set(plan.n)  # a kernel's set output when it draws none
         self._updates: dict = {}
         self._observed_R = _ObservedR()
         self.zeros = _Zeros()
@@ -370,7 +402,7 @@ class Route:
         kept = self._noise.get(which)
         if kept is not None and kept[0] is factor:
             return kept[1]
-        st = kernels.kernel_array(factor[None] if factor.ndim == 2 else factor)
+        st = table.kernel_array(factor[None] if factor.ndim == 2 else factor)
         self._noise[which] = (factor, st)
         return st
 
@@ -386,7 +418,7 @@ class Route:
         B, n = x.shape
         N = plan.xi1.shape[0]
         X = np.empty((B, N, n)) if out is None else out
-        kernels.KERNELS.points(x, S, plan.xi1, plan.gamma1, X, self.no_set)
+        table.KERNELS.points(x, S, plan.xi1, plan.gamma1, X, self.no_set)
         return X
 
     def _prior_draw(self, draw: bool, with_Q: bool) -> tuple:
@@ -401,7 +433,7 @@ class Route:
         if fused is not None and fused.augmented and not with_Q:
             fused = None  # the augmented set without noise is the propagated set itself
         if fused is None:
-            drawn: tuple = (None, 0, kernels.no_points(n), 0.0, 0, False)
+            drawn: tuple = (None, 0, table.no_points(n), 0.0, 0, False)
         else:
             N2 = fused.xi.shape[0] + (N if fused.augmented else 0)
             drawn = (fused, 2 if fused.augmented else 1, fused.xi, fused.gamma, N2, not fused.augmented)
@@ -447,11 +479,11 @@ class Route:
             else:
                 mean, S, status, X2, D2 = buffers.take(_prior_out, B, n, N2, with_offsets)
             if Q1_2 is None:
-                noise = kernels.no_noise(n)
+                noise = table.no_noise(n)
             else:  # (stacked's kept factor, looked up here: no call when it is the one given last)
                 kept = self._noise.get(0)
                 noise = kept[1] if kept is not None and kept[0] is Q1_2 else self.stacked(Q1_2, 0)
-            kernels.KERNELS.transform(
+            table.KERNELS.transform(
                 F, self.zeros[n], plan.mode1, plan.wm1, plan.scale1, plan.sign1, noise, mean, S, status,
                 code, xi2, gamma2, X2, D2,
             )  # fmt: skip
@@ -497,7 +529,7 @@ class Route:
             X2, D2 = (
                 _points_out(B, N2, n, True) if buffers is None else buffers.take(_points_out, B, N2, n, True)
             )
-            kernels.KERNELS.points(x, S, fused.xi, fused.gamma, X2, D2)
+            table.KERNELS.points(x, S, fused.xi, fused.gamma, X2, D2)
             rows = fused.rows
             return SigmaSet(X2, rows.Wm, rows.Wc, fused.exact, D2, rows, fused.axis)
         if not self.single:
@@ -519,7 +551,9 @@ class Route:
         if kept is not None and kept[0] is rows:
             return kept[1]
         plain = UT is None and sset.moments_exact and self.plain_update and rows is not None
-        route = _joint_route(sset) if plain else None
+        route: _Joint | None = None
+        if plain:
+            route = _angle_route(sset) if self.z_angles else _joint_route(sset)
         if len(self._updates) >= _KEPT_ROUTES:
             self._updates.clear()
         self._updates[key] = (rows, route)
@@ -588,12 +622,20 @@ class Route:
             return update, np.zeros(B, dtype=np.int64), None
         Ro = R1_2
         whole = None
+        zref = None
+        images = H
+        if route.angles:  # given rows: the hooks' predicted measurement, rows and innovation, every component
+            zref, H, z = self._angle_rows(route, H, z, buffers)
         if observed is not None and not observed.all():
-            whole = H  # (a missing component's images count too: all of them are checked finite)
+            whole = images  # (a missing component's images count too: all of them are checked finite)
             H, z = np.ascontiguousarray(H[..., observed]), np.ascontiguousarray(z[..., observed])
+            if zref is not None:
+                zref = np.ascontiguousarray(zref[..., observed])
             Ro = self._observed_R.of(R1_2, observed)
         m = H.shape[2]
         n = x.shape[1]
+        if zref is None:
+            zref = self.zeros[m]
         plan = self.plan
         draw = draw_first and plan.w_xi is None  # (noise entering fx: the first set has a noise part)
         N1 = plan.xi1.shape[0] if draw else 0
@@ -605,11 +647,13 @@ class Route:
         kept = self._noise.get(1)
         Rs = kept[1] if kept is not None and kept[0] is Ro else self.stacked(Ro, 1)
         Xs = sset.offsets if route.offsets else sset.sigmas
+        if route.angles and not route.offsets:  # given state rows: the deviations from the prior mean
+            Xs = Xs - x[:, None, :]
         f = Xs.flags
         if not (f.c_contiguous and f.writeable and Xs.dtype is _FLOAT64):  # a user generator's set
-            Xs = kernels.kernel_array(Xs)
-        kernels.KERNELS.joint_update(
-            H, self.zeros[m], Xs, x if route.xref else self.zeros[n], z, Rs, x, route.mode, route.wm,
+            Xs = table.kernel_array(Xs)
+        table.KERNELS.joint_update(
+            H, zref, Xs, x if route.xref else self.zeros[n], z, Rs, x, route.mode, route.wm,
             route.scale, route.sign, route.pair, *out[:11], plan.xi1, plan.gamma1, X1,
         )  # fmt: skip
         if whole is not None:
@@ -618,6 +662,20 @@ class Route:
             status = singular_allowed(status, S, Rs)
         update = Update(xo, So, y, Sy, L21, ll, ww, observed, _NONE_REJECTED[y.shape], None, m_all, w)
         return update, status, (X1 if draw else None)
+
+    def _angle_rows(self, route: _Joint, H, z, buffers: Buffers | None) -> tuple:
+        """The angle kernel's predicted measurement, rows and innovation of the images ``H`` ``(B, N, m)``
+        and the measurement ``z`` ``(B, m)``, every component (in ``buffers``' arrays where given)."""
+        B, N, m = H.shape
+        kinds = self._angle_kinds.get(m)
+        if kinds is None:
+            made = measurement_angles(self.hooks.z_mean_fn, self.hooks.residual_z, m)
+            assert made is not None
+            made.setflags(write=False)  # (a plan's array: read-only, one signature)
+            kinds = self._angle_kinds[m] = made
+        zp, D, y = _angle_out(B, N, m) if buffers is None else buffers.take(_angle_out, B, N, m)
+        table.KERNELS.angle_rows(H, z, route.wm, route.ref, kinds, zp, D, y)
+        return zp, D, y
 
     def form_of(self, sset: SigmaSet, UT) -> RowForm | None:
         """The row form a failed update's status refers to (its negative weights)."""
@@ -846,7 +904,7 @@ class Engine:
     ):
         self.route = self.step_route = route
         self.run = run
-        self.x, self.S = kernels.kernel_array(x), kernels.kernel_array(S)
+        self.x, self.S = table.kernel_array(x), table.kernel_array(S)
         self.phase = IDLE
         self.X: np.ndarray | None = None  # the points handed out by a pending ask_predict
         self.drawn = False
@@ -908,9 +966,9 @@ class Engine:
         ``idle``: a step pending is dropped too (a fleet's rule: an assignment ends an ask/tell step).
         """
         if x is not None:
-            self.x = kernels.kernel_array(x)  # (as the kernels take it: a factor from LAPACK is in F order)
+            self.x = table.kernel_array(x)  # (as the kernels take it: a factor from LAPACK is in F order)
         if S is not None:
-            self.S = kernels.kernel_array(S)
+            self.S = table.kernel_array(S)
         self._first = None
         self.drawn = False
         if idle:

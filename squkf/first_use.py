@@ -119,6 +119,8 @@ def _configurations() -> list[dict[str, Any]]:
         dict(points=JulierWeights(1.0), scheme="augmented"),
         dict(points=MerweScaledWeights(), scheme=Propagated()),
         dict(points=MerweScaledWeights(0.5), **_hooks()),
+        # squkf's angle hooks on the measurement alone: the kernels do them (angle_rows_kernel)
+        dict(points=MerweScaledWeights(), z_mean_fn=AngleMean([1]), residual_z=AngleResidual([1])),
         dict(points=MerweScaledWeights(), gate=0.99),
         dict(points=MerweScaledWeights(), gate=Gate(0.99, per_component=True)),
         dict(points=MerweScaledWeights(), **_noise_forms()),

@@ -34,19 +34,23 @@ from typing import Any
 
 import numpy as np
 
+from . import checks
+from .angles import check_angle_hooks, is_data
 from .batch import model_kwargs, per_step
-from .boundary import checks
-from .boundary.checks import (
+from .boundary.attributes import HandOut, Hook, ModelFunction
+from .boundary.config import Config, check_pending, filter_kwargs, filter_of, model_noise, stacked
+from .boundary.loop import Transaction, annotate_step, check_keep, check_progress, progress_callback
+from .boundary.records import FleetResult, Records, new_records
+from .checks import (
+    check_flag,
+    check_time_step,
     covariance_factors,
     given_noise_factors,
     lower_factors,
     noise_factors,
     reset_rows,
+    short_repr,
 )
-from .boundary.config import Config, check_pending, filter_kwargs, filter_of, stacked
-from .boundary.covariance import HandOut, Hook, ModelFunction
-from .boundary.loop import Transaction, annotate_step, check_keep, check_progress, progress_callback
-from .boundary.records import FleetResult, Records, new_records
 from .engine import Engine, Route, Update
 from .errors import FleetStepError, ParameterError, UnsetError
 from .gating import Gate, as_gate
@@ -55,8 +59,8 @@ from .noise import handed_points, noise_points
 from .plan import PREDICTING, UPDATING, Hooks, build_plan
 from .smoother import fleet_rts_smoother
 from .stacks import CHUNKS, Step, rows_of
+from .transform import StackedHook
 from .ukf import SquareRootUKF
-from .validate import check_time_step, short_repr
 from .weights import as_family
 
 __all__ = ["Fleet", "FleetResult", "FleetStepError"]
@@ -162,7 +166,21 @@ class Fleet:
     scheme : {"redrawn", "augmented", "propagated"} or generator
         How the second sigma-point set is formed.
     x_mean_fn, z_mean_fn, residual_x, residual_z, state_add : callable, optional
-        filterpy's hooks (e.g. :mod:`squkf.angles`), called per filter.
+        filterpy's hooks for angles and other non-additive quantities. squkf's
+        own (exact :class:`~squkf.angles.AngleMean`,
+        :class:`~squkf.angles.AngleResidual` as ``z_mean_fn``, ``residual_z``)
+        are data: the compiled update wraps and averages the angles itself, at
+        the speed of a fleet without hooks. Any other hook is Python, called
+        per filter and per sigma point as filterpy calls it (a ``residual_z``
+        makes a step of a fleet of 1,000 tens of times slower), unless
+        ``vectorized_hooks``.
+    vectorized_hooks : bool
+        The hooks take stacked arrays: each is called once per chunk, as
+        ``fx`` and ``hx`` are (shapes: :class:`squkf.transform.StackedHook`;
+        squkf's angle hooks are never wrapped). A filter then equals its single
+        filter bit for bit only if its hooks' arithmetic does not depend on the
+        array's length. ``fleet[k]``, ``from_filters`` and ``from_template``
+        make filters and fleets that call them per point (False). Default False.
     on_error : {"flag", "raise"}
         What a numerical failure of some filters does (module docstring).
     gate : None, float or Gate
@@ -248,15 +266,20 @@ class Fleet:
         fx_noise: int | None = None,
         hx_noise: int | None = None,
         chunk: int | None = None,
+        vectorized_hooks: bool = False,
     ):
         K, n, m = checks.check_sizes(n_filters=n_filters, dim_x=dim_x, dim_z=dim_z)
         checks.model_functions(
             False, hx=hx, fx=fx, x_mean_fn=x_mean_fn, z_mean_fn=z_mean_fn, residual_x=residual_x,
             residual_z=residual_z, state_add=state_add,
         )  # fmt: skip
+        check_angle_hooks(
+            n, m, x_mean_fn=x_mean_fn, z_mean_fn=z_mean_fn, residual_x=residual_x, residual_z=residual_z,
+            state_add=state_add,
+        )  # fmt: skip
         if on_error not in ("flag", "raise"):
             raise ParameterError(f"on_error must be 'flag' or 'raise', got on_error={on_error!r}")
-        self._fx_noise, self._hx_noise = checks.model_noise(fx, hx, fx_noise, hx_noise)
+        self._fx_noise, self._hx_noise = model_noise(fx, hx, fx_noise, hx_noise)
         self._qd, self._rd = self._fx_noise or n, self._hx_noise or m  # the dimensions of Q and R
         self._handed = HandOut()  # x, P, Q, R: the arrays handed out, for edits in place
         self._K, self._n, self._m = K, n, m
@@ -275,6 +298,7 @@ class Fleet:
         self.state_add = state_add
         self.on_error = on_error
         self._gate = as_gate(gate)
+        self._vectorized_hooks = check_flag(vectorized_hooks, "vectorized_hooks")
         # the state, the pending step and the records: a block of K run a chunk at a time (stacks.Chunks)
         S0 = np.broadcast_to(np.eye(n), (K, n, n)).copy()
         self._engine = Engine(self._new_route(), np.zeros((K, n)), S0, None, None, CHUNKS)
@@ -345,8 +369,22 @@ class Fleet:
         return Hooks(self.x_mean, self.z_mean, self.residual_x, self.residual_z, self.state_add)
 
     def _new_route(self) -> Route:
-        """The engine's route of this configuration (built again when a hook or the gate changes)."""
-        return Route(self._plan, self._hooks(), self._gate, single=False)
+        """The engine's route of this configuration (built again when a hook, the gate or
+        ``vectorized_hooks`` changes)."""
+        hooks = self._hooks()
+        if self._vectorized_hooks:  # a user's hooks called once per chunk (squkf's angle hooks: data)
+            hooks = Hooks(*(h if h is None or is_data(h) else StackedHook(h) for h in hooks))
+        return Route(self._plan, hooks, self._gate, single=False)
+
+    @property
+    def vectorized_hooks(self) -> bool:
+        """Whether the hooks take stacked arrays, called once per chunk (see the class); assign to change."""
+        return self._vectorized_hooks
+
+    @vectorized_hooks.setter
+    def vectorized_hooks(self, value) -> None:
+        self._vectorized_hooks = check_flag(value, "vectorized_hooks")
+        self._engine.configure(self._new_route())
 
     # the model functions: a fleet needs both
     hx = ModelFunction(optional=False, why="a fleet needs fx and hx")
@@ -363,7 +401,7 @@ class Fleet:
         if "_gate" in self.__dict__:  # (not while __init__ sets the hooks: the engine is built after)
             self._engine.configure(self._new_route())
 
-    # -- state and noise: handed out (edits in place taken by boundary.covariance.HandOut) -------
+    # -- state and noise: handed out (edits in place taken by boundary.attributes.HandOut) -------
 
     @property
     def x(self) -> np.ndarray:
@@ -995,6 +1033,7 @@ class Fleet:
             state = {("_points" if k == "points_fn" else k): v for k, v in state.items()}
         state.setdefault("_unset_x", np.zeros(state["_K"], dtype=bool))  # pickled before placeholders
         state.setdefault("_unset_P", np.zeros(state["_K"], dtype=bool))
+        state.setdefault("_vectorized_hooks", False)  # pickled before the option
         engine = state.pop("_engine", None)
         old = {k: state.pop(k, None) for k in _BEFORE_ENGINE}
         self.__dict__.update(state)

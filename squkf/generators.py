@@ -36,10 +36,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import kernels
+from .checks import call_hook
 from .errors import ParameterError
+from .kernels import wrappers
 from .rows import WeightRows, weight_rows
-from .validate import call_hook
+from .transform import StackedHook
 from .weights import FilterpyPoints, as_family
 
 __all__ = [
@@ -183,12 +184,17 @@ def sigma_points_and_offsets(
     sigmas : ndarray, shape (..., N, n)
     offsets : ndarray, shape (..., N, n)
     """
-    sigmas, dx = kernels.sigma_points(x, S, xi, 0.0 if gamma is None else gamma)
+    sigmas, dx = wrappers.sigma_points(x, S, xi, 0.0 if gamma is None else gamma)
     assert dx is not None
     if _plain_sum(state_add):
         return sigmas, dx
-    out = np.empty(sigmas.shape)
     n = x.shape[-1]
+    if isinstance(state_add, StackedHook):  # once: (k, 1, n) and (k, N, n)
+        shape = sigmas.shape
+        k, N = int(np.prod(shape[:-2], dtype=np.int64)), shape[-2]
+        xs = np.broadcast_to(x[..., None, :], shape[:-2] + (1, n)).reshape(k, 1, n)
+        return call_hook(state_add.fn, (xs, dx.reshape(k, N, n)), (k, N, n), "state_add").reshape(shape), dx
+    out = np.empty(sigmas.shape)
     for idx in np.ndindex(out.shape[:-2]):
         xk = x[idx] if x.ndim > 1 else x
         dk = dx[idx] if dx.ndim > 2 else dx
@@ -202,7 +208,7 @@ def sigma_points_from_factor(
 ) -> np.ndarray:
     """The sigma points of :func:`sigma_points_and_offsets` alone, shape ``(..., N, n)``."""
     if _plain_sum(state_add):  # the offsets are not needed: not formed
-        return kernels.sigma_points(x, S, xi, 0.0 if gamma is None else gamma, offsets=False)[0]
+        return wrappers.sigma_points(x, S, xi, 0.0 if gamma is None else gamma, offsets=False)[0]
     return sigma_points_and_offsets(x, S, xi, state_add, gamma)[0]
 
 

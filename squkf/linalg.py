@@ -18,8 +18,8 @@ import math
 import numpy as np
 from scipy.linalg import lapack
 
-from . import kernels
 from .errors import DowndateError, GainError, NotPositiveDefiniteError
+from .kernels import wrappers
 
 __all__ = [
     "all_finite",
@@ -74,7 +74,7 @@ def tria(rows: np.ndarray) -> np.ndarray:
         Lower triangular with a non-negative diagonal. If ``k < n`` the last
         ``n - k`` columns are zero.
     """
-    return kernels.tria(rows)
+    return wrappers.tria(rows)
 
 
 def solve_lower(S: np.ndarray, b: np.ndarray, trans: bool = False) -> np.ndarray:
@@ -98,7 +98,7 @@ def solve_lower(S: np.ndarray, b: np.ndarray, trans: bool = False) -> np.ndarray
     numpy.linalg.LinAlgError
         If ``S`` has a zero on its diagonal.
     """
-    x, ok = kernels.solve_lower(S, b, trans)
+    x, ok = wrappers.solve_lower(S, b, trans)
     if not ok.all():
         raise np.linalg.LinAlgError("triangular factor is singular: a diagonal element is zero")
     return x
@@ -108,7 +108,7 @@ def chol_update(S: np.ndarray, v: np.ndarray, sign: float = 1.0) -> np.ndarray:
     """Rank-1 update or downdate of a lower Cholesky factor in O(n^2).
 
     Returns ``S1`` with ``S1 @ S1.T == S @ S.T + sign * outer(v, v)``, by one
-    rotation per column (:func:`squkf.kernels.chol_update`).
+    rotation per column (:func:`squkf.kernels.wrappers.chol_update`).
 
     Parameters
     ----------
@@ -131,7 +131,7 @@ def chol_update(S: np.ndarray, v: np.ndarray, sign: float = 1.0) -> np.ndarray:
         (``||S^{-1} v|| >= 1``), a singular ``S``, or a result that is not
         finite (g13ej IFAIL 301).
     """
-    S1, fail = kernels.chol_update(S, v, -1.0 if sign < 0 else 1.0)
+    S1, fail = wrappers.chol_update(S, v, -1.0 if sign < 0 else 1.0)
     if (fail >= 0).any():
         d = np.diagonal(S, axis1=-2, axis2=-1)
         if not (d > 0).all():

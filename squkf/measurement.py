@@ -54,14 +54,15 @@ from typing import NamedTuple, cast
 
 import numpy as np
 
-from . import kernels
+from .checks import call_hook, check_hook_result
 from .errors import GainError, PosteriorFactorError
 from .generators import SigmaSet
+from .kernels import wrappers
+from .kernels.table import CENTRAL, GIVEN, MEAN
 from .linalg import all_finite, solve_lower, tria
 from .rows import RowForm, WeightRows, weight_rows
 from .statuses import failure, first_status, singular_allowed
-from .transform import deviations, factor_rows, transform_factor, weighted_mean
-from .validate import call_hook, check_hook_result
+from .transform import StackedHook, deviations, factor_rows, transform_factor, weighted_mean
 
 __all__ = [
     "Posterior",
@@ -250,25 +251,24 @@ def measurement_update(
         if z_hooks:
             form = rows.mean_form
             z_pred = weighted_mean(sigmas_h, rows.Wm, z_mean_fn, "z_mean_fn")
-            Dz = deviations(sigmas_h, z_pred, residual_z, "residual_z")
-            y = _innovation(_present(z, z_pred, cols), z_pred, residual_z)
+            Dz, y = _rows_and_innovation(sigmas_h, _present(z, z_pred, cols), z_pred, residual_z)
             z_pred, Dz, y = z_pred[..., cols], Dz[..., cols], y[..., cols]
-            u = kernels.joint_update(
-                Dz, _state_deviations(sset, x), y, Ro, x, kernels.GIVEN,
+            u = wrappers.joint_update(
+                Dz, _state_deviations(sset, x), y, Ro, x, GIVEN,
                 rows.Wm, form.scale, form.sign, zref=z_pred,
             )  # fmt: skip
         else:
             form = rows.best
             pair = 0.0
             if form.central:  # deviations from the central point: the offsets' own differences
-                X, xref, mode = (sset.sigmas if sset.offsets is None else sset.offsets), None, kernels.CENTRAL
+                X, xref, mode = (sset.sigmas if sset.offsets is None else sset.offsets), None, CENTRAL
                 if sset.axis and sset.offsets is not None:
                     pair = rows.pair_scale  # 0 unless every +/- row has one weight, none negative
             elif sset.offsets is not None:
-                X, xref, mode = sset.offsets, None, kernels.MEAN
+                X, xref, mode = sset.offsets, None, MEAN
             else:
-                X, xref, mode = sset.sigmas, x, kernels.MEAN
-            u = kernels.joint_update(
+                X, xref, mode = sset.sigmas, x, MEAN
+            u = wrappers.joint_update(
                 sigmas_h, X, z, Ro, x, mode, rows.Wm, form.scale, form.sign, xref=xref, pair=pair
             )
             z_pred = cast(np.ndarray, u.z_pred)
@@ -291,11 +291,13 @@ def measurement_update(
             H, zref = sigmas_h, z_pred
         else:
             z_pred = given
-            if residual_z is None:
+        if given is None or residual_z is None:
+            if given is not None:
                 H, zref = sigmas_h[..., cols], z_pred[..., cols]
-            else:
-                H, zref = deviations(sigmas_h, z_pred, residual_z, "residual_z")[..., cols], np.zeros(mo)
-        y = _innovation(_present(z, z_pred, cols), z_pred, residual_z)[..., cols]
+            y = _innovation(_present(z, z_pred, cols), z_pred, residual_z)[..., cols]
+        else:
+            rows_z, y = _rows_and_innovation(sigmas_h, _present(z, z_pred, cols), z_pred, residual_z)
+            H, zref, y = rows_z[..., cols], np.zeros(mo), y[..., cols]
         z_pred = z_pred[..., cols]
         if UT is None and z_hooks:  # the hooks' rows, weighed as the transform weighs them
             Sy = factor_rows(H - zref[..., None, :], rows.mean_form, Ro, errno=301)
@@ -305,7 +307,7 @@ def measurement_update(
             X, xref = (sset.sigmas, x) if sset.offsets is None else (sset.offsets, np.zeros(n))
         else:
             X, xref = deviations(sset.sigmas, x, residual_x, "residual_x"), np.zeros(n)
-        u = kernels.downdate_update(H, zref, X, xref, y, Sy, S, x, rows.Wc)
+        u = wrappers.downdate_update(H, zref, X, xref, y, Sy, S, x, rows.Wc)
         if not downdate:  # a user's UT with an exact set and no residual_x/state_add: the gain form
             S_gain = _gain_form_posterior(Sy, u.L21, X - xref[..., None, :], H - zref[..., None, :], rows, Ro)
             if not (all_finite(S_gain) and all_finite(u.x)):
@@ -337,6 +339,17 @@ def _innovation(z: np.ndarray, z_pred: np.ndarray, residual_z: Callable | None) 
     return z - z_pred if residual_z is None else _per_filter(residual_z, z, z_pred, "residual_z")
 
 
+def _rows_and_innovation(
+    H: np.ndarray, z: np.ndarray, z_pred: np.ndarray, residual_z: Callable | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The rows ``residual_z(H_i, z_pred)`` ``(..., N, m)`` and the innovation ``residual_z(z, z_pred)``
+    ``(..., m)``: a :class:`~squkf.transform.StackedHook` called once for both (the innovation last)."""
+    if not isinstance(residual_z, StackedHook):
+        return deviations(H, z_pred, residual_z, "residual_z"), _innovation(z, z_pred, residual_z)
+    both = deviations(np.concatenate([H, z[..., None, :]], axis=-2), z_pred, residual_z, "residual_z")
+    return both[..., :-1, :], both[..., -1, :]
+
+
 def _raise_update_status(status: np.ndarray, form: RowForm, S: np.ndarray, R1_2: np.ndarray) -> None:
     """The exception for the first failed filter of an update kernel's ``status`` (nothing if none).
 
@@ -354,8 +367,13 @@ def _raise_update_status(status: np.ndarray, form: RowForm, S: np.ndarray, R1_2:
 
 def _per_filter(fn: Callable, a: np.ndarray, b: np.ndarray, hook: str) -> np.ndarray:
     """The user's hook for ``a + b`` or ``a - b``, called and checked per filter."""
-    out: np.ndarray = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    d = out.shape[-1]
+    shape = np.broadcast_shapes(a.shape, b.shape)
+    d = shape[-1]
+    if isinstance(fn, StackedHook):  # once: (k, 1, d) and (k, 1, d)
+        k = int(np.prod(shape[:-1], dtype=np.int64))
+        a1, b1 = (np.broadcast_to(v, shape).reshape(k, 1, d) for v in (a, b))
+        return call_hook(fn.fn, (a1, b1), (k, 1, d), hook).reshape(shape)
+    out: np.ndarray = np.empty(shape)
     for idx in np.ndindex(out.shape[:-1]):
         out[idx] = call_hook(fn, (a[idx] if a.ndim > 1 else a, b[idx] if b.ndim > 1 else b), (d,), hook)
     return out

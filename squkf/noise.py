@@ -24,9 +24,9 @@ from collections.abc import Callable
 
 import numpy as np
 
-from . import kernels
+from .checks import note_on_user_error
 from .errors import ParameterError
-from .validate import note_on_user_error
+from .kernels import wrappers
 
 __all__ = ["check_noise_dim", "check_accepts_noise", "noise_points", "handed_points", "call_model"]
 
@@ -110,7 +110,7 @@ def noise_points(xi: np.ndarray, factor: np.ndarray | None, batch: tuple[int, ..
     if factor is None:
         return np.zeros(batch + (N, d))
     factor = np.broadcast_to(factor, batch + (d, d))
-    _, offsets = kernels.sigma_points(np.zeros(batch + (d,)), factor, xi, 0.0)
+    _, offsets = wrappers.sigma_points(np.zeros(batch + (d,)), factor, xi, 0.0)
     assert offsets is not None
     return offsets
 
@@ -152,7 +152,7 @@ def call_model(
     An exception ``fn`` raises propagates unchanged (the same object), as
     every exception from ``fx``/``hx`` does; on Python >= 3.11 it carries a
     note naming ``{name}_noise`` and the shape of the noise given
-    (:func:`squkf.validate.note_on_user_error`).
+    (:func:`squkf.checks.note_on_user_error`).
 
     Parameters
     ----------

@@ -19,7 +19,7 @@ import numpy as np
 
 from .errors import ParameterError
 from .generators import Augmented, FusedDraw, Propagated, Redrawn, UnitSet, noise_family, prepare_second_set
-from .kernels import CENTRAL, MEAN, plan_array
+from .kernels.table import CENTRAL, MEAN, plan_array
 from .weights import CubatureWeights, FilterpyPoints, JulierWeights, MerweScaledWeights, SimplexWeights
 
 __all__ = ["IDLE", "PREDICTING", "PRIOR", "UPDATING", "Plan", "Hooks", "build_plan", "check_built_for"]

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from . import checks
 from .batch import per_step
-from .boundary import checks
+from .checks import check_values
 from .errors import ParameterError, UnsetError
-from .validate import check_values
 
 __all__ = ["simulate"]
 

@@ -23,7 +23,7 @@ Inputs are checked before the backward pass: the filtered means and factors
 must be finite, the factors lower triangular with a non-zero diagonal, and
 the per-step arguments (see :mod:`squkf.batch`) must have one entry per step;
 ``dts`` entries follow the filter's one rule for a time step
-(:func:`squkf.validate.check_time_step`): any finite real number, ``0`` (a
+(:func:`squkf.checks.check_time_step`): any finite real number, ``0`` (a
 prediction of zero length) and negative steps included, as ``predict`` takes them.
 
 One algorithm, written once
@@ -55,11 +55,20 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from . import kernels
 from .batch import model_kwargs, per_step
-from .boundary.checks import evaluate, finite_images, model_function, noise_factor, with_filter_axis
-from .boundary.covariance import FactorSlot, as_lower_factor
+from .boundary.attributes import FactorSlot
 from .boundary.records import FleetResult, failures_error
+from .checks import (
+    as_float_array,
+    as_lower_factor,
+    call_hook,
+    check_values,
+    evaluate,
+    finite_images,
+    model_function,
+    noise_factor,
+    with_filter_axis,
+)
 from .errors import (
     NonFiniteError,
     NotPositiveDefiniteError,
@@ -68,11 +77,11 @@ from .errors import (
     SqukfError,
 )
 from .generators import UnitSet, sigma_points_from_factor
+from .kernels import wrappers
 from .linalg import chol_downdate_columns, kalman_gain, tria
 from .plan import Hooks
 from .stacks import rows_of, run_isolated
 from .transform import deviations, factor_rows, swap_last, transform_factor
-from .validate import as_float_array, call_hook, check_values
 
 __all__ = ["rts_smoother", "rts_smoother_factors", "fleet_rts_smoother", "FleetSmoothed"]
 
@@ -511,7 +520,7 @@ def _finite_per_filter(arrays: tuple[np.ndarray, ...]) -> np.ndarray:
     """Whether each filter's slice (leading axis) of every array is finite."""
     ok = np.ones(arrays[0].shape[0], dtype=bool)
     for a in arrays:
-        ok &= kernels.finite_rows(a)
+        ok &= wrappers.finite_rows(a)
     return ok
 
 

@@ -31,15 +31,15 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import kernels
-from .boundary.checks import finite_images, stacked_shape
 from .boundary.records import failures_error
 from .boundary.records import log_det as log_det_of
+from .checks import describe_nonfinite, finite_images, stacked_shape
 from .engine import Buffers, Route, Scratch, Update
 from .errors import NonFiniteError, NotPositiveDefiniteError, SqukfError
 from .generators import SigmaSet
+from .kernels.table import kernel_array
+from .kernels.threads import enter_step, exit_step, thread_map
 from .statuses import failure
-from .validate import describe_nonfinite
 
 __all__ = [
     "BLOCK",
@@ -181,10 +181,10 @@ def _map_chunks(
 ) -> None:
     """``one`` over the chunks of a step of ``K`` filters, on the threads of :func:`squkf.set_num_threads`.
 
-    The step holds the thread count it starts with (:func:`squkf.kernels.enter_step`):
+    The step holds the thread count it starts with (:func:`squkf.kernels.threads.enter_step`):
     its chunks are cut for it and run on its threads whatever the count is set to meanwhile.
     """
-    held, own = kernels.enter_step()
+    held, own = enter_step()
     try:
         threads = held.n
         if size is None:
@@ -194,10 +194,10 @@ def _map_chunks(
             if found:
                 fails.update(found)
             return
-        for part in kernels.thread_map(one, chunks(K, size, threads)):
+        for part in thread_map(one, chunks(K, size, threads)):
             fails.update(part)
     finally:
-        kernels.exit_step(held, own)
+        exit_step(held, own)
 
 
 class _Spare(threading.local):
@@ -507,7 +507,7 @@ class Chunks:
             f = F.flags if type(F) is np.ndarray and F.dtype == _FLOAT64 and F.shape == X.shape else None
             if f is None or not (f.c_contiguous and f.writeable):  # checked, copied once as kernels take it
                 label = "fx values" if rows.stop - rows.start == K else _label("fx values", rows, K)
-                F = kernels.kernel_array(stacked_shape(F, X.shape, label, False, ("fx", X.shape)))
+                F = kernel_array(stacked_shape(F, X.shape, label, False, ("fx", X.shape)))
             on = active[rows]
             Qr = Q1_2 if Q1_2 is None or Q1_2.ndim == 2 else Q1_2[rows]
             xo, So = x_new[rows], S_new[rows]
@@ -595,7 +595,7 @@ class Chunks:
             f = H.flags if type(H) is np.ndarray and H.dtype == _FLOAT64 and H.shape == shape else None
             if f is None or not (f.c_contiguous and f.writeable):  # checked, copied once as kernels take it
                 label = "hx values" if k == K else _label("hx values", rows, K)
-                H = kernels.kernel_array(stacked_shape(H, shape, label, False, ("hx", s.sigmas.shape)))
+                H = kernel_array(stacked_shape(H, shape, label, False, ("hx", s.sigmas.shape)))
             # the chunk's rows of z in its own array, checked as read: what the kernels use is what
             # was checked, even if the model functions wrote into the caller's z (and no (K, m) copy)
             zr, zp, Sy, L21, dx, status = scratch.take(_chunk_update, k, n, m)
@@ -618,7 +618,8 @@ class Chunks:
             ):
                 xo, So, y, ll, nis, rejected, w, log_det = part  # written into the step's records
                 kernel_out = (zp, y, w, Sy, L21, dx, xo, So, ll, nis, status, route.no_set)
-                route.posterior(s, xs, Ss, H, zr, None, Rr, None, False, out=kernel_out)
+                # (the scratch: the angle kernel's rows, for squkf's angle hooks)
+                route.posterior(s, xs, Ss, H, zr, None, Rr, None, False, buffers=scratch, out=kernel_out)
                 log_det_of(Sy, out=log_det)
                 rejected[...] = False
                 if np.count_nonzero(status) or not on.all():  # a failing or inactive filter keeps its prior

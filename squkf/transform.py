@@ -15,13 +15,15 @@ from collections.abc import Callable
 
 import numpy as np
 
-from . import kernels
+from .checks import as_float_array, call_hook
 from .errors import DowndateError, NonFiniteError, NotPositiveDefiniteError, ShapeError
+from .kernels import wrappers
+from .kernels.table import CENTRAL, GIVEN, MEAN
 from .linalg import all_finite
 from .rows import RowForm, WeightRows, weight_rows
-from .validate import as_float_array, call_hook
 
 __all__ = [
+    "StackedHook",
     "weighted_mean",
     "deviations",
     "cross_covariance",
@@ -29,6 +31,45 @@ __all__ = [
     "transform_factor",
     "sqrt_unscented_transform",
 ]
+
+
+class StackedHook:
+    """A user's hook called once on stacked arrays, as ``fx`` and ``hx`` are (``Fleet.vectorized_hooks``).
+
+    Where filterpy calls a hook once per filter and point, the step calls the hook it wraps once per
+    block of ``k`` filters (a fleet's chunk; a filter alone, ``k = 1``):
+
+    - ``x_mean_fn(sigmas, Wm)``, ``z_mean_fn(sigmas, Wm)``: ``sigmas`` ``(k, N, d)``, ``Wm`` ``(N,)``;
+      returns ``(k, d)``;
+    - ``residual_x(a, b)``, ``residual_z(a, b)``: ``a`` ``(k, P, d)``, ``b`` ``(k, 1, d)``; returns
+      ``a - b`` ``(k, P, d)`` (the rows of a set and, for ``residual_z``, the innovation as row ``P - 1``);
+    - ``state_add(x, dx)``: ``x`` ``(k, 1, n)``, ``dx`` ``(k, P, n)``; returns ``(k, P, n)``.
+
+    What it returns is checked as a hook's result is.
+
+    Parameters
+    ----------
+    fn : callable
+    """
+
+    __slots__ = ("fn",)
+
+    def __init__(self, fn: Callable):
+        self.fn = fn
+
+    def __call__(self, *args):
+        return self.fn(*args)
+
+    def __reduce__(self):
+        return (StackedHook, (self.fn,))
+
+    def __repr__(self) -> str:
+        return f"StackedHook({self.fn!r})"
+
+
+def _stacked(fn: StackedHook, args: tuple, shape: tuple[int, ...], hook: str) -> np.ndarray:
+    """``fn(*args)`` on stacked arrays (leading axis ``k``), checked to be of ``shape``."""
+    return call_hook(fn.fn, args, shape, hook)
 
 
 def swap_last(a: np.ndarray) -> np.ndarray:
@@ -58,7 +99,8 @@ def weighted_mean(
         Mean weights, summing to 1.
     mean_fn : callable ``mean_fn(sigmas, Wm) -> (d,)``, optional
         Replaces the weighted sum (e.g. a circular mean for angles); called
-        once per filter with its ``(N, d)`` points.
+        once per filter with its ``(N, d)`` points (a :class:`StackedHook`:
+        once, with every filter's, ``(k, N, d)``).
     hook : str
         The hook's name for error messages.
 
@@ -70,6 +112,10 @@ def weighted_mean(
         ref = sigmas[..., 0, :]
         return ref + np.matmul(Wm, sigmas - ref[..., None, :])
     d = sigmas.shape[-1]
+    if isinstance(mean_fn, StackedHook):
+        N, lead = sigmas.shape[-2], sigmas.shape[:-2]
+        k = int(np.prod(lead, dtype=np.int64))
+        return _stacked(mean_fn, (sigmas.reshape(k, N, d), Wm), (k, d), hook).reshape(lead + (d,))
     mean = np.empty(sigmas.shape[:-2] + (d,))
     for idx in _batch(sigmas, 2):
         mean[idx] = call_hook(mean_fn, (sigmas[idx], Wm), (d,), hook)
@@ -86,7 +132,8 @@ def deviations(
     sigmas : ndarray, shape (..., N, d)
     mean : ndarray, shape (..., d)
     residual_fn : callable ``residual_fn(a, b) -> (d,)``, optional
-        Called once per row, with 1-D arrays, as filterpy calls it.
+        Called once per row, with 1-D arrays, as filterpy calls it (a
+        :class:`StackedHook`: once, ``(k, N, d)`` and ``(k, 1, d)``).
     hook : str
         The hook's name for error messages.
 
@@ -97,7 +144,14 @@ def deviations(
     if residual_fn is None or residual_fn is np.subtract:
         return sigmas - mean[..., None, :]
     d = sigmas.shape[-1]
-    dev = np.empty(np.broadcast_shapes(sigmas.shape, mean.shape[:-1] + (1, d)))
+    shape = np.broadcast_shapes(sigmas.shape, mean.shape[:-1] + (1, d))
+    if isinstance(residual_fn, StackedHook):
+        N, lead = shape[-2], shape[:-2]
+        k = int(np.prod(lead, dtype=np.int64))
+        a = np.broadcast_to(sigmas, shape).reshape(k, N, d)
+        b = np.broadcast_to(mean[..., None, :], lead + (1, d)).reshape(k, 1, d)
+        return _stacked(residual_fn, (a, b), (k, N, d), hook).reshape(shape)
+    dev = np.empty(shape)
     for idx in _batch(dev, 2):
         m = mean[idx] if mean.ndim > 1 else mean
         for i, s in enumerate(sigmas[idx] if sigmas.ndim > 2 else sigmas):
@@ -189,7 +243,7 @@ def factor_rows(
         If a negative weight's downdate would lose positive-definiteness.
     """
     # given rows: the kernel reads no mean weights
-    _, S, status = kernels.transform(D, kernels.GIVEN, form.scale, form.scale, form.sign, noise_sqrt)
+    _, S, status = wrappers.transform(D, GIVEN, form.scale, form.scale, form.sign, noise_sqrt)
     _raise_status(status, form, errno, error)
     return S
 
@@ -232,13 +286,13 @@ def transform_factor(
     plain = mean_fn is None and (residual_fn is None or residual_fn is np.subtract)
     if plain:
         form = rows.best
-        mode = kernels.CENTRAL if form.central else kernels.MEAN
-        mean, S, status = kernels.transform(sigmas, mode, rows.Wm, form.scale, form.sign, noise_sqrt)
+        mode = CENTRAL if form.central else MEAN
+        mean, S, status = wrappers.transform(sigmas, mode, rows.Wm, form.scale, form.sign, noise_sqrt)
     else:
         form = rows.mean_form
         mean = weighted_mean(sigmas, rows.Wm, mean_fn, hooks[0])
         D = deviations(sigmas, mean, residual_fn, hooks[1])
-        _, S, status = kernels.transform(D, kernels.GIVEN, rows.Wm, form.scale, form.sign, noise_sqrt, mean)
+        _, S, status = wrappers.transform(D, GIVEN, rows.Wm, form.scale, form.sign, noise_sqrt, mean)
     _raise_status(status, form, errno, error)
     return mean, S
 

@@ -19,12 +19,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-from . import smoother
+from . import checks, smoother
+from .angles import check_angle_hooks
 from .batch import batch_filter
-from .boundary import checks
-from .boundary.checks import noise_factor
-from .boundary.config import Config
-from .boundary.covariance import (
+from .boundary.attributes import (
     NOISES,
     Covariance,
     Estimate,
@@ -34,13 +32,14 @@ from .boundary.covariance import (
     Hook,
     ModelFunction,
     Unformed,
-    as_lower_factor,
     hooks_of,
     initial,
     set_factor,
 )
+from .boundary.config import Config, model_noise, second_set, sigma_family
 from .boundary.loop import Transaction
 from .boundary.records import embed, innovation_inverse, log_det, whitened
+from .checks import as_float_array, as_lower_factor, check_time_step, check_values, noise_factor
 from .engine import Engine, Route, Update
 from .errors import NonFiniteError, ParameterError, ShapeError, UnsetError
 from .gating import Gate, as_gate
@@ -49,7 +48,6 @@ from .measurement import gain_from_factors
 from .noise import call_model, handed_points, noise_points
 from .plan import Plan, build_plan
 from .transform import cross_covariance
-from .validate import as_float_array, check_time_step, check_values
 from .weights import WrittenWeights
 
 __all__ = ["SquareRootUKF"]
@@ -304,10 +302,14 @@ class SquareRootUKF:
             True, hx=hx, fx=fx, sqrt_fn=sqrt_fn, x_mean_fn=x_mean_fn, z_mean_fn=z_mean_fn,
             residual_x=residual_x, residual_z=residual_z, state_add=state_add,
         )  # fmt: skip
-        fx_noise_, hx_noise_ = checks.model_noise(fx, hx, fx_noise, hx_noise)
+        check_angle_hooks(
+            n, m, x_mean_fn=x_mean_fn, z_mean_fn=z_mean_fn, residual_x=residual_x, residual_z=residual_z,
+            state_add=state_add,
+        )  # fmt: skip
+        fx_noise_, hx_noise_ = model_noise(fx, hx, fx_noise, hx_noise)
         dt_ = None if dt is None else check_time_step(dt)  # None: every predict passes its own
-        family, num = checks.sigma_family(points, n, fx_noise_)
-        generator = checks.second_set(scheme, n, family, hx_noise_)
+        family, num = sigma_family(points, n, fx_noise_)
+        generator = second_set(scheme, n, family, hx_noise_)
         plan = build_plan(family, generator, n, fx_noise_, hx_noise_)
         gate_ = as_gate(gate)
         d = self.__dict__
@@ -345,7 +347,7 @@ class SquareRootUKF:
 
     @points_fn.setter
     def points_fn(self, points):
-        family, num = checks.sigma_family(points, self._dim_x, self._fx_noise)
+        family, num = sigma_family(points, self._dim_x, self._fx_noise)
         plan = build_plan(family, self._generator, self._dim_x, self._fx_noise, self._hx_noise)
         self._points, self._family, self._plan = points, family, plan
         self.__dict__["_num_sigmas"] = num
@@ -358,7 +360,7 @@ class SquareRootUKF:
 
     @scheme.setter
     def scheme(self, value):
-        gen = checks.second_set(value, self._dim_x, self._family, self._hx_noise)
+        gen = second_set(value, self._dim_x, self._family, self._hx_noise)
         plan = build_plan(self._family, gen, self._dim_x, self._fx_noise, self._hx_noise)
         self._generator, self._plan = gen, plan
         self._configured()

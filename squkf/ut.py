@@ -6,11 +6,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-from .boundary.covariance import as_lower_factor
+from .checks import as_lower_factor, check_values
 from .errors import ShapeError
 from .generators import sigma_points_from_factor
 from .transform import deviations, sqrt_unscented_transform
-from .validate import check_values
 from .weights import MerweScaledWeights, as_family
 
 __all__ = ["unscented_transform"]

@@ -13,8 +13,11 @@ they are built from the factor's columns, never from a re-factored ``P``.
 
 Families whose points are a centre and ``+/- gamma`` along each axis (Merwe's
 scaled points and Julier's) also offer ``gamma(n)`` and
-``augmented(n_state)``; those two are what the *augmented* second sigma-point
-set of g13ej needs.
+``augmented(n_more)``; those two are what the *augmented* second sigma-point
+set of g13ej needs (``augmented`` also serves noise entering the model). An
+adapter of another library's points offers ``as_native()``, its squkf
+equivalent or None. :class:`SigmaPointFamily` states the three optional
+methods and their shapes.
 
 filterpy's own points objects (``MerweScaledSigmaPoints``,
 ``JulierSigmaPoints``, ``SimplexSigmaPoints`` or anything with the same
@@ -29,8 +32,8 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 
+from .checks import short_repr
 from .errors import ParameterError
-from .validate import short_repr
 
 __all__ = [
     "SigmaPointFamily",
@@ -46,6 +49,41 @@ __all__ = [
 @runtime_checkable
 class SigmaPointFamily(Protocol):
     """The protocol every sigma-point family follows (see the module docstring).
+
+    The three methods below are required; ``isinstance(obj, SigmaPointFamily)``
+    checks for them (and for nothing else).
+
+    Notes
+    -----
+    A family may also offer three optional methods. squkf looks for each with
+    ``hasattr`` where it needs it and does without it otherwise, so they are
+    not members of the protocol (an object without them is still a family):
+
+    ``gamma(n) -> float``
+        For a family whose unit points at dimension ``n`` are a centre and
+        ``+/- gamma`` along each axis, ``[0; gamma I; -gamma I]`` of shape
+        ``(2 n + 1, n)`` (Merwe's and Julier's): that distance, ``gamma``.
+        g13ej's augmented second set needs it of the family it draws with
+        (``augmented(n)``, at dimension ``2 n``): its ``2 n`` noise points are
+        ``+/- gamma(2 n)`` along the noise axes.
+    ``augmented(n_more) -> SigmaPointFamily``
+        The same family for a vector ``n_more`` dimensions longer, with the
+        same spread (Merwe's ``kappa`` lowered by ``n_more``). At dimension
+        ``n + n_more`` its unit points have shape
+        ``(num_sigmas(n + n_more), n + n_more)`` and its weights shape
+        ``(num_sigmas(n + n_more),)``. It serves the augmented second set
+        (``n_more = n``: ``4 n + 1`` points of dimension ``2 n``) and the first
+        set when noise enters the model (``n_more`` the noise's dimension, as
+        ``fx_noise`` or ``hx_noise``). Without it the augmented second set is
+        refused, and a family serves a noise-augmented dimension as it is.
+    ``as_native() -> SigmaPointFamily or None``
+        For an adapter of another library's points object
+        (:class:`FilterpyPoints`): the equivalent squkf family
+        (:class:`MerweScaledWeights`, :class:`JulierWeights`), or None when
+        there is none. With an equivalent the points object serves sets of any
+        dimension (its equivalent draws those it was not built for), and the
+        augmented second set takes the equivalent's ``augmented``; without one
+        it serves the dimension it was built for alone.
 
     Examples
     --------
@@ -69,11 +107,17 @@ class SigmaPointFamily(Protocol):
     [1.25] [[1.]]
     """
 
-    def num_sigmas(self, n: int) -> int: ...
+    def num_sigmas(self, n: int) -> int:
+        """The number of points ``N`` for a random vector of dimension ``n``."""
+        ...
 
-    def unit_sigma_points(self, n: int) -> np.ndarray: ...
+    def unit_sigma_points(self, n: int) -> np.ndarray:
+        """The unit points ``xi``, shape ``(N, n)``: a point is ``x + xi[i] @ S.T``."""
+        ...
 
-    def weights(self, n: int) -> tuple[np.ndarray, np.ndarray]: ...
+    def weights(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """The mean and covariance weights ``(Wm, Wc)``, each of shape ``(N,)``."""
+        ...
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:

@@ -34,6 +34,11 @@ tests/README.md lists them by kind. In the order of this file:
   the GP-UKF's :func:`gp_ukf_fx`) and :func:`raising` (a model function raising a given exception)
 - checks: :func:`filter_state` / :func:`assert_filter_state`, :func:`fleet_state` /
   :func:`assert_fleet_state`, :func:`assert_results_equal`, :func:`counting`, :func:`rel`
+
+Beside each kind are the filters the test files build from it and the helpers that step two
+filters and compare them (:func:`run_and_compare`, a fleet against its single filters;
+:func:`run_pair` and :func:`run_against_kf`, against filterpy's UKF and Kalman filter;
+:func:`assert_same_filter`; :func:`assert_smoother_matches_single`).
 """
 
 from __future__ import annotations
@@ -57,6 +62,7 @@ from filterpy.kalman import (
 from squkf import CubatureWeights, Fleet, JulierWeights, MerweScaledWeights, SimplexWeights, SquareRootUKF
 from squkf.angles import AngleAdd, AngleMean, AngleResidual, wrap
 from squkf.examples import g13ej_example as ex
+from squkf.gating import Gate
 from squkf.nag import kalman_unscented_state_revcom as g13ej
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -329,6 +335,27 @@ def near_measurements(T: int, seed: int = 0) -> np.ndarray:
     return np.array(out)
 
 
+def two_updates(cls, redraw: bool, model: str):
+    """``predict``, then two ``update``s with no ``predict`` between (README's "What differs" reproducer,
+    or two range-bearing returns a step on the far scenario); ``redraw``: filterpy's line before the
+    second update, ``sigmas_f`` drawn from the estimate that update starts from."""
+    if model == "readme":
+        points = MerweScaledSigmaPoints(1, alpha=0.5, beta=2.0, kappa=2.0)
+        f = cls(dim_x=1, dim_z=1, dt=1.0, hx=lambda x: x + x**3 / 10, fx=lambda x, dt: x, points=points)
+        f.P *= 10
+        z1 = z2 = np.array([1.0])
+    else:
+        f = ct_filter(MerweScaledSigmaPoints(5, 0.3, 2.0, -2.0), cls=cls)
+        z1 = ct_measurements(1, seed=5)[0]
+        z2 = z1 + np.array([3.0, -0.001])
+    f.predict()
+    f.update(z1)
+    if redraw:
+        f.sigmas_f = f.points_fn.sigma_points(f.x, f.P)
+    f.update(z2)
+    return f
+
+
 # -- constant velocity in the plane, state [px, vx, py, vy] ------------------------------------
 
 
@@ -479,6 +506,34 @@ def assert_same_estimate(a, b, exact=True, records=True):
         assert a.log_likelihood == b.log_likelihood
 
 
+def bank_pair():
+    """Two SquareRootUKFs and two filterpy UKFs, the same models (different process noise)."""
+    ours, theirs = [], []
+    for q in (0.01, 1.0):
+        Q = Q_discrete_white_noise(2, dt=CV_DT, var=q, block_size=2) + 1e-6 * np.eye(4)
+        for lst, cls in ((ours, SquareRootUKF), (theirs, UnscentedKalmanFilter)):
+            f = cls(4, 2, CV_DT, ct_hx, cv_fx, MerweScaledSigmaPoints(4, 0.5, 2.0, 0.0))
+            f.x, f.P, f.Q, f.R = CV_X0.copy(), CV_P0.copy(), Q.copy(), CV_R.copy()
+            lst.append(f)
+    return ours, theirs
+
+
+def cv_placeholder_filter() -> SquareRootUKF:
+    """:func:`models.cv_filter` built as filterpy allows, with ``fx=None`` and ``hx=None``."""
+    f = SquareRootUKF(4, 2, CV_DT, None, None, MerweScaledWeights(alpha=0.5, beta=2.0, kappa=0.0))
+    f.x, f.P, f.Q, f.R = CV_X0, CV_P0, CV_Q, CV_R
+    return f
+
+
+def edited_pair(edit):
+    """A fleet edited in place by ``edit``, and one given the same values by assignment."""
+    fl, ref = make_cv3_fleet(), make_cv3_fleet()
+    edit(fl)
+    for name in ("x", "P", "Q", "R"):
+        setattr(ref, name, np.array(getattr(fl, name)))
+    return fl, ref
+
+
 # -- the fleet tests' targets: four states in range and bearing, K of them, noise per filter -------
 FLEET_N_X, FLEET_N_Z, FLEET_DT = 4, 2, 0.5
 FLEET_P0 = np.diag([1.0, 0.1, 1.0, 0.1])
@@ -568,6 +623,62 @@ def fleet_batch_setup(K=3, T=7, scheme="redrawn"):
     zs[1, T - 3, 1] = np.nan
     zs[:, T - 2] = np.nan
     return fleet, singles, zs
+
+
+FLEET_RTOL = 1e-10
+
+
+def assert_close(a, b, what):
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    assert a.shape == b.shape, what
+    scale = max(float(np.max(np.abs(b))), 1e-300)
+    err = float(np.max(np.abs(a - b)))
+    assert err <= FLEET_RTOL * scale, f"{what}: max difference {err:.3g}, scale {scale:.3g}"
+
+
+def run_and_compare(fleet, singles, zs, R_step=None, fx_args=None, hx_args=None):
+    """Step the fleet and each single filter through ``zs`` (K, T, m), comparing every step."""
+    K, T = zs.shape[:2]
+    fx_args, hx_args = fx_args or {}, hx_args or {}
+    for t in range(T):
+        fleet.predict(**fx_args)
+        fleet.update(zs[:, t], R=R_step, **hx_args)
+        for k, f in enumerate(singles):
+            f.predict(**{a: v[k] if isinstance(v, np.ndarray) else v for a, v in fx_args.items()})
+            x_prior, S_prior = f.x.copy(), f.P1_2.copy()
+            Rk = None if R_step is None else (R_step[k] if np.ndim(R_step) == 3 else R_step)
+            f.update(
+                zs[k, t], R=Rk, **{a: v[k] if isinstance(v, np.ndarray) else v for a, v in hx_args.items()}
+            )
+            where = f"t={t} k={k}"
+            assert_close(fleet.x_prior[k], x_prior, "x_prior " + where)
+            assert_close(fleet.P1_2_prior[k], S_prior, "P1_2_prior " + where)
+            assert_close(fleet.x[k], f.x, "x " + where)
+            assert_close(fleet.P1_2[k], f.P1_2, "P1_2 " + where)
+            assert_close(fleet.x_post[k], f.x_post, "x_post " + where)
+            assert_close(fleet.P1_2_post[k], f.P1_2_post, "P1_2_post " + where)
+            if np.isnan(zs[k, t]).all():  # no measurement: nothing was updated
+                assert fleet.log_likelihood[k] == 0.0 and fleet.mahalanobis[k] == 0.0
+                assert fleet.likelihood[k] == 1.0
+                assert np.isnan(fleet.y[k]).all()
+                np.testing.assert_array_equal(fleet.x[k], fleet.x_prior[k])
+            else:
+                assert_close(fleet.log_likelihood[k], f.log_likelihood, "log_likelihood " + where)
+                assert_close(fleet.likelihood[k], f.likelihood, "likelihood " + where)
+                assert_close(fleet.mahalanobis[k], f.mahalanobis, "mahalanobis " + where)
+                np.testing.assert_array_equal(np.isnan(fleet.y[k]), np.isnan(f.y))
+                ok = ~np.isnan(f.y)
+                assert_close(fleet.y[k][ok], f.y[ok], "y " + where)
+    assert not fleet.failed.any()
+
+
+def cv_fleet_and_measurements(K: int, T: int):
+    fleet = cv_fleet(K, MerweScaledWeights())
+    x0 = np.array([10.0, 1.0, 5.0, -0.5])
+    fleet.x, fleet.P, fleet.Q, fleet.R = x0, FLEET_P0, 0.01 * np.eye(FLEET_N_X), np.diag([0.5, 0.01])
+    rng = np.random.default_rng(5)
+    zs = range_bearing_hx(x0) + rng.normal(0.0, 0.1, (K, T, FLEET_N_Z))
+    return fleet, zs
 
 
 # -- nested filters: a model function that steps another filter (issue 35) ------------------------
@@ -704,6 +815,34 @@ def make_ct_single(points, k, scheme="redrawn", Q=CT_Q, **kw):
     f = SquareRootUKF(5, 2, 1.0, range_bearing_hx, ct_fx_stacked, points, scheme=scheme, **kw)
     f.x, f.P, f.Q, f.R = CT_X0.copy(), CT_P0, (Q if Q.ndim == 2 else Q[k]), CT_R
     return f
+
+
+def assert_smoother_matches_single(points, scheme="redrawn", Q=CT_Q, dts=None, chained_tol=1e-10, **kw):
+    """Each filter of the fleet's smoother against the single filter's, on the same and on its own input."""
+    zs = ct_fleet_measurements(dts=dts)
+    fleet = make_ct_fleet(points, scheme, Q, **kw)
+    result = fleet.batch_filter(zs, dts=dts)
+    out = fleet.rts_smoother(result, dts=dts)
+    means, factors, gains = out
+    assert not result.failed.any() and not out.failed.any()
+    for k in range(CTF_K):
+        f = make_ct_single(points, k, scheme, Q, **kw)
+        # the same filtered input: only the smoothers' arithmetic differs (stacked QR against LAPACK's)
+        xs, Ss, Gs = f.rts_smoother_factors(result.means[k], result.P1_2s[k], dts=dts)
+        assert rel_unfloored(means[k], xs) < 1e-10
+        assert rel_unfloored(factors[k], Ss) < 1e-10
+        assert rel_unfloored(gains[k], Gs) < 1e-10
+        # the single filter's own batch_filter output
+        m, S = f.batch_filter(list(zs[k]), dts=dts, return_factors=True)
+        xs, Ss, Gs = f.rts_smoother_factors(m, S, dts=dts)
+        assert rel_unfloored(means[k], xs) < chained_tol
+        assert rel_unfloored(factors[k], Ss) < chained_tol
+        assert rel_unfloored(gains[k], Gs) < chained_tol
+        np.testing.assert_array_equal(gains[k, -1], 0.0)
+        # the smoothed factors are lower factors, as the single filter's
+        assert np.all(np.triu(factors[k], 1) == 0)
+        assert np.all(np.diagonal(factors[k], axis1=-2, axis2=-1) > 0)
+    return fleet, result, out
 
 
 # -- constant velocity on a line, for the Dask tests (worker processes import these by name) -----
@@ -1214,6 +1353,38 @@ def lower_factors(rng, shape, n, log10_cond=2.0):
     return S.reshape(tuple(shape) + (n, n))
 
 
+KF_RTOL = 1e-9
+
+
+def run_against_kf(points, scheme, seed=0, steps=100, n=4, m=2, vectorized=False):
+    F, H, Q, R = random_linear_model(seed, n, m)
+    rng = np.random.default_rng(seed + 100)
+    kf = KalmanFilter(n, m)
+    kf.F, kf.H, kf.Q, kf.R = F, H, Q, R
+    kf.P = np.eye(n) * 2.0
+    kf.x = np.ones(n)
+    if vectorized:
+        ukf = SquareRootUKF(
+            n, m, 1.0, lambda X: X @ H.T, lambda X, dt: X @ F.T, points, scheme=scheme, vectorized=True
+        )
+    else:
+        ukf = SquareRootUKF(n, m, 1.0, lambda x: H @ x, lambda x, dt: F @ x, points, scheme=scheme)
+    ukf.x = np.ones(n)
+    ukf.P = kf.P
+    ukf.Q, ukf.R = Q, R
+    worst = 0.0
+    for k in range(steps):
+        z = rng.standard_normal(m) * 2.0
+        kf.predict()
+        ukf.predict()
+        kf.update(z)
+        ukf.update(z)
+        for a, b in ((ukf.x, kf.x), (ukf.P, kf.P)):
+            worst = max(worst, np.max(np.abs(a - b)) / np.max(np.abs(b)))
+        assert worst < KF_RTOL, (k, worst)
+    return worst
+
+
 # -- small filters -------------------------------------------------------------------------------
 
 
@@ -1275,6 +1446,23 @@ def polar_rows(V):
     return np.c_[V[:, 0] * np.cos(V[:, 1]), V[:, 0] * np.sin(V[:, 1])]
 
 
+def line_cv_fx(x, dt):
+    return np.array([x[0] + dt * x[1], x[1]])
+
+
+def line_cv_template(vectorized=False):
+    if vectorized:
+        fx = lambda X, dt: np.stack([X[..., 0] + dt * X[..., 1], X[..., 1]], axis=-1)  # noqa: E731
+        hx = lambda X: X[..., :1]  # noqa: E731
+    else:
+        fx, hx = line_cv_fx, (lambda x: x[:1])
+    f = SquareRootUKF(2, 1, 1.0, hx, fx, MerweScaledWeights(), vectorized=vectorized)
+    f.x, f.P = np.array([1.0, 0.5]), np.diag([4.0, 1.0])
+    f.Q = Q_discrete_white_noise(2, 1.0, 0.5)
+    f.R = [[4.0]]
+    return f
+
+
 # -- checks --------------------------------------------------------------------------------------
 
 
@@ -1307,6 +1495,45 @@ def counting(fn):
     return wrapped, calls
 
 
+FILTERPY_RTOL = 1e-8
+
+
+def run_pair(points, fx, hx, dim_x, dim_z, dt, x0, P0, Q, R, truth_fn, steps, seed, fx_args=None):
+    rng = np.random.default_rng(seed)
+    fp = UnscentedKalmanFilter(dim_x, dim_z, dt, hx, fx, points)
+    sq = SquareRootUKF(dim_x, dim_z, dt, hx, fx, points)
+    for f in (fp, sq):
+        f.x = x0.copy()
+        f.P = P0
+        f.Q = Q
+        f.R = R
+    xt = truth_fn.x0.copy()
+    worst = 0.0
+    for _ in range(steps):
+        xt = truth_fn.step(xt, rng)
+        z = hx(xt) + rng.multivariate_normal(np.zeros(dim_z), R)
+        for f in (fp, sq):
+            f.predict(**(fx_args or {}))
+        worst = max(worst, rel(sq.x_prior, fp.x_prior), rel(sq.P_prior, fp.P_prior))
+        for f in (fp, sq):
+            f.update(z)
+        worst = max(worst, rel(sq.x, fp.x), rel(sq.P, fp.P))
+        assert worst < FILTERPY_RTOL
+    return worst
+
+
+def assert_same_filter(f, g, z=(1.0, 0.5)):
+    """``f`` and ``g`` hold the same state and take the same next step."""
+    for name in ("x", "P1_2", "x_prior", "P1_2_prior", "x_post", "P1_2_post", "y", "S1_2", "z"):
+        np.testing.assert_array_equal(getattr(f, name), getattr(g, name), err_msg=name)
+    assert f.log_likelihood == g.log_likelihood or (np.isnan(f.log_likelihood) and np.isnan(g.log_likelihood))
+    for h in (f, g):
+        h.predict()
+        h.update(np.array(z))
+    np.testing.assert_array_equal(f.x, g.x)
+    np.testing.assert_array_equal(f.P1_2, g.P1_2)
+
+
 # -- the radar with wild returns (the gating tests) --------------------------------------------------
 
 
@@ -1336,6 +1563,41 @@ def radar_configure(f):
     f.Q = np.eye(4) * 0.0025
     f.R = np.diag([RADAR_R_RANGE, RADAR_R_BEARING])
     return f
+
+
+def radar_gated_filter(front: str):
+    """The radar with a per-component gate, as a filter or a fleet of 2."""
+    gate = Gate(0.99, per_component=True)
+    if front == "fleet":
+        return radar_configure(
+            Fleet(2, 4, 2, RADAR_DT, range_bearing_hx, cv_fx_stacked, MerweScaledWeights(), gate=gate)
+        )
+    return radar_configure(
+        SquareRootUKF(
+            4, 2, RADAR_DT, range_bearing_hx, cv_fx_stacked, MerweScaledWeights(), vectorized=True, gate=gate
+        )
+    )
+
+
+def radar_filterpy():
+    pts = MerweScaledSigmaPoints(4, alpha=0.5, beta=2.0, kappa=0.0)
+    return radar_configure(UnscentedKalmanFilter(4, 2, RADAR_DT, range_bearing_hx, cv_fx_stacked, pts))
+
+
+def radar_squkf(gate, **kw):
+    pts = MerweScaledSigmaPoints(4, alpha=0.5, beta=2.0, kappa=0.0)
+    return radar_configure(
+        SquareRootUKF(4, 2, RADAR_DT, range_bearing_hx, cv_fx_stacked, pts, gate=gate, **kw)
+    )
+
+
+def radar_fleet(K, gate, per_filter_R=False):
+    fleet = radar_configure(
+        Fleet(K, 4, 2, RADAR_DT, range_bearing_hx, cv_fx_stacked, MerweScaledWeights(alpha=0.5), gate=gate)
+    )
+    if per_filter_R:
+        fleet.R = np.stack([np.diag([RADAR_R_RANGE, RADAR_R_BEARING]) * (1 + 0.1 * k) for k in range(K)])
+    return fleet
 
 
 # -- noise entering the model (fx_noise, hx_noise) ---------------------------------------------------
@@ -1436,6 +1698,26 @@ class OddPoints:
 
     def sigma_points(self, x, P):
         return np.vstack([x, x + 1.0, x - 1.0])
+
+
+def pendulum_filter(points, **kw):
+    f = SquareRootUKF(
+        2, 1, PEND_DT, pendulum_hx, pendulum_fx, points, vectorized=True, fx_noise=2, hx_noise=2, **kw
+    )
+    f.x, f.P, f.Q, f.R = np.array([0.5, 0.1]), np.diag([0.04, 0.25]), PEND_QW, PEND_RV
+    return f
+
+
+def range_noise_filter(points):
+    def fx(x, dt):
+        return np.array([x[0] + dt * x[1], x[1]])
+
+    def hx(x, v):
+        return np.array([np.hypot(x[0], 2.0) + v[0]])
+
+    f = SquareRootUKF(2, 1, 1.0, hx, fx, points, hx_noise=1)
+    f.x, f.P, f.Q, f.R = np.array([1.0, 0.5]), np.eye(2), 0.01 * np.eye(2), 0.1
+    return f
 
 
 # -- a posterior that loses rank to rounding ---------------------------------------------------------
@@ -1609,6 +1891,69 @@ def rbh_filter(gate=None, m: int = 3, vectorized: bool = False):
     f.x, f.P, f.Q = RBH_X0, RBH_P0, RBH_Q
     f.R = RBH_R if m == 3 else RBH_R[1:, 1:]
     return f
+
+
+class SubclassedMean(AngleMean):
+    """squkf's AngleMean as a user's hook (a subclass): called in Python, the oracle of the kernels' route."""
+
+
+class SubclassedResidual(AngleResidual):
+    """squkf's AngleResidual as a user's hook (a subclass): called in Python."""
+
+
+def rbh_hooks(which: str = "both", python: bool = False) -> dict:
+    """The bearing's hooks (z[1]): ``"residual"``, ``"mean"`` or ``"both"``; subclasses if ``python``."""
+    mean, residual = (SubclassedMean, SubclassedResidual) if python else (AngleMean, AngleResidual)
+    hooks = {}
+    if which in ("residual", "both"):
+        hooks["residual_z"] = residual([1])
+    if which in ("mean", "both"):
+        hooks["z_mean_fn"] = mean([1])
+    return hooks
+
+
+def rbh_single(hooks: dict, points=None, **kw) -> SquareRootUKF:
+    """One vectorised filter of the [range, bearing, heading] sensor with ``hooks``, at ``RBH_X0``."""
+    f = SquareRootUKF(
+        4, 3, 1.0, range_bearing_heading_hx, turn_fx_stacked, points or MerweScaledWeights(alpha=0.5),
+        vectorized=True, **hooks, **kw,
+    )  # fmt: skip
+    f.x, f.P, f.Q, f.R = RBH_X0, RBH_P0, RBH_Q, RBH_R
+    return f
+
+
+def rbh_starts(K: int) -> np.ndarray:
+    """K starts about ``RBH_X0`` (their bearings either side of pi), ``(K, 4)``."""
+    return RBH_X0 + np.outer(np.arange(K) - K // 2, [0.0, 1.5, 0.02, 0.05])
+
+
+def rbh_fleet_and_singles(K: int, hooks: dict, points=None, **kw):
+    """A Fleet of K [range, bearing, heading] filters from :func:`rbh_starts`, and the K single filters."""
+    make = points or (lambda: MerweScaledWeights(alpha=0.5))
+    fleet = Fleet(K, 4, 3, 1.0, range_bearing_heading_hx, turn_fx_stacked, make(), **hooks, **kw)
+    x0 = rbh_starts(K)
+    fleet.x, fleet.P, fleet.Q, fleet.R = x0, RBH_P0, RBH_Q, RBH_R
+    singles = []
+    for k in range(K):
+        f = rbh_single(hooks, make(), **{a: v for a, v in kw.items() if a in ("gate", "scheme")})
+        f.x = x0[k]
+        singles.append(f)
+    return fleet, singles
+
+
+def rbh_measurements(K: int, T: int, seed: int = 0) -> np.ndarray:
+    """``(K, T, 3)`` noisy measurements of the K tracks from :func:`rbh_starts`, some missing."""
+    rng = np.random.default_rng(seed)
+    x, zs = rbh_starts(K), []
+    for _ in range(T):
+        x = turn_fx_stacked(x, 1.0)
+        z = range_bearing_heading_hx(x) + rng.normal(size=(K, 3)) * np.sqrt(np.diag(RBH_R))
+        zs.append(wrap(z))  # (the bearing as a sensor reports it; the range and heading are small)
+    zs = np.stack(zs, axis=1)
+    zs[0, 2 % T, 0] = np.nan  # a missing range
+    zs[K - 1, 1 % T, 1] = np.nan  # a missing bearing
+    zs[K // 2, 3 % T] = np.nan  # no measurement
+    return zs
 
 
 # -- tuning and consistency (issue 37): the 2-D constant-velocity model, where the UKF is the Kalman filter

@@ -21,6 +21,7 @@ from models import (
     DRIFT_Q,
     DRIFT_R,
     assert_results_equal,
+    assert_same_filter,
     counting,
     ct_merwe_filter,
     ct_simulate,
@@ -94,18 +95,6 @@ def loop(f, zs, Rs=None, dts=None, Qs=None, fx_args=None, hx_args=None):
         f.update(z, R=at(Rs, k), **(at(hx_args, k) or {}))
         means[k], covs[k] = f.x, f.P
     return means, covs
-
-
-def assert_same_filter(f, g, z=(1.0, 0.5)):
-    """``f`` and ``g`` hold the same state and take the same next step."""
-    for name in ("x", "P1_2", "x_prior", "P1_2_prior", "x_post", "P1_2_post", "y", "S1_2", "z"):
-        np.testing.assert_array_equal(getattr(f, name), getattr(g, name), err_msg=name)
-    assert f.log_likelihood == g.log_likelihood or (np.isnan(f.log_likelihood) and np.isnan(g.log_likelihood))
-    for h in (f, g):
-        h.predict()
-        h.update(np.array(z))
-    np.testing.assert_array_equal(f.x, g.x)
-    np.testing.assert_array_equal(f.P1_2, g.P1_2)
 
 
 # -- any iterable of measurements ---------------------------------------------

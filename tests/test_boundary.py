@@ -16,7 +16,8 @@ import pytest
 from models import CV3_K, CV3_NZ, assert_fleet_state, fleet_state, make_cv3_fleet
 
 import squkf
-from squkf.boundary import checks, config, covariance, loop, records
+from squkf import checks
+from squkf.boundary import attributes, config, loop, records
 from squkf.errors import FleetStepError, NonFiniteError, ParameterError, ShapeError
 
 PACKAGE = Path(squkf.__file__).resolve().parent
@@ -79,7 +80,7 @@ def test_an_edit_in_place_is_taken_once_through_the_setter_or_stays_pending():
             raise NonFiniteError(f"{name} contains NaN")
         taken.append((name, a.copy()))
 
-    out = covariance.HandOut()
+    out = attributes.HandOut()
     a = out.array("x", lambda: np.zeros(2))
     assert out.array("x", lambda: np.ones(2)) is a  # the same array until dropped
     out.take(["x"], assign)
@@ -95,7 +96,7 @@ def test_an_edit_in_place_is_taken_once_through_the_setter_or_stays_pending():
     with pytest.raises(NonFiniteError):
         copied.take(["x"], assign)
     a.shape = (1, 2)  # a change of shape in place is an edit too
-    assert covariance.Handed(np.zeros(2)).edited() is False
+    assert attributes.Handed(np.zeros(2)).edited() is False
     out.take(["x"], assign)
     assert taken[-1][1].shape == (1, 2)
     out.drop("x")
@@ -203,15 +204,18 @@ def test_the_front_ends_and_the_smoother_import_each_other_in_no_cycle():
 #: squkf's layers, bottom up (ARCHITECTURE.md): a module imports from its own layer and those below only.
 LAYERS = {
     "the exceptions": ["squkf._version", "squkf.errors"],
-    "kernels": ["squkf.kernels", "squkf.kernels.phases", "squkf.kernels.cache"],
+    "kernels": [
+        "squkf.kernels", "squkf.kernels.phases", "squkf.kernels.cache", "squkf.kernels.threads",
+        "squkf.kernels.table", "squkf.kernels.wrappers",
+    ],
     "plug-ins and support": [
         "squkf.angles", "squkf.blas", "squkf.rows", "squkf.weights", "squkf.generators", "squkf.gating",
-        "squkf.noise", "squkf.validate", "squkf.linalg", "squkf.transform", "squkf.statuses",
+        "squkf.noise", "squkf.checks", "squkf.linalg", "squkf.transform", "squkf.statuses",
         "squkf.measurement",
     ],
     "the plan": ["squkf.plan"],
     "the boundary": [
-        "squkf.boundary", "squkf.boundary.checks", "squkf.boundary.covariance", "squkf.boundary.records",
+        "squkf.boundary", "squkf.boundary.attributes", "squkf.boundary.records",
         "squkf.boundary.loop", "squkf.boundary.config", "squkf.batch",
     ],
     "the engine": ["squkf.engine"],

@@ -39,11 +39,11 @@ from squkf import (
     SigmaSet,
     SimplexWeights,
     SquareRootUKF,
-    kernels,
     sqrt_unscented_transform,
 )
 from squkf.angles import AngleAdd, AngleMean, AngleResidual
 from squkf.engine import Engine, Route, Scratch
+from squkf.kernels import table
 from squkf.measurement import measurement_update
 from squkf.plan import Hooks, build_plan
 from squkf.transform import transform_factor
@@ -253,9 +253,9 @@ def counting_table(monkeypatch):
 
         return call
 
-    real = kernels.KERNELS
-    table = kernels.KernelTable(*(counted(name, k) for name, k in zip(real._fields, real)))
-    monkeypatch.setattr(kernels, "KERNELS", table)
+    real = table.KERNELS
+    counting = table.KernelTable(*(counted(name, k) for name, k in zip(real._fields, real)))
+    monkeypatch.setattr(table, "KERNELS", counting)
     return calls
 
 
@@ -455,7 +455,9 @@ def test_the_downdate_form_is_decided_with_the_route(hooks, downdate):
     assert route.downdate is downdate
     sset = route.second_set(TURN.x0, TURN.S0, None, None)
     joint = route.update_route(sset, None)
-    assert (joint is None) is (hooks != Hooks())
+    z_angles = hooks.z_mean_fn is not None and hooks.x_mean_fn is None and not downdate
+    assert (joint is None) is (hooks != Hooks() and not z_angles)  # squkf's angle hooks on z: data
+    assert joint is None or joint.angles is z_angles
     assert route.update_route(sset.rewritten(sset.sigmas.copy()), None) is None
 
 
@@ -565,15 +567,15 @@ def test_every_route_reads_the_kernel_table(monkeypatch):
         return Fleet.from_filters([f, f, f])
 
     expected = _every_route(hooked, fleet())  # (and every kernel compiled or loaded)
-    real = kernels.KERNELS
-    table = kernels.KernelTable(*real)  # the same kernels, reachable only here
+    real = table.KERNELS
+    installed = table.KernelTable(*real)  # the same kernels, reachable only here
     for name in real._fields:
 
         def gone(*args, _name=name):
             raise AssertionError(f"{_name} called around the kernel table")
 
         monkeypatch.setattr(phases, f"{name}_kernel", gone)
-    monkeypatch.setattr(kernels, "KERNELS", table)
+    monkeypatch.setattr(table, "KERNELS", installed)
     for a, b in zip(_every_route(hooked, fleet()), expected):
         np.testing.assert_array_equal(a, b)
 

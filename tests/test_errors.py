@@ -21,11 +21,9 @@ from models import (
     CV3_NZ,
     CV_DT,
     CV_P0,
-    CV_Q,
     CV_R,
     CV_X0,
     CV_Z,
-    RADAR_DT,
     assert_filter_state,
     assert_fleet_state,
     assert_same_estimate,
@@ -36,13 +34,13 @@ from models import (
     cv_filter,
     cv_fx,
     cv_fx_stacked,
+    cv_placeholder_filter,
     filter_state,
     fleet_state,
     make_cv3_fleet,
     positions_hx,
-    radar_configure,
+    radar_gated_filter,
     raising,
-    range_bearing_hx,
     step,
 )
 
@@ -506,24 +504,10 @@ def test_a_factor_whose_covariance_overflows_float64_is_refused(name, front):
     assert np.all(np.isfinite(cov)) and cov[(0,) * cov.ndim] == 2.0**1022
 
 
-def radar_filter(front: str):
-    """The radar with a per-component gate, as a filter or a fleet of 2."""
-    gate = Gate(0.99, per_component=True)
-    if front == "fleet":
-        return radar_configure(
-            Fleet(2, 4, 2, RADAR_DT, range_bearing_hx, cv_fx_stacked, MerweScaledWeights(), gate=gate)
-        )
-    return radar_configure(
-        SquareRootUKF(
-            4, 2, RADAR_DT, range_bearing_hx, cv_fx_stacked, MerweScaledWeights(), vectorized=True, gate=gate
-        )
-    )
-
-
 @pytest.mark.parametrize("front", ["filter", "fleet"])
 @pytest.mark.parametrize("outlier", [1e200, -1e300, np.finfo(float).max])
 def test_a_huge_outlier_is_rejected_alone_by_a_per_component_gate(front, outlier):
-    gated, partial = radar_filter(front), radar_filter(front)
+    gated, partial = radar_gated_filter(front), radar_gated_filter(front)
     z = np.array([outlier, 0.67])
     missing = np.array([np.nan, 0.67])
     if front == "fleet":
@@ -559,15 +543,8 @@ def test_the_per_component_decision_keeps_to_the_scale_of_y_and_Sy(y, diag, belo
 # == issue 35, 7. model functions and hooks: callable, or None where filterpy takes a placeholder ==
 
 
-def placeholder_filter() -> SquareRootUKF:
-    """:func:`models.cv_filter` built as filterpy allows, with ``fx=None`` and ``hx=None``."""
-    f = SquareRootUKF(4, 2, CV_DT, None, None, MerweScaledWeights(alpha=0.5, beta=2.0, kappa=0.0))
-    f.x, f.P, f.Q, f.R = CV_X0, CV_P0, CV_Q, CV_R
-    return f
-
-
 def test_fx_and_hx_may_be_none_and_given_per_call_as_in_filterpy():
-    f, twin = placeholder_filter(), cv_filter()
+    f, twin = cv_placeholder_filter(), cv_filter()
     for z in CV_Z[:3]:
         f.predict(fx=cv_fx)
         f.update(z, hx=ct_hx)

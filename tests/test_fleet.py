@@ -5,7 +5,7 @@ The reference for every filter of a fleet is :class:`squkf.SquareRootUKF` with
 arrays go through numpy's stacked QR and matmul while a single filter calls LAPACK
 directly (see tests/test_step.py), so they agree to rounding, not bit for bit:
 measured at most 1e-13 relative on these models (filterpy's points with alpha 0.3,
-weights near 1e1). ``RTOL = 1e-10`` leaves a margin of 1000 and is far below any real
+weights near 1e1). ``models.FLEET_RTOL = 1e-10`` leaves a margin of 1000 and is far below any real
 difference (a wrong weight, a dropped row, filters mixed up: 1e-3 or more).
 
 Failure isolation is bit for bit: a fleet with a failing filter ``k`` is compared with
@@ -30,8 +30,10 @@ from models import (
     FLEET_N_Z,
     FLEET_P0,
     SCHEMES,
+    assert_close,
     assert_fleet_state,
     cv_fleet,
+    cv_fleet_and_measurements,
     cv_fx_stacked,
     cv_single,
     fleet_and_singles,
@@ -42,6 +44,7 @@ from models import (
     fleet_with_and_without,
     nested_filters,
     range_bearing_hx,
+    run_and_compare,
     turn_fx_stacked,
     wide_covariance_form_update,
     wide_heading_fleet,
@@ -72,54 +75,7 @@ from squkf import (
 )
 from squkf.angles import AngleMean, AngleResidual
 
-RTOL = 1e-10
-
-
 SYMMETRIC = {"merwe", "merwe-alpha0.3", "julier", "filterpy-merwe"}
-
-
-def assert_close(a, b, what):
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    assert a.shape == b.shape, what
-    scale = max(float(np.max(np.abs(b))), 1e-300)
-    err = float(np.max(np.abs(a - b)))
-    assert err <= RTOL * scale, f"{what}: max difference {err:.3g}, scale {scale:.3g}"
-
-
-def run_and_compare(fleet, singles, zs, R_step=None, fx_args=None, hx_args=None):
-    """Step the fleet and each single filter through ``zs`` (K, T, m), comparing every step."""
-    K, T = zs.shape[:2]
-    fx_args, hx_args = fx_args or {}, hx_args or {}
-    for t in range(T):
-        fleet.predict(**fx_args)
-        fleet.update(zs[:, t], R=R_step, **hx_args)
-        for k, f in enumerate(singles):
-            f.predict(**{a: v[k] if isinstance(v, np.ndarray) else v for a, v in fx_args.items()})
-            x_prior, S_prior = f.x.copy(), f.P1_2.copy()
-            Rk = None if R_step is None else (R_step[k] if np.ndim(R_step) == 3 else R_step)
-            f.update(
-                zs[k, t], R=Rk, **{a: v[k] if isinstance(v, np.ndarray) else v for a, v in hx_args.items()}
-            )
-            where = f"t={t} k={k}"
-            assert_close(fleet.x_prior[k], x_prior, "x_prior " + where)
-            assert_close(fleet.P1_2_prior[k], S_prior, "P1_2_prior " + where)
-            assert_close(fleet.x[k], f.x, "x " + where)
-            assert_close(fleet.P1_2[k], f.P1_2, "P1_2 " + where)
-            assert_close(fleet.x_post[k], f.x_post, "x_post " + where)
-            assert_close(fleet.P1_2_post[k], f.P1_2_post, "P1_2_post " + where)
-            if np.isnan(zs[k, t]).all():  # no measurement: nothing was updated
-                assert fleet.log_likelihood[k] == 0.0 and fleet.mahalanobis[k] == 0.0
-                assert fleet.likelihood[k] == 1.0
-                assert np.isnan(fleet.y[k]).all()
-                np.testing.assert_array_equal(fleet.x[k], fleet.x_prior[k])
-            else:
-                assert_close(fleet.log_likelihood[k], f.log_likelihood, "log_likelihood " + where)
-                assert_close(fleet.likelihood[k], f.likelihood, "likelihood " + where)
-                assert_close(fleet.mahalanobis[k], f.mahalanobis, "mahalanobis " + where)
-                np.testing.assert_array_equal(np.isnan(fleet.y[k]), np.isnan(f.y))
-                ok = ~np.isnan(f.y)
-                assert_close(fleet.y[k][ok], f.y[ok], "y " + where)
-    assert not fleet.failed.any()
 
 
 # -- every filter equals the SquareRootUKF run alone ----------------------------------------
@@ -522,19 +478,10 @@ def test_a_chunks_wrong_fx_shape_names_its_filters_and_changes_nothing():
     assert_fleet_state(fleet, before)
 
 
-def _fleet_and_measurements(K: int, T: int):
-    fleet = cv_fleet(K, MerweScaledWeights())
-    x0 = np.array([10.0, 1.0, 5.0, -0.5])
-    fleet.x, fleet.P, fleet.Q, fleet.R = x0, FLEET_P0, 0.01 * np.eye(FLEET_N_X), np.diag([0.5, 0.01])
-    rng = np.random.default_rng(5)
-    zs = range_bearing_hx(x0) + rng.normal(0.0, 0.1, (K, T, FLEET_N_Z))
-    return fleet, zs
-
-
 def test_a_z_written_to_inf_by_hx_mid_step_is_refused_and_changes_nothing():
     """The step reads each chunk's rows of z after that chunk's hx, and checks what it read: an hx that
     writes inf into the caller's z (a later chunk's rows) cannot slip it into the kernels."""
-    fleet, zs = _fleet_and_measurements(5, 2)
+    fleet, zs = cv_fleet_and_measurements(5, 2)
     fleet.chunk = 2
     fleet.predict()
     fleet.update(zs[:, 0])
@@ -557,7 +504,7 @@ def test_a_z_written_to_inf_by_hx_mid_step_is_refused_and_changes_nothing():
 def test_steps_yielded_in_one_reused_array_are_each_the_step_read():
     """batch_filter given an iterator that writes every step into the same array (a reader's buffer)
     filters each step as yielded, as it does the whole array."""
-    fleet, zs = _fleet_and_measurements(3, 4)
+    fleet, zs = cv_fleet_and_measurements(3, 4)
     other = copy.deepcopy(fleet)
 
     def reader():
@@ -575,7 +522,7 @@ def test_steps_yielded_in_one_reused_array_are_each_the_step_read():
 def test_a_copy_keeps_its_own_failures():
     """The reasons of flagged filters are the fleet's own: a copy's are not changed by the original's
     later failures, and a pickle or a fleet of some rows keeps them."""
-    fleet, zs = _fleet_and_measurements(4, 3)
+    fleet, zs = cv_fleet_and_measurements(4, 3)
     bad = np.zeros(4, dtype=bool)
     bad[1] = True
     fleet.predict(bad=bad)
@@ -1355,7 +1302,7 @@ def test_batch_filter_takes_an_iterator_of_steps_and_reports_progress(capsys):
 def test_a_fleets_points_are_fixed_and_assigning_them_changes_nothing():
     """A fleet's configuration is fixed at construction: a new points object is refused by name (it used to
     be kept as an attribute while the step went on with the old points)."""
-    fleet, zs = _fleet_and_measurements(3, 1)
+    fleet, zs = cv_fleet_and_measurements(3, 1)
     before = fleet_state(fleet)
     with pytest.raises(ParameterError, match="points_fn"):
         fleet.points_fn = SimplexWeights()

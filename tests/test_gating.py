@@ -15,15 +15,12 @@ import pickle
 import numpy as np
 import pytest
 from filterpy.common import Saver
-from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from models import (
-    RADAR_DT,
-    RADAR_R_BEARING,
-    RADAR_R_RANGE,
-    cv_fx_stacked,
-    radar_configure,
+    radar_filterpy,
+    radar_fleet,
+    radar_squkf,
     radar_track,
     range_bearing_heading_hx,
     range_bearing_hx,
@@ -32,24 +29,12 @@ from models import (
 from scipy.stats import chi2
 
 import squkf
-from squkf import Fleet, Gate, MerweScaledWeights, ParameterError, SquareRootUKF
+from squkf import Fleet, Gate, ParameterError
 from squkf.angles import wrap
 from squkf.batch import BatchResult
 
 # the paths here end in documented errors or decisions: no numpy RuntimeWarning may escape squkf
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
-
-
-def filterpy_ukf():
-    pts = MerweScaledSigmaPoints(4, alpha=0.5, beta=2.0, kappa=0.0)
-    return radar_configure(UnscentedKalmanFilter(4, 2, RADAR_DT, range_bearing_hx, cv_fx_stacked, pts))
-
-
-def squkf_ukf(gate, **kw):
-    pts = MerweScaledSigmaPoints(4, alpha=0.5, beta=2.0, kappa=0.0)
-    return radar_configure(
-        SquareRootUKF(4, 2, RADAR_DT, range_bearing_hx, cv_fx_stacked, pts, gate=gate, **kw)
-    )
 
 
 def filterpy_gated_step(ref, z, probability, per_component):
@@ -85,8 +70,8 @@ def filterpy_gated_step(ref, z, probability, per_component):
 def test_decisions_equal_a_chi_square_test_on_filterpys_S(per_component):
     p = 0.99
     _, zs = radar_track(120, seed=3, wild=0.1)
-    ref = filterpy_ukf()
-    ukf = squkf_ukf(Gate(p, per_component=per_component))
+    ref = radar_filterpy()
+    ukf = radar_squkf(Gate(p, per_component=per_component))
     decisions = []
     for z in zs:
         rejected, nis, margin = filterpy_gated_step(ref, z, p, per_component)
@@ -108,7 +93,7 @@ def test_decisions_equal_a_chi_square_test_on_filterpys_S(per_component):
 
 def test_rejected_measurement_is_a_missing_one():
     _, zs = radar_track(40, seed=5, wild=0.0)
-    gated, plain = squkf_ukf(Gate(nis=1e-12)), squkf_ukf(None)  # this gate rejects everything
+    gated, plain = radar_squkf(Gate(nis=1e-12)), radar_squkf(None)  # this gate rejects everything
     for z in zs[:5]:
         gated.predict()
         plain.predict()
@@ -129,8 +114,8 @@ def test_rejected_measurement_is_a_missing_one():
 
 def test_component_rejection_updates_with_the_rest_as_a_partial_measurement():
     _, zs = radar_track(10, seed=7, wild=0.0)
-    gated = squkf_ukf(Gate(0.999, per_component=True))
-    partial = squkf_ukf(None)
+    gated = radar_squkf(Gate(0.999, per_component=True))
+    partial = radar_squkf(None)
     for k, z in enumerate(zs):
         wild = z.copy()
         if k % 2:
@@ -148,7 +133,7 @@ def test_component_rejection_updates_with_the_rest_as_a_partial_measurement():
 
 def test_gate_sees_only_the_measured_components():
     """A NaN component is missing before gating: the chi-square threshold has one degree of freedom."""
-    ref = squkf_ukf(None)
+    ref = radar_squkf(None)
     ref.predict()
     zp = range_bearing_hx(ref.x)
     ref.update(np.array([zp[0] + 1.0, np.nan]))
@@ -156,21 +141,12 @@ def test_gate_sees_only_the_measured_components():
     d2 = 0.5 * (chi2.ppf(0.99, 1) + chi2.ppf(0.99, 2))
     z_pred = zp[0] + 1.0 - ref.y[0]  # the transform's predicted range
     z = np.array([z_pred + math.sqrt(d2 * ref.S[0, 0]), np.nan])
-    ukf = squkf_ukf(0.99)
+    ukf = radar_squkf(0.99)
     ukf.predict()
     ukf.update(z)
     assert ukf.nis == pytest.approx(d2, rel=1e-6)
     np.testing.assert_array_equal(ukf.rejected, [True, False])
     np.testing.assert_array_equal(ukf.x, ukf.x_prior)
-
-
-def fleet_and_filters(K, gate, per_filter_R=False):
-    fleet = radar_configure(
-        Fleet(K, 4, 2, RADAR_DT, range_bearing_hx, cv_fx_stacked, MerweScaledWeights(alpha=0.5), gate=gate)
-    )
-    if per_filter_R:
-        fleet.R = np.stack([np.diag([RADAR_R_RANGE, RADAR_R_BEARING]) * (1 + 0.1 * k) for k in range(K)])
-    return fleet
 
 
 @pytest.mark.parametrize("gate", [Gate(0.99), Gate(0.995, per_component=True), Gate(nis=9.0)], ids=repr)
@@ -179,7 +155,7 @@ def test_fleet_filter_equals_its_single_filter_bit_for_bit(gate):
     zs = np.stack([radar_track(T, seed=100 + k, wild=0.15)[1] for k in range(K)])
     zs[2, 5] = np.nan  # missing measurements and components mix with the gate's decisions
     zs[4, 7, 1] = np.nan
-    fleet = fleet_and_filters(K, gate, per_filter_R=True)
+    fleet = radar_fleet(K, gate, per_filter_R=True)
     singles = [fleet[k] for k in range(K)]
     result = fleet.batch_filter(zs)
     assert result.rejected.shape == (K, T, 2) and result.nis.shape == (K, T)
@@ -197,15 +173,15 @@ def test_fleet_filter_equals_its_single_filter_bit_for_bit(gate):
 def test_fleet_keep_final_counts_rejections():
     K, T = 6, 30
     zs = np.stack([radar_track(T, seed=200 + k, wild=0.2)[1] for k in range(K)])
-    full = fleet_and_filters(K, 0.99).batch_filter(zs)
-    final = fleet_and_filters(K, 0.99).batch_filter(zs, keep="final")
+    full = radar_fleet(K, 0.99).batch_filter(zs)
+    final = radar_fleet(K, 0.99).batch_filter(zs, keep="final")
     np.testing.assert_array_equal(final.rejected, full.rejected.sum(axis=1))
     assert final.nis is None
     np.testing.assert_array_equal(final.x, full.x)
 
 
 def test_gate_travels_with_the_filters():
-    fleet = fleet_and_filters(3, Gate(0.9, per_component=True))
+    fleet = radar_fleet(3, Gate(0.9, per_component=True))
     assert fleet[1].gate == Gate(0.9, per_component=True)
     back = Fleet.from_filters([fleet[k] for k in range(3)])
     assert back.gate == fleet.gate
@@ -221,7 +197,7 @@ def test_batch_result_is_filterpys_pair():
     _, zs = radar_track(20, seed=9, wild=0.2)
     zs = list(zs)
     zs[3] = None
-    ukf = squkf_ukf(0.99)
+    ukf = radar_squkf(0.99)
     saver = Saver(ukf)
     result = ukf.batch_filter(zs, saver=saver)
     means, covs = result
@@ -255,11 +231,11 @@ BAD_GATES = [
 def test_bad_gate_is_a_parameter_error_naming_the_value(front, value, message):
     with pytest.raises(ParameterError, match=message) as info:
         if front == "ukf":
-            squkf_ukf(value)
+            radar_squkf(value)
         elif front == "fleet":
-            fleet_and_filters(2, value)
+            radar_fleet(2, value)
         else:
-            f = squkf_ukf(0.9)
+            f = radar_squkf(0.9)
             try:
                 f.gate = value
             finally:
@@ -321,9 +297,9 @@ def test_dask_gives_the_fleets_gate_records(keep):
 
     K, T = 10, 25
     zs = np.stack([radar_track(T, seed=300 + k, wild=0.2)[1] for k in range(K)])
-    want = fleet_and_filters(K, Gate(0.99, per_component=True)).batch_filter(zs, keep=keep)
+    want = radar_fleet(K, Gate(0.99, per_component=True)).batch_filter(zs, keep=keep)
     lazy = sd.batch_filter(
-        fleet_and_filters(K, Gate(0.99, per_component=True)), da.from_array(zs, chunks=(3, T, 2)), keep=keep
+        radar_fleet(K, Gate(0.99, per_component=True)), da.from_array(zs, chunks=(3, T, 2)), keep=keep
     )
     got = sd.compute(lazy, scheduler="synchronous")
     np.testing.assert_array_equal(got.rejected, want.rejected)
@@ -371,7 +347,7 @@ def test_an_update_without_measurement_keeps_the_last_updates_records(nothing):
     """``nis``, ``rejected``, ``y``, ``S`` and the likelihoods all describe the last update, as filterpy
     keeps ``mahalanobis`` and the likelihoods after ``update(None)``."""
     _, zs = radar_track(3, seed=5, wild=0.0)
-    f = squkf_ukf(Gate(0.999, per_component=True))
+    f = radar_squkf(Gate(0.999, per_component=True))
     f.predict()
     wild = zs[0] + np.array([0.0, 3.0])  # the bearing rejected
     f.update(wild)
@@ -383,7 +359,7 @@ def test_an_update_without_measurement_keeps_the_last_updates_records(nothing):
     for name, value in before.items():
         np.testing.assert_array_equal(after[name], value, err_msg=name)
     # filterpy's own rule, for the record
-    ref = filterpy_ukf()
+    ref = radar_filterpy()
     ref.predict()
     ref.update(zs[0])
     kept = (ref.mahalanobis, ref.log_likelihood, ref.likelihood)
@@ -398,12 +374,12 @@ def test_a_step_with_nothing_measured_records_nis_zero_and_nothing_rejected():
     zs = list(zs)
     zs[1] = zs[1] + np.array([0.0, 3.0])  # the bearing rejected at step 1
     zs[2] = None  # and nothing measured at step 2
-    result = squkf_ukf(Gate(0.999, per_component=True)).batch_filter(zs)
+    result = radar_squkf(Gate(0.999, per_component=True)).batch_filter(zs)
     assert result.rejected[1].tolist() == [False, True]
     assert result.rejected[2].tolist() == [False, False]
     assert result.nis[2] == 0.0 and result.log_likelihood[2] == 0.0
     # a fleet: filter 0 rejects a bearing, then has no measurement while filter 1 has one
-    fleet = fleet_and_filters(2, Gate(0.999, per_component=True))
+    fleet = radar_fleet(2, Gate(0.999, per_component=True))
     fleet.predict()
     fleet.update(np.array([zs[1], zs[0]]))
     assert fleet.rejected[0].tolist() == [False, True]
@@ -411,7 +387,7 @@ def test_a_step_with_nothing_measured_records_nis_zero_and_nothing_rejected():
     fleet.update(np.array([[np.nan, np.nan], zs[3]]))
     assert fleet.rejected[0].tolist() == [False, False]
     assert fleet.nis[0] == 0.0 and fleet.log_likelihood[0] == 0.0 and fleet.nis[1] > 0.0
-    run = fleet_and_filters(2, Gate(0.999, per_component=True)).batch_filter(
+    run = radar_fleet(2, Gate(0.999, per_component=True)).batch_filter(
         np.array([[zs[0], zs[1], [np.nan, np.nan]], [zs[0], zs[0], zs[3]]])
     )
     assert run.rejected[0, 1].tolist() == [False, True]

@@ -24,8 +24,10 @@ from hypothesis import strategies as st
 from models import plain_fx, plain_hx, plain_scenario
 
 import squkf.stacks
-from squkf import Fleet, JulierWeights, MerweScaledWeights, SquareRootUKF, kernels
-from squkf.kernels import phases
+from squkf import Fleet, JulierWeights, MerweScaledWeights, SquareRootUKF
+from squkf.angles import AngleMean, AngleResidual
+from squkf.kernels import phases, wrappers
+from squkf.kernels import threads as kernel_threads
 from squkf.linalg import chol_update
 
 ENTRY_KERNELS = [name for name in phases.__all__ if name.endswith("_kernel")]
@@ -36,6 +38,13 @@ CONFIGS = {
     "merwe-negative-central-weight": dict(points=MerweScaledWeights(0.3, 0.0, 0.0)),
     "julier-augmented": dict(points=JulierWeights(1.0), scheme="augmented"),
     "merwe-propagated": dict(points=MerweScaledWeights(1.0, 2.0, 0.0), scheme="propagated"),
+    # squkf's angle hooks on the measurement: the angle kernel forms the joint kernel's given rows
+    "merwe-angle-hooks": dict(
+        points=MerweScaledWeights(0.5, 2.0, 0.0), z_mean_fn=AngleMean([1]), residual_z=AngleResidual([1])
+    ),
+    "julier-augmented-angle-residual": dict(
+        points=JulierWeights(1.0), scheme="augmented", residual_z=AngleResidual([1])
+    ),
 }
 
 
@@ -71,22 +80,22 @@ def test_a_fleet_filter_equals_its_single_filter_bit_for_bit(name):
                 assert f.log_likelihood == ll[k], f"filter {k}, step {t}"
 
 
-@pytest.mark.parametrize("name", ["merwe", "merwe-propagated"])
+@pytest.mark.parametrize("name", ["merwe", "merwe-propagated", "merwe-angle-hooks"])
 def test_results_do_not_depend_on_chunk_block_size_or_thread_count(monkeypatch, name):
     """Chunks of the fleet's step (squkf.stacks), blocks of the isolation, threads: the same bits."""
     K = 300
     x0, P0, Q, R, zs = plain_scenario(K, T=4, seed=1)
     config = CONFIGS[name]
     reference = run_fleet(K, config, x0, P0, Q, R, zs)
-    monkeypatch.setattr(kernels, "MIN_FILTERS_PER_THREAD", 7)  # cut small stacks too
-    monkeypatch.setattr(kernels, "usable_cores", lambda: 3)  # three threads, not capped on fewer cores
+    monkeypatch.setattr(kernel_threads, "MIN_FILTERS_PER_THREAD", 7)  # cut small stacks too
+    monkeypatch.setattr(kernel_threads, "usable_cores", lambda: 3)  # three threads, not capped on fewer cores
     for block, chunk, threads in ((64, 1024, 1), (37, 50, 2), (300, 7, 2), (5, 300, 3), (16, 1, 2)):
         monkeypatch.setattr(squkf.stacks, "BLOCK", block)
-        kernels.set_num_threads(threads)
+        kernel_threads.set_num_threads(threads)
         try:
             again = run_fleet(K, config, x0, P0, Q, R, zs, chunk=chunk)
         finally:
-            kernels.set_num_threads(1)
+            kernel_threads.set_num_threads(1)
         say = f"block {block}, chunk {chunk}, {threads} threads"
         for (x, P, ll), (x1, P1, ll1) in zip(reference, again):
             np.testing.assert_array_equal(x, x1, err_msg=say)
@@ -113,8 +122,8 @@ def test_chunks_cover_the_fleet_in_order_and_share_it_evenly_between_threads(K, 
 @pytest.mark.parametrize("bad", [0, -1, 1.5, "2", True, None])
 def test_the_thread_count_must_be_a_whole_number_of_at_least_one(bad):
     with pytest.raises(ValueError, match="thread count"):
-        kernels.set_num_threads(bad)
-    assert kernels.get_num_threads() == 1
+        kernel_threads.set_num_threads(bad)
+    assert kernel_threads.get_num_threads() == 1
 
 
 def run_every_configuration():
@@ -172,7 +181,7 @@ def test_importing_squkf_compiles_nothing():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     compiled, count = map(int, out.split())
-    assert count == len(ENTRY_KERNELS) == 8 and compiled == 0
+    assert count == len(ENTRY_KERNELS) == 9 and compiled == 0
 
 
 @pytest.mark.parametrize("columns", [phases.LAPACK_MIN_COLUMNS - 1, phases.LAPACK_MIN_COLUMNS, 40])
@@ -181,7 +190,7 @@ def test_both_qr_routes_give_the_factor_with_a_non_negative_diagonal(columns):
     rng = np.random.default_rng(columns)
     rows = rng.normal(size=(5, 2 * columns + 3, columns))
     rows[2, :, 3] = 0.0  # a zero column: a singular factor
-    S = kernels.tria(rows)
+    S = wrappers.tria(rows)
     for k in range(5):
         G = rows[k].T @ rows[k]
         np.testing.assert_array_equal(np.triu(S[k], 1), 0.0)
@@ -189,7 +198,7 @@ def test_both_qr_routes_give_the_factor_with_a_non_negative_diagonal(columns):
         np.testing.assert_allclose(S[k] @ S[k].T, G, rtol=0, atol=1e-13 * columns * np.abs(G).max())
         if k != 2:  # the factor of a positive definite matrix is unique: numpy's Cholesky agrees
             np.testing.assert_allclose(S[k], np.linalg.cholesky(G), rtol=1e-10, atol=1e-12)
-        np.testing.assert_array_equal(S[k], kernels.tria(rows[k]))
+        np.testing.assert_array_equal(S[k], wrappers.tria(rows[k]))
 
 
 def test_an_error_in_one_chunk_on_a_thread_is_raised_and_changes_no_filter():
@@ -210,12 +219,12 @@ def test_an_error_in_one_chunk_on_a_thread_is_raised_and_changes_no_filter():
         return plain_fx(X, dt)
 
     fleet.fx = fx
-    kernels.set_num_threads(2)
+    kernel_threads.set_num_threads(2)
     try:
         with pytest.raises(ValueError, match="a broken model"):
             fleet.predict()
     finally:
-        kernels.set_num_threads(1)
+        kernel_threads.set_num_threads(1)
     assert sorted(calls) == [2, 2, 2, 2]
     np.testing.assert_array_equal(fleet.x, x)
     np.testing.assert_array_equal(fleet.P, P)
@@ -232,8 +241,8 @@ def test_an_error_in_one_chunk_on_a_thread_is_raised_and_changes_no_filter():
 def test_finite_rows_says_what_numpys_isfinite_says(A):
     """The bit test on the exponent: NaN of any sign or payload, +/-inf, subnormals and -0.0 too."""
     expected = np.isfinite(A.reshape(A.shape[0], -1)).all(axis=1)
-    np.testing.assert_array_equal(kernels.finite_rows(A), expected)
-    np.testing.assert_array_equal(kernels.finite_rows(np.asfortranarray(A)), expected)  # a copy: C order
+    np.testing.assert_array_equal(wrappers.finite_rows(A), expected)
+    np.testing.assert_array_equal(wrappers.finite_rows(np.asfortranarray(A)), expected)  # a copy: C order
 
 
 def test_points_without_their_offsets_are_the_same_points():
@@ -243,8 +252,8 @@ def test_points_without_their_offsets_are_the_same_points():
     S = np.linalg.cholesky(np.eye(4) + 0.3 * np.ones((4, 4)))[None] * rng.uniform(0.5, 2.0, (7, 1, 1))
     xi = MerweScaledWeights(0.5, 2.0, 0.0).unit_sigma_points(4)
     for gamma in (0.0, float(xi[1, 0])):
-        X, dX = kernels.sigma_points(x, S, xi, gamma)
-        X_alone, none = kernels.sigma_points(x, S, xi, gamma, offsets=False)
+        X, dX = wrappers.sigma_points(x, S, xi, gamma)
+        X_alone, none = wrappers.sigma_points(x, S, xi, gamma, offsets=False)
         assert none is None
         np.testing.assert_array_equal(X_alone, X)
         np.testing.assert_array_equal(X, x[:, None, :] + dX)

@@ -31,6 +31,7 @@ from models import (
     filter_state,
     fleet_state,
     noise_linear_model,
+    pendulum_filter,
     pendulum_fx,
     pendulum_hx,
     pendulum_noise_filter,
@@ -38,6 +39,7 @@ from models import (
     polar_range_hx,
     polar_turn_fx,
     raising,
+    range_noise_filter,
 )
 
 from squkf import (
@@ -93,14 +95,6 @@ def reference_step(x, P, z, alpha, beta, kappa):
     Pxz = (Xa[:, :n] - xp).T @ np.diag(Wc) @ (Z - zp)
     K = np.linalg.solve(Pzz, Pxz.T).T
     return xp + K @ (z - zp), Pp - K @ Pzz @ K.T
-
-
-def pendulum_filter(points, **kw):
-    f = SquareRootUKF(
-        2, 1, PEND_DT, pendulum_hx, pendulum_fx, points, vectorized=True, fx_noise=2, hx_noise=2, **kw
-    )
-    f.x, f.P, f.Q, f.R = np.array([0.5, 0.1]), np.diag([0.04, 0.25]), PEND_QW, PEND_RV
-    return f
 
 
 @pytest.mark.parametrize("alpha, beta, kappa", [(1.0, 2.0, 0.0), (0.5, 2.0, 1.0), (1.0, 0.0, 1.0)])
@@ -503,23 +497,11 @@ def test_what_the_noise_form_cannot_take_is_refused():
         f.rts_smoother_factors(means, factors)
 
 
-def _range_filter(points):
-    def fx(x, dt):
-        return np.array([x[0] + dt * x[1], x[1]])
-
-    def hx(x, v):
-        return np.array([np.hypot(x[0], 2.0) + v[0]])
-
-    f = SquareRootUKF(2, 1, 1.0, hx, fx, points, hx_noise=1)
-    f.x, f.P, f.Q, f.R = np.array([1.0, 0.5]), np.eye(2), 0.01 * np.eye(2), 0.1
-    return f
-
-
 @pytest.mark.parametrize("how", ["update", "ask/tell"])
 def test_points_changed_after_a_prediction_apply_from_the_next_step_with_hx_noise(how):
     """The update finishes with the set the prediction drew and that set's noise points, as it does
     without noise forms; the new points are the next prediction's."""
-    kept, changed = _range_filter(MerweScaledWeights(0.5)), _range_filter(MerweScaledWeights(0.5))
+    kept, changed = range_noise_filter(MerweScaledWeights(0.5)), range_noise_filter(MerweScaledWeights(0.5))
     for f in (kept, changed):
         f.predict()
     changed.points_fn = SimplexWeights()
@@ -532,7 +514,7 @@ def test_points_changed_after_a_prediction_apply_from_the_next_step_with_hx_nois
             f.tell_update(np.array([f.hx(x[:2], x[2:]) for x in X]), [2.5])
     np.testing.assert_array_equal(changed.x, kept.x)
     np.testing.assert_array_equal(changed.P, kept.P)
-    fresh = _range_filter(SimplexWeights())
+    fresh = range_noise_filter(SimplexWeights())
     for f in (changed, fresh):
         f.predict()
     assert changed.sigmas_f.shape == fresh.sigmas_f.shape != kept.sigmas_f.shape

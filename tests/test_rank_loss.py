@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 from models import tanh_filter
 
-from squkf import Fleet, MerweScaledWeights, PosteriorFactorError, SquareRootUKF, kernels
+from squkf import Fleet, MerweScaledWeights, PosteriorFactorError, SquareRootUKF
+from squkf.kernels import table
 
 
 def lose_rank(monkeypatch, where):
@@ -25,7 +26,7 @@ def lose_rank(monkeypatch, where):
     lost to rounding reports it. The kernel is replaced in the engine's table (the one place
     the engine takes its kernels from).
     """
-    real = kernels.KERNELS.joint_update
+    real = table.KERNELS.joint_update
 
     def joint_update(*args):
         real(*args)
@@ -34,7 +35,7 @@ def lose_rank(monkeypatch, where):
         S[lost, -1, -1] = 0.0
         status[lost] = 304
 
-    monkeypatch.setattr(kernels, "KERNELS", kernels.KERNELS._replace(joint_update=joint_update))
+    monkeypatch.setattr(table, "KERNELS", table.KERNELS._replace(joint_update=joint_update))
 
 
 def test_rank_lost_to_rounding_raises_and_changes_nothing(monkeypatch):

@@ -31,6 +31,7 @@ from models import (
     cv_filter,
     cv_fx,
     cv_measurements,
+    edited_pair,
     filter_state,
     fleet_batch_setup,
     fleet_state,
@@ -723,15 +724,6 @@ def test_a_one_element_covariance_survives_copies_and_pickles():
 
 
 # -- 10. an in-place edit of fleet.x, P, Q or R is never lost: taken at the next call --------------
-
-
-def edited_pair(edit):
-    """A fleet edited in place by ``edit``, and one given the same values by assignment."""
-    fl, ref = make_cv3_fleet(), make_cv3_fleet()
-    edit(fl)
-    for name in ("x", "P", "Q", "R"):
-        setattr(ref, name, np.array(getattr(fl, name)))
-    return fl, ref
 
 
 EDITS = {

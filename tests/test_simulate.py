@@ -9,8 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from filterpy.common import Q_discrete_white_noise
-from models import assert_filter_state, filter_state
+from models import assert_filter_state, filter_state, line_cv_fx, line_cv_template
 
 from squkf import (
     MerweScaledWeights,
@@ -25,23 +24,6 @@ from squkf import (
 F_CV = np.array([[1.0, 1.0], [0.0, 1.0]])
 
 
-def cv_fx(x, dt):
-    return np.array([x[0] + dt * x[1], x[1]])
-
-
-def cv_template(vectorized=False):
-    if vectorized:
-        fx = lambda X, dt: np.stack([X[..., 0] + dt * X[..., 1], X[..., 1]], axis=-1)  # noqa: E731
-        hx = lambda X: X[..., :1]  # noqa: E731
-    else:
-        fx, hx = cv_fx, (lambda x: x[:1])
-    f = SquareRootUKF(2, 1, 1.0, hx, fx, MerweScaledWeights(), vectorized=vectorized)
-    f.x, f.P = np.array([1.0, 0.5]), np.diag([4.0, 1.0])
-    f.Q = Q_discrete_white_noise(2, 1.0, 0.5)
-    f.R = [[4.0]]
-    return f
-
-
 def hand_loop(f, steps, runs, seed):
     """The model drawn by hand, in simulate's documented order: x0, then per step w, v."""
     rng = np.random.default_rng(seed)
@@ -51,22 +33,22 @@ def hand_loop(f, steps, runs, seed):
     for t in range(steps):
         w = rng.standard_normal((runs, 2)) @ Q1_2.T
         v = rng.standard_normal((runs, 1)) @ R1_2.T
-        x = np.array([cv_fx(xi, 1.0) for xi in x]) + w
+        x = np.array([line_cv_fx(xi, 1.0) for xi in x]) + w
         truth[:, t], zs[:, t] = x, x[:, :1] + v
     return truth, zs
 
 
 @pytest.mark.parametrize("vectorized", [False, True])
 def test_simulate_is_the_model_drawn_by_hand(vectorized):
-    f = cv_template(vectorized)
+    f = line_cv_template(vectorized)
     truth, zs = simulate(f, 20, 7, seed=11)
-    want_truth, want_zs = hand_loop(cv_template(), 20, 7, 11)
+    want_truth, want_zs = hand_loop(line_cv_template(), 20, 7, 11)
     np.testing.assert_allclose(truth, want_truth, rtol=1e-14, atol=1e-14)
     np.testing.assert_allclose(zs, want_zs, rtol=1e-14, atol=1e-14)
 
 
 def test_the_moments_are_the_models():
-    f = cv_template(vectorized=True)
+    f = line_cv_template(vectorized=True)
     truth, zs = simulate(f, 100, 2000, seed=5)
     increments = truth[:, 1:] - truth[:, :-1] @ F_CV.T
     np.testing.assert_allclose(np.cov(increments.reshape(-1, 2).T), f.Q, rtol=0.03, atol=0.003)
@@ -110,7 +92,7 @@ def test_per_step_dts_and_arguments_reach_the_model():
 
 
 def test_the_same_seed_gives_the_same_runs_and_the_template_is_unchanged():
-    f = cv_template()
+    f = line_cv_template()
     snap = filter_state(f)
     a, b, c = simulate(f, 5, 3, seed=9), simulate(f, 5, 3, seed=9), simulate(f, 5, 3, seed=10)
     np.testing.assert_array_equal(a[0], b[0])
@@ -119,7 +101,7 @@ def test_the_same_seed_gives_the_same_runs_and_the_template_is_unchanged():
 
 
 def test_bad_input_is_named_and_changes_nothing():
-    f = cv_template()
+    f = line_cv_template()
     snap = filter_state(f)
     with pytest.raises(ParameterError, match="steps"):
         simulate(f, 0, 3)
@@ -130,7 +112,7 @@ def test_bad_input_is_named_and_changes_nothing():
     bad = SquareRootUKF(2, 1, 1.0, lambda x: x[:1], lambda x, dt: x[:1], MerweScaledWeights())
     with pytest.raises(ShapeError, match="fx values at step 0"):
         simulate(bad, 3, 2)
-    nan = SquareRootUKF(2, 1, 1.0, lambda x: x[:1] * np.nan, cv_fx, MerweScaledWeights())
+    nan = SquareRootUKF(2, 1, 1.0, lambda x: x[:1] * np.nan, line_cv_fx, MerweScaledWeights())
     with pytest.raises(NonFiniteError, match="hx values at step 0"):
         simulate(nan, 3, 2)
     assert_filter_state(f, snap)

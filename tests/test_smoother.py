@@ -24,6 +24,7 @@ from models import (
     LIN2_Q,
     LIN2_T,
     assert_results_equal,
+    assert_smoother_matches_single,
     counting,
     ct_fleet_measurements,
     ct_fx,
@@ -340,34 +341,6 @@ def test_the_smoother_leaves_the_filter_alone(lin2_filtered):
         np.testing.assert_array_equal(getattr(f, name), getattr(before, name))
 
 
-def assert_matches_single(points, scheme="redrawn", Q=CT_Q, dts=None, chained_tol=1e-10, **kw):
-    """Each filter of the fleet's smoother against the single filter's, on the same and on its own input."""
-    zs = ct_fleet_measurements(dts=dts)
-    fleet = make_ct_fleet(points, scheme, Q, **kw)
-    result = fleet.batch_filter(zs, dts=dts)
-    out = fleet.rts_smoother(result, dts=dts)
-    means, factors, gains = out
-    assert not result.failed.any() and not out.failed.any()
-    for k in range(CTF_K):
-        f = make_ct_single(points, k, scheme, Q, **kw)
-        # the same filtered input: only the smoothers' arithmetic differs (stacked QR against LAPACK's)
-        xs, Ss, Gs = f.rts_smoother_factors(result.means[k], result.P1_2s[k], dts=dts)
-        assert rel_unfloored(means[k], xs) < 1e-10
-        assert rel_unfloored(factors[k], Ss) < 1e-10
-        assert rel_unfloored(gains[k], Gs) < 1e-10
-        # the single filter's own batch_filter output
-        m, S = f.batch_filter(list(zs[k]), dts=dts, return_factors=True)
-        xs, Ss, Gs = f.rts_smoother_factors(m, S, dts=dts)
-        assert rel_unfloored(means[k], xs) < chained_tol
-        assert rel_unfloored(factors[k], Ss) < chained_tol
-        assert rel_unfloored(gains[k], Gs) < chained_tol
-        np.testing.assert_array_equal(gains[k, -1], 0.0)
-        # the smoothed factors are lower factors, as the single filter's
-        assert np.all(np.triu(factors[k], 1) == 0)
-        assert np.all(np.diagonal(factors[k], axis1=-2, axis2=-1) > 0)
-    return fleet, result, out
-
-
 @pytest.mark.parametrize(
     "points",
     [MerweScaledWeights(0.5), MerweScaledWeights(1e-3), JulierWeights(), SimplexWeights(), CubatureWeights()],
@@ -377,22 +350,24 @@ def test_each_filter_equals_the_single_smoother(points):
     # with alpha = 1e-3 the weights are ~1e6 and the fleet's and the single filter's *filtering*
     # already differ by ~1e-8 (rounding, amplified): the smoothers then differ by as much
     small_alpha = isinstance(points, MerweScaledWeights) and points.alpha < 0.01
-    assert_matches_single(points, chained_tol=1e-6 if small_alpha else 1e-10)
+    assert_smoother_matches_single(points, chained_tol=1e-6 if small_alpha else 1e-10)
 
 
 @pytest.mark.parametrize("scheme", ["augmented", "propagated"])
 def test_each_filter_equals_the_single_smoother_other_schemes(scheme):
-    assert_matches_single(MerweScaledWeights(0.5), scheme)
+    assert_smoother_matches_single(MerweScaledWeights(0.5), scheme)
 
 
 @pytest.mark.parametrize("points", [MerweScaledWeights(0.5), JulierWeights()], ids=["merwe", "julier"])
 def test_per_filter_Q_and_varying_dts(points):
     dts = np.linspace(0.5, 1.5, CTF_T)
-    assert_matches_single(points, Q=ct_per_filter_Q(), dts=dts)
+    assert_smoother_matches_single(points, Q=ct_per_filter_Q(), dts=dts)
 
 
 def test_smoothing_differs_from_filtering_and_per_filter_Q_matters():
-    fleet, result, (means, _, _) = assert_matches_single(MerweScaledWeights(0.5), Q=ct_per_filter_Q())
+    fleet, result, (means, _, _) = assert_smoother_matches_single(
+        MerweScaledWeights(0.5), Q=ct_per_filter_Q()
+    )
     assert np.max(np.abs(means[:, :-1] - result.means[:, :-1])) > 1e-3
     np.testing.assert_array_equal(means[:, -1], result.means[:, -1])
     fleet.Q = CT_Q  # a shared Q gives other smoothed values for the filters whose Q differed

@@ -20,20 +20,20 @@ import pytest
 from models import plain_fleet, plain_fx
 
 import squkf
-from squkf import kernels
 from squkf.errors import ParameterError
+from squkf.kernels import threads
 
 #: The process's own core count, kept before the fixture below replaces it for each test.
-REAL_CORES = getattr(kernels, "usable_cores", None)
+REAL_CORES = getattr(threads, "usable_cores", None)
 CORES = 4  # what the tests below see, whatever the machine
 
 
 @pytest.fixture(autouse=True)
 def four_cores(monkeypatch):
     """Four usable cores, so that the counts asked for here are not capped; one thread after each test."""
-    monkeypatch.setattr(kernels, "usable_cores", lambda: CORES, raising=False)
+    monkeypatch.setattr(threads, "usable_cores", lambda: CORES, raising=False)
     yield
-    kernels.set_num_threads(1)
+    threads.set_num_threads(1)
 
 
 def thread_names(calls: list[str]) -> set[str]:

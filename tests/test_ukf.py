@@ -15,7 +15,7 @@ import warnings
 
 import numpy as np
 import pytest
-from filterpy.common import Q_discrete_white_noise, Saver
+from filterpy.common import Saver
 from filterpy.kalman import (
     CubatureKalmanFilter,
     IMMEstimator,
@@ -35,9 +35,9 @@ from models import (
     CT_X0,
     CV_DT,
     CV_P0,
-    CV_R,
     CV_X0,
     CV_Z,
+    FILTERPY_RTOL,
     PRECISE_F,
     PRECISE_H,
     PRECISE_Q,
@@ -46,6 +46,7 @@ from models import (
     Robot,
     assert_filter_state,
     assert_same_estimate,
+    bank_pair,
     ct_filter,
     ct_fx,
     ct_hx,
@@ -67,11 +68,14 @@ from models import (
     precise_hx_rows,
     random_linear_model,
     rel,
+    run_against_kf,
     run_g13ej,
+    run_pair,
     spd,
     spinning_heading,
     spinning_heading_filter,
     step,
+    two_updates,
     wide_covariance_form_update,
     wide_heading_filter,
     wide_measurements,
@@ -80,7 +84,7 @@ from models import (
 from scipy.linalg import solve_discrete_are
 from scipy.stats import chi2
 
-import squkf.boundary.covariance
+import squkf.boundary.attributes
 from squkf import (
     Augmented,
     CallSequenceError,
@@ -143,38 +147,6 @@ def test_augmented_runs_to_completion_and_stays_close():
 # equal filterpy's KalmanFilter up to rounding. The models are well conditioned
 # (cond(P) < 1e3), so 100 steps of O(eps * cond) per-step differences stay far
 # below the asserted 1e-9 relative.
-
-KF_RTOL = 1e-9
-
-
-def run_against_kf(points, scheme, seed=0, steps=100, n=4, m=2, vectorized=False):
-    F, H, Q, R = random_linear_model(seed, n, m)
-    rng = np.random.default_rng(seed + 100)
-    kf = KalmanFilter(n, m)
-    kf.F, kf.H, kf.Q, kf.R = F, H, Q, R
-    kf.P = np.eye(n) * 2.0
-    kf.x = np.ones(n)
-    if vectorized:
-        ukf = SquareRootUKF(
-            n, m, 1.0, lambda X: X @ H.T, lambda X, dt: X @ F.T, points, scheme=scheme, vectorized=True
-        )
-    else:
-        ukf = SquareRootUKF(n, m, 1.0, lambda x: H @ x, lambda x, dt: F @ x, points, scheme=scheme)
-    ukf.x = np.ones(n)
-    ukf.P = kf.P
-    ukf.Q, ukf.R = Q, R
-    worst = 0.0
-    for k in range(steps):
-        z = rng.standard_normal(m) * 2.0
-        kf.predict()
-        ukf.predict()
-        kf.update(z)
-        ukf.update(z)
-        for a, b in ((ukf.x, kf.x), (ukf.P, kf.P)):
-            worst = max(worst, np.max(np.abs(a - b)) / np.max(np.abs(b)))
-        assert worst < KF_RTOL, (k, worst)
-    return worst
-
 
 KF_FAMILIES = {
     "merwe-default": lambda n: MerweScaledWeights(),
@@ -255,32 +227,6 @@ def test_more_measurements_than_states():
 # relative differences of order eps * cond(P) (~1e-16 * 1e4 here); the
 # measurement updates contract them, so after hundreds of steps the normwise
 # relative difference stays many orders below the 1e-8 asserted.
-
-FILTERPY_RTOL = 1e-8
-
-
-def run_pair(points, fx, hx, dim_x, dim_z, dt, x0, P0, Q, R, truth_fn, steps, seed, fx_args=None):
-    rng = np.random.default_rng(seed)
-    fp = UnscentedKalmanFilter(dim_x, dim_z, dt, hx, fx, points)
-    sq = SquareRootUKF(dim_x, dim_z, dt, hx, fx, points)
-    for f in (fp, sq):
-        f.x = x0.copy()
-        f.P = P0
-        f.Q = Q
-        f.R = R
-    xt = truth_fn.x0.copy()
-    worst = 0.0
-    for _ in range(steps):
-        xt = truth_fn.step(xt, rng)
-        z = hx(xt) + rng.multivariate_normal(np.zeros(dim_z), R)
-        for f in (fp, sq):
-            f.predict(**(fx_args or {}))
-        worst = max(worst, rel(sq.x_prior, fp.x_prior), rel(sq.P_prior, fp.P_prior))
-        for f in (fp, sq):
-            f.update(z)
-        worst = max(worst, rel(sq.x, fp.x), rel(sq.P, fp.P))
-        assert worst < FILTERPY_RTOL
-    return worst
 
 
 class Truth:
@@ -694,36 +640,15 @@ def test_two_sensors_equal_one_stacked_update_on_a_linear_model():
     np.testing.assert_allclose(f.P, kf.P, rtol=1e-12)
 
 
-def _two_updates(cls, redraw: bool, model: str):
-    """``predict``, then two ``update``s with no ``predict`` between (README's "What differs" reproducer,
-    or two range-bearing returns a step on the far scenario); ``redraw``: filterpy's line before the
-    second update, ``sigmas_f`` drawn from the estimate that update starts from."""
-    if model == "readme":
-        points = MerweScaledSigmaPoints(1, alpha=0.5, beta=2.0, kappa=2.0)
-        f = cls(dim_x=1, dim_z=1, dt=1.0, hx=lambda x: x + x**3 / 10, fx=lambda x, dt: x, points=points)
-        f.P *= 10
-        z1 = z2 = np.array([1.0])
-    else:
-        f = ct_filter(MerweScaledSigmaPoints(5, 0.3, 2.0, -2.0), cls=cls)
-        z1 = ct_measurements(1, seed=5)[0]
-        z2 = z1 + np.array([3.0, -0.001])
-    f.predict()
-    f.update(z1)
-    if redraw:
-        f.sigmas_f = f.points_fn.sigma_points(f.x, f.P)
-    f.update(z2)
-    return f
-
-
 @pytest.mark.parametrize("model", ["readme", "range-bearing"])
 def test_a_second_update_without_a_predict_is_filterpys_with_its_points_redrawn(model):
     """The principled difference (README, "What differs"; docs/guide/filterpy.rst): squkf draws a second
     update's points from the first update's posterior; filterpy reuses the prior's ``sigmas_f``. With
     ``ukf.sigmas_f = ukf.points_fn.sigma_points(ukf.x, ukf.P)`` before its second update, filterpy gives
     squkf's numbers to rounding; without it, it gives others (in the README's case a negative variance)."""
-    ours = _two_updates(SquareRootUKF, False, model)
-    redrawn = _two_updates(UnscentedKalmanFilter, True, model)
-    theirs = _two_updates(UnscentedKalmanFilter, False, model)
+    ours = two_updates(SquareRootUKF, False, model)
+    redrawn = two_updates(UnscentedKalmanFilter, True, model)
+    theirs = two_updates(UnscentedKalmanFilter, False, model)
     scale = np.sqrt(np.outer(np.diag(ours.P), np.diag(ours.P)))
     np.testing.assert_allclose(ours.x, redrawn.x, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(ours.P / scale, redrawn.P / scale, rtol=0, atol=1e-11)
@@ -1017,20 +942,8 @@ def test_dt_conventions():
         assert_filter_state(f, snap)
 
 
-def _bank_pair():
-    """Two SquareRootUKFs and two filterpy UKFs, the same models (different process noise)."""
-    ours, theirs = [], []
-    for q in (0.01, 1.0):
-        Q = Q_discrete_white_noise(2, dt=CV_DT, var=q, block_size=2) + 1e-6 * np.eye(4)
-        for lst, cls in ((ours, SquareRootUKF), (theirs, UnscentedKalmanFilter)):
-            f = cls(4, 2, CV_DT, ct_hx, cv_fx, MerweScaledSigmaPoints(4, 0.5, 2.0, 0.0))
-            f.x, f.P, f.Q, f.R = CV_X0.copy(), CV_P0.copy(), Q.copy(), CV_R.copy()
-            lst.append(f)
-    return ours, theirs
-
-
 def test_mmae_filter_bank_runs_with_squkf():
-    ours, theirs = _bank_pair()
+    ours, theirs = bank_pair()
     a = MMAEFilterBank(ours, [0.5, 0.5], 4)
     b = MMAEFilterBank(theirs, [0.5, 0.5], 4)
     for z in CV_Z:
@@ -1045,7 +958,7 @@ def test_mmae_filter_bank_runs_with_squkf():
 
 
 def test_imm_estimator_runs_with_squkf():
-    ours, theirs = _bank_pair()
+    ours, theirs = bank_pair()
     M = np.array([[0.95, 0.05], [0.05, 0.95]])
     a = IMMEstimator(ours, [0.5, 0.5], M)
     b = IMMEstimator(theirs, [0.5, 0.5], M)
@@ -1210,9 +1123,9 @@ def test_a_large_state_keeps_its_covariance():
 
 def test_user_matrices_are_factored_once_not_per_step(monkeypatch):
     calls = []
-    real = squkf.boundary.covariance.factor_covariance
+    real = squkf.boundary.attributes.factor_covariance
     monkeypatch.setattr(
-        squkf.boundary.covariance, "factor_covariance", lambda *a, **k: calls.append(a[1]) or real(*a, **k)
+        squkf.boundary.attributes, "factor_covariance", lambda *a, **k: calls.append(a[1]) or real(*a, **k)
     )
     kf, ukf, rng = linear_pair()
     assert calls == ["P", "Q", "R"]  # assigned: factored once each

@@ -7,6 +7,10 @@ the fleet's (:func:`filter_of`), and the smoothers and :mod:`squkf.dask` read
 the time step, the model and the noise from it. No module reads another's
 private members. A pending ask/tell step is kept where the single filter and
 the fleet take it the same way, and refused otherwise (:func:`check_pending`).
+The parts of a configuration are checked against each other here when it is
+made: the sigma-point family at the state's dimension (:func:`sigma_family`),
+the second set with it (:func:`second_set`), the noise entering the model
+with the model functions (:func:`model_noise`).
 """
 
 from __future__ import annotations
@@ -19,8 +23,10 @@ import numpy as np
 from ..angles import AngleHook
 from ..errors import CallSequenceError, ParameterError
 from ..gating import Gate
-from ..plan import IDLE, PRIOR, Hooks, Plan
-from ..weights import FilterpyPoints, WrittenWeights
+from ..generators import as_generator, noise_family
+from ..noise import check_accepts_noise, check_noise_dim
+from ..plan import IDLE, PRIOR, Hooks, Plan, check_built_for
+from ..weights import FilterpyPoints, WrittenWeights, as_family
 
 __all__ = [
     "check_pending",
@@ -28,6 +34,9 @@ __all__ = [
     "Config",
     "filter_kwargs",
     "filter_of",
+    "model_noise",
+    "second_set",
+    "sigma_family",
     "stacked",
 ]
 
@@ -276,3 +285,82 @@ def stacked(filters: Sequence[Any]) -> tuple[Config, np.ndarray, np.ndarray, np.
     Q = Qs[0] if all(np.array_equal(q, Qs[0]) for q in Qs) else np.stack(Qs)
     R = Rs[0] if all(np.array_equal(r, Rs[0]) for r in Rs) else np.stack(Rs)
     return c, x, P1_2, Q, R
+
+
+def model_noise(fx: Callable | None, hx: Callable | None, fx_noise, hx_noise) -> tuple[int, int]:
+    """The dimensions of the noise entering ``fx`` and ``hx``, checked with the functions that take it.
+
+    Parameters
+    ----------
+    fx, hx : callable or None
+        With noise, ``fx(x, w, dt)`` and ``hx(x, v)`` must take it (:mod:`squkf.noise`);
+        None (a function given per call) is not checked.
+    fx_noise, hx_noise : int or None
+        None: additive noise.
+
+    Returns
+    -------
+    (int, int)
+        The dimensions, 0 for additive noise.
+    """
+    dw = check_noise_dim(fx_noise, "fx_noise")
+    dv = check_noise_dim(hx_noise, "hx_noise")
+    check_accepts_noise(fx, "fx", dw, 3)
+    check_accepts_noise(hx, "hx", dv, 2)
+    return dw, dv
+
+
+def sigma_family(points, n: int, fx_noise: int) -> tuple[object, int]:
+    """``points`` as a sigma-point family, checked to serve dimension ``n``, and its number of points.
+
+    Parameters
+    ----------
+    points : sigma-point family or filterpy points object
+    n : int
+        State dimension.
+    fx_noise : int
+        Dimension of the noise entering ``fx`` (0: additive); the first set is then augmented.
+
+    Returns
+    -------
+    family : squkf.weights.SigmaPointFamily
+    num : int
+        Number of points of the first set.
+
+    Notes
+    -----
+    The dimension a filterpy points object was built for is checked against
+    every set it serves with the plan (:func:`squkf.plan.check_built_for`),
+    which the filter builds next; here only the first set is known.
+    """
+    family = as_family(points)
+    if isinstance(family, FilterpyPoints) and family.as_native() is None:
+        check_built_for(family, "points", n, fx_noise)  # it serves the first set as it is, or not at all
+    try:
+        num = noise_family(family, n, fx_noise).num_sigmas(n + fx_noise)
+    except ParameterError:
+        raise
+    except Exception as exc:  # a user's family that cannot serve this dimension
+        raise ParameterError(f"points cannot give sigma points for dim_x={n}: {exc}") from exc
+    return family, num
+
+
+def second_set(scheme, n: int, family, hx_noise: int):
+    """The second-set generator of ``scheme``, checked against the family at dimension ``n`` now.
+
+    Parameters
+    ----------
+    scheme : {"redrawn", "augmented", "propagated"} or generator
+    n : int
+    family : squkf.weights.SigmaPointFamily
+    hx_noise : int
+        Dimension of the noise entering ``hx`` (0: additive).
+
+    Returns
+    -------
+    generator
+    """
+    gen = as_generator(scheme)
+    if hasattr(gen, "num_sigmas") and not hx_noise:
+        gen.num_sigmas(n, noise_family(family, n, 0))  # fails now, not at the first update
+    return gen

@@ -99,10 +99,13 @@ __all__ = [
     "transform_kernel",
     "joint_update_kernel",
     "downdate_update_kernel",
+    "angle_rows_kernel",
 ]
 
 _TINY = float(np.finfo(np.float64).tiny)
 _LOG_2PI = math.log(2.0 * math.pi)
+_PI = math.pi
+_TWO_PI = 2.0 * math.pi
 #: The decorator of every kernel: compiled on first call, releases the GIL, cached on disk where numba has a
 #: writable place, else in memory with a warning (:mod:`squkf.kernels.cache`). No C-callable wrapper: a
 #: kernel is called from Python or from another kernel, never through a C pointer (the wrapper would only
@@ -1168,3 +1171,61 @@ def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpos
                 for j in range(m):
                     Lk[l, j] = Ll[l, j, b]
         _store_lower(Sl, _unfold(0), n, k0, nb, Spost)
+
+
+@kernel
+def angle_rows_kernel(H, z, wm, ref, kind, zp, D, y):
+    """squkf's angle hooks on the measurement as data: the predicted measurement, the rows and the
+    innovation that ``z_mean_fn=AngleMean``, ``residual_z=AngleResidual`` would give, for the joint
+    update's given rows (mode 2).
+
+    Component ``l`` of filter ``k``: the mean is circular where ``kind[l] & 1``, about the point
+    ``ref`` (the largest ``|wm|``): ``a = H[k, ref, l]``, ``zp = wrap(a + sum_i wm[i] wrap(H[k, i, l] - a))``
+    (no sine, cosine or arctangent: a filter's bits never depend on the block); else the plain mean
+    ``H[k, 0, l] + sum_{i>=1} wm[i] (H[k, i, l] - H[k, 0, l])``. The rows ``D[k, i] = H[k, i] - zp[k]``
+    and the innovation ``y[k] = z[k] - zp[k]`` are wrapped where ``kind[l] & 2``. ``wrap(a)`` is
+    ``(a + pi) % (2 pi) - pi``, as :func:`squkf.angles.wrap` (the same bits). Values that are not
+    finite go through (NaN where ``z`` is missing); the joint kernel reports rows that are not finite.
+
+    Parameters
+    ----------
+    H : ndarray, shape (B, N, m)
+        The second set's images.
+    z : ndarray, shape (B, m)
+        The measurement.
+    wm : ndarray, shape (N,)
+        Mean weights.
+    ref : int
+        The point the circular means are taken about.
+    kind : ndarray of int64, shape (m,)
+        Per component: 1 a circular mean, 2 a wrapped residual, 3 both, 0 neither.
+    zp, y : ndarray, shape (B, m)
+    D : ndarray, shape (B, N, m)
+        Outputs.
+    """
+    B, N, m = H.shape
+    for k in range(B):
+        Hk, zk, pk, Dk, yk = H[k], z[k], zp[k], D[k], y[k]
+        for l in range(m):
+            code = kind[l]
+            if code & 1:
+                a = Hk[ref, l]
+                s = 0.0
+                for i in range(N):
+                    s += wm[i] * ((Hk[i, l] - a + _PI) % _TWO_PI - _PI)
+                mean = (a + s + _PI) % _TWO_PI - _PI
+            else:
+                a = Hk[0, l]
+                s = 0.0
+                for i in range(1, N):
+                    s += wm[i] * (Hk[i, l] - a)
+                mean = s + a
+            pk[l] = mean
+            if code & 2:
+                for i in range(N):
+                    Dk[i, l] = (Hk[i, l] - mean + _PI) % _TWO_PI - _PI
+                yk[l] = (zk[l] - mean + _PI) % _TWO_PI - _PI
+            else:
+                for i in range(N):
+                    Dk[i, l] = Hk[i, l] - mean
+                yk[l] = zk[l] - mean

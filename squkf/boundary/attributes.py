@@ -1,4 +1,4 @@
-"""Covariances carried as factors, read and written as matrices, and edits in place of what is handed out.
+"""A filter's attributes as filterpy keeps them: covariances carried as factors, and edits in place.
 
 filterpy code reads and writes a filter's arrays as matrices, and edits them
 in place as often as it assigns them (``ukf.P *= 10``, ``ukf.Q[2:4, 2:4] = ...``,
@@ -12,7 +12,8 @@ in place as often as it assigns them (``ukf.P *= 10``, ``ukf.Q[2:4, 2:4] = ...``
 - :class:`FactorSlot`: a covariance (``Q``, ``R`` of one filter; a ``P``
   being assigned, validated and factored) held as its lower factor, the
   truth, and handed out as a matrix formed when read;
-  :func:`as_matrix` and :func:`as_lower_factor` validate what is assigned.
+  :func:`squkf.checks.as_matrix` and :func:`~squkf.checks.as_lower_factor`
+  validate what is assigned.
 - one filter's attributes in its ``__dict__``, as filterpy keeps them
   (filterpy's ``Saver`` deep-copies the ``__dict__``): data descriptors
   (:class:`Estimate` for ``x`` and ``P``, :class:`Covariance` for ``Q`` and
@@ -29,15 +30,14 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import NonFiniteError, NotPositiveDefiniteError, ShapeError, SqukfValueError
-from ..linalg import all_finite, factor_covariance
+from ..angles import check_angle_hook
+from ..checks import as_lower_factor, as_matrix, check_callable, check_flag
+from ..errors import SqukfValueError
+from ..linalg import factor_covariance
 from ..plan import Hooks
-from ..validate import as_float_array, check_callable, check_flag
 
 __all__ = [
-    "as_lower_factor",
     "Checked",
-    "as_matrix",
     "Covariance",
     "Estimate",
     "FactorSlot",
@@ -150,115 +150,6 @@ class HandOut:
     def detached(self) -> HandOut:
         """An independent copy: each array copied, pending edits kept (:meth:`Handed.copy`)."""
         return HandOut({name: h.copy() for name, h in self.held.items()})
-
-
-def _finite_square(value, name: str, dim: int | None) -> np.ndarray:
-    """``value`` as a finite square float64 matrix of size ``dim``: a scalar is ``value * I``, a 1-element
-    array a 1x1 matrix when ``dim`` allows; a longer 1-D array is a ShapeError (``np.diag`` is meant)."""
-    A = as_float_array(value, name)
-    if A.ndim == 1 and A.shape[0] == 1 and dim in (None, 1):
-        A = A.reshape(1, 1)
-    if A.ndim == 0 and dim is not None:
-        if not np.isfinite(A):
-            raise NonFiniteError(f"{name} is not finite: {float(A)!r}")
-        A = A * np.eye(dim)
-    if A.ndim == 1 and A.shape[0] > 1:
-        raise ShapeError(
-            f"{name} is a 1-D array of length {A.shape[0]}, not a matrix: for a diagonal one"
-            f" use np.diag({name})"
-        )
-    if A.ndim != 2 or A.shape[0] != A.shape[1] or (dim is not None and A.shape[0] != dim):
-        want = f"({dim}, {dim})" if dim is not None else "square"
-        raise ShapeError(f"{name} has shape {A.shape}, expected {want}")
-    if not np.all(np.isfinite(A)):
-        raise NonFiniteError(f"{name} contains NaN or inf: {A!r}")
-    return A
-
-
-def as_matrix(value, name: str, dim: int | None) -> np.ndarray:
-    """Validate a covariance given as a matrix (or a scalar meaning ``value * I``).
-
-    Parameters
-    ----------
-    value : array_like or float
-        A square matrix; a scalar (``value * I``); for ``dim == 1`` also a
-        1-element array.
-    name : str
-        Argument name for messages.
-    dim : int or None
-        Required size; ``None`` accepts any square matrix (a scalar then
-        needs ``dim``).
-
-    Returns
-    -------
-    A : ndarray, shape (dim, dim), float64, symmetrised copy
-
-    Raises
-    ------
-    ShapeError, NonFiniteError, SqukfValueError (not symmetric)
-    """
-    A = _finite_square(value, name, dim)
-    scale = float(np.max(np.abs(A))) if A.size else 0.0
-    asym = float(np.max(np.abs(A - A.T))) if A.size else 0.0
-    if asym > 1e-9 * scale:
-        raise SqukfValueError(
-            f"{name} is not symmetric: max |{name} - {name}.T| = {asym:.3g} (max |{name}| = {scale:.3g})"
-        )
-    return 0.5 * A + 0.5 * A.T  # halves first: A + A.T overflows for entries near the largest float
-
-
-def as_lower_factor(value, name: str, dim: int | None, singular_ok: bool) -> np.ndarray:
-    """Validate a lower-triangular factor given directly.
-
-    A negative diagonal entry is made positive by flipping its column (the
-    covariance ``S @ S.T`` is unchanged).
-
-    Parameters
-    ----------
-    value : array_like
-        A lower-triangular matrix; a scalar (``value * I``); for ``dim == 1``
-        also a 1-element array.
-    name : str
-    dim : int or None
-    singular_ok : bool
-        Accept zeros on the diagonal (a covariance of lower rank).
-
-    Returns
-    -------
-    S : ndarray, shape (dim, dim), float64 copy
-
-    Raises
-    ------
-    ShapeError, NonFiniteError (also when the covariance ``S @ S.T`` is beyond
-    float64's range: read as a matrix it would hold inf), SqukfValueError (not
-    lower triangular), NotPositiveDefiniteError (zero on the diagonal)
-    """
-    S = _finite_square(value, name, dim)
-    upper = np.triu(S, 1)
-    if np.any(upper != 0):
-        i, j = np.argwhere(upper != 0)[0]
-        raise SqukfValueError(
-            f"{name} must be lower triangular, but {name}[{i}, {j}] = {S[i, j]!r} is above the diagonal"
-        )
-    with np.errstate(over="ignore"):  # overflow is what is checked here
-        # the diagonal of S @ S.T, its largest entries (Cauchy-Schwarz): finite iff the matrix is
-        norms = np.einsum("ij,ij->i", S, S)
-    if not all_finite(norms):
-        i = int(np.flatnonzero(~np.isfinite(norms))[0])
-        raise NonFiniteError(
-            f"{name} stands for a covariance {name} @ {name}.T beyond float64's range: its entry [{i}, {i}]"
-            f" overflows (the largest entry of {name} is {float(np.max(np.abs(S))):.3g})"
-        )
-    d = S.diagonal()
-    if not singular_ok and np.any(d == 0):
-        raise NotPositiveDefiniteError(
-            f"{name} has a zero on its diagonal (at {int(np.flatnonzero(d == 0)[0])}): "
-            "the covariance it stands for is singular"
-        )
-    neg = d < 0
-    if neg.any():
-        S[:, neg] *= -1.0
-    return S
 
 
 class FactorSlot:
@@ -492,11 +383,15 @@ class Hook(Checked):
     """A hook (``residual_x``, ``state_add``, ...): callable or None.
 
     Setting one tells the filter (``_hooks_assigned``), which builds its
-    :class:`~squkf.plan.Hooks` again.
+    :class:`~squkf.plan.Hooks` again. squkf's own angle hooks have their
+    indices checked against the filter's ``dim_x`` or ``dim_z`` first.
     """
 
     def __set__(self, obj, value) -> None:
-        super().__set__(obj, value)
+        value = self.check(value)
+        axis = "z" if self.name in ("z_mean", "residual_z") else "x"
+        check_angle_hook(value, self.name, getattr(obj, "dim_" + axis), "dim_" + axis)
+        obj.__dict__[self.name] = value
         obj._hooks_assigned()
 
     def check(self, value):
@@ -523,7 +418,7 @@ class ModelFunction(Checked):
 
 
 class Flag(Checked):
-    """An option that is on or off (``vectorized``): ``True`` or ``False`` (``validate.check_flag``)."""
+    """An option that is on or off (``vectorized``): ``True`` or ``False`` (``checks.check_flag``)."""
 
     def check(self, value):
         return check_flag(value, self.name)

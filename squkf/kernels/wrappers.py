@@ -1,0 +1,439 @@
+"""The kernels in numpy's batch convention: the numerics behind the public entry points.
+
+Each function here takes arrays with any leading batch shape (numpy's
+``np.linalg`` convention: one filter has none, a fleet ``(K,)``), flattens it
+to a stack, calls its kernel from the installed table
+(:data:`squkf.kernels.table.KERNELS`, read at each call; a large stack cut
+between the threads by :func:`squkf.kernels.threads.split_call`) and gives
+the results back in that shape. One filter is a stack of one, computed by the
+same kernel as a fleet, so a filter alone and the same filter in a fleet get
+the same numbers, bit for bit.
+
+Failures are not raised here: each function returns a status per filter
+(see :mod:`squkf.kernels.phases`), which the callers turn into squkf's
+exceptions (:mod:`squkf.linalg`, :mod:`squkf.transform`,
+:mod:`squkf.measurement`).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from . import table
+from .table import kernel_array, no_noise, no_points, no_set, plan_array, zeros_row
+from .threads import split_call
+
+__all__ = [
+    "tria",
+    "solve_lower",
+    "chol_update",
+    "sigma_points",
+    "finite_rows",
+    "transform",
+    "joint_update",
+    "downdate_update",
+    "JointUpdate",
+]
+
+
+def _batch(*arrays: tuple[np.ndarray | None, int]) -> tuple[int, ...]:
+    shape: tuple[int, ...] = ()
+    for a, core in arrays:
+        if a is not None and a.ndim > core:
+            lead = a.shape[: a.ndim - core]
+            shape = lead if not shape or lead == shape else np.broadcast_shapes(shape, lead)
+    return shape
+
+
+def _stack(a: np.ndarray, batch: tuple[int, ...], core: int) -> np.ndarray:
+    """``a`` as a stack ``(B, *core shape)`` over ``batch``, as the kernels take it."""
+    if not batch and a.ndim == core:  # one filter: a view with a leading axis of one
+        return kernel_array(a[None])
+    tail = a.shape[a.ndim - core :]
+    if a.shape[: a.ndim - core] != batch:
+        a = np.broadcast_to(a, batch + tail)
+    return kernel_array(a.reshape((-1,) + tail))
+
+
+def _unstack(a: np.ndarray, batch: tuple[int, ...]) -> np.ndarray:
+    """A kernel's output stack ``(B, ...)`` in the caller's batch shape, a view (:func:`_stack` undone)."""
+    if not batch:  # one filter: the stack of one's row, 0-d for a scalar
+        return a[0, ...]
+    if len(batch) == 1:
+        return a
+    return a.reshape(batch + a.shape[1:])
+
+
+def _shared(a: np.ndarray, batch: tuple[int, ...], core: int) -> np.ndarray:
+    """Like :func:`_stack`, but an ``a`` with no batch axis is passed once (leading axis 1)."""
+    if a.ndim == core:
+        return kernel_array(a[None])
+    return _stack(a, batch, core)
+
+
+def tria(rows: np.ndarray) -> np.ndarray:
+    """Lower factor with a non-negative diagonal of ``rows.T @ rows``, by Householder QR.
+
+    Parameters
+    ----------
+    rows : ndarray, shape (..., k, n)
+
+    Returns
+    -------
+    S : ndarray, shape (..., n, n)
+        ``S @ S.T == rows.T @ rows``; if ``k < n`` the last ``n - k`` columns are zero.
+    """
+    batch = rows.shape[:-2]
+    k, n = rows.shape[-2:]
+    A = _stack(rows, batch, 2)
+    S = np.empty((A.shape[0], n, n))
+    split_call(table.KERNELS.tria, A.shape[0], A, S)
+    return _unstack(S, batch)
+
+
+def solve_lower(L: np.ndarray, b: np.ndarray, trans: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Solve ``L x = b`` (``L.T x = b`` for ``trans``) for lower-triangular ``L``.
+
+    Parameters
+    ----------
+    L : ndarray, shape (..., n, n)
+    b : ndarray, shape (..., n) or (..., n, q)
+        A stack of vectors when ``b.ndim == L.ndim - 1``.
+    trans : bool
+
+    Returns
+    -------
+    x : ndarray, same shape as ``b`` (broadcast with ``L``'s batch)
+    ok : ndarray of bool, shape (...)
+        False where ``L`` has a zero on its diagonal (``x`` is then not finite).
+    """
+    vector = b.ndim == L.ndim - 1
+    B_ = b[..., None] if vector else b
+    batch = _batch((L, 2), (B_, 2))
+    n, q = B_.shape[-2:]
+    Y = _stack(B_, batch, 2)
+    X = np.empty(Y.shape)
+    ok = np.empty(Y.shape[0], dtype=np.bool_)
+    split_call(table.KERNELS.solve, Y.shape[0], _shared(L, batch, 2), Y, 1 if trans else 0, X, ok)
+    X = _unstack(X, batch)
+    return (X[..., 0] if vector else X), _unstack(ok, batch)
+
+
+def chol_update(S: np.ndarray, v: np.ndarray, sign: float) -> tuple[np.ndarray, np.ndarray]:
+    """Rank-1 update (``sign > 0``) or downdate of lower factors, O(n^2) each.
+
+    Parameters
+    ----------
+    S : ndarray, shape (..., n, n)
+    v : ndarray, shape (..., n)
+    sign : float
+
+    Returns
+    -------
+    S1 : ndarray, shape (..., n, n)
+        ``S1 @ S1.T == S @ S.T + sign * outer(v, v)`` where it succeeded.
+    fail : ndarray of int, shape (...)
+        The first column whose rotation failed, or -1.
+    """
+    batch = _batch((S, 2), (v, 1))
+    L = _stack(S, batch, 2)
+    out = np.empty(L.shape)
+    fail = np.empty(L.shape[0], dtype=np.int64)
+    split_call(table.KERNELS.chol_update, L.shape[0], L, _stack(v, batch, 1), float(sign), out, fail)
+    return _unstack(out, batch), _unstack(fail, batch)
+
+
+def sigma_points(x: np.ndarray, S: np.ndarray, xi: np.ndarray, gamma: float = 0.0, offsets: bool = True):
+    """Sigma points ``x + xi @ S.T`` and their offsets ``xi @ S.T``.
+
+    Parameters
+    ----------
+    x : ndarray, shape (..., n)
+    S : ndarray, shape (..., n, n)
+        Lower factors.
+    xi : ndarray, shape (N, n)
+        Unit points.
+    gamma : float
+        Non-zero when ``xi`` is ``[0; gamma I; -gamma I]`` or ``[gamma I; -gamma I]`` (offsets in O(n^2)).
+    offsets : bool
+        Whether the offsets are wanted (not written otherwise).
+
+    Returns
+    -------
+    sigmas : ndarray, shape (..., N, n)
+    offsets : ndarray, shape (..., N, n), or None
+        None when not wanted.
+    """
+    batch = _batch((x, 1), (S, 2))
+    N, n = xi.shape
+    Ss = _stack(S, batch, 2)
+    X = np.empty((Ss.shape[0], N, n))
+    dX = np.empty(X.shape if offsets else (0, N, n))
+    split_call(
+        table.KERNELS.points,
+        Ss.shape[0],
+        _shared(x, batch, 1),
+        Ss,
+        plan_array(xi),
+        float(gamma),
+        X,
+        dX,
+        plan=(2,),
+    )
+    return _unstack(X, batch), (_unstack(dX, batch) if offsets else None)
+
+
+def finite_rows(A: np.ndarray) -> np.ndarray:
+    """Which filters' values are all finite.
+
+    Parameters
+    ----------
+    A : ndarray, shape (K, ...)
+
+    Returns
+    -------
+    ndarray of bool, shape (K,)
+    """
+    rows = kernel_array(A.reshape(A.shape[0], -1))
+    ok = np.empty(rows.shape[0], dtype=np.bool_)
+    split_call(table.KERNELS.finite_rows, rows.shape[0], rows, ok)
+    return ok
+
+
+def transform(
+    P: np.ndarray,
+    mode: int,
+    wm: np.ndarray,
+    scale: np.ndarray,
+    sign: np.ndarray,
+    noise: np.ndarray | None = None,
+    ref: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mean and lower factor of weighted rows plus additive noise (one QR, a downdate per negative row).
+
+    Parameters
+    ----------
+    P : ndarray, shape (..., N, d)
+        Points (``CENTRAL``, ``MEAN``) or rows (``GIVEN``).
+    mode : int
+        The row form.
+    wm, scale, sign : ndarray, shape (N,)
+        Mean weights; each row's ``sqrt(|weight|)`` and sign.
+    noise : ndarray, shape (..., d, q), optional
+        A square root of the additive noise.
+    ref : ndarray, shape (..., d), optional
+        The mean, for ``GIVEN``.
+
+    Returns
+    -------
+    mean : ndarray, shape (..., d)
+    S : ndarray, shape (..., d, d)
+    status : ndarray of int, shape (...)
+        0, or ``r + 1`` (``-(r + 1)``) where negative row ``r``'s downdate failed
+        (found the factor singular).
+    """
+    batch = _batch((P, 2), (noise, 2), (ref, 1))
+    N, d = P.shape[-2:]
+    Ps = _stack(P, batch, 2)
+    B = Ps.shape[0]
+    Nz = no_noise(d) if noise is None else _shared(noise, batch, 2)
+    R = zeros_row(d) if ref is None else _shared(ref, batch, 1)
+    mean = np.empty((B, d))
+    S = np.empty((B, d, d))
+    status = np.empty(B, dtype=np.int64)
+    nothing = no_set(d)
+    split_call(
+        table.KERNELS.transform,
+        B,
+        Ps,
+        R,
+        mode,
+        plan_array(wm),
+        plan_array(scale),
+        plan_array(sign),
+        Nz,
+        mean,
+        S,
+        status,
+        0,
+        no_points(d),
+        0.0,
+        nothing,
+        nothing,
+        plan=(3, 4, 5, 11),
+    )
+    return _unstack(mean, batch), _unstack(S, batch), _unstack(status, batch)
+
+
+class JointUpdate(NamedTuple):
+    """What an update kernel gives, in the caller's batch shape.
+
+    Attributes
+    ----------
+    z_pred, y, w : ndarray, shape (..., m)
+        Predicted measurement (None from :func:`downdate_update`), innovation, ``Sy^-1 y``.
+    Sy : ndarray, shape (..., m, m)
+    L21 : ndarray, shape (..., n, m)
+    dx, x : ndarray, shape (..., n)
+        ``L21 w`` and the posterior mean ``x + dx``.
+    S : ndarray, shape (..., n, n)
+        The posterior factor.
+    log_likelihood, nis : ndarray, shape (...)
+        The measurement's Gaussian log-likelihood and its squared Mahalanobis distance ``w.w``.
+    status : ndarray of int, shape (...)
+        0, or g13ej's 301, 302, 303.
+    """
+
+    z_pred: np.ndarray | None
+    y: np.ndarray
+    w: np.ndarray
+    Sy: np.ndarray
+    L21: np.ndarray
+    dx: np.ndarray
+    x: np.ndarray
+    S: np.ndarray
+    log_likelihood: np.ndarray
+    nis: np.ndarray
+    status: np.ndarray
+
+
+def joint_update(
+    H: np.ndarray,
+    X: np.ndarray,
+    z: np.ndarray,
+    R1_2: np.ndarray,
+    x: np.ndarray,
+    mode: int,
+    wm: np.ndarray,
+    scale: np.ndarray,
+    sign: np.ndarray,
+    xref: np.ndarray | None = None,
+    zref: np.ndarray | None = None,
+    pair: float = 0.0,
+) -> JointUpdate:
+    """The measurement update by one QR of the joint rows (see :func:`phases.joint_update_kernel`).
+
+    Parameters
+    ----------
+    H : ndarray, shape (..., N, m)
+    X : ndarray, shape (..., N, n)
+    z : ndarray, shape (..., m)
+        The measurement, or for ``GIVEN`` the innovation.
+    R1_2 : ndarray, shape (..., m, m)
+    x : ndarray, shape (..., n)
+        The prior mean.
+    mode : int
+    wm, scale, sign : ndarray, shape (N,)
+    xref : ndarray, shape (..., n), optional
+        The reference of ``X`` for ``MEAN`` (default: zero, ``X`` are offsets).
+    zref : ndarray, shape (..., m), optional
+        The predicted measurement for ``GIVEN``.
+    pair : float
+        The rotation of axis points' ``+/-`` pairs (``CENTRAL``, offsets as ``X``; see the kernel).
+
+    Returns
+    -------
+    JointUpdate
+    """
+    if H.ndim == 2 and X.ndim == 2 and z.ndim == 1 and R1_2.ndim == 2 and x.ndim == 1:
+        batch: tuple[int, ...] = _batch((xref, 1), (zref, 1))  # one filter, as a rule
+    else:
+        batch = _batch((H, 2), (X, 2), (z, 1), (R1_2, 2), (x, 1), (xref, 1), (zref, 1))
+    N, m = H.shape[-2:]
+    n = X.shape[-1]
+    Hs = _stack(H, batch, 2)
+    B = Hs.shape[0]
+    out: list[np.ndarray] = [np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m))]
+    out += [np.empty((B, n, m)), np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n))]
+    out += [np.empty(B), np.empty(B), np.empty(B, dtype=np.int64)]
+    split_call(
+        table.KERNELS.joint_update,
+        B,
+        Hs,
+        zeros_row(m) if zref is None else _shared(zref, batch, 1),
+        _stack(X, batch, 2),
+        zeros_row(n) if xref is None else _shared(xref, batch, 1),
+        _stack(z, batch, 1),
+        _shared(R1_2, batch, 2),
+        _shared(x, batch, 1),
+        mode,
+        plan_array(wm),
+        plan_array(scale),
+        plan_array(sign),
+        float(pair),
+        *out,
+        no_points(n),
+        0.0,
+        no_set(n),
+        plan=(8, 9, 10, 23),
+    )
+    return JointUpdate(*(_unstack(a, batch) for a in out))
+
+
+def downdate_update(
+    H: np.ndarray,
+    z_pred: np.ndarray,
+    X: np.ndarray,
+    xref: np.ndarray,
+    y: np.ndarray,
+    Sy: np.ndarray,
+    S: np.ndarray,
+    x: np.ndarray,
+    wc: np.ndarray,
+) -> JointUpdate:
+    """g13ej's update for a set whose covariance is not the prior's (:func:`phases.downdate_update_kernel`).
+
+    Parameters
+    ----------
+    H : ndarray, shape (..., N, m)
+    z_pred : ndarray, shape (..., m)
+        The reference of ``H`` (the predicted measurement; zero for given deviations).
+    X : ndarray, shape (..., N, n)
+    xref : ndarray, shape (..., n)
+    y : ndarray, shape (..., m)
+    Sy : ndarray, shape (..., m, m)
+    S : ndarray, shape (..., n, n)
+    x : ndarray, shape (..., n)
+    wc : ndarray, shape (N,)
+
+    Returns
+    -------
+    JointUpdate
+        With ``z_pred`` None.
+    """
+    batch = _batch((H, 2), (z_pred, 1), (X, 2), (xref, 1), (y, 1), (Sy, 2), (S, 2), (x, 1))
+    N, m = H.shape[-2:]
+    n = X.shape[-1]
+    Hs = _stack(H, batch, 2)
+    B = Hs.shape[0]
+    L21, w = np.empty((B, n, m)), np.empty((B, m))
+    dx, xp, Sp, status = np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B, dtype=np.int64)
+    ll, ww = np.empty(B), np.empty(B)
+    ys = _stack(y, batch, 1)
+    Sys = _stack(Sy, batch, 2)
+    split_call(
+        table.KERNELS.downdate_update,
+        B,
+        Hs,
+        _shared(z_pred, batch, 1),
+        _stack(X, batch, 2),
+        _shared(xref, batch, 1),
+        ys,
+        Sys,
+        _stack(S, batch, 2),
+        _shared(x, batch, 1),
+        plan_array(wc),
+        L21,
+        w,
+        dx,
+        xp,
+        Sp,
+        ll,
+        ww,
+        status,
+        plan=(8,),
+    )
+    out = (ys, w, Sys, L21, dx, xp, Sp, ll, ww, status)
+    return JointUpdate(None, *(_unstack(a, batch) for a in out))
