@@ -93,7 +93,9 @@ def test_a_fleet_filter_equals_its_single_filter_bit_for_bit(name):
                 assert f.log_likelihood == ll[k], f"filter {k}, step {t}"
 
 
-@pytest.mark.parametrize("name", ["merwe", "merwe-propagated", "merwe-angle-hooks", "merwe-state-angle-hooks"])
+@pytest.mark.parametrize(
+    "name", ["merwe", "merwe-propagated", "merwe-angle-hooks", "merwe-state-angle-hooks"]
+)
 def test_results_do_not_depend_on_chunk_block_size_or_thread_count(monkeypatch, name):
     """Chunks of the fleet's step (squkf.stacks), blocks of the isolation, threads: the same bits."""
     K = 300
