@@ -1,6 +1,6 @@
 """The square-root measurement update, as a pure function on stacked arrays.
 
-Three forms, each one compiled kernel (:mod:`squkf.kernels`):
+Two compiled forms (and no update), each one kernel call (:mod:`squkf.kernels`):
 
 - **the joint QR** (a set whose mean and covariance are the prior's,
   ``SigmaSet.moments_exact``, and no ``residual_x`` or ``state_add``): the
@@ -17,11 +17,11 @@ Three forms, each one compiled kernel (:mod:`squkf.kernels`):
   factor by a downdate. One QR and two triangular solves; which form the
   rows take (central or mean) is data in the plan. ``L22`` is the posterior
   only because the state rows ``Dx`` reproduce the prior factor.
-- **g13ej's downdate form**: ``Sy`` from the transform of the images,
-  ``L21 = Pxy Sy^-T``, and the prior factor ``S`` kept and downdated by each
-  column of ``L21``, so that the posterior is exactly filterpy's
-  ``P_prior - K S K^T`` whatever the set's rows. It is taken whenever the
-  state rows need not reproduce the prior factor:
+- **g13ej's downdate form** (:func:`squkf.kernels.phases.downdate_update_kernel`): ``Sy``
+  formed by the same kernel from the images' rows (or a user's ``UT``'s), ``L21 = Pxy Sy^-T``,
+  and the prior factor ``S`` kept and downdated by each column of ``L21``, so that the posterior
+  is exactly filterpy's ``P_prior - K S K^T`` whatever the set's rows. It is taken whenever the
+  state rows need not reproduce the prior factor, or ``Sy`` is not theirs:
 
   - a set whose covariance is not the prior's (the propagated set with
     process noise, a user's generator);
@@ -30,19 +30,20 @@ Three forms, each one compiled kernel (:mod:`squkf.kernels`):
     spread passes pi) do not reproduce it;
   - a set the caller rewrote (a written ``sigmas_f``), which no longer
     reproduces the prior: :meth:`squkf.generators.SigmaSet.rewritten` marks
-    it so (``moments_exact`` False), and every route takes this form for it.
+    it so (``moments_exact`` False), and every route takes this form for it;
+  - a user's ``UT``: its ``Sy`` is given, and the posterior is filterpy's formula with that ``S``
+    (the joint QR would form its own ``Sy``).
 
   A downdate that fails (where the covariance form would return an
   indefinite ``P``) raises :class:`~squkf.errors.PosteriorFactorError`
   (IFAIL 303).
 - **no measurement** (:meth:`squkf.engine.Engine.skip_update`).
 
-A user's ``UT`` with a set that reproduces the prior (and no ``residual_x``
-or ``state_add``) takes the gain form: ``Sy`` from the ``UT``, the posterior
-factor the QR of the rows ``Dx - Dz K^T`` and ``K R1_2`` (Joseph form, no
-downdate), in the factor kernel. The hooks (``z_mean_fn``, ``residual_x``,
-``residual_z``, ``state_add``) are Python, called per filter and point as
-filterpy calls them; their deviations are handed to the kernels as given rows.
+Python does only what is the user's: the hooks (``z_mean_fn``, ``residual_z``, and a ``residual_x``
+or ``state_add`` that is not squkf's) and the ``UT`` are called per filter and point as filterpy
+calls them, what they return is checked, and their rows are handed to the one kernel call as given
+rows (mode ``GIVEN``). squkf's own ``AngleResidual`` as ``residual_x`` and ``AngleAdd`` as
+``state_add`` are data: the downdate kernel wraps the state deviations and ``x + dx`` itself.
 
 Every array may carry leading batch axes ``(...)``: one filter has none.
 """
