@@ -332,6 +332,15 @@ class Route:
         The measurement's hooks are squkf's angle hooks (exact :class:`~squkf.angles.AngleMean`,
         :class:`~squkf.angles.AngleResidual`): their indices go to the kernels, which form the
         predicted measurement, rows and innovation (:func:`squkf.kernels.phases.angle_rows_kernel`).
+    x_kinds : ndarray of int64, shape (n,), or None
+        The state's hooks are squkf's angle hooks (exact :class:`~squkf.angles.AngleMean`,
+        :class:`~squkf.angles.AngleResidual`, :class:`~squkf.angles.AngleAdd`): per component what the
+        kernels do (:func:`squkf.angles.state_angles`); ``x_angles``: the prediction's mean and rows are
+        the angle kernel's.
+    plain_x : bool
+        The prediction has no Python hook (none, or squkf's as data).
+    kernel_update : bool
+        The update has no Python hook: it is one kernel's, with statuses (:meth:`update_route`).
     downdate : bool
         The updates take the downdate form whatever the set (a ``residual_x`` or ``state_add``:
         :func:`squkf.measurement.keeps_prior_factor`): the prior factor kept and the gain taken out
