@@ -28,6 +28,7 @@ __all__ = [
     "run",
     "run_paired",
     "run_whitened",
+    "run_whitened_paired",
 ]
 
 
@@ -195,16 +196,35 @@ def run_whitened(
     """
     S, T, m = Z.shape
     every = Candidates(*(None if v is None else np.repeat(v, S, axis=0) for v in c))
-    result, failed = _pass(ukf, np.tile(Z, (K, 1, 1)), every, ("means", "whitened"), kwargs)
-    assert result.y_whitened is not None and result.log_det_S1_2 is not None
-    w = result.y_whitened.reshape(K, S, T, m)[:, :, burn_in:]
-    log_det = result.log_det_S1_2.reshape(K, S, T)[:, :, burn_in:]
+    w, log_det, failed = run_whitened_paired(ukf, np.tile(Z, (K, 1, 1)), every, burn_in, kwargs)
+    w, log_det = w.reshape(K, S, T - burn_in, m), log_det.reshape(K, S, T - burn_in)
     failures: dict[int, str] = {}
     for j, why in failed.items():
         k = j // S
         w[k], log_det[k] = np.nan, np.nan
         if k not in failures:
             failures[k] = f"recording {j % S}: {why}" if S > 1 else why
+    return w, log_det, failures
+
+
+def run_whitened_paired(
+    ukf, Z: np.ndarray, c: Candidates, burn_in: int, kwargs: dict
+) -> tuple[np.ndarray, np.ndarray, dict[int, str]]:
+    """Candidate ``k``'s whitened innovations and ``log det S1_2`` on its own recording ``Z[k]``, every one
+    in one fleet pass of ``K`` filters.
+
+    Returns
+    -------
+    y_whitened : ndarray, shape (K, T - burn_in, m)
+    log_det_S1_2 : ndarray, shape (K, T - burn_in)
+        NaN for a failed filter.
+    failures : dict of int to str
+    """
+    result, failures = _pass(ukf, Z, c, ("means", "whitened"), kwargs)
+    assert result.y_whitened is not None and result.log_det_S1_2 is not None
+    w, log_det = result.y_whitened[:, burn_in:], result.log_det_S1_2[:, burn_in:]
+    for j in failures:
+        w[j], log_det[j] = np.nan, np.nan
     return w, log_det, failures
 
 

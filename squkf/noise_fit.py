@@ -41,6 +41,7 @@ from .candidates import (
     run,
     run_paired,
     run_whitened,
+    run_whitened_paired,
 )
 from .errors import ParameterError, ShapeError, SqukfError
 from .parametrise import Scaled
@@ -200,25 +201,32 @@ class _Objective:
             out[part] = self._pass(thetas[part], None if rec is None else rec[part])
         return out
 
-    def whitened(self, thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def whitened(self, thetas: np.ndarray, rec: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Each candidate's whitened innovations ``(K, S, T', m)`` and ``log det S1_2`` ``(K, S, T')`` on
-        every recording after the burn-in (NaN for a failed candidate), as few passes as ``max_filters``
+        every recording after the burn-in (NaN for a failed candidate), or (``rec``, ``(K,)``) on its own
+        recording ``Z[rec[k]]``, ``(K, T', m)`` and ``(K, T')``; in as few passes as ``max_filters``
         allows (usually one)."""
         thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
         K = thetas.shape[0]
         S, T, m = self.Z.shape
-        W = np.full((K, S, T - self.burn_in, m), np.nan)
-        L = np.full((K, S, T - self.burn_in), np.nan)
-        per_pass = max(1, self.max_filters // S)
+        each = (S,) if rec is None else ()
+        W = np.full((K, *each, T - self.burn_in, m), np.nan)
+        L = np.full((K, *each, T - self.burn_in), np.nan)
+        per_pass = max(1, self.max_filters // S) if rec is None else self.max_filters
         for start in range(0, K, per_pass):
             part = np.arange(start, min(K, start + per_pass))
             cand, failures = self._candidates(thetas[part])
             good = [j for j in range(part.size) if j not in failures]
             if good:
                 sub = Candidates(*(None if a is None else a[good] for a in cand))
-                w, ld, failed = run_whitened(self.ukf, self.Z, sub, len(good), self.burn_in, self.kwargs)
+                if rec is None:
+                    w, ld, failed = run_whitened(self.ukf, self.Z, sub, len(good), self.burn_in, self.kwargs)
+                    self._counted(len(good) * S * T)
+                else:
+                    Zk = self.Z[rec[part[good]]]
+                    w, ld, failed = run_whitened_paired(self.ukf, Zk, sub, self.burn_in, self.kwargs)
+                    self._counted(len(good) * T)
                 W[part[good]], L[part[good]] = w, ld
-                self._counted(len(good) * S * T)
                 for j, why in failed.items():
                     failures[good[j]] = why
             self._note(thetas[part], failures)
@@ -515,13 +523,14 @@ def _fit(objective: _Objective, method: str, theta0, names, lo_hi, grid, shared,
 def _fit_each(
     objective: _Objective, theta0: np.ndarray, names: list[str], lo_hi, maxiter: int
 ) -> list[NoiseFit]:
-    """``shared=False``: one fit per recording, all advancing together (:func:`_batched_newton`)."""
+    """``shared=False``: one fit per recording, all advancing together (:func:`_batched_least_squares`)."""
     B = objective.Z.shape[0]
     own = np.arange(B)
     f0 = objective(np.tile(theta0, (B, 1)), own)
     if not np.any(np.isfinite(f0)):
         raise all_failed({b: "failed at the start" for b in range(B)}, "recording")
-    thetas, Hs, success = _batched_newton(objective, theta0, B, lo_hi, maxiter)
+    thetas, success = _batched_least_squares(objective, theta0, B, lo_hi, maxiter)
+    Hs = _hessians(objective, thetas)
     loglik = objective.loglik(thetas, own)
     t0 = objective.loglik(np.tile(theta0, (B, 1)), own) if objective.prior is not None else -f0
     fits = []
@@ -541,7 +550,7 @@ def _fit_each(
                 log_likelihood_template=float(t0[b]),
                 success=bool(success[b]) and math.isfinite(loglik[b]),
                 message="converged" if success[b] else "stopped: no step decreased -log L further",
-                method="batched_newton",
+                method="batched_least_squares",
                 passes=objective.passes,
                 filter_steps=objective.filter_steps,
                 failures=dict(objective.failures),
@@ -716,63 +725,129 @@ def _hessian(objective: _Objective, theta: np.ndarray) -> tuple[np.ndarray, floa
     return H, f0
 
 
-def _batched_newton(objective: _Objective, theta0: np.ndarray, B: int, lo_hi, maxiter: int):
-    """``B`` fits from ``theta0``, problem ``b`` on recording ``b``, advancing together: a damped Newton
-    method (Levenberg's damping, one factor per problem) on the finite-difference gradient and Hessian
-    of the exact objective, every problem's points in one fleet pass an iteration, the trial steps in
-    another.
+def _hessians(objective: _Objective, thetas: np.ndarray) -> np.ndarray:
+    """The finite-difference Hessian of each problem's objective at its ``theta`` (problem ``b`` on
+    recording ``b``), ``(B, p, p)``, every point in one fleet pass."""
+    B, p = thetas.shape
+    h = HESSIAN_STEP
+    n_points = 2 * p * p + 1
+    f = objective(np.concatenate([_stencil(t, h) for t in thetas]), np.repeat(np.arange(B), n_points))
+    return np.array([_derivatives(row, p, h)[2] for row in f.reshape(B, n_points)])
+
+
+def _batched_least_squares(objective: _Objective, theta0: np.ndarray, B: int, lo_hi, maxiter: int):
+    """``B`` fits from ``theta0``, problem ``b`` on recording ``b``, advancing together: Levenberg-Marquardt
+    on each problem's residuals (the log-likelihood as the least-squares form writes it, the module's
+    docstring), a damping factor per problem.
+
+    Each iteration is one fleet pass: every active problem's trial point and its forward steps (the
+    Jacobian there, kept if the trial is taken). A trial is taken when it lowers the exact objective
+    (``-log L``, plus the prior's ``|r|^2 / 2``), whatever the constant ``c`` of its roots, which is set
+    per problem from its first point and raised (a margin below the lowest ``-2 log det S1_2`` seen)
+    whenever a root would be imaginary: ``c`` shapes the Gauss-Newton model, never the acceptance.
 
     Returns
     -------
     thetas : ndarray, shape (B, p)
-    H : ndarray, shape (B, p, p)
-        The Hessian at each optimum.
     success : ndarray of bool, shape (B,)
     """
     p = theta0.size
-    h = HESSIAN_STEP
+    h = RESIDUAL_STEP
     lo, hi = lo_hi
+    Z = objective.Z[:, objective.burn_in :]
+    measured = ~np.isnan(Z)  # (B, T', m)
+    updated = measured.any(axis=-1)  # (B, T')
     thetas = np.tile(theta0, (B, 1))
+    trials = thetas.copy()
+    f_now = np.full(B, np.inf)
+    c = np.full(B, np.nan)
     damping = np.full(B, 1e-3)
     done = np.zeros(B, dtype=bool)
     success = np.zeros(B, dtype=bool)
-    H_all = np.full((B, p, p), np.nan)
-    n_points = 2 * p * p + 1
-    for _ in range(maxiter + 1):
+    steps = np.eye(p) * h
+    model = [(np.eye(p), np.zeros(p))] * B  # the Hessian's model and the gradient at each theta
+    last: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = [None] * B  # theta, J, r at the last point
+    second = np.zeros((B, p, p))  # the structured secant part: the residuals' own curvature
+    for it in range(maxiter + 1):
         active = np.flatnonzero(~done)
         if active.size == 0:
             break
-        points = np.concatenate([_stencil(thetas[b], h) for b in active])
-        f = objective(points, np.repeat(active, n_points)).reshape(active.size, n_points)
-        trials, f_now = [], []
-        for row, b in enumerate(active):
-            f0, g, H = _derivatives(f[row], p, h)
-            H_all[b] = H
-            if not np.all(np.isfinite(f[row])):
-                done[b] = True  # a failed candidate next to this point: it stays where it is
-                continue
-            lam, V = np.linalg.eigh(0.5 * (H + H.T))
-            scale = max(float(np.max(np.abs(lam))), 1e-12)
-            curvature = np.maximum(lam, 1e-8 * scale) + damping[b] * scale
-            step = -(V @ ((V.T @ g) / curvature))
-            trials.append(np.clip(thetas[b] + step, lo, hi))
-            f_now.append(f0)
-        moving = [b for b in active if not done[b]]
-        if not moving:
-            break
-        f_trial = objective(np.array(trials), np.array(moving))
-        for b, theta_new, ft, f0 in zip(moving, trials, f_trial, f_now):
-            if ft <= f0:
-                change = float(np.max(np.abs(theta_new - thetas[b])))
-                thetas[b] = theta_new
-                damping[b] = max(damping[b] / 3, 1e-9)
-                if change < 1e-7 or f0 - ft <= 1e-10 * (1 + abs(f0)):
-                    done[b] = success[b] = True
-            else:
+        points = np.concatenate([np.vstack([trials[b], trials[b] + steps]) for b in active])
+        W, L = objective.whitened(points, np.repeat(active, p + 1))
+        for j, b in enumerate(active):
+            rows = slice(j * (p + 1), (j + 1) * (p + 1))
+            w, ld = W[rows][:, measured[b]], L[rows][:, updated[b]]
+            prior = np.array([objective.prior_residuals(t) for t in points[rows]])
+            f_trial = 0.5 * float(w[0] @ w[0]) + float(ld[0].sum()) + 0.5 * float(prior[0] @ prior[0])
+            if not math.isfinite(f_trial) or f_trial > f_now[b]:
                 damping[b] *= 4
                 if damping[b] > 1e8:
-                    done[b] = True
-    return thetas, H_all, success
+                    done[b] = True  # no step lowers it: it stays where it is
+                    continue
+            else:
+                gain, moved = f_now[b] - f_trial, float(np.max(np.abs(trials[b] - thetas[b])))
+                thetas[b], f_now[b] = trials[b], f_trial
+                damping[b] = max(damping[b] / 3, 1e-9)
+                if it > 0 and (gain <= 1e-9 * (1 + abs(f_trial)) or moved < 1e-7):
+                    done[b] = success[b] = True
+                    continue
+                finite = np.all(np.isfinite(ld), axis=1)
+                lowest = float(np.min(ld[finite]))
+                if math.isnan(c[b]) or 2.0 * lowest + c[b] < 0.0:
+                    c[b] = -2.0 * lowest + C_MARGIN
+                with np.errstate(invalid="ignore"):
+                    R = np.concatenate([w, np.sqrt(2.0 * ld + c[b]), prior], axis=1)
+                J = (R[1:] - R[0]) / h  # (p, r): a step that failed gives its axis no slope
+                J[~np.all(np.isfinite(J), axis=1)] = 0.0
+                g_new = J @ R[0]
+                before = last[b]
+                if before is not None:
+                    theta_old, J_old, r_old = before
+                    s_b, y_b = thetas[b] - theta_old, g_new - J_old @ r_old
+                    second[b] = _secant_update(second[b], s_b, y_b, (J - J_old) @ R[0])
+                last[b] = (thetas[b].copy(), J, R[0])
+                model[b] = (J @ J.T + second[b], g_new)  # (kept for a retry with more damping)
+            trials[b], done[b], success[b] = _damped_step(
+                model[b], damping, int(b), thetas[b], lo, hi, f_now[b]
+            )
+    return thetas, success
+
+
+def _damped_step(
+    model, damping: np.ndarray, b: int, theta, lo, hi, f: float
+) -> tuple[np.ndarray, bool, bool]:
+    """Problem ``b``'s next trial: the damped model step within the bounds, more damping while the model
+    (whose secant part may make it indefinite) predicts no decrease. Returns the trial, and whether the
+    problem is done and converged (the model predicts less than a relative 1e-10: none left)."""
+    A, g = model
+    d = np.maximum(np.diagonal(A), 1e-12 * max(float(np.max(np.abs(np.diagonal(A)))), 1e-300))
+    tol = 1e-10 * (1 + abs(f))
+    for _ in range(40):
+        try:
+            step = np.linalg.solve(A + damping[b] * np.diag(d), -g)
+        except np.linalg.LinAlgError:
+            damping[b] *= 4
+            continue
+        trial = np.clip(theta + step, lo, hi)
+        taken = trial - theta
+        predicted = -float(g @ taken + 0.5 * taken @ A @ taken)  # the model's decrease of the step
+        if predicted > tol:
+            return trial, False, False
+        if predicted >= 0.0:  # a decrease too small to seek (against its bounds with nowhere to go, too)
+            return theta, True, True
+        damping[b] *= 4  # the model is not convex there: a shorter step
+    return theta, True, False
+
+
+def _secant_update(S: np.ndarray, s: np.ndarray, y: np.ndarray, y_sharp: np.ndarray) -> np.ndarray:
+    """Dennis, Gay and Welsch's update of the second-order part ``S`` of a least-squares Hessian (NL2SOL):
+    ``J^T J + S`` then models the curvature the Gauss-Newton matrix leaves out (here the log-determinant's),
+    from the step ``s``, the gradient's change ``y`` and ``y# = (J_new - J_old)^T r_new``."""
+    ys = float(y @ s)
+    if ys <= 1e-12 * float(np.linalg.norm(y) * np.linalg.norm(s)):
+        return S  # no curvature along the step: keep the model
+    v = y_sharp - S @ s
+    return S + (np.outer(v, y) + np.outer(y, v)) / ys - float(v @ s) * np.outer(y, y) / ys**2
 
 
 def _covariance(H: np.ndarray, names: list[str]) -> tuple[np.ndarray, bool, list]:
