@@ -1931,6 +1931,50 @@ class SubclassedResidual(AngleResidual):
     """squkf's AngleResidual as a user's hook (a subclass): called in Python."""
 
 
+class SubclassedAdd(AngleAdd):
+    """squkf's AngleAdd as a user's hook (a subclass): called in Python."""
+
+
+#: The heading predicted near +pi at the first step and every eighth (its points pass pi): the state's
+#: angle hooks matter.
+RBH_TURNING_X0 = np.array([-100.0, 0.4, np.pi - 0.82, 2.0])
+RBH_TURNING_P0 = np.diag([4.0, 4.0, 0.04, 0.25])
+
+
+def rbh_state_hooks(python: bool = False) -> dict:
+    """The heading's hooks on the state (x[2]) and the bearing's and heading's on z (z[1], z[2]): every
+    hook squkf has; subclasses (called in Python) if ``python``."""
+    if python:
+        mean, residual, add = SubclassedMean, SubclassedResidual, SubclassedAdd
+    else:
+        mean, residual, add = AngleMean, AngleResidual, AngleAdd
+    return {
+        "x_mean_fn": mean([2]), "residual_x": residual([2]), "state_add": add([2]),
+        "z_mean_fn": mean([1, 2]), "residual_z": residual([1, 2]),
+    }  # fmt: skip
+
+
+def rbh_turning(hooks: dict, points=None, **kw) -> SquareRootUKF:
+    """:func:`rbh_single` with the heading near +pi (:data:`RBH_TURNING_X0`)."""
+    f = rbh_single(hooks, points, **kw)
+    f.x, f.P = RBH_TURNING_X0, RBH_TURNING_P0
+    return f
+
+
+def rbh_turning_measurements(T: int, seed: int = 0) -> np.ndarray:
+    """``(T, 3)`` noisy measurements of the track from :data:`RBH_TURNING_X0` (its heading wraps), a
+    range missing at step 2 and nothing at step 3."""
+    rng = np.random.default_rng(seed)
+    x, zs = RBH_TURNING_X0, []
+    for _ in range(T):
+        x = turn_fx_stacked(x, 1.0)
+        zs.append(wrap(range_bearing_heading_hx(x) + rng.normal(size=3) * np.sqrt(np.diag(RBH_R))))
+    zs = np.array(zs)
+    zs[2 % T, 0] = np.nan
+    zs[3 % T] = np.nan
+    return zs
+
+
 def rbh_hooks(which: str = "both", python: bool = False) -> dict:
     """The bearing's hooks (z[1]): ``"residual"``, ``"mean"`` or ``"both"``; subclasses if ``python``."""
     mean, residual = (SubclassedMean, SubclassedResidual) if python else (AngleMean, AngleResidual)
