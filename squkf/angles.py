@@ -115,9 +115,10 @@ class AngleHook:
     Notes
     -----
     The exact classes :class:`AngleMean`, :class:`AngleResidual` and :class:`AngleAdd` are data to a
-    filter: it reads their indices when they are assigned and its compiled update wraps the residuals
-    and takes the circular means itself, with no Python call per point (the measurement's hooks
-    ``z_mean_fn`` and ``residual_z``). A subclass is called as any user's hook is.
+    filter: it reads their indices when they are assigned and its compiled kernels wrap the residuals
+    and sums and take the circular means themselves, with no Python call per point (the measurement's
+    hooks ``z_mean_fn`` and ``residual_z``, the state's ``x_mean_fn``, ``residual_x`` and
+    ``state_add``). A subclass is called as any user's hook is.
     """
 
     def __init__(self, angle_indices: Sequence[int]):
@@ -240,6 +241,45 @@ def measurement_angles(z_mean_fn, residual_z, m: int) -> np.ndarray | None:
         kind[list(z_mean_fn.angle_indices)] |= 1
     if residual_z is not None:
         kind[list(residual_z.angle_indices)] |= 2
+    return kind
+
+
+def state_hooks_are_data(x_mean_fn, residual_x, state_add) -> bool:
+    """Whether the state's hooks are squkf's (an exact :class:`AngleMean`, :class:`AngleResidual`,
+    :class:`AngleAdd`, or None each), at least one of them given: the kernels then do what they would
+    (:func:`state_angles`)."""
+    if x_mean_fn is None and residual_x is None and state_add is None:
+        return False
+    return (
+        (x_mean_fn is None or type(x_mean_fn) is AngleMean)
+        and (residual_x is None or type(residual_x) is AngleResidual)
+        and (state_add is None or type(state_add) is AngleAdd)
+    )
+
+
+def state_angles(x_mean_fn, residual_x, state_add, n: int) -> np.ndarray | None:
+    """What the kernels do with each state component, when the state's hooks are data.
+
+    Parameters
+    ----------
+    x_mean_fn, residual_x, state_add : callable or None
+    n : int
+        The state's dimension.
+
+    Returns
+    -------
+    ndarray of int64, shape (n,), read-only, or None
+        Per component, 1 for a circular mean (``x_mean_fn``'s angles), plus 2 for a wrapped residual
+        (``residual_x``'s), plus 4 for a wrapped sum (``state_add``'s); None unless
+        :func:`state_hooks_are_data`.
+    """
+    if not state_hooks_are_data(x_mean_fn, residual_x, state_add):
+        return None
+    kind = np.zeros(n, dtype=np.int64)
+    for hook, bit in ((x_mean_fn, 1), (residual_x, 2), (state_add, 4)):
+        if hook is not None:
+            kind[list(hook.angle_indices)] |= bit
+    kind.setflags(write=False)  # (a plan's array, as the kernels take it)
     return kind
 
 

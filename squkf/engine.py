@@ -41,7 +41,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import blas
-from .angles import measurement_angles, measurement_hooks_are_data
+from .angles import measurement_angles, measurement_hooks_are_data, state_angles
 from .checks import check_hook_result, check_values, describe_nonfinite
 from .errors import CallSequenceError, NonFiniteError, SqukfError
 from .generators import SigmaSet, sigma_points_from_factor
@@ -156,6 +156,21 @@ class _Joint(NamedTuple):
     sign: np.ndarray
     angles: bool = False
     ref: int = 0
+    downdate: bool = False  # the downdate kernel (the set need not reproduce the prior; a residual_x or
+    # state_add of squkf's): its state rows X - xref, wrapped where xkind says, and its mean weights wc
+    wc: np.ndarray | None = None
+    xkind: np.ndarray | None = None
+
+
+def _downdate_route(sset: SigmaSet, z_angles: bool, xkind: np.ndarray, residual_x: bool) -> _Joint:
+    """The downdate kernel's route: the images' rows as the joint route forms them (the given rows of
+    the angle kernel for squkf's angle hooks on the measurement), the state rows the set's points less
+    the prior mean (its offsets where known, unless squkf's ``residual_x`` wraps the deviations)."""
+    rows = sset.rows
+    assert rows is not None
+    route = _angle_route(sset) if z_angles else _joint_route(sset)
+    have = sset.offsets is not None and not residual_x
+    return route._replace(offsets=have, xref=not have, pair=0.0, downdate=True, wc=_ro(rows.Wc), xkind=xkind)
 
 
 def _joint_route(sset: SigmaSet) -> _Joint:
@@ -199,6 +214,10 @@ class _Zeros(dict):
     def __missing__(self, d: int) -> np.ndarray:
         z = self[d] = table.zeros_row(d)
         return z
+
+
+#: No measurement for the angle kernel (a prediction's images: no innovation formed or written).
+_NO_Z = np.empty((0, 0))
 
 
 class _ObservedR:
@@ -351,6 +370,15 @@ class Route:
         The measurement's hooks are squkf's angle hooks (exact :class:`~squkf.angles.AngleMean`,
         :class:`~squkf.angles.AngleResidual`): their indices go to the kernels, which form the
         predicted measurement, rows and innovation (:func:`squkf.kernels.phases.angle_rows_kernel`).
+    x_kinds : ndarray of int64, shape (n,), or None
+        The state's hooks are squkf's angle hooks (exact :class:`~squkf.angles.AngleMean`,
+        :class:`~squkf.angles.AngleResidual`, :class:`~squkf.angles.AngleAdd`): per component what the
+        kernels do (:func:`squkf.angles.state_angles`); ``x_angles``: the prediction's mean and rows are
+        the angle kernel's.
+    plain_x : bool
+        The prediction has no Python hook (none, or squkf's as data).
+    kernel_update : bool
+        The update has no Python hook: it is one kernel's, with statuses (:meth:`update_route`).
     downdate : bool
         The updates take the downdate form whatever the set (a ``residual_x`` or ``state_add``:
         :func:`squkf.measurement.keeps_prior_factor`): the prior factor kept and the gain taken out
@@ -360,21 +388,34 @@ class Route:
     """
 
     __slots__ = (
-        "plan", "hooks", "gate", "single", "plain_x", "plain_add", "downdate", "plain_update", "z_angles",
-        "no_set", "zeros", "_updates", "_observed_R", "_noise", "_prior_draws", "_angle_kinds",
+        "plan", "hooks", "gate", "single", "plain_x", "plain_add", "downdate", "no_set", "zeros", "_updates",
+        "_observed_R", "_noise", "_prior_draws", "z_angles", "_angle_kinds", "x_kinds", "x_angles", "x_rows",
+        "kernel_update",
     )  # fmt: skip
 
     def __init__(self, plan: Plan, hooks: Hooks, gate, single: bool):
         self.plan, self.hooks, self.gate, self.single = plan, hooks, gate, single
-        self.plain_x = hooks.x_mean_fn is None and hooks.residual_x is None
+        # squkf's angle hooks on the state are data: the kernels do what they would (x_kinds, per component)
+        self.x_kinds = state_angles(hooks.x_mean_fn, hooks.residual_x, hooks.state_add, plan.n)
+        self.x_angles = self.x_kinds is not None and (
+            hooks.x_mean_fn is not None or hooks.residual_x is not None
+        )  # the prediction's circular means and wrapped rows: the angle kernel
+        if self.x_angles:  # as the Python hooks' route weighs the rows: the first set's mean form
+            rows = plan.first.rows
+            form = rows.mean_form
+            ref = int(np.argmax(np.abs(rows.Wm)))
+            self.x_rows: tuple = (ref, _ro(rows.Wm), _ro(form.scale), _ro(form.sign))
+        no_x_hooks = hooks.x_mean_fn is None and hooks.residual_x is None
+        self.plain_x = no_x_hooks or self.x_kinds is not None  # the prediction has no Python hook
         self.plain_add = hooks.state_add is None
         self.downdate = keeps_prior_factor(hooks.residual_x, hooks.state_add)
         # squkf's angle hooks on the measurement are data: the angle kernel does what they would
         self.z_angles = measurement_hooks_are_data(hooks.z_mean_fn, hooks.residual_z)
+        # the update has no Python hook: it is one kernel's, the joint or the downdate (update_route)
+        self.kernel_update = (self.z_angles or (hooks.z_mean_fn is None and hooks.residual_z is None)) and (
+            not self.downdate or self.x_kinds is not None
+        )
         self._angle_kinds: dict[int, np.ndarray] = {}  # per measurement size: what the kernel does
-        # no hook in the way of the joint QR (the set must still reproduce the prior: update_route)
-        plain_z = self.z_angles or (hooks.z_mean_fn is None and hooks.residual_z is None)
-        self.plain_update = self.plain_x and not self.downdate and plain_z
         self.no_set = table.no_set(plan.n)  # a kernel's set output when it draws none
         self._updates: dict = {}
         self._observed_R = _ObservedR()
@@ -430,8 +471,10 @@ class Route:
         plan = self.plan
         n, N = plan.n, plan.xi1.shape[0]
         fused = plan.fused_draw if (draw and self.plain_add) else None
-        if fused is not None and fused.augmented and not with_Q:
-            fused = None  # the augmented set without noise is the propagated set itself
+        if fused is not None and fused.augmented and (not with_Q or self.x_angles):
+            # the augmented set without noise is the propagated set itself; with the angle kernel's given
+            # rows the transform kernel holds no propagated set to draw it from (the generator draws it)
+            fused = None
         if fused is None:
             drawn: tuple = (None, 0, table.no_points(n), 0.0, 0, False)
         else:
@@ -483,10 +526,18 @@ class Route:
             else:  # (stacked's kept factor, looked up here: no call when it is the one given last)
                 kept = self._noise.get(0)
                 noise = kept[1] if kept is not None and kept[0] is Q1_2 else self.stacked(Q1_2, 0)
-            table.KERNELS.transform(
-                F, self.zeros[n], plan.mode1, plan.wm1, plan.scale1, plan.sign1, noise, mean, S, status,
-                code, xi2, gamma2, X2, D2,
-            )  # fmt: skip
+            if self.x_angles:  # squkf's x_mean_fn, residual_x: the angle kernel's mean and rows, given
+                ref, wm, scale, sign = self.x_rows
+                D = (_angle_out(B, N, n) if buffers is None else buffers.take(_angle_out, B, N, n))[1]
+                table.KERNELS.angle_rows(F, _NO_Z, wm, ref, self.x_kinds, mean, D, _NO_Z)
+                table.KERNELS.transform(
+                    D, mean, table.GIVEN, wm, scale, sign, noise, mean, S, status, code, xi2, gamma2, X2, D2
+                )
+            else:
+                table.KERNELS.transform(
+                    F, self.zeros[n], plan.mode1, plan.wm1, plan.scale1, plan.sign1, noise, mean, S, status,
+                    code, xi2, gamma2, X2, D2,
+                )  # fmt: skip
             sset = None
             if fused is not None:
                 rows = fused.rows
@@ -539,10 +590,12 @@ class Route:
         return s._replace(sigmas=s.sigmas[None], offsets=None if s.offsets is None else s.offsets[None])
 
     def update_route(self, sset: SigmaSet, UT) -> _Joint | None:
-        """The joint-QR route of an update with this set, or None for the general one (hooks, ``UT``).
+        """The kernel route of an update with this set, or None for the general one (Python hooks, ``UT``).
 
-        Decided once per key (the set's weight rows, its kind, ``UT`` given or not) and kept. The rows
-        are known by identity and kept with their route: a user's generator that makes new rows at
+        The joint QR where the set reproduces the prior and no ``residual_x`` or ``state_add`` is given;
+        else the downdate form (``downdate``). Decided once per key (the set's weight rows, its kind,
+        ``UT`` given or not) and kept. The rows are known by identity and kept with their route: a
+        user's generator that makes new rows at
         every draw gets its own route each time (the kept ones are dropped when they are many).
         """
         rows = sset.rows
@@ -550,10 +603,14 @@ class Route:
         kept = self._updates.get(key)
         if kept is not None and kept[0] is rows:
             return kept[1]
-        plain = UT is None and sset.moments_exact and self.plain_update and rows is not None
         route: _Joint | None = None
-        if plain:
-            route = _angle_route(sset) if self.z_angles else _joint_route(sset)
+        if UT is None and rows is not None and self.kernel_update:
+            if sset.moments_exact and not self.downdate:
+                route = _angle_route(sset) if self.z_angles else _joint_route(sset)
+            else:
+                xkind = table.no_angles(self.plan.n) if self.x_kinds is None else self.x_kinds
+                residual_x = self.hooks.residual_x is not None
+                route = _downdate_route(sset, self.z_angles, xkind, residual_x)
         if len(self._updates) >= _KEPT_ROUTES:
             self._updates.clear()
         self._updates[key] = (rows, route)
@@ -637,7 +694,8 @@ class Route:
         if zref is None:
             zref = self.zeros[m]
         plan = self.plan
-        draw = draw_first and plan.w_xi is None  # (noise entering fx: the first set has a noise part)
+        # (noise entering fx: the first set has a noise part; the downdate kernel draws none)
+        draw = draw_first and plan.w_xi is None and not route.downdate
         N1 = plan.xi1.shape[0] if draw else 0
         if out is None:
             out = (
@@ -647,15 +705,21 @@ class Route:
         kept = self._noise.get(1)
         Rs = kept[1] if kept is not None and kept[0] is Ro else self.stacked(Ro, 1)
         Xs = sset.offsets if route.offsets else sset.sigmas
-        if route.angles and not route.offsets:  # given state rows: the deviations from the prior mean
+        if route.angles and not route.offsets and not route.downdate:  # given state rows: less the prior mean
             Xs = Xs - x[:, None, :]
         f = Xs.flags
         if not (f.c_contiguous and f.writeable and Xs.dtype is _FLOAT64):  # a user generator's set
             Xs = table.kernel_array(Xs)
-        table.KERNELS.joint_update(
-            H, zref, Xs, x if route.xref else self.zeros[n], z, Rs, x, route.mode, route.wm,
-            route.scale, route.sign, route.pair, *out[:11], plan.xi1, plan.gamma1, X1,
-        )  # fmt: skip
+        if route.downdate:  # the prior factor kept and downdated: no first set drawn with it
+            table.KERNELS.downdate_update(
+                H, zref, Xs, x if route.xref else self.zeros[n], z, Rs, table.no_factor(m), S, x,
+                route.mode, route.wm, route.wc, route.scale, route.sign, route.xkind, *out[:11],
+            )  # fmt: skip
+        else:
+            table.KERNELS.joint_update(
+                H, zref, Xs, x if route.xref else self.zeros[n], z, Rs, x, route.mode, route.wm,
+                route.scale, route.sign, route.pair, *out[:11], plan.xi1, plan.gamma1, X1,
+            )  # fmt: skip
         if whole is not None:
             status[~np.isfinite(whole).reshape(B, -1).all(axis=1)] = NOT_FINITE_IMAGES
         if np.count_nonzero(status):

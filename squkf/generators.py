@@ -36,6 +36,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .angles import is_data, wrap
 from .checks import call_hook
 from .errors import ParameterError
 from .kernels import wrappers
@@ -187,6 +188,10 @@ def sigma_points_and_offsets(
     sigmas, dx = wrappers.sigma_points(x, S, xi, 0.0 if gamma is None else gamma)
     assert dx is not None
     if _plain_sum(state_add):
+        return sigmas, dx
+    if is_data(state_add):  # squkf's AngleAdd: x + dx wrapped, on every filter and point at once
+        idx = list(state_add.angle_indices)
+        sigmas[..., idx] = wrap(sigmas[..., idx])
         return sigmas, dx
     n = x.shape[-1]
     if isinstance(state_add, StackedHook):  # once: (k, 1, n) and (k, N, n)

@@ -1,6 +1,6 @@
 """The square-root measurement update, as a pure function on stacked arrays.
 
-Three forms, each one compiled kernel (:mod:`squkf.kernels`):
+Two compiled forms (and no update), each one kernel call (:mod:`squkf.kernels`):
 
 - **the joint QR** (a set whose mean and covariance are the prior's,
   ``SigmaSet.moments_exact``, and no ``residual_x`` or ``state_add``): the
@@ -17,11 +17,11 @@ Three forms, each one compiled kernel (:mod:`squkf.kernels`):
   factor by a downdate. One QR and two triangular solves; which form the
   rows take (central or mean) is data in the plan. ``L22`` is the posterior
   only because the state rows ``Dx`` reproduce the prior factor.
-- **g13ej's downdate form**: ``Sy`` from the transform of the images,
-  ``L21 = Pxy Sy^-T``, and the prior factor ``S`` kept and downdated by each
-  column of ``L21``, so that the posterior is exactly filterpy's
-  ``P_prior - K S K^T`` whatever the set's rows. It is taken whenever the
-  state rows need not reproduce the prior factor:
+- **g13ej's downdate form** (:func:`squkf.kernels.phases.downdate_update_kernel`): ``Sy``
+  formed by the same kernel from the images' rows (or a user's ``UT``'s), ``L21 = Pxy Sy^-T``,
+  and the prior factor ``S`` kept and downdated by each column of ``L21``, so that the posterior
+  is exactly filterpy's ``P_prior - K S K^T`` whatever the set's rows. It is taken whenever the
+  state rows need not reproduce the prior factor, or ``Sy`` is not theirs:
 
   - a set whose covariance is not the prior's (the propagated set with
     process noise, a user's generator);
@@ -30,19 +30,20 @@ Three forms, each one compiled kernel (:mod:`squkf.kernels`):
     spread passes pi) do not reproduce it;
   - a set the caller rewrote (a written ``sigmas_f``), which no longer
     reproduces the prior: :meth:`squkf.generators.SigmaSet.rewritten` marks
-    it so (``moments_exact`` False), and every route takes this form for it.
+    it so (``moments_exact`` False), and every route takes this form for it;
+  - a user's ``UT``: its ``Sy`` is given, and the posterior is filterpy's formula with that ``S``
+    (the joint QR would form its own ``Sy``).
 
   A downdate that fails (where the covariance form would return an
   indefinite ``P``) raises :class:`~squkf.errors.PosteriorFactorError`
   (IFAIL 303).
 - **no measurement** (:meth:`squkf.engine.Engine.skip_update`).
 
-A user's ``UT`` with a set that reproduces the prior (and no ``residual_x``
-or ``state_add``) takes the gain form: ``Sy`` from the ``UT``, the posterior
-factor the QR of the rows ``Dx - Dz K^T`` and ``K R1_2`` (Joseph form, no
-downdate), in the factor kernel. The hooks (``z_mean_fn``, ``residual_x``,
-``residual_z``, ``state_add``) are Python, called per filter and point as
-filterpy calls them; their deviations are handed to the kernels as given rows.
+Python does only what is the user's: the hooks (``z_mean_fn``, ``residual_z``, and a ``residual_x``
+or ``state_add`` that is not squkf's) and the ``UT`` are called per filter and point as filterpy
+calls them, what they return is checked, and their rows are handed to the one kernel call as given
+rows (mode ``GIVEN``). squkf's own ``AngleResidual`` as ``residual_x`` and ``AngleAdd`` as
+``state_add`` are data: the downdate kernel wraps the state deviations and ``x + dx`` itself.
 
 Every array may carry leading batch axes ``(...)``: one filter has none.
 """
@@ -50,19 +51,20 @@ Every array may carry leading batch axes ``(...)``: one filter has none.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import NamedTuple, cast
+from typing import NamedTuple
 
 import numpy as np
 
+from .angles import is_data, state_angles
 from .checks import call_hook, check_hook_result
 from .errors import GainError, PosteriorFactorError
 from .generators import SigmaSet
 from .kernels import wrappers
 from .kernels.table import CENTRAL, GIVEN, MEAN
 from .linalg import all_finite, solve_lower, tria
-from .rows import RowForm, WeightRows, weight_rows
+from .rows import RowForm, weight_rows
 from .statuses import failure, first_status, singular_allowed
-from .transform import StackedHook, deviations, factor_rows, transform_factor, weighted_mean
+from .transform import StackedHook, deviations, weighted_mean
 
 __all__ = [
     "Posterior",
@@ -189,6 +191,11 @@ def measurement_update(
 ) -> Posterior:
     """Square-root measurement update from the second set and its images.
 
+    One kernel call, of the form the set and hooks take (see the module): the hooks and a ``UT``
+    are called here and what they give is handed to it as given rows; squkf's own angle hooks on
+    the state (exact :class:`~squkf.angles.AngleResidual`, :class:`~squkf.angles.AngleAdd`) are
+    done by the kernel.
+
     Parameters
     ----------
     x : ndarray, shape (..., n)
@@ -245,81 +252,67 @@ def measurement_update(
             cols = observed
         else:  # the kernels form everything from the measured components alone
             sigmas_h, z = sigmas_h[..., observed], z[..., observed]
-    # the downdate form unless the state rows reproduce the prior factor (see the module)
-    downdate = not sset.moments_exact or keeps_prior_factor(residual_x, state_add)
-    if UT is None and not downdate:
-        if z_hooks:
-            form = rows.mean_form
-            z_pred = weighted_mean(sigmas_h, rows.Wm, z_mean_fn, "z_mean_fn")
-            Dz, y = _rows_and_innovation(sigmas_h, _present(z, z_pred, cols), z_pred, residual_z)
-            z_pred, Dz, y = z_pred[..., cols], Dz[..., cols], y[..., cols]
-            u = wrappers.joint_update(
-                Dz, _state_deviations(sset, x), y, Ro, x, GIVEN,
-                rows.Wm, form.scale, form.sign, zref=z_pred,
-            )  # fmt: skip
-        else:
-            form = rows.best
-            pair = 0.0
-            if form.central:  # deviations from the central point: the offsets' own differences
-                X, xref, mode = (sset.sigmas if sset.offsets is None else sset.offsets), None, CENTRAL
-                if sset.axis and sset.offsets is not None:
-                    pair = rows.pair_scale  # 0 unless every +/- row has one weight, none negative
-            elif sset.offsets is not None:
-                X, xref, mode = sset.offsets, None, MEAN
-            else:
-                X, xref, mode = sset.sigmas, x, MEAN
-            u = wrappers.joint_update(
-                sigmas_h, X, z, Ro, x, mode, rows.Wm, form.scale, form.sign, xref=xref, pair=pair
-            )
-            z_pred = cast(np.ndarray, u.z_pred)
-        _raise_update_status(u.status, form, S, Ro)
-    else:
-        m = z.shape[-1]
-        mo = m if isinstance(cols, slice) else int(np.count_nonzero(cols))
-        batch = sigmas_h.shape[:-2]
-        given: np.ndarray | None = None  # the predicted measurement of the hook or the UT
+    # the measurement's given rows (mode GIVEN): what the hooks or the UT make of the images
+    Sy: np.ndarray | None = None
+    given = z_hooks or UT is not None
+    if given:
         if UT is None:
-            given = weighted_mean(sigmas_h, rows.Wm, z_mean_fn, "z_mean_fn") if z_hooks else None
+            z_pred = weighted_mean(sigmas_h, rows.Wm, z_mean_fn, "z_mean_fn")
         else:
-            given, Sy = UT(sigmas_h, sset.Wm, sset.Wc, R1_2, z_mean_fn, residual_z)
-            given = check_hook_result(given, batch + (m,), "UT")
-            Sy = check_hook_result(Sy, batch + (m, m), "UT")
+            m = z.shape[-1]
+            z_pred, Sy = UT(sigmas_h, sset.Wm, sset.Wc, R1_2, z_mean_fn, residual_z)
+            z_pred = check_hook_result(z_pred, sigmas_h.shape[:-2] + (m,), "UT")
+            Sy = check_hook_result(Sy, sigmas_h.shape[:-2] + (m, m), "UT")
             if not isinstance(cols, slice):  # the factor of the observed block: its rows, by one QR
                 Sy = observed_noise_factor(Sy, cols)
-        if given is None:  # no hook, no UT: the transform kernel forms the mean too
-            z_pred, Sy = transform_factor(sigmas_h, rows, Ro, errno=301)
-            H, zref = sigmas_h, z_pred
+        D, y = _rows_and_innovation(sigmas_h, _present(z, z_pred, cols), z_pred, residual_z)
+        H, z, z_pred = D[..., cols], y[..., cols], z_pred[..., cols]
+        form, mode = rows.mean_form, GIVEN
+    else:
+        H, z_pred = sigmas_h, None
+        form = rows.best
+        mode = CENTRAL if form.central else MEAN
+    n = x.shape[-1]
+    if UT is None and sset.moments_exact and not keeps_prior_factor(residual_x, state_add):
+        # the joint QR: the set's state rows reproduce the prior factor
+        pair = 0.0
+        if given:  # the deviations from the prior mean (the set's exact offsets where known)
+            X, xref = _state_deviations(sset, x), None
+        elif form.central:  # deviations from the central point: the offsets' own differences
+            X, xref = (sset.sigmas if sset.offsets is None else sset.offsets), None
+            if sset.axis and sset.offsets is not None:
+                pair = rows.pair_scale  # 0 unless every +/- row has one weight, none negative
+        elif sset.offsets is not None:
+            X, xref = sset.offsets, None
         else:
-            z_pred = given
-        if given is None or residual_z is None:
-            if given is not None:
-                H, zref = sigmas_h[..., cols], z_pred[..., cols]
-            y = _innovation(_present(z, z_pred, cols), z_pred, residual_z)[..., cols]
-        else:
-            rows_z, y = _rows_and_innovation(sigmas_h, _present(z, z_pred, cols), z_pred, residual_z)
-            H, zref, y = rows_z[..., cols], np.zeros(mo), y[..., cols]
-        z_pred = z_pred[..., cols]
-        if UT is None and z_hooks:  # the hooks' rows, weighed as the transform weighs them
-            Sy = factor_rows(H - zref[..., None, :], rows.mean_form, Ro, errno=301)
-        check_gain(Sy)
-        n = x.shape[-1]
-        if residual_x is None:  # (a state_add's points: their offsets are filterpy's sigmas - x)
-            X, xref = (sset.sigmas, x) if sset.offsets is None else (sset.offsets, np.zeros(n))
-        else:
+            X, xref = sset.sigmas, x
+        u = wrappers.joint_update(
+            H, X, z, Ro, x, mode, rows.Wm, form.scale, form.sign, xref=xref, zref=z_pred, pair=pair
+        )
+    else:  # the downdate form: the prior factor kept, downdated by the gain's columns
+        xkind = state_angles(None, _data(residual_x), _data(state_add), n)
+        if residual_x is not None and not is_data(residual_x):
             X, xref = deviations(sset.sigmas, x, residual_x, "residual_x"), np.zeros(n)
-        u = wrappers.downdate_update(H, zref, X, xref, y, Sy, S, x, rows.Wc)
-        if not downdate:  # a user's UT with an exact set and no residual_x/state_add: the gain form
-            S_gain = _gain_form_posterior(Sy, u.L21, X - xref[..., None, :], H - zref[..., None, :], rows, Ro)
-            if not (all_finite(S_gain) and all_finite(u.x)):
-                raise PosteriorFactorError("the posterior mean or factor is not finite", errno=303)
-            u = u._replace(S=S_gain, status=np.zeros_like(u.status))
-        _raise_update_status(u.status, rows.mean_form, S, Ro)
+        elif residual_x is not None or sset.offsets is None:  # (squkf's residual_x: wrapped in the kernel)
+            X, xref = sset.sigmas, x
+        else:  # (a state_add's points: their offsets are filterpy's sigmas - x)
+            X, xref = sset.offsets, np.zeros(n)
+        u = wrappers.downdate_update(
+            H, X, xref, z, Ro, S, x, mode, rows.Wm, rows.Wc, form.scale, form.sign,
+            zref=z_pred, Sy=Sy, xkind=xkind,
+        )  # fmt: skip
+    _raise_update_status(u.status, form, S, Ro)
     x_post = u.x
-    if state_add is not None:
+    if state_add is not None and not is_data(state_add):
         x_post = _per_filter(state_add, x, u.dx, "state_add")
         if not all_finite(x_post):
             raise PosteriorFactorError("the posterior mean or factor is not finite", errno=303)
-    return Posterior(x_post, u.S, u.y, z_pred, u.Sy, u.L21, u.w, u.log_likelihood, u.nis)
+    return Posterior(x_post, u.S, u.y, u.z_pred, u.Sy, u.L21, u.w, u.log_likelihood, u.nis)
+
+
+def _data(hook: Callable | None) -> Callable | None:
+    """``hook`` if it is squkf's angle hook (done by the kernels), else None."""
+    return hook if is_data(hook) else None
 
 
 def _present(z: np.ndarray, z_pred: np.ndarray, cols: np.ndarray | slice) -> np.ndarray:
@@ -377,18 +370,6 @@ def _per_filter(fn: Callable, a: np.ndarray, b: np.ndarray, hook: str) -> np.nda
     for idx in np.ndindex(out.shape[:-1]):
         out[idx] = call_hook(fn, (a[idx] if a.ndim > 1 else a, b[idx] if b.ndim > 1 else b), (d,), hook)
     return out
-
-
-def _gain_form_posterior(Sy, L21, Dx, Dz, rows: WeightRows, R1_2) -> np.ndarray:
-    """Posterior factor as the QR of ``Dx - Dz K^T`` and ``K R1_2`` (a user's UT, exact set)."""
-    K = gain_from_factors(Sy, L21)
-    return factor_rows(
-        Dx - np.matmul(Dz, np.swapaxes(K, -1, -2)),
-        rows.mean_form,
-        np.matmul(K, R1_2),
-        errno=303,
-        error=PosteriorFactorError,
-    )
 
 
 def _state_deviations(sset: SigmaSet, x: np.ndarray) -> np.ndarray:

@@ -607,15 +607,9 @@ class Chunks:
             on = active[rows] & obs.any(axis=1)
             Rr = R1_2 if R1_2.ndim == 2 else R1_2[rows]
             part = out if k == K else [a[rows] for a in out]
-            # the usual case, one kernel call: the joint route (decided by the route's and the set's
-            # attributes here, its kept rows looked up in posterior), no gate, every component measured
-            if (
-                route.plain_update
-                and s.moments_exact
-                and s.rows is not None
-                and route.gate is None
-                and obs.all()
-            ):
+            # the usual case, one kernel call: a kernel's update route (as update_route decides it, from
+            # the route's and the set's attributes; kept in posterior), no gate, every component measured
+            if route.kernel_update and s.rows is not None and route.gate is None and obs.all():
                 xo, So, y, ll, nis, rejected, w, log_det = part  # written into the step's records
                 kernel_out = (zp, y, w, Sy, L21, dx, xo, So, ll, nis, status, route.no_set)
                 # (the scratch: the angle kernel's rows, for squkf's angle hooks)

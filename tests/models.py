@@ -101,8 +101,38 @@ class Robot:
         return np.array([self.Delta - x[0] * np.cos(self.A) - x[1] * np.sin(self.A), a])
 
 
+def robot_fx_stacked(X, dt, phi_r=0.4, phi_l=0.1):
+    """The robot's ``fx`` at a stack of points ``(..., 3)`` (``X[..., i]``: one filter and a fleet)."""
+    m = G13EJ_MODEL
+    t1 = 0.5 * m["r"] * (phi_r + phi_l)
+    t3 = (m["r"] / m["d"]) * (phi_r - phi_l)
+    heading = X[..., 2]
+    return np.stack([X[..., 0] + np.cos(heading) * t1, X[..., 1] + np.sin(heading) * t1, heading + t3], -1)
+
+
+def robot_hx_stacked(X):
+    """The robot's wall sensor at a stack of points: distance, and the bearing in ``[0, 2 pi)``."""
+    m = G13EJ_MODEL
+    distance = m["Delta"] - X[..., 0] * np.cos(m["A"]) - X[..., 1] * np.sin(m["A"])
+    return np.stack([distance, (X[..., 2] - m["A"]) % (2 * np.pi)], -1)
+
+
+def robot_tune_filter(q_scale=1.0, r=(1.0, 1.0)):
+    """The robot as a tuning template: the example's ``Q`` times ``q_scale``, its ``R``'s variances times
+    ``r``, the bearing's residual wrapped (``AngleResidual([1])``), the model written for stacks."""
+    data = ex.load_data()
+    f = SquareRootUKF(3, 2, 1.0, robot_hx_stacked, robot_fx_stacked, MerweScaledWeights(1.0, 2.0, 0.0),
+                      vectorized=True, residual_z=AngleResidual([1]))  # fmt: skip
+    f.x, f.P1_2 = np.array(data["x0"], dtype=float), np.array(data["st0"], dtype=float)
+    f.Q1_2 = np.sqrt(q_scale) * np.array(data["lx"], dtype=float)
+    ly = np.array(data["ly"], dtype=float)
+    f.R = np.diag(np.asarray(r) * np.diag(ly @ ly.T))
+    return f
+
+
 # the g13ej calling sequence (squkf.nag): the arguments as a dict, a call, the model's images
 G13EJ = ex.load_data()
+G13EJ_MODEL = G13EJ["model"]
 
 
 def first_entry(ropt=None, lx="default"):
@@ -1899,6 +1929,50 @@ class SubclassedMean(AngleMean):
 
 class SubclassedResidual(AngleResidual):
     """squkf's AngleResidual as a user's hook (a subclass): called in Python."""
+
+
+class SubclassedAdd(AngleAdd):
+    """squkf's AngleAdd as a user's hook (a subclass): called in Python."""
+
+
+#: The heading predicted near +pi at the first step and every eighth (its points pass pi): the state's
+#: angle hooks matter.
+RBH_TURNING_X0 = np.array([-100.0, 0.4, np.pi - 0.82, 2.0])
+RBH_TURNING_P0 = np.diag([4.0, 4.0, 0.04, 0.25])
+
+
+def rbh_state_hooks(python: bool = False) -> dict:
+    """The heading's hooks on the state (x[2]) and the bearing's and heading's on z (z[1], z[2]): every
+    hook squkf has; subclasses (called in Python) if ``python``."""
+    if python:
+        mean, residual, add = SubclassedMean, SubclassedResidual, SubclassedAdd
+    else:
+        mean, residual, add = AngleMean, AngleResidual, AngleAdd
+    return {
+        "x_mean_fn": mean([2]), "residual_x": residual([2]), "state_add": add([2]),
+        "z_mean_fn": mean([1, 2]), "residual_z": residual([1, 2]),
+    }  # fmt: skip
+
+
+def rbh_turning(hooks: dict, points=None, **kw) -> SquareRootUKF:
+    """:func:`rbh_single` with the heading near +pi (:data:`RBH_TURNING_X0`)."""
+    f = rbh_single(hooks, points, **kw)
+    f.x, f.P = RBH_TURNING_X0, RBH_TURNING_P0
+    return f
+
+
+def rbh_turning_measurements(T: int, seed: int = 0) -> np.ndarray:
+    """``(T, 3)`` noisy measurements of the track from :data:`RBH_TURNING_X0` (its heading wraps), a
+    range missing at step 2 and nothing at step 3."""
+    rng = np.random.default_rng(seed)
+    x, zs = RBH_TURNING_X0, []
+    for _ in range(T):
+        x = turn_fx_stacked(x, 1.0)
+        zs.append(wrap(range_bearing_heading_hx(x) + rng.normal(size=3) * np.sqrt(np.diag(RBH_R))))
+    zs = np.array(zs)
+    zs[2 % T, 0] = np.nan
+    zs[3 % T] = np.nan
+    return zs
 
 
 def rbh_hooks(which: str = "both", python: bool = False) -> dict:

@@ -23,6 +23,8 @@ from models import (
     RBH_P0,
     RBH_Q,
     RBH_R,
+    RBH_TURNING_P0,
+    RBH_TURNING_X0,
     RBH_X0,
     counting,
     cv_fleet,
@@ -35,6 +37,9 @@ from models import (
     rbh_hooks,
     rbh_measurements,
     rbh_single,
+    rbh_state_hooks,
+    rbh_turning,
+    rbh_turning_measurements,
     rel,
     turn_fx_stacked,
 )
@@ -451,3 +456,153 @@ def test_vectorized_hooks_is_an_option_of_the_fleet_only():
     again = Fleet.from_filters([fleet[0], fleet[1]])
     assert not again.vectorized_hooks and not Fleet.from_template(fleet[0], 3).vectorized_hooks
     assert pickle.loads(pickle.dumps(fleet)).vectorized_hooks and copy.copy(fleet).vectorized_hooks
+
+
+# -- the state's angle hooks as data: the prediction's angle kernel, the downdate kernel's wraps -----
+
+STATE_HOOKS = {"x_mean_fn": AngleMean([1]), "residual_x": AngleResidual([1]), "state_add": AngleAdd([1])}
+
+
+@pytest.fixture
+def no_python_state_hooks(monkeypatch):
+    """squkf's hooks, the state's too, refuse to be called: the route must not call them."""
+
+    def refuse(self, *args):
+        raise AssertionError(f"{self!r} called in Python")
+
+    for cls in (AngleMean, AngleResidual, AngleAdd):
+        monkeypatch.setattr(cls, "__call__", refuse)
+
+
+def test_the_states_angle_hooks_are_done_by_the_kernels(no_python_state_hooks, monkeypatch):
+    """Every hook squkf has, on both faces: no Python call; an update is the angle kernel and the
+    downdate kernel, a prediction the angle kernel and the transform kernel (and the points drawn)."""
+    calls = []
+    real = table.KERNELS
+
+    def counted(name, kernel):
+        def call(*args):
+            calls.append(name)
+            return kernel(*args)
+
+        return call
+
+    monkeypatch.setattr(
+        table, "KERNELS", table.KernelTable(*(counted(n, k) for n, k in zip(real._fields, real)))
+    )
+    zs = rbh_turning_measurements(5)
+    f = rbh_turning(rbh_state_hooks())
+    fleet, _ = rbh_fleet_and_singles(3, rbh_state_hooks())
+    for z in zs:
+        _step(f, z)
+        fleet.predict()
+        fleet.update(np.where(np.isnan(z), np.nan, z)[None].repeat(3, axis=0))
+    assert not fleet.failed.any()
+    calls.clear()
+    f.predict()
+    assert calls == ["points", "angle_rows", "transform", "points"]  # (the first set, the prior, the second)
+    calls.clear()
+    f.update(zs[0])
+    assert calls == ["angle_rows", "downdate_update"]
+
+
+@pytest.mark.parametrize(("family", "scheme"), SCHEMES)
+def test_the_states_angle_hooks_are_the_python_hooks_route_to_rounding(family, scheme):
+    """Every record of 8 steps of a heading that wraps (a missing range, no measurement) to rounding."""
+    zs = rbh_turning_measurements(8)
+    data = rbh_turning(rbh_state_hooks(), FAMILIES[family](), scheme=scheme)
+    python = rbh_turning(rbh_state_hooks(python=True), FAMILIES[family](), scheme=scheme)
+    wrapped = 0
+    for t, z in enumerate(zs):
+        for f in (data, python):
+            f.predict()
+        wrapped += np.ptp(data.sigmas_f[:, 2]) > np.pi
+        failed = []
+        for f in (data, python):
+            try:
+                f.update(None if np.isnan(z).all() else z)
+                failed.append(None)
+            except SqukfError as exc:
+                failed.append((type(exc), exc.errno))
+        assert failed[0] == failed[1], t
+        if failed[0]:
+            return
+        for name, value in _records(python).items():
+            got = _records(data)[name]
+            ok = ~np.isnan(value)
+            assert rel(np.asarray(got)[ok], np.asarray(value)[ok]) <= ROUNDING, f"{name} at step {t}"
+    assert wrapped  # the points' headings passed pi: the hooks mattered
+
+
+def test_the_states_angle_hooks_are_filterpys_ukf():
+    """filterpy's UKF with the same hooks (its points drawn with ``subtract=residual_x``, as AngleAdd
+    adds): x and P to 1e-8."""
+    zs = rbh_turning_measurements(10, seed=5)
+    zs = zs[~np.isnan(zs).any(axis=1)]
+    hooks = rbh_state_hooks()
+    sq = rbh_turning(hooks, MerweScaledWeights(alpha=0.5, beta=2.0, kappa=0.0))
+    fp = UnscentedKalmanFilter(
+        4, 3, 1.0, range_bearing_heading_hx, turn_fx_stacked,
+        MerweScaledSigmaPoints(4, 0.5, 2.0, 0.0, subtract=AngleResidual([2])), **hooks,
+    )  # fmt: skip
+    fp.x, fp.P, fp.Q, fp.R = RBH_TURNING_X0.copy(), RBH_TURNING_P0.copy(), RBH_Q, RBH_R
+    wrapped = 0
+    for z in zs:
+        for f in (sq, fp):
+            f.predict()
+        wrapped += np.ptp(fp.sigmas_f[:, 2]) > np.pi
+        for f in (sq, fp):
+            f.update(z)
+        assert rel(sq.x, fp.x) <= 1e-8 and rel(sq.P, fp.P) <= 1e-8
+        assert abs(sq.log_likelihood - fp.log_likelihood) <= 1e-8 * abs(fp.log_likelihood)
+    assert wrapped  # the points' headings passed pi
+
+
+@pytest.mark.parametrize("hooks", ["state", "both"])
+@pytest.mark.parametrize("gate", [None, 0.9])
+def test_a_fleet_with_the_states_angle_hooks_is_its_single_filters_bit_for_bit(gate, hooks):
+    """Plain arithmetic models (state component 1 taken as an angle), missing components, a gate."""
+    from squkf import SquareRootUKF
+
+    chosen = STATE_HOOKS if hooks == "state" else {**STATE_HOOKS, **PLAIN_HOOKS}
+    K = 7
+    fleet, zs = _plain_fleet(K, gate=gate, **chosen)
+    x0, P0, Q, R, _ = plain_scenario(K, T=5, seed=2)
+    singles = []
+    for k in range(K):
+        f = SquareRootUKF(4, 2, 0.1, plain_hx, plain_fx, MerweScaledWeights(0.5), vectorized=True, gate=gate,
+                          **chosen)  # fmt: skip
+        f.x, f.P, f.Q, f.R = x0[k], P0[k], Q, R[k]
+        singles.append(f)
+    for z in zs:
+        fleet.predict()
+        fleet.update(z)
+        for k, f in enumerate(singles):
+            _step(f, z[k])
+            np.testing.assert_array_equal(fleet.x[k], f.x)
+            np.testing.assert_array_equal(fleet.P[k], f.P)
+            if not np.isnan(z[k]).all():
+                assert fleet.log_likelihood[k] == f.log_likelihood
+    assert not fleet.failed.any()
+
+
+def test_a_fleet_with_the_states_angle_hooks_does_not_depend_on_chunks_or_threads(monkeypatch):
+    K = 23
+    hooks = {**STATE_HOOKS, **PLAIN_HOOKS}
+    reference, zs = _plain_fleet(K, **hooks)
+    for z in zs:
+        reference.predict()
+        reference.update(z)
+    monkeypatch.setattr(kernel_threads, "usable_cores", lambda: 2)
+    for chunk, threads in ((1, 1), (2, 2), (5, 1), (5, 2), (K, 1), (K, 2)):
+        fleet, _ = _plain_fleet(K, chunk=chunk, **hooks)
+        kernel_threads.set_num_threads(threads)
+        try:
+            for z in zs:
+                fleet.predict()
+                fleet.update(z)
+        finally:
+            kernel_threads.set_num_threads(1)
+        np.testing.assert_array_equal(fleet.x, reference.x, err_msg=f"chunk {chunk}, {threads} threads")
+        np.testing.assert_array_equal(fleet.P, reference.P, err_msg=f"chunk {chunk}, {threads} threads")
+        np.testing.assert_array_equal(fleet.log_likelihood, reference.log_likelihood)

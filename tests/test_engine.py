@@ -436,6 +436,10 @@ class _VaryingWeights:
         return SigmaSet(x + weights.unit_sigma_points(n) @ S.T, *weights.weights(n), moments_exact=True)
 
 
+class _PythonResidual(AngleResidual):
+    """A user's residual_x (a subclass: called in Python, not data)."""
+
+
 @pytest.mark.parametrize(
     "hooks, downdate",
     [
@@ -445,20 +449,26 @@ class _VaryingWeights:
         (Hooks(residual_x=AngleResidual([2])), True),
         (Hooks(state_add=AngleAdd([2])), True),
         (ANGLES, True),
+        (Hooks(residual_x=_PythonResidual([2])), True),
     ],
 )
 def test_the_downdate_form_is_decided_with_the_route(hooks, downdate):
     """A residual_x or state_add: the route's updates keep the prior factor (the downdate form, never
-    the joint QR), decided once from the hooks; a rewritten set takes that form on any route."""
+    the joint QR), decided once from the hooks; a rewritten set takes that form on any route. squkf's
+    angle hooks are data (a kernel route, joint or downdate); a Python hook takes the general route."""
     plan = build_plan(MerweScaledWeights(alpha=0.5), Redrawn(), 4)
     route = Route(plan, hooks, None, single=False)
     assert route.downdate is downdate
     sset = route.second_set(TURN.x0, TURN.S0, None, None)
-    joint = route.update_route(sset, None)
-    z_angles = hooks.z_mean_fn is not None and hooks.x_mean_fn is None and not downdate
-    assert (joint is None) is (hooks != Hooks() and not z_angles)  # squkf's angle hooks on z: data
-    assert joint is None or joint.angles is z_angles
-    assert route.update_route(sset.rewritten(sset.sigmas.copy()), None) is None
+    kernel_route = route.update_route(sset, None)
+    python = type(hooks.residual_x) is _PythonResidual
+    assert (kernel_route is None) is python
+    z_angles = hooks.z_mean_fn is not None
+    if not python:
+        assert kernel_route.downdate is downdate and kernel_route.angles is z_angles
+    rewritten = route.update_route(sset.rewritten(sset.sigmas.copy()), None)
+    assert rewritten is None if python else rewritten.downdate
+    assert route.update_route(sset, sqrt_unscented_transform) is None  # a user's UT: the general route
 
 
 @pytest.mark.parametrize("gate", [None, Gate(0.9999)])

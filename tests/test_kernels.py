@@ -25,12 +25,16 @@ from models import plain_fx, plain_hx, plain_scenario
 
 import squkf.stacks
 from squkf import Fleet, JulierWeights, MerweScaledWeights, SquareRootUKF
-from squkf.angles import AngleMean, AngleResidual
+from squkf.angles import AngleAdd, AngleMean, AngleResidual
 from squkf.kernels import phases, wrappers
 from squkf.kernels import threads as kernel_threads
 from squkf.linalg import chol_update
 
 ENTRY_KERNELS = [name for name in phases.__all__ if name.endswith("_kernel")]
+
+
+class _UserResidual(AngleResidual):
+    """A user's residual_x (a subclass of squkf's: called in Python, per filter and point)."""
 
 
 CONFIGS = {
@@ -45,6 +49,15 @@ CONFIGS = {
     "julier-augmented-angle-residual": dict(
         points=JulierWeights(1.0), scheme="augmented", residual_z=AngleResidual([1])
     ),
+    # squkf's angle hooks on the state: the angle kernel's prior, the downdate kernel's wrapped rows and sum
+    "merwe-state-angle-hooks": dict(
+        points=MerweScaledWeights(0.5, 2.0, 0.0),
+        x_mean_fn=AngleMean([1]),
+        residual_x=AngleResidual([1]),
+        state_add=AngleAdd([1]),
+    ),
+    # a user's hook: called in Python, its rows handed to the downdate kernel
+    "merwe-python-residual-x": dict(points=MerweScaledWeights(1.0, 2.0, 0.0), residual_x=_UserResidual([1])),
 }
 
 
@@ -80,7 +93,9 @@ def test_a_fleet_filter_equals_its_single_filter_bit_for_bit(name):
                 assert f.log_likelihood == ll[k], f"filter {k}, step {t}"
 
 
-@pytest.mark.parametrize("name", ["merwe", "merwe-propagated", "merwe-angle-hooks"])
+@pytest.mark.parametrize(
+    "name", ["merwe", "merwe-propagated", "merwe-angle-hooks", "merwe-state-angle-hooks"]
+)
 def test_results_do_not_depend_on_chunk_block_size_or_thread_count(monkeypatch, name):
     """Chunks of the fleet's step (squkf.stacks), blocks of the isolation, threads: the same bits."""
     K = 300

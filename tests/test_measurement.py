@@ -145,3 +145,43 @@ def test_a_rewritten_set_takes_the_downdate_form():
     # the array form on the written rows is another posterior: the downdate form is what was taken
     joint = measurement_update(x, S, drawn._replace(sigmas=written.sigmas, offsets=None), H, z, R1_2)
     assert np.abs(joint.S @ joint.S.T - P_ref).max() > 1e-3
+
+
+#: A user's UT with a set that reproduces the prior takes the downdate form (filterpy's ``P - K S K^T``
+#: with the UT's ``S``); it took the gain form before (the QR of ``Dx - Dz K^T`` and ``K R1_2``, the same
+#: posterior in exact arithmetic when the UT's ``S`` is the images'). Measured over 300 random updates of
+#: this test's kind (n <= 6, m <= 4, alpha down to 0.01): x, y, Sy and the likelihood the same bits, P
+#: at most 7.1e-14 relative. 1e-11 leaves a margin far below a real difference.
+UT_ROUNDING = 1e-11
+
+
+def gain_form_update(x, sset, H, z, R1_2):
+    """The gain form a user's UT took before (Joseph-like), in covariance form: ``sum Wc (Dx - Dz K^T)
+    (Dx - Dz K^T)^T + K R K^T``, the UT being :func:`sqrt_unscented_transform`."""
+    zp, Sy = sqrt_unscented_transform(H, sset.Wm, sset.Wc, R1_2)
+    Dz, Dx = H - zp, sset.sigmas - x
+    K = np.linalg.solve(Sy @ Sy.T, ((Dx.T * sset.Wc) @ Dz).T).T
+    E = Dx - Dz @ K.T
+    return x + K @ (z - zp), (E.T * sset.Wc) @ E + K @ R1_2 @ R1_2.T @ K.T
+
+
+@settings(max_examples=60, deadline=None)
+@given(n=st.integers(1, 6), m=st.integers(1, 4), alpha=st.floats(0.01, 1.0), seed=st.integers(0, 2**16))
+def test_a_users_UT_takes_the_downdate_form_the_gain_forms_posterior_to_rounding(n, m, alpha, seed):
+    rng = np.random.default_rng(seed)
+    A = rng.standard_normal((n, n))
+    S = np.linalg.cholesky(A @ A.T / n + 0.5 * np.eye(n))
+    x = rng.standard_normal(n)
+    B = rng.standard_normal((m, n))
+    R1_2 = np.linalg.cholesky(np.eye(m) * 0.3 + 0.1 * np.ones((m, m)))
+    sset = Redrawn().second_set(x, S, family=MerweScaledWeights(alpha, 2.0, 0.0))
+    H = np.tanh(sset.sigmas @ B.T)
+    z = rng.standard_normal(m)
+    post = measurement_update(x, S, sset, H, z, R1_2, UT=sqrt_unscented_transform)
+    x_ref, P_ref = gain_form_update(x, sset, H, z, R1_2)
+    P = post.S @ post.S.T
+    assert np.abs(P - P_ref).max() <= UT_ROUNDING * np.abs(P_ref).max()
+    assert np.abs(post.x - x_ref).max() <= UT_ROUNDING * max(1.0, np.abs(x_ref).max())
+    # ... and it is filterpy's formula with the UT's S: P_prior - K S K^T
+    K = post.gain()
+    np.testing.assert_allclose(P, S @ S.T - K @ post.Sy @ post.Sy.T @ K.T, rtol=0, atol=1e-12)

@@ -1081,62 +1081,146 @@ def _finish(L, i0, n, xl, dxl, st, k0, nb, dx, xpost):
 
 
 @kernel
-def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpost, Spost, ll, ww, status):
-    """g13ej's measurement update for a set whose covariance is not the prior's.
+def downdate_update_kernel(
+    H,
+    zref,
+    X,
+    xref,
+    z,
+    R1_2,
+    Syin,
+    S,
+    x,
+    mode,
+    wm,
+    wc,
+    scale,
+    sign,
+    xkind,
+    zp,
+    y,
+    w,
+    Sy,
+    L21,
+    dx,
+    xpost,
+    Spost,
+    ll,
+    ww,
+    status,
+):
+    """g13ej's measurement update for a set whose covariance need not be the prior's (the downdate form).
 
-    ``Pxy = sum_i wc[i] (X_i - xref)(H_i - zref)^T``, ``L21 = Pxy Sy^-T``,
+    The innovation factor ``Sy`` from the rows of the images (form ``mode``, as
+    :func:`transform_kernel` forms them, with ``R1_2``; or given, ``Syin``),
+    ``Pxy = sum_i wc[i] (X_i - xref)(H_i - zp)^T``, ``L21 = Pxy Sy^-T``,
     ``w = Sy^-1 y``, ``xpost = x + L21 w``, and the posterior factor is the
-    prior's ``S`` downdated by each column of ``L21``.
+    prior's ``S`` downdated by each column of ``L21``: filterpy's
+    ``P - K Sy Sy^T K^T`` whatever the set's rows.
+
+    squkf's state angle hooks as data (``xkind``, per state component): bit 2 wraps the state
+    deviation ``X_i - xref`` (``residual_x=AngleResidual``), bit 4 the posterior mean ``x + dx``
+    (``state_add=AngleAdd``), as :func:`squkf.angles.wrap` (the same bits).
 
     Parameters
     ----------
     H : ndarray, shape (B, N, m)
+        The second set's images (modes 0, 1) or their rows ``H_i - zp`` (mode 2).
     zref : ndarray, shape (B or 1, m)
+        The predicted measurement for mode 2.
     X : ndarray, shape (B, N, n)
+        The second set, or its offsets (``xref`` zero), or its deviations.
     xref : ndarray, shape (B or 1, n)
-    yin : ndarray, shape (B, m)
-        The innovation.
-    Sy : ndarray, shape (B, m, m)
-        The innovation factor.
+    z : ndarray, shape (B, m)
+        The measurement (modes 0, 1) or the innovation itself (mode 2).
+    R1_2 : ndarray, shape (B or 1, m, m)
+        The measurement noise's lower factor (not read when ``Syin`` is given).
+    Syin : ndarray, shape (B, m, m), or (0, m, m)
+        The innovation factor given (a user's ``UT``); with no rows, formed here.
     S : ndarray, shape (B, n, n)
         The prior factor.
     x : ndarray, shape (B or 1, n)
-    wc : ndarray, shape (N,)
+    mode : int
+    wm, wc, scale, sign : ndarray, shape (N,)
+        Mean and covariance weights, and the rows' scales and signs of ``Sy``'s form.
+    xkind : ndarray of int64, shape (n,)
+    zp, y, w : ndarray, shape (B, m)
+    Sy : ndarray, shape (B, m, m)
     L21 : ndarray, shape (B, n, m)
-    w : ndarray, shape (B, m)
     dx, xpost : ndarray, shape (B, n)
     Spost : ndarray, shape (B, n, n)
     ll, ww : ndarray, shape (B,)
     status : ndarray of int64, shape (B,)
-        Outputs.
+        Outputs, as :func:`joint_update_kernel`'s (306 when ``H[k]`` is not finite; 301 when a
+        negative row's downdate of ``Sy`` failed).
     """
     B, N, m = H.shape
     n = X.shape[2]
-    nl = _lanes(max(n, m) * max(N, n, m), B)
+    given = Syin.shape[0] == B
+    npos = 0
+    for r in range(N):
+        if sign[r] > 0.0:
+            npos += 1
+    rows = npos + m
+    nl = _lanes(max(n, m) * max(N, n, m, rows), B)
     Hl = np.empty((N, m, nl))
+    Dz = np.empty((N, m, nl)) if mode != 2 else Hl
+    none = np.empty((N, 0, nl))
     Xl = np.empty((N, n, nl))
+    At = np.empty((m, max(rows, m), nl))
     Syl = np.empty((m, m, nl))
     Sl = np.empty((n, n, nl))
     Ll = np.empty((n, m, nl))
-    zr = np.empty((m, nl))
+    zl = np.empty((m, nl))
     xr = np.empty((n, nl))
     xl = np.empty((n, nl))
     t = np.empty((max(n, m), nl))
     wl = np.empty((m, nl))
     yl = np.empty((m, nl))
-    V = np.empty((3, nl))
+    V = np.empty((6, nl))
     fl = np.empty(nl, dtype=np.int64)
     st = np.empty(nl, dtype=np.int64)
+    fin = np.empty(nl)
     for k0 in range(0, B, nl):
         nb = min(nl, B - k0)
         _load_matrix(H, k0, nb, Hl)
+        _finite_lanes(Hl, N, m, nb, fin)
+        if mode != 2:
+            _load_matrix(H, k0, nb, Dz)
+        else:
+            _load_vector(zref, k0, nb, zl)
+        _deviations(Hl, N, m, nb, mode, wm, zl)
+        if given:
+            _load_matrix(Syin, k0, nb, Syl)
+            for b in range(nb):
+                st[b] = 0
+        else:  # the rows' factor with the noise, as the transform kernel forms it
+            _weighted_rows(Hl, none, N, nb, mode, scale, sign, R1_2, k0, At)
+            tria_lanes(At, m, rows, nb, V)
+            _downdated_rows(Hl, none, N, nb, mode, scale, sign, _unfold(0), At, V, t, fl, st)
+            for b in range(nb):
+                st[b] = 301 if st[b] != 0 else 0
+            for i in range(m):
+                for j in range(m):
+                    for b in range(nb):
+                        Syl[i, j, b] = At[i, j, b] if j <= i else 0.0
+        if mode != 2:  # the images' deviations from the predicted measurement
+            for i in range(N):
+                for j in range(m):
+                    for b in range(nb):
+                        Dz[i, j, b] = Dz[i, j, b] - zl[j, b]
         _load_matrix(X, k0, nb, Xl)
-        _load_vector(zref, k0, nb, zr)
         _load_vector(xref, k0, nb, xr)
-        _load_matrix(Sy, k0, nb, Syl)
+        for l in range(n):  # the state deviations, wrapped where residual_x wraps
+            if xkind[l] & 2:
+                for i in range(N):
+                    for b in range(nb):
+                        Xl[i, l, b] = (Xl[i, l, b] - xr[l, b] + _PI) % _TWO_PI - _PI
+            else:
+                for i in range(N):
+                    for b in range(nb):
+                        Xl[i, l, b] = Xl[i, l, b] - xr[l, b]
         _load_matrix(S, k0, nb, Sl)
-        for b in range(nb):
-            st[b] = 0
         for l in range(n):  # row l of L21 = Sy^-1 (row l of Pxy)
             for j in range(m):
                 for b in range(nb):
@@ -1144,12 +1228,16 @@ def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpos
                 for i in range(N):
                     c = wc[i]
                     for b in range(nb):
-                        t[j, b] += c * (Xl[i, l, b] - xr[l, b]) * (Hl[i, j, b] - zr[j, b])
+                        t[j, b] += c * Xl[i, l, b] * Dz[i, j, b]
             solve_lower_lanes(Syl, t, m, nb, _unfold(0))
             for j in range(m):
                 for b in range(nb):
                     Ll[l, j, b] = t[j, b]
-        _load_vector(yin, k0, nb, yl)
+        _load_vector(z, k0, nb, yl)
+        if mode != 2:
+            for l in range(m):
+                for b in range(nb):
+                    yl[l, b] -= zl[l, b]
         _innovation(Syl, Ll, _unfold(0), yl, wl, xr, m, n, k0, nb, st, ll, ww)
         _load_vector(x, k0, nb, xl)
         for b in range(nb):
@@ -1163,13 +1251,19 @@ def downdate_update_kernel(H, zref, X, xref, yin, Sy, S, x, wc, L21, w, dx, xpos
             st[b] = 303 if (fl[b] >= 0 and st[b] == 0) else st[b]
         _finish(Sl, _unfold(0), n, xl, xr, st, k0, nb, dx, xpost)
         for b in range(nb):
-            status[k0 + b] = st[b]
-            wk, Lk = w[k0 + b], L21[k0 + b]
+            status[k0 + b] = st[b] if fin[b] == 0.0 else 306
+            zk, yk, wk, Lk, xk = zp[k0 + b], y[k0 + b], w[k0 + b], L21[k0 + b], xpost[k0 + b]
+            for l in range(n):  # x + dx, wrapped where state_add wraps
+                if xkind[l] & 4:
+                    xk[l] = (xk[l] + _PI) % _TWO_PI - _PI
             for j in range(m):
+                zk[j] = zl[j, b]
+                yk[j] = yl[j, b]
                 wk[j] = wl[j, b]
             for l in range(n):
                 for j in range(m):
                     Lk[l, j] = Ll[l, j, b]
+        _store_lower(Syl, _unfold(0), m, k0, nb, Sy)
         _store_lower(Sl, _unfold(0), n, k0, nb, Spost)
 
 
@@ -1191,8 +1285,9 @@ def angle_rows_kernel(H, z, wm, ref, kind, zp, D, y):
     ----------
     H : ndarray, shape (B, N, m)
         The second set's images.
-    z : ndarray, shape (B, m)
-        The measurement.
+    z : ndarray, shape (B, m), or (0, m)
+        The measurement; with no rows, no innovation is formed (``y`` not written: a prediction's
+        images, ``x_mean_fn=AngleMean``, ``residual_x=AngleResidual``).
     wm : ndarray, shape (N,)
         Mean weights.
     ref : int
@@ -1204,8 +1299,10 @@ def angle_rows_kernel(H, z, wm, ref, kind, zp, D, y):
         Outputs.
     """
     B, N, m = H.shape
+    innovation = z.shape[0] == B
     for k in range(B):
-        Hk, zk, pk, Dk, yk = H[k], z[k], zp[k], D[k], y[k]
+        Hk, pk, Dk = H[k], zp[k], D[k]
+        zk, yk = (z[k], y[k]) if innovation else (zp[k], zp[k])  # (no measurement: no innovation)
         for l in range(m):
             code = kind[l]
             if code & 1:
@@ -1224,8 +1321,10 @@ def angle_rows_kernel(H, z, wm, ref, kind, zp, D, y):
             if code & 2:
                 for i in range(N):
                     Dk[i, l] = (Hk[i, l] - mean + _PI) % _TWO_PI - _PI
-                yk[l] = (zk[l] - mean + _PI) % _TWO_PI - _PI
+                if innovation:
+                    yk[l] = (zk[l] - mean + _PI) % _TWO_PI - _PI
             else:
                 for i in range(N):
                     Dk[i, l] = Hk[i, l] - mean
-                yk[l] = zk[l] - mean
+                if innovation:
+                    yk[l] = zk[l] - mean

@@ -31,6 +31,8 @@ __all__ = [
     "KERNELS",
     "KernelTable",
     "kernel_array",
+    "no_angles",
+    "no_factor",
     "no_noise",
     "no_points",
     "no_set",
@@ -40,8 +42,10 @@ __all__ = [
 
 #: Row forms (:mod:`squkf.kernels.phases`).
 CENTRAL, MEAN, GIVEN = 0, 1, 2
-#: What :func:`phases.angle_rows_kernel` does with a component (bits): a circular mean, a wrapped residual.
-CIRCULAR_MEAN, WRAPPED = 1, 2
+#: What the kernels do with an angle component (bits): a circular mean, a wrapped residual
+#: (:func:`phases.angle_rows_kernel`, and the state's in :func:`phases.downdate_update_kernel`), a wrapped
+#: sum ``x + dx`` (the posterior mean, :func:`phases.downdate_update_kernel`).
+CIRCULAR_MEAN, WRAPPED, WRAPPED_ADD = 1, 2, 4
 
 
 class KernelTable(NamedTuple):
@@ -120,6 +124,25 @@ def no_set(d: int) -> np.ndarray:
 
 
 _NO_NOISE: dict[int, np.ndarray] = {}
+_NO_FACTOR: dict[int, np.ndarray] = {}
+_NO_ANGLES: dict[int, np.ndarray] = {}
+
+
+def no_factor(d: int) -> np.ndarray:
+    """No factor given, shape ``(0, d, d)``: the update kernel forms the innovation factor itself."""
+    a = _NO_FACTOR.get(d)
+    if a is None:
+        a = _NO_FACTOR[d] = np.empty((0, d, d))
+    return a
+
+
+def no_angles(d: int) -> np.ndarray:
+    """No angle component, shape ``(d,)`` of int64 zeros, read-only (a plan's array)."""
+    a = _NO_ANGLES.get(d)
+    if a is None:
+        a = _NO_ANGLES[d] = np.zeros(d, dtype=np.int64)
+        a.setflags(write=False)
+    return a
 
 
 def no_noise(d: int) -> np.ndarray:

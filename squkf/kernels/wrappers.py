@@ -22,7 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import table
-from .table import kernel_array, no_noise, no_points, no_set, plan_array, zeros_row
+from .table import kernel_array, no_angles, no_factor, no_noise, no_points, no_set, plan_array, zeros_row
 from .threads import split_call
 
 __all__ = [
@@ -273,7 +273,7 @@ class JointUpdate(NamedTuple):
     Attributes
     ----------
     z_pred, y, w : ndarray, shape (..., m)
-        Predicted measurement (None from :func:`downdate_update`), innovation, ``Sy^-1 y``.
+        Predicted measurement, innovation, ``Sy^-1 y``.
     Sy : ndarray, shape (..., m, m)
     L21 : ndarray, shape (..., n, m)
     dx, x : ndarray, shape (..., n)
@@ -283,10 +283,11 @@ class JointUpdate(NamedTuple):
     log_likelihood, nis : ndarray, shape (...)
         The measurement's Gaussian log-likelihood and its squared Mahalanobis distance ``w.w``.
     status : ndarray of int, shape (...)
-        0, or g13ej's 301, 302, 303.
+        0, or g13ej's 301, 302, 303 (304: a zero on the posterior factor's diagonal; 306: images
+        not finite).
     """
 
-    z_pred: np.ndarray | None
+    z_pred: np.ndarray
     y: np.ndarray
     w: np.ndarray
     Sy: np.ndarray
@@ -374,66 +375,78 @@ def joint_update(
 
 def downdate_update(
     H: np.ndarray,
-    z_pred: np.ndarray,
     X: np.ndarray,
     xref: np.ndarray,
-    y: np.ndarray,
-    Sy: np.ndarray,
+    z: np.ndarray,
+    R1_2: np.ndarray,
     S: np.ndarray,
     x: np.ndarray,
+    mode: int,
+    wm: np.ndarray,
     wc: np.ndarray,
+    scale: np.ndarray,
+    sign: np.ndarray,
+    zref: np.ndarray | None = None,
+    Sy: np.ndarray | None = None,
+    xkind: np.ndarray | None = None,
 ) -> JointUpdate:
-    """g13ej's update for a set whose covariance is not the prior's (:func:`phases.downdate_update_kernel`).
+    """g13ej's update in the downdate form (:func:`phases.downdate_update_kernel`).
 
     Parameters
     ----------
     H : ndarray, shape (..., N, m)
-    z_pred : ndarray, shape (..., m)
-        The reference of ``H`` (the predicted measurement; zero for given deviations).
+        The images (``CENTRAL``, ``MEAN``) or their rows (``GIVEN``).
     X : ndarray, shape (..., N, n)
     xref : ndarray, shape (..., n)
-    y : ndarray, shape (..., m)
-    Sy : ndarray, shape (..., m, m)
+        The reference of ``X`` (zero for offsets or deviations).
+    z : ndarray, shape (..., m)
+        The measurement, or for ``GIVEN`` the innovation.
+    R1_2 : ndarray, shape (..., m, m)
     S : ndarray, shape (..., n, n)
+        The prior factor.
     x : ndarray, shape (..., n)
-    wc : ndarray, shape (N,)
+        The prior mean.
+    mode : int
+    wm, wc, scale, sign : ndarray, shape (N,)
+    zref : ndarray, shape (..., m), optional
+        The predicted measurement for ``GIVEN``.
+    Sy : ndarray, shape (..., m, m), optional
+        The innovation factor given (a user's ``UT``); default: formed from the rows and ``R1_2``.
+    xkind : ndarray of int64, shape (n,), optional
+        The state's angle components (:data:`squkf.kernels.table.WRAPPED`,
+        :data:`squkf.kernels.table.WRAPPED_ADD`); default none.
 
     Returns
     -------
     JointUpdate
-        With ``z_pred`` None.
     """
-    batch = _batch((H, 2), (z_pred, 1), (X, 2), (xref, 1), (y, 1), (Sy, 2), (S, 2), (x, 1))
+    batch = _batch((H, 2), (X, 2), (xref, 1), (z, 1), (R1_2, 2), (S, 2), (x, 1), (zref, 1), (Sy, 2))
     N, m = H.shape[-2:]
     n = X.shape[-1]
     Hs = _stack(H, batch, 2)
     B = Hs.shape[0]
-    L21, w = np.empty((B, n, m)), np.empty((B, m))
-    dx, xp, Sp, status = np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B, dtype=np.int64)
-    ll, ww = np.empty(B), np.empty(B)
-    ys = _stack(y, batch, 1)
-    Sys = _stack(Sy, batch, 2)
+    out: list[np.ndarray] = [np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m))]
+    out += [np.empty((B, n, m)), np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n))]
+    out += [np.empty(B), np.empty(B), np.empty(B, dtype=np.int64)]
     split_call(
         table.KERNELS.downdate_update,
         B,
         Hs,
-        _shared(z_pred, batch, 1),
+        zeros_row(m) if zref is None else _shared(zref, batch, 1),
         _stack(X, batch, 2),
         _shared(xref, batch, 1),
-        ys,
-        Sys,
+        _stack(z, batch, 1),
+        _shared(R1_2, batch, 2),
+        no_factor(m) if Sy is None else _stack(Sy, batch, 2),
         _stack(S, batch, 2),
         _shared(x, batch, 1),
+        mode,
+        plan_array(wm),
         plan_array(wc),
-        L21,
-        w,
-        dx,
-        xp,
-        Sp,
-        ll,
-        ww,
-        status,
-        plan=(8,),
+        plan_array(scale),
+        plan_array(sign),
+        no_angles(n) if xkind is None else xkind,
+        *out,
+        plan=(9, 10, 11, 12, 13, 14),
     )
-    out = (ys, w, Sys, L21, dx, xp, Sp, ll, ww, status)
-    return JointUpdate(None, *(_unstack(a, batch) for a in out))
+    return JointUpdate(*(_unstack(a, batch) for a in out))
