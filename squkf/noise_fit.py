@@ -60,6 +60,8 @@ C_MARGIN = 16.0
 RESTART_MARGIN = 16.0
 #: restarts of the least-squares solver before it stops where it is
 MAX_RESTARTS = 8
+#: iterations of the batched Levenberg-Marquardt before a problem it has not solved goes to Newton's method
+LM_ITERATIONS = 50
 #: the step of the Hessian's differences (its rounding error in f, about 1e-9, over h**2 stays small)
 HESSIAN_STEP = 1e-3
 #: an eigenvalue of the information below this times the largest is a direction the data do not fix
@@ -529,7 +531,15 @@ def _fit_each(
     f0 = objective(np.tile(theta0, (B, 1)), own)
     if not np.any(np.isfinite(f0)):
         raise all_failed({b: "failed at the start" for b in range(B)}, "recording")
-    thetas, success = _batched_least_squares(objective, theta0, B, lo_hi, maxiter)
+    thetas, success = _batched_least_squares(objective, theta0, B, lo_hi, min(maxiter, LM_ITERATIONS))
+    left = np.flatnonzero(~success)
+    if (
+        left.size
+    ):  # where the model did not lead to an optimum: Newton's method from the start, the better kept
+        again, done = _batched_newton(objective, np.tile(theta0, (left.size, 1)), left, lo_hi, maxiter)
+        f = objective(np.vstack([thetas[left], again]), np.concatenate([left, left]))
+        better = f[left.size :] < f[: left.size]
+        thetas[left[better]], success[left[better]] = again[better], done[better]
     Hs = _hessians(objective, thetas)
     loglik = objective.loglik(thetas, own)
     t0 = objective.loglik(np.tile(theta0, (B, 1)), own) if objective.prior is not None else -f0
@@ -768,7 +778,7 @@ def _batched_least_squares(objective: _Objective, theta0: np.ndarray, B: int, lo
     model = [(np.eye(p), np.zeros(p))] * B  # the Hessian's model and the gradient at each theta
     last: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = [None] * B  # theta, J, r at the last point
     second = np.zeros((B, p, p))  # the structured secant part: the residuals' own curvature
-    for it in range(maxiter + 1):
+    for _ in range(maxiter + 1):
         active = np.flatnonzero(~done)
         if active.size == 0:
             break
@@ -785,20 +795,18 @@ def _batched_least_squares(objective: _Objective, theta0: np.ndarray, B: int, lo
                     done[b] = True  # no step lowers it: it stays where it is
                     continue
             else:
-                gain, moved = f_now[b] - f_trial, float(np.max(np.abs(trials[b] - thetas[b])))
                 thetas[b], f_now[b] = trials[b], f_trial
                 damping[b] = max(damping[b] / 3, 1e-9)
-                if it > 0 and (gain <= 1e-9 * (1 + abs(f_trial)) or moved < 1e-7):
-                    done[b] = success[b] = True
-                    continue
                 finite = np.all(np.isfinite(ld), axis=1)
                 lowest = float(np.min(ld[finite]))
                 if math.isnan(c[b]) or 2.0 * lowest + c[b] < 0.0:
                     c[b] = -2.0 * lowest + C_MARGIN
                 with np.errstate(invalid="ignore"):
                     R = np.concatenate([w, np.sqrt(2.0 * ld + c[b]), prior], axis=1)
-                J = (R[1:] - R[0]) / h  # (p, r): a step that failed gives its axis no slope
-                J[~np.all(np.isfinite(J), axis=1)] = 0.0
+                J = (R[1:] - R[0]) / h  # (p, r)
+                if not np.all(np.isfinite(J)):  # a step failed: the filters break next to it (Newton's turn)
+                    done[b] = True
+                    continue
                 g_new = J @ R[0]
                 before = last[b]
                 if before is not None:
@@ -822,6 +830,11 @@ def _damped_step(
     A, g = model
     d = np.maximum(np.diagonal(A), 1e-12 * max(float(np.max(np.abs(np.diagonal(A)))), 1e-300))
     tol = 1e-10 * (1 + abs(f))
+    try:  # converged: the undamped model is convex and its whole step gains less than tol
+        if np.all(np.linalg.eigvalsh(0.5 * (A + A.T)) > 0) and 0.5 * float(g @ np.linalg.solve(A, g)) <= tol:
+            return theta, True, True
+    except np.linalg.LinAlgError:
+        pass
     for _ in range(40):
         try:
             step = np.linalg.solve(A + damping[b] * np.diag(d), -g)
@@ -833,10 +846,65 @@ def _damped_step(
         predicted = -float(g @ taken + 0.5 * taken @ A @ taken)  # the model's decrease of the step
         if predicted > tol:
             return trial, False, False
-        if predicted >= 0.0:  # a decrease too small to seek (against its bounds with nowhere to go, too)
+        if predicted >= 0.0 and np.array_equal(trial, theta):  # against its bounds with nowhere to go
             return theta, True, True
-        damping[b] *= 4  # the model is not convex there: a shorter step
+        damping[b] *= 4  # the model is not convex there (or its step too short to matter): more damping
     return theta, True, False
+
+
+def _batched_newton(objective: _Objective, thetas: np.ndarray, problems: np.ndarray, lo_hi, maxiter: int):
+    """The problems ``problems`` (on their recordings) from ``thetas`` ``(B, p)``, advancing together: a
+    damped Newton method (Levenberg's damping, one factor per problem) on the finite-difference gradient and
+    Hessian of the exact objective, every problem's points in one fleet pass an iteration, the trial steps
+    in another. Where the least-squares model fails (a likelihood flat along a variance the data do not
+    fix), the exact curvature still leads to the optimum.
+
+    Returns
+    -------
+    thetas : ndarray, shape (B, p)
+    success : ndarray of bool, shape (B,)
+    """
+    B, p = thetas.shape
+    h = HESSIAN_STEP
+    lo, hi = lo_hi
+    thetas = thetas.copy()
+    damping = np.full(B, 1e-3)
+    done = np.zeros(B, dtype=bool)
+    success = np.zeros(B, dtype=bool)
+    n_points = 2 * p * p + 1
+    for _ in range(maxiter + 1):
+        active = np.flatnonzero(~done)
+        if active.size == 0:
+            break
+        points = np.concatenate([_stencil(thetas[b], h) for b in active])
+        f = objective(points, np.repeat(problems[active], n_points)).reshape(active.size, n_points)
+        trials, f_now = [], []
+        for row, b in enumerate(active):
+            if not np.all(np.isfinite(f[row])):
+                done[b] = True  # a failed candidate next to this point: it stays where it is
+                continue
+            f0, g, H = _derivatives(f[row], p, h)
+            lam, V = np.linalg.eigh(0.5 * (H + H.T))
+            scale = max(float(np.max(np.abs(lam))), 1e-12)
+            curvature = np.maximum(lam, 1e-8 * scale) + damping[b] * scale
+            trials.append(np.clip(thetas[b] - V @ ((V.T @ g) / curvature), lo, hi))
+            f_now.append(f0)
+        moving = [b for b in active if not done[b]]
+        if not moving:
+            break
+        f_trial = objective(np.array(trials), problems[np.array(moving)])
+        for b, theta_new, ft, f0 in zip(moving, trials, f_trial, f_now):
+            if ft <= f0:
+                change = float(np.max(np.abs(theta_new - thetas[b])))
+                thetas[b] = theta_new
+                damping[b] = max(damping[b] / 3, 1e-9)
+                if change < 1e-7 or f0 - ft <= 1e-10 * (1 + abs(f0)):
+                    done[b] = success[b] = True
+            else:
+                damping[b] *= 4
+                if damping[b] > 1e8:
+                    done[b] = True
+    return thetas, success
 
 
 def _secant_update(S: np.ndarray, s: np.ndarray, y: np.ndarray, y_sharp: np.ndarray) -> np.ndarray:
