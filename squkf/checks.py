@@ -64,7 +64,6 @@ __all__ = [
     "as_lower_factor",
     "as_matrix",
     "as_state",
-    "call_stack",
     "check_chunk_args",
     "check_sizes",
     "chunk_args",
@@ -82,6 +81,7 @@ __all__ = [
     "model_functions",
     "noise_factor",
     "noise_factors",
+    "note_stack_call",
     "per_filter",
     "placeholder",
     "written_record",
@@ -1079,41 +1079,27 @@ def stack_call_note(fn: str, points: tuple) -> str:
     )
 
 
-def call_stack(fn: Callable, name: str, X: np.ndarray, noise: np.ndarray | None, args: tuple, kwargs: dict):
-    """A fleet's model function at a stack of points: ``fn(X, *args, **kwargs)``, or ``fn(X, noise, ...)``.
+def note_stack_call(exc: BaseException, name: str, X: np.ndarray, noise: np.ndarray | None) -> None:
+    """Note on an exception a fleet's model function raised how it was called, before it propagates.
 
-    An exception ``fn`` raises propagates unchanged, with a note saying how
-    it was called (:func:`note_on_user_error`): a function
-    written for one point fails on a stack.
+    The fleet calls ``fn(X, *args, **kwargs)``, or ``fn(X, noise, ...)``, on a
+    stack of points; the exception propagates unchanged, with a note saying so
+    (:func:`note_on_user_error`): a function written for one point fails on a
+    stack.
 
     Parameters
     ----------
-    fn : callable
+    exc : BaseException
     name : {"fx", "hx"}
     X : ndarray, shape (k, N, n)
         The chunk's points.
     noise : ndarray, shape (k, N, d), or None
         Their noise part, with noise entering ``fn`` (``fx_noise``, ``hx_noise``).
-    args, kwargs
-        The rest of the call (``dt``, the chunk's ``fx_args``...).
-
-    Returns
-    -------
-    object
-        What ``fn`` returned.
     """
-    try:
-        if noise is None:
-            return fn(X, *args, **kwargs)
-        return fn(X, noise, *args, **kwargs)
-    except Exception as exc:
-        note = f"squkf: {stack_call_note(name, X.shape)}"
-        if noise is not None:
-            note += (
-                f"; the noise W ({name}_noise={noise.shape[-1]}) is its second argument, shape {noise.shape}"
-            )
-        note_on_user_error(exc, note)
-        raise
+    note = f"squkf: {stack_call_note(name, X.shape)}"
+    if noise is not None:
+        note += f"; the noise W ({name}_noise={noise.shape[-1]}) is its second argument, shape {noise.shape}"
+    note_on_user_error(exc, note)
 
 
 def finite_images(A: np.ndarray, name: str, active, fails: dict) -> np.ndarray:

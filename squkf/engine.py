@@ -1,7 +1,8 @@
 """The engine: the step of a block of B filters, its routes fixed by the plan, the kernels called directly.
 
-One filter is a block of one (:class:`squkf.SquareRootUKF`); a fleet's chunk is
-a block of B (:mod:`squkf.stacks`). The step, as data::
+One filter is a block of one (:class:`squkf.SquareRootUKF`, its phases run by
+:data:`BLOCK`); a fleet is a block of K (:class:`squkf.Fleet`, its phases run a
+chunk at a time on threads by :data:`squkf.stacks.CHUNKS`). The step, as data::
 
     x, S --points--> X --fx--> F --prior + second set--> Y --hx--> H --posterior + first set--> x, S
 
@@ -57,6 +58,8 @@ __all__ = [
     "PREDICTING",
     "PRIOR",
     "UPDATING",
+    "BLOCK",
+    "Block",
     "Engine",
     "Route",
     "Update",
@@ -70,7 +73,14 @@ NOT_FINITE_IMAGES = 306
 
 
 class Update(NamedTuple):
-    """The last update of a block: what the gate saw and what was applied (the records are formed from it).
+    """The last update of a block: what the gate saw and what was applied; the one record of both faces.
+
+    One filter's update is a block of one (:class:`squkf.SquareRootUKF` drops the block axis when it
+    reads a field); a fleet's is a block of K, written a chunk at a time (:class:`squkf.stacks.Chunks`),
+    which keeps no factor of the innovation (``Sy``, ``L21`` and ``K`` None; ``log_det_S1_2`` kept instead)
+    and whose filters each have their own measured components (``observed`` None, NaN in ``y`` and ``w``
+    where a component was missing).
+    Batch histories keep their rows (``squkf.boundary.records.Records.keep``).
 
     Attributes
     ----------
@@ -78,15 +88,17 @@ class Update(NamedTuple):
     S : ndarray, shape (B, n, n)
         The posterior (after the gate: the prior where it rejected everything).
     y : ndarray, shape (B, mo)
-        The innovation of the observed components (what the gate tested).
-    Sy : ndarray, shape (B, mo, mo)
-    L21 : ndarray, shape (B, n, mo)
+        The innovation of the observed components (what the gate tested); NaN where a filter had no
+        measurement of a component.
+    Sy : ndarray, shape (B, mo, mo), or None
+    L21 : ndarray, shape (B, n, mo), or None
+        The innovation factor and ``Pxy Sy^-T`` (None: not kept, a fleet's).
     log_likelihood : ndarray, shape (B,)
         Of the components that passed (0 where none did).
     nis : ndarray, shape (B,)
         Of the innovation tested.
     observed : ndarray of bool, shape (m,), or None
-        The measured components (None: all).
+        The measured components, the columns of ``y`` (None: all ``m``).
     rejected : ndarray of bool, shape (B, mo)
         The observed components the gate rejected.
     K : ndarray, shape (B, n, mo), or None
@@ -94,14 +106,18 @@ class Update(NamedTuple):
     m : int
         The measurement's length.
     w : ndarray, shape (B, mo)
-        The whitened innovation ``Sy^-1 y`` of the innovation tested (``nis`` is its squared norm).
+        The whitened innovation ``Sy^-1 y`` of the innovation tested (``nis`` is its squared norm; NaN
+        as in ``y``).
+    log_det_S1_2 : ndarray, shape (B,), or None
+        ``log det Sy`` of the measured block, where the factor is not kept (a fleet's: 0 where a filter
+        was not updated); None: formed from ``Sy`` when read.
     """
 
     x: np.ndarray
     S: np.ndarray
     y: np.ndarray
-    Sy: np.ndarray
-    L21: np.ndarray
+    Sy: np.ndarray | None
+    L21: np.ndarray | None
     log_likelihood: np.ndarray
     nis: np.ndarray
     observed: np.ndarray | None
@@ -109,6 +125,17 @@ class Update(NamedTuple):
     K: np.ndarray | None
     m: int
     w: np.ndarray
+    log_det_S1_2: np.ndarray | None = None
+
+    def rows(self, idx) -> Update:
+        """The update of the filters ``idx`` of the block (their rows of every per-filter field)."""
+        Sy, L21, K, ld = (
+            None if a is None else a[idx] for a in (self.Sy, self.L21, self.K, self.log_det_S1_2)
+        )
+        return Update(
+            self.x[idx], self.S[idx], self.y[idx], Sy, L21, self.log_likelihood[idx], self.nis[idx],
+            self.observed, self.rejected[idx], K, self.m, self.w[idx], ld,
+        )  # fmt: skip
 
 
 class _Joint(NamedTuple):
@@ -179,6 +206,14 @@ def _angle_out(B: int, N: int, m: int) -> tuple:
 
 def _ro(a: np.ndarray) -> np.ndarray:
     return table.plan_array(a)
+
+
+class _Zeros(dict):
+    """Shared rows of zeros ``(1, d)`` by size ``d`` (references the kernels read), made on first use."""
+
+    def __missing__(self, d: int) -> np.ndarray:
+        z = self[d] = table.zeros_row(d)
+        return z
 
 
 #: No measurement for the angle kernel (a prediction's images: no innovation formed or written).
@@ -275,12 +310,15 @@ class Scratch(Buffers):
         key = (make, *args)
         made = self.sets.get(key)
         if made is None or made[0] < B:
-            made = self.sets[key] = [B, make(B, *args)]
-        size, arrays = made
+            made = self.sets[key] = [B, make(B, *args), {}]
+        size, arrays, smaller = made
         if size == B:
             return arrays
-        # the leading rows of a C-contiguous array are C-contiguous: the kernels take them as they are
-        return tuple(a[:B] if a.shape[:1] == (size,) else a for a in arrays)
+        rows = smaller.get(B)  # (made once per smaller size: a steady step makes no view)
+        if rows is None:
+            # the leading rows of a C-contiguous array are C-contiguous: the kernels take them as they are
+            rows = smaller[B] = tuple(a[:B] if a.shape[:1] == (size,) else a for a in arrays)
+        return rows
 
 
 def _prior_out(B: int, n: int, N2: int, offsets: bool) -> tuple:
@@ -350,10 +388,9 @@ class Route:
     """
 
     __slots__ = (
-        "plan", "hooks", "gate", "single", "plain_x", "plain_add", "downdate", "no_set", "_updates",
-        "_observed_R",
-        "_zeros", "_noise", "_prior_draws", "z_angles", "_angle_kinds", "x_kinds", "x_angles",
-        "x_rows", "kernel_update",
+        "plan", "hooks", "gate", "single", "plain_x", "plain_add", "downdate", "no_set", "zeros", "_updates",
+        "_observed_R", "_noise", "_prior_draws", "z_angles", "_angle_kinds", "x_kinds", "x_angles", "x_rows",
+        "kernel_update",
     )  # fmt: skip
 
     def __init__(self, plan: Plan, hooks: Hooks, gate, single: bool):
@@ -382,9 +419,7 @@ class Route:
         self.no_set = table.no_set(plan.n)  # a kernel's set output when it draws none
         self._updates: dict = {}
         self._observed_R = _ObservedR()
-        self._zeros: dict[
-            int, np.ndarray
-        ] = {}  # a shared row of zeros per size (a reference the kernels read)
+        self.zeros = _Zeros()
         self._noise: dict[int, tuple] = {}  # per noise factor given: (that array, as the kernels take it)
         self._prior_draws: dict[tuple[bool, bool], tuple] = {}  # (draw, Q given) -> _prior_draw's
 
@@ -398,13 +433,6 @@ class Route:
     def _block(self, a):
         """One filter's result as a block of one (if single)."""
         return a[None] if self.single and a is not None else a
-
-    def zeros(self, d: int) -> np.ndarray:
-        """A shared row of zeros ``(1, d)``, made once."""
-        z = self._zeros.get(d)
-        if z is None:
-            z = self._zeros[d] = table.zeros_row(d)
-        return z
 
     def stacked(self, factor: np.ndarray, which: int) -> np.ndarray:
         """A noise factor ``(d, d)`` (or ``(B, d, d)``) as the kernels take it, ``(1 or B, d, d)``.
@@ -421,8 +449,8 @@ class Route:
 
     # -- the phases -------------------------------------------------------------------------
 
-    def first_points(self, x: np.ndarray, S: np.ndarray, buffers: Buffers | None = None) -> np.ndarray:
-        """The first sigma-point set of ``(x, S)``, ``(B, N, n)`` (in ``buffers``' array where given)."""
+    def first_points(self, x: np.ndarray, S: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """The first sigma-point set of ``(x, S)``, ``(B, N, n)`` (written into ``out`` where given)."""
         plan = self.plan
         add = self.hooks.state_add
         if add is not None:  # the hook sees one filter's vectors (a filter of a block at a time)
@@ -430,7 +458,7 @@ class Route:
             return self._block(sigma_points_from_factor(self._one(x), self._one(S), first.xi, add))
         B, n = x.shape
         N = plan.xi1.shape[0]
-        X = (_points_out(B, N, n, False) if buffers is None else buffers.take(_points_out, B, N, n, False))[0]
+        X = np.empty((B, N, n)) if out is None else out
         table.KERNELS.points(x, S, plan.xi1, plan.gamma1, X, self.no_set)
         return X
 
@@ -493,7 +521,11 @@ class Route:
                 mean, S, status, X2, D2 = _prior_out(B, n, N2, with_offsets)
             else:
                 mean, S, status, X2, D2 = buffers.take(_prior_out, B, n, N2, with_offsets)
-            noise = table.no_noise(n) if Q1_2 is None else self.stacked(Q1_2, 0)
+            if Q1_2 is None:
+                noise = table.no_noise(n)
+            else:  # (stacked's kept factor, looked up here: no call when it is the one given last)
+                kept = self._noise.get(0)
+                noise = kept[1] if kept is not None and kept[0] is Q1_2 else self.stacked(Q1_2, 0)
             if self.x_angles:  # squkf's x_mean_fn, residual_x: the angle kernel's mean and rows, given
                 ref, wm, scale, sign = self.x_rows
                 D = (_angle_out(B, N, n) if buffers is None else buffers.take(_angle_out, B, N, n))[1]
@@ -503,7 +535,7 @@ class Route:
                 )
             else:
                 table.KERNELS.transform(
-                    F, self.zeros(n), plan.mode1, plan.wm1, plan.scale1, plan.sign1, noise, mean, S, status,
+                    F, self.zeros[n], plan.mode1, plan.wm1, plan.scale1, plan.sign1, noise, mean, S, status,
                     code, xi2, gamma2, X2, D2,
                 )  # fmt: skip
             sset = None
@@ -620,7 +652,10 @@ class Route:
         status : ndarray of int, shape (B,)
         X1 : ndarray, shape (B, N, n), or None
         """
-        route = self.update_route(sset, UT)
+        # update_route's kept route, looked up here (no call on a repeated key), else decided there
+        rows = sset.rows
+        kept = self._updates.get((id(rows), sset.moments_exact, sset.offsets is None, sset.axis, UT is None))
+        route = kept[1] if kept is not None and kept[0] is rows else self.update_route(sset, UT)
         B = x.shape[0]
         m_all = z.shape[-1]
         if route is None:
@@ -636,7 +671,7 @@ class Route:
             )  # fmt: skip
             if self.single:
                 post = Posterior(*(a[None] for a in post))
-            none = _none_rejected(post.y.shape)
+            none = _NONE_REJECTED[post.y.shape]
             ll, nis = post.log_likelihood, post.nis
             update = Update(
                 post.x, post.S, post.y, post.Sy, post.L21, ll, nis, observed, none, None, m_all, post.w
@@ -657,7 +692,7 @@ class Route:
         m = H.shape[2]
         n = x.shape[1]
         if zref is None:
-            zref = self.zeros(m)
+            zref = self.zeros[m]
         plan = self.plan
         # (noise entering fx: the first set has a noise part; the downdate kernel draws none)
         draw = draw_first and plan.w_xi is None and not route.downdate
@@ -667,7 +702,8 @@ class Route:
                 _posterior_out(B, n, m, N1) if buffers is None else buffers.take(_posterior_out, B, n, m, N1)
             )
         zp, y, w, Sy, L21, dx, xo, So, ll, ww, status, X1 = out
-        Rs = self.stacked(Ro, 1)
+        kept = self._noise.get(1)
+        Rs = kept[1] if kept is not None and kept[0] is Ro else self.stacked(Ro, 1)
         Xs = sset.offsets if route.offsets else sset.sigmas
         if route.angles and not route.offsets and not route.downdate:  # given state rows: less the prior mean
             Xs = Xs - x[:, None, :]
@@ -676,19 +712,19 @@ class Route:
             Xs = table.kernel_array(Xs)
         if route.downdate:  # the prior factor kept and downdated: no first set drawn with it
             table.KERNELS.downdate_update(
-                H, zref, Xs, x if route.xref else self.zeros(n), z, Rs, table.no_factor(m), S, x,
+                H, zref, Xs, x if route.xref else self.zeros[n], z, Rs, table.no_factor(m), S, x,
                 route.mode, route.wm, route.wc, route.scale, route.sign, route.xkind, *out[:11],
             )  # fmt: skip
         else:
             table.KERNELS.joint_update(
-                H, zref, Xs, x if route.xref else self.zeros(n), z, Rs, x, route.mode, route.wm,
+                H, zref, Xs, x if route.xref else self.zeros[n], z, Rs, x, route.mode, route.wm,
                 route.scale, route.sign, route.pair, *out[:11], plan.xi1, plan.gamma1, X1,
             )  # fmt: skip
         if whole is not None:
             status[~np.isfinite(whole).reshape(B, -1).all(axis=1)] = NOT_FINITE_IMAGES
         if np.count_nonzero(status):
             status = singular_allowed(status, S, Rs)
-        update = Update(xo, So, y, Sy, L21, ll, ww, observed, _none_rejected(y.shape), None, m_all, w)
+        update = Update(xo, So, y, Sy, L21, ll, ww, observed, _NONE_REJECTED[y.shape], None, m_all, w)
         return update, status, (X1 if draw else None)
 
     def _angle_rows(self, route: _Joint, H, z, buffers: Buffers | None) -> tuple:
@@ -739,6 +775,7 @@ class Route:
         obs_idx = np.arange(m) if observed is None else np.flatnonzero(observed)
         x, S = post.x.copy(), post.S.copy()
         ll = np.array(post.log_likelihood, dtype=float)
+        assert post.Sy is not None and post.L21 is not None  # (the tested update keeps its factors)
         K = _gain(post.Sy, post.L21).copy()
         none_left = rejected.all(axis=1)
         x[none_left], S[none_left] = x0[none_left], S0[none_left]
@@ -764,11 +801,117 @@ class Route:
         return Update(x, S, post.y, post.Sy, post.L21, ll, post.nis, observed, rejected, K, m, post.w), status
 
 
-class Engine:
-    """One block's step as a state machine: its estimate, its pending step, its last records.
+class Block:
+    """How a block's phases run when the block is the whole call: one filter (:class:`squkf.SquareRootUKF`).
 
-    :class:`squkf.SquareRootUKF` holds one (a block of one, ``single``). A call that fails raises
-    (the first failing filter's :func:`failure`) and leaves the engine as it was.
+    The engine passes the model's images at the whole block; a filter's failure raises (the first
+    failing filter's :func:`failure`). A fleet runs its phases a chunk at a time on threads instead,
+    its failures flagged per filter (:class:`squkf.stacks.Chunks`, with the same two methods).
+
+    Attributes
+    ----------
+    defers : bool
+        Whether the second set is drawn at the update (a fleet's, a chunk at a time) rather than with
+        the prior.
+    """
+
+    __slots__ = ()
+    defers = False
+
+    def __reduce__(self) -> str:
+        return "BLOCK"  # the one runner, by name: a pickled engine gets it back (``run is BLOCK``)
+
+    @staticmethod
+    def prior(route: Route, x, S, F, X, Q1_2, UT, name: str, buffers: Buffers, held: tuple) -> tuple:
+        """The numerics of a prediction: the prior and its second set (nothing committed).
+
+        Parameters
+        ----------
+        route : Route
+        x : ndarray, shape (B, n)
+        S : ndarray, shape (B, n, n)
+            The estimate predicted from (the images are its first set's, ``X``).
+        F : ndarray, shape (B, N, n)
+            The model's images at ``X`` (as the engine read them: float64, C-contiguous, a private copy
+            where the plan keeps them).
+        X : ndarray, shape (B, N, n)
+        Q1_2, UT, name
+            As :meth:`Engine.tell_predict` takes them.
+        buffers : Buffers
+        held : tuple of ndarray
+            What the committed records hold (a block of one writes its buffers in turn instead).
+
+        Returns
+        -------
+        x, S : ndarray
+            The prior.
+        sset : SigmaSet
+            Its second set.
+        later : None
+            (What a deferred draw reads: nothing, the set is drawn.)
+        """
+        keep = route.plan.keeps_propagated
+        mean, S, status, sset = route.prior(F, Q1_2, UT, True, name, buffers)
+        if np.count_nonzero(status):
+            code = first_status(status)
+            raise _described(code, F, status, name) or prior_failure(code, route.plan.first.rows.best)
+        if sset is None:
+            sset = route.second_set(mean, S, F if keep else None, Q1_2)
+        return mean, S, sset, None
+
+    @staticmethod
+    def posterior(route: Route, pending: tuple, H, z, observed, R1_2, UT, name: str, buffers: Buffers, held):
+        """The numerics of an update through the gate, and the next first set (nothing committed).
+
+        Parameters
+        ----------
+        route : Route
+        pending : tuple
+            :meth:`Engine.pending_update`'s.
+        H : ndarray, shape (B, N2, m)
+            The images, as the engine read them (a private copy).
+        z, observed, R1_2, UT, name
+            As :meth:`Engine.tell_update` takes them.
+        buffers : Buffers
+        held : tuple of ndarray
+
+        Returns
+        -------
+        update : Update
+        X1 : ndarray, shape (B, N, n), or None
+            The next first set, drawn with the posterior.
+        H : ndarray, shape (B, N2, m)
+            The images as read (the record of ``sigmas_h``).
+        """
+        (xp, Sp), sset, _ = pending
+        if route.single:
+            z = z[None]
+        tested, status, X1 = route.posterior(sset, xp, Sp, H, z, observed, R1_2, UT, True, name, buffers)
+        if np.count_nonzero(status):
+            code = first_status(status)
+            raise _described(code, H, status, name) or failure(code, route.form_of(sset, UT))
+        if route.gate is None:
+            return tested, X1, H
+        update, status = route.gated(tested, status, sset, xp, Sp, H, z, observed, R1_2, UT)
+        if np.count_nonzero(status):
+            raise failure(first_status(status), route.form_of(sset, UT))
+        # a gate's change: the posterior is not the one the next first set was drawn from
+        return update, (X1 if update.x is tested.x else None), H
+
+
+#: The runner of a block that is the whole call (one filter).
+BLOCK = Block()
+
+
+class Engine:
+    """A block's step as a state machine: its estimate, its pending step, its last records, its commit.
+
+    Both faces hold one: :class:`squkf.SquareRootUKF` a block of one (``single`` routes, run by
+    :data:`BLOCK`), :class:`squkf.Fleet` a block of K (run a chunk at a time on threads by
+    :data:`squkf.stacks.CHUNKS`). How a phase runs is the runner's; what is pending, what is committed,
+    and when, is the engine's. A call that fails raises (one filter: the first failing filter's
+    :func:`failure`; a fleet flags its failing filters, or raises for them all) and leaves the engine
+    as it was.
 
     Parameters
     ----------
@@ -776,6 +919,10 @@ class Engine:
     x : ndarray, shape (B, n)
     S : ndarray, shape (B, n, n)
         The initial estimate (kept, not copied: never written in place).
+    sigmas_f, sigmas_h : ndarray or None
+        What ``shown_f`` and ``H`` are before any step (None: not shown, a fleet's).
+    run : Block or squkf.stacks.Chunks
+        How the phases run (default :data:`BLOCK`).
 
     Attributes
     ----------
@@ -785,32 +932,49 @@ class Engine:
     phase : str
     route, step_route : Route
         The configuration's, and the pending step's (the one its points were drawn with).
+    drawn : bool
+        Whether the pending update (``prior``, ``sset``, ``later``) belongs to the current estimate: set
+        by a prediction, cleared when the caller assigns an estimate.
     prior : tuple (x, S) or None
-        The estimate the pending second set ``sset`` was drawn from.
+        The estimate the pending second set was (or is to be) drawn from.
+    sset : SigmaSet or None
+        The pending second set (None: drawn at the update, a fleet's, from ``later``).
+    later : tuple (propagated, Q1_2) or None
+        What a second set drawn at the update reads (the prediction's images where the plan keeps them,
+        and its process-noise factor).
     prior_record, post_record : tuple (x, S)
         The last prediction's and the last update's results (the estimate before any).
     last : Update or None
         The last update.
-    H : ndarray, shape (B, N2, m)
-        The last update's images (zeros before any).
-    shown_f : ndarray
+    H : ndarray, shape (B, N2, m), or None
+        The last update's images (zeros before any; None: not kept, a fleet's).
+    shown_f : ndarray or None
         What filterpy shows as ``sigmas_f``: the second set after a prediction (zeros before any).
     """
 
     __slots__ = (
-        "route", "step_route", "x", "S", "phase", "X", "prior", "sset", "prior_record", "post_record", "last",
-        "H", "shown_f", "_first", "_buffers",
+        "route", "step_route", "run", "x", "S", "phase", "X", "drawn", "prior", "sset", "later",
+        "prior_record", "post_record", "last", "H", "shown_f", "_first", "_buffers",
     )  # fmt: skip
 
     def __init__(
-        self, route: Route, x: np.ndarray, S: np.ndarray, sigmas_f: np.ndarray, sigmas_h: np.ndarray
+        self,
+        route: Route,
+        x: np.ndarray,
+        S: np.ndarray,
+        sigmas_f: np.ndarray | None,
+        sigmas_h: np.ndarray | None,
+        run=BLOCK,
     ):
         self.route = self.step_route = route
+        self.run = run
         self.x, self.S = table.kernel_array(x), table.kernel_array(S)
         self.phase = IDLE
         self.X: np.ndarray | None = None  # the points handed out by a pending ask_predict
+        self.drawn = False
         self.prior: tuple[np.ndarray, np.ndarray] | None = None
         self.sset: SigmaSet | None = None
+        self.later: tuple | None = None
         self.prior_record = self.post_record = (self.x, self.S)
         self.last: Update | None = None
         self.H, self.shown_f = sigmas_h, sigmas_f
@@ -824,6 +988,11 @@ class Engine:
         return {k: getattr(self, k) for k in self.__slots__ if k not in self._SCRATCH}
 
     def __setstate__(self, state) -> None:
+        state.setdefault("run", BLOCK)  # (pickled before the runner was passed in)
+        state.setdefault("later", None)
+        if "drawn" not in state:  # (pickled when the pending update was known by identity)
+            prior = state.get("prior")
+            state["drawn"] = prior is not None and prior[0] is state["x"] and prior[1] is state["S"]
         for k, v in state.items():
             object.__setattr__(self, k, v)
         self._first = None
@@ -842,18 +1011,33 @@ class Engine:
         memo[id(self)] = new
         return new
 
+    def rows(self, idx) -> Engine:
+        """A new idle engine of the filters ``idx`` (an index array): their estimate and records' rows."""
+        new = Engine(self.route, self.x[idx], self.S[idx], None, None, self.run)
+        new.prior_record = (self.prior_record[0][idx], self.prior_record[1][idx])
+        new.post_record = (self.post_record[0][idx], self.post_record[1][idx])
+        new.last = None if self.last is None else self.last.rows(idx)
+        return new
+
     def configure(self, route: Route) -> None:
         """A new configuration (a pending step keeps the route it was drawn with)."""
         self.route = route
         self._first = None
 
-    def assign(self, x: np.ndarray | None = None, S: np.ndarray | None = None) -> None:
-        """A new estimate from the caller (validated; kept): the sets drawn for the old one are dropped."""
+    def assign(self, x: np.ndarray | None = None, S: np.ndarray | None = None, idle: bool = False) -> None:
+        """A new estimate from the caller (validated; kept): the sets drawn for the old one are dropped.
+
+        ``idle``: a step pending is dropped too (a fleet's rule: an assignment ends an ask/tell step).
+        """
         if x is not None:
             self.x = table.kernel_array(x)  # (as the kernels take it: a factor from LAPACK is in F order)
         if S is not None:
             self.S = table.kernel_array(S)
         self._first = None
+        self.drawn = False
+        if idle:
+            self.phase = IDLE
+            self.X = None
 
     # -- the prediction -------------------------------------------------------------------------
 
@@ -875,14 +1059,16 @@ class Engine:
         return X
 
     def tell_predict(
-        self, F, Q1_2: np.ndarray | None, UT: Callable | None = None, points=None, name: str = "fx values"
-    ) -> None:
+        self, F, Q1_2: np.ndarray | None, UT: Callable | None = None, points=None, name: str = "fx values",
+        whole: bool = False,
+    ) -> None:  # fmt: skip
         """Finish the prediction from the first set's images: the prior and the second set, committed.
 
         Parameters
         ----------
-        F : array_like, shape (B, N, n) (single: (N, n))
-            ``fx`` at the points (checked here).
+        F : array_like, shape (B, N, n) (single: (N, n)), or what the runner takes
+            ``fx`` at the points (checked by the runner; a fleet's runner takes its call,
+            :class:`squkf.stacks.Step`, and calls ``fx`` a chunk at a time).
         Q1_2 : ndarray, shape (n, n) or (B, n, n), or None
             Lower factor of the additive process noise (None: none added).
         UT : callable, optional
@@ -891,8 +1077,10 @@ class Engine:
             those of the pending :meth:`ask_predict`.
         name : str
             What the images are called in messages.
+        whole : bool
+            A whole prediction whose runner draws the points itself (a fleet's, a chunk at a time).
         """
-        if points is None:
+        if points is None and not whole:
             if self.phase != PREDICTING:
                 raise CallSequenceError(
                     f"tell_predict needs a pending ask_predict, but the step is {self.phase!r}"
@@ -901,74 +1089,65 @@ class Engine:
             route, X = self.step_route, self.X
         else:
             route, X = self.route, points
-        assert X is not None
-        plan = route.plan
-        keep = plan.keeps_propagated
-        F = _images(F, X.shape, name, keep, route.single)
+        if self.run is BLOCK:  # the images of the whole block, read as the kernels take them
+            assert X is not None
+            F = _images(F, X.shape, name, route.plan.keeps_propagated, route.single)
+            held: tuple = ()
+        else:  # what the step must not write: the arrays the records hold
+            held = (self.x, self.S, *self.prior_record, *self.post_record)
         buffers = self._buffers
-        buffers.abandon()
+        buffers.taken.clear()  # (abandon(): what a failed call took is written again)
         limit = blas.MIN_DIM
-        if limit is not None and plan.n >= limit:
+        if limit is not None and route.plan.n >= limit:
             with blas.one_blas_thread():
-                done = self._prior(route, F, Q1_2, UT, name, buffers)
+                done = self.run.prior(route, self.x, self.S, F, X, Q1_2, UT, name, buffers, held)
         else:
-            done = self._prior(route, F, Q1_2, UT, name, buffers)
-        # commit
-        buffers.commit()
-        mean, S, sset = done
+            done = self.run.prior(route, self.x, self.S, F, X, Q1_2, UT, name, buffers, held)
+        for pair in buffers.taken:  # commit(): the sets taken hold the committed records now
+            pair[2] ^= 1
+        buffers.taken.clear()
+        mean, S, sset, later = done
         self.step_route = route
         self.x, self.S = mean, S
         self.prior = self.prior_record = (mean, S)
-        self.sset = sset
-        self.shown_f = sset.sigmas
+        self.sset, self.later = sset, later
+        if sset is not None:
+            self.shown_f = sset.sigmas
+        self.drawn = True
         self._first = None
         self.X = None
         self.phase = PRIOR
 
-    @staticmethod
-    def _prior(route: Route, F, Q1_2, UT, name: str, buffers: Buffers) -> tuple:
-        """The numerics of a prediction: the prior and its second set (nothing committed)."""
-        mean, S, status, sset = route.prior(F, Q1_2, UT, True, name, buffers)
-        if np.count_nonzero(status):
-            code = first_status(status)
-            raise _described(code, F, status, name) or prior_failure(code, route.plan.first.rows.best)
-        if sset is None:
-            sset = route.second_set(mean, S, F if route.plan.keeps_propagated else None, Q1_2)
-        return mean, S, sset
-
     # -- the update ------------------------------------------------------------------------------
 
-    def pending_update(self) -> tuple[tuple[np.ndarray, np.ndarray], SigmaSet]:
-        """The prior and second set of the update pending for the current estimate (nothing committed).
+    def pending_update(self) -> tuple:
+        """The update pending for the current estimate: ``(prior, sset, later)`` (nothing committed).
 
-        After a prediction, its prior and the set drawn with it; if the estimate was assigned since (or
-        no prediction precedes), the estimate and a set drawn from it alone.
+        After a prediction, its prior and the set drawn with it (or what a set drawn at the update
+        reads, ``later``); if the estimate was assigned since (or no prediction precedes), the estimate
+        and a set drawn from it alone (by a runner that defers the draw, at the update: None).
         """
         if self.phase == PREDICTING:
             raise CallSequenceError(
                 "ask_update called while a prediction is pending: tell_predict the fx values first"
             )
-        prior = self.prior
-        if (
-            self.phase in (PRIOR, UPDATING)
-            and prior is not None
-            and prior[0] is self.x
-            and prior[1] is self.S
-        ):
-            return prior, self.sset  # type: ignore[return-value]  # drawn with the prior
-        return (self.x, self.S), self.route.second_set(self.x, self.S, None, None)
+        if self.drawn and self.phase != IDLE:
+            return self.prior, self.sset, self.later  # drawn with the prior
+        x, S = self.x, self.S
+        return (x, S), None if self.run.defers else self.route.second_set(x, S, None, None), None
 
     def ask_update(self) -> np.ndarray:
         """:meth:`pending_update`, kept as the pending update: its second set ``(B, N2, n)`` (engine's)."""
-        prior, sset = self.pending_update()
-        self._keep(prior, sset)
-        self.phase = UPDATING
-        return sset.sigmas
-
-    def _keep(self, prior, sset) -> None:
+        prior, sset, later = self.pending_update()
+        if sset is None:  # a runner that draws at the update: the whole set, handed out
+            propagated, Q1_2 = (None, None) if later is None else later
+            sset = self.route.second_set(prior[0], prior[1], propagated, Q1_2)
         if sset is not self.sset:  # drawn from the estimate alone, by the current route
             self.step_route = self.route
-        self.prior, self.sset = prior, sset
+        self.prior, self.sset, self.later = prior, sset, later
+        self.drawn = True
+        self.phase = UPDATING
+        return sset.sigmas
 
     def tell_update(
         self, H, z: np.ndarray, observed: np.ndarray | None, R1_2: np.ndarray, UT: Callable | None = None,
@@ -978,18 +1157,19 @@ class Engine:
 
         Parameters
         ----------
-        H : array_like, shape (B, N2, m) (single: (N2, m))
-            ``hx`` at the points of the second set (checked here).
+        H : array_like, shape (B, N2, m) (single: (N2, m)), or what the runner takes
+            ``hx`` at the points of the second set (checked by the runner; a fleet's runner takes its
+            call, :class:`squkf.stacks.Step`, and calls ``hx`` a chunk at a time).
         z : ndarray, shape (B, m) (single: (m,))
             The measurement (missing components hold NaN).
         observed : ndarray of bool, shape (m,), or None
-            The measured components (None: all).
+            The measured components (None: all, or, for a fleet, those not NaN per filter).
         R1_2 : ndarray, shape (m, m) or (B, m, m)
             Lower factor of the measurement noise (zeros: none).
         UT : callable, optional
         pending : tuple, optional
-            The prior and set of a whole update (:meth:`pending_update`, with no ask pending);
-            default: those of the pending :meth:`ask_update`.
+            The update of a whole call (:meth:`pending_update`, with no ask pending);
+            default: that of the pending :meth:`ask_update`.
         name : str
             What the images are called in messages.
         """
@@ -999,25 +1179,31 @@ class Engine:
                     f"tell_update needs a pending ask_update, but the step is {self.phase!r}"
                     + (" (the update was already told)" if self.phase == IDLE else "")
                 )
-            pending = (self.prior, self.sset)
-        (xp, Sp), sset = pending
+            pending = (self.prior, self.sset, self.later)
         route = self.route
-        H = _images(H, sset.sigmas.shape[:-1] + (z.shape[-1],), name, True, route.single)
-        if route.single:
-            z = z[None]
+        if self.run is BLOCK:  # the images of the whole block, read as the kernels take them
+            sset = pending[1]
+            H = _images(H, sset.sigmas.shape[:-1] + (z.shape[-1],), name, True, route.single)
+            held: tuple = ()
+        else:  # what the step must not write: the arrays the records hold
+            held = (self.x, self.S, *self.prior_record, *self.post_record)
         buffers = self._buffers
-        buffers.abandon()
+        buffers.taken.clear()  # (abandon(): what a failed call took is written again)
         limit = blas.MIN_DIM
         if limit is not None and route.plan.n >= limit:
             with blas.one_blas_thread():
-                update, X1 = self._posterior(route, sset, xp, Sp, H, z, observed, R1_2, UT, name, buffers)
+                update, X1, H = self.run.posterior(
+                    route, pending, H, z, observed, R1_2, UT, name, buffers, held
+                )
         else:
-            update, X1 = self._posterior(route, sset, xp, Sp, H, z, observed, R1_2, UT, name, buffers)
-        # commit
-        buffers.commit()
-        if sset is not self.sset:  # (as _keep, written out: one call fewer on every update)
+            update, X1, H = self.run.posterior(route, pending, H, z, observed, R1_2, UT, name, buffers, held)
+        for pair in buffers.taken:  # commit(): the sets taken hold the committed records now
+            pair[2] ^= 1
+        buffers.taken.clear()
+        prior, sset, later = pending
+        if sset is not self.sset:
             self.step_route = route
-        self.prior, self.sset = (xp, Sp), sset
+        self.prior, self.sset, self.later = prior, sset, later
         self.x, self.S = update.x, update.S
         self.post_record = (update.x, update.S)
         self.last = update
@@ -1025,29 +1211,20 @@ class Engine:
         self._first = X1
         self.phase = IDLE
 
-    @staticmethod
-    def _posterior(route: Route, sset, xp, Sp, H, z, observed, R1_2, UT, name: str, buffers: Buffers):
-        """The numerics of an update through the gate, and the next first set (nothing committed)."""
-        tested, status, X1 = route.posterior(sset, xp, Sp, H, z, observed, R1_2, UT, True, name, buffers)
-        if np.count_nonzero(status):
-            code = first_status(status)
-            raise _described(code, H, status, name) or failure(code, route.form_of(sset, UT))
-        if route.gate is None:
-            return tested, X1
-        update, status = route.gated(tested, status, sset, xp, Sp, H, z, observed, R1_2, UT)
-        if np.count_nonzero(status):
-            raise failure(first_status(status), route.form_of(sset, UT))
-        return update, (X1 if update.x is tested.x else None)  # a gate's change: not the set's posterior
+    def skip_update(self, last: Update | None = None) -> None:
+        """End the step without a measurement: the estimate stays, and the last update's records too.
 
-    def skip_update(self) -> None:
-        """End the step without a measurement: the estimate stays, and the last update's records too."""
+        ``last``: the update record of the skipped step instead (a fleet's: no innovation, no likelihood).
+        """
         if self.phase == PREDICTING:
             raise CallSequenceError(
                 "update without a measurement called while a prediction is pending: "
                 "tell_predict the fx values first"
             )
         # the record's own copies: the estimate may live in the buffers the next prediction writes
-        self.post_record = (self.x.copy(), self.S.copy())
+        self.post_record = (self.x.copy(), self.S.copy()) if last is None else (last.x, last.S)
+        if last is not None:
+            self.last = last
         self.phase = IDLE
 
 
@@ -1062,16 +1239,16 @@ def _gain(Sy: np.ndarray, L21: np.ndarray) -> np.ndarray:
     return gain_from_factors(Sy, L21)
 
 
-_NONE_REJECTED: dict[tuple, np.ndarray] = {}
+class _NoneRejected(dict):
+    """All False, read-only, by shape: the record of an update without a gate (made once per shape)."""
 
-
-def _none_rejected(shape: tuple) -> np.ndarray:
-    """All False, read-only: the record of an update without a gate (made once per shape)."""
-    a = _NONE_REJECTED.get(shape)
-    if a is None:
-        a = _NONE_REJECTED[shape] = np.zeros(shape, dtype=bool)
+    def __missing__(self, shape: tuple) -> np.ndarray:
+        a = self[shape] = np.zeros(shape, dtype=bool)
         a.setflags(write=False)
-    return a
+        return a
+
+
+_NONE_REJECTED = _NoneRejected()
 
 
 def _described(code: int, images: np.ndarray, status: np.ndarray, name: str) -> SqukfError | None:

@@ -34,13 +34,13 @@ from typing import Any
 
 import numpy as np
 
-from . import checks, stacks
+from . import checks
 from .angles import check_angle_hooks, is_data
 from .batch import model_kwargs, per_step
 from .boundary.attributes import HandOut, Hook, ModelFunction
 from .boundary.config import Config, check_pending, filter_kwargs, filter_of, model_noise, stacked
 from .boundary.loop import Transaction, annotate_step, check_keep, check_progress, progress_callback
-from .boundary.records import FleetResult, Records, failures_error, new_records
+from .boundary.records import FleetResult, Records, new_records
 from .checks import (
     check_flag,
     check_time_step,
@@ -51,55 +51,40 @@ from .checks import (
     reset_rows,
     short_repr,
 )
-from .engine import Buffers, Route
-from .errors import CallSequenceError, FleetStepError, ParameterError, UnsetError
+from .engine import Engine, Route, Update
+from .errors import FleetStepError, ParameterError, UnsetError
 from .gating import Gate, as_gate
-from .generators import SigmaSet, as_generator
+from .generators import as_generator
 from .noise import handed_points, noise_points
-from .plan import IDLE, PREDICTING, PRIOR, UPDATING, Hooks, build_plan
+from .plan import PREDICTING, UPDATING, Hooks, build_plan
 from .smoother import fleet_rts_smoother
-from .stacks import rows_of
+from .stacks import CHUNKS, Step, rows_of
 from .transform import StackedHook
 from .ukf import SquareRootUKF
 from .weights import as_family
 
 __all__ = ["Fleet", "FleetResult", "FleetStepError"]
 
-# the internal array behind each attribute handed out for editing in place
-HANDED = {"_x": "x", "_S": "P", "_Q1_2": "Q", "_R1_2": "R"}
+# the attributes handed out for editing in place
+HANDED = ("x", "P", "Q", "R")
+
+# what a fleet pickled before it held an engine kept in its __dict__
+_BEFORE_ENGINE = (
+    "_x", "_S", "_pending", "_route", "_x_prior", "_S_prior", "_x_post", "_S_post", "_y", "_loglik", "_nis",
+    "_rejected", "_y_whitened", "_log_det",
+)  # fmt: skip
 
 
-def _record(name: str, doc: str, covariance: bool = False) -> property:
-    """A read-only record of the last step: a copy of the array ``name`` (``S @ S.T`` for a covariance)."""
+def _record(which: str, doc: str, covariance: bool = False) -> property:
+    """A read-only record of the last step, the engine's ``prior_record`` or ``post_record`` (``which``):
+    a copy of its state or factor, or the factor's ``S @ S.T`` (``covariance``)."""
+    i = 0 if which.startswith("x") else 1
 
     def read(self) -> np.ndarray:
-        a = getattr(self, name)
+        a = getattr(self._engine, which[2:])[i]
         return a @ np.swapaxes(a, -1, -2) if covariance else a.copy()
 
     return property(read, doc=doc)
-
-
-class _Pending:
-    """A fleet's pending step: its phase, the points handed out, the prior and what its update reads.
-
-    Plain data, never changed in place (a new one per transition).
-    """
-
-    __slots__ = ("phase", "first", "prior", "propagated", "Q1_2", "sset")
-
-    def __init__(self, phase=IDLE, first=None, prior=None, propagated=None, Q1_2=None, sset=None):
-        self.phase, self.first, self.prior = phase, first, prior
-        self.propagated, self.Q1_2, self.sset = propagated, Q1_2, sset
-
-    def __getstate__(self):
-        return tuple(getattr(self, k) for k in self.__slots__)
-
-    def __setstate__(self, state) -> None:
-        for k, v in zip(self.__slots__, state):
-            object.__setattr__(self, k, v)
-
-
-_IDLE_STEP = _Pending()  # no step pending (a _Pending is never changed in place)
 
 
 def _as_filters(filters) -> list[SquareRootUKF]:
@@ -256,8 +241,9 @@ class Fleet:
     array([ 0.5,  0. , -0.5])
     """
 
-    # the step's buffers live outside __dict__: a Saver's rows (and a transaction's snapshot) never see them
-    __slots__ = ("_buffers", "__dict__", "__weakref__")
+    # the engine (the state, the pending step, the records and the step's buffers) lives outside
+    # __dict__, as a filter's does: a Saver's rows never see its buffers, nor deep-copy them at each save
+    __slots__ = ("_engine", "__dict__", "__weakref__")
 
     def __init__(
         self,
@@ -303,7 +289,6 @@ class Fleet:
         self._family = as_family(points)
         self._generator = as_generator(scheme)
         self._plan = build_plan(self._family, self._generator, n, self._fx_noise, self._hx_noise)
-        self._route: Route | None = None  # built at the step (the hooks may be assigned until then)
         self.x_mean, self.z_mean, self.residual_x, self.residual_z = (
             x_mean_fn,
             z_mean_fn,
@@ -313,25 +298,18 @@ class Fleet:
         self.state_add = state_add
         self.on_error = on_error
         self._gate = as_gate(gate)
-        self._x = np.zeros((K, n))
-        self._S = np.broadcast_to(np.eye(n), (K, n, n)).copy()
+        self._vectorized_hooks = check_flag(vectorized_hooks, "vectorized_hooks")
+        # the state, the pending step and the records: a block of K run a chunk at a time (stacks.Chunks)
+        S0 = np.broadcast_to(np.eye(n), (K, n, n)).copy()
+        self._engine = Engine(self._new_route(), np.zeros((K, n)), S0, None, None, CHUNKS)
         self._Q1_2: np.ndarray | None = np.eye(self._qd)
         self._R1_2: np.ndarray = np.eye(self._rd)
-        self._pending = _IDLE_STEP
-        self._buffers = Buffers()  # the step's (K, ...) results, used in turn
         self._failed = np.zeros(K, dtype=bool)
         self._failure: dict[int, str] = {}  # filter -> why it is flagged (few: not a (K,) array)
-        # filters whose x or P is a placeholder (an all-NaN row): a step flags them (_unset_fails)
+        # filters whose x or P is a placeholder (an all-NaN row): a step flags them (_step_of)
         self._unset_x = np.zeros(K, dtype=bool)
         self._unset_P = np.zeros(K, dtype=bool)
-        self._x_prior, self._x_post, self._S_prior, self._S_post = self._x, self._x, self._S, self._S
-        self._y = np.zeros((K, m))
-        self._loglik = np.zeros(K)
-        self._nis = np.zeros(K)
-        self._rejected = np.zeros((K, m), dtype=bool)
-        self._y_whitened, self._log_det = np.zeros((K, m)), np.zeros(K)
         self.chunk = chunk
-        self.vectorized_hooks = vectorized_hooks
 
     # -- configuration and sizes ----------------------------------------------
 
@@ -385,20 +363,18 @@ class Fleet:
     @gate.setter
     def gate(self, value) -> None:
         self._gate = as_gate(value)
-        self._route = None
+        self._engine.configure(self._new_route())
 
     def _hooks(self) -> Hooks:
         return Hooks(self.x_mean, self.z_mean, self.residual_x, self.residual_z, self.state_add)
 
-    def _route_now(self) -> Route:
-        """The engine's route of this configuration (built again after a hook or the gate changed)."""
-        route = self._route
-        if route is None:
-            hooks = self._hooks()
-            if self._vectorized_hooks:  # a user's hooks called once per chunk (squkf's angle hooks: data)
-                hooks = Hooks(*(h if h is None or is_data(h) else StackedHook(h) for h in hooks))
-            route = self._route = Route(self._plan, hooks, self._gate, single=False)
-        return route
+    def _new_route(self) -> Route:
+        """The engine's route of this configuration (built again when a hook, the gate or
+        ``vectorized_hooks`` changes)."""
+        hooks = self._hooks()
+        if self._vectorized_hooks:  # a user's hooks called once per chunk (squkf's angle hooks: data)
+            hooks = Hooks(*(h if h is None or is_data(h) else StackedHook(h) for h in hooks))
+        return Route(self._plan, hooks, self._gate, single=False)
 
     @property
     def vectorized_hooks(self) -> bool:
@@ -408,13 +384,13 @@ class Fleet:
     @vectorized_hooks.setter
     def vectorized_hooks(self, value) -> None:
         self._vectorized_hooks = check_flag(value, "vectorized_hooks")
-        self._route = None
+        self._engine.configure(self._new_route())
 
     # the model functions: a fleet needs both
     hx = ModelFunction(optional=False, why="a fleet needs fx and hx")
     fx = ModelFunction(optional=False, why="a fleet needs fx and hx")
 
-    # the hooks: assigning one builds the engine's route again (at the next step)
+    # the hooks: assigning one builds the engine's route again
     x_mean = Hook()
     z_mean = Hook()
     residual_x = Hook()
@@ -422,44 +398,45 @@ class Fleet:
     state_add = Hook()
 
     def _hooks_assigned(self) -> None:
-        self._route = None
+        if "_gate" in self.__dict__:  # (not while __init__ sets the hooks: the engine is built after)
+            self._engine.configure(self._new_route())
 
     # -- state and noise: handed out (edits in place taken by boundary.attributes.HandOut) -------
 
     @property
     def x(self) -> np.ndarray:
         """States, shape ``(K, dim_x)``."""
-        return self._handed.array("x", self._x.copy)
+        return self._handed.array("x", self._engine.x.copy)
 
     @x.setter
     def x(self, value):
-        self._x, self._unset_x = checks.per_filter(value, "x", self._K, (self._n,), placeholders=True)
+        x, self._unset_x = checks.per_filter(value, "x", self._K, (self._n,), placeholders=True)
+        self._engine.assign(x=x, idle=True)
         self._handed.drop("x")  # the array handed out is history
-        self._pending = _IDLE_STEP
 
     @property
     def P1_2(self) -> np.ndarray:
         """Lower factors of the covariances, shape ``(K, dim_x, dim_x)`` (fresh; assign to change)."""
         self._take_edits()
-        return self._S.copy()
+        return self._engine.S.copy()
 
     @P1_2.setter
     def P1_2(self, value):
-        self._S = lower_factors(value, "P1_2", self._n, self._K)
+        self._engine.assign(S=lower_factors(value, "P1_2", self._n, self._K), idle=True)
         self._unset_P = np.zeros(self._K, dtype=bool)
         self._handed.drop("P")
-        self._pending = _IDLE_STEP
 
     @property
     def P(self) -> np.ndarray:
         """Covariances, shape ``(K, dim_x, dim_x)``."""
-        return self._handed.array("P", lambda: self._S @ np.swapaxes(self._S, -1, -2))
+        S = self._engine.S
+        return self._handed.array("P", lambda: S @ np.swapaxes(S, -1, -2))
 
     @P.setter
     def P(self, value):
-        self._S, self._unset_P = covariance_factors(value, "P", self._n, self._K, placeholders=True)
+        S, self._unset_P = covariance_factors(value, "P", self._n, self._K, placeholders=True)
+        self._engine.assign(S=S, idle=True)
         self._handed.drop("P")
-        self._pending = _IDLE_STEP
 
     @property
     def Q(self) -> np.ndarray:
@@ -513,7 +490,7 @@ class Fleet:
     def _take_edits(self) -> None:
         """Take the edits in place of ``x``, ``P``, ``Q``, ``R`` through their setters (which may raise)."""
         if self._handed.held:
-            self._handed.take(HANDED.values(), lambda name, a: setattr(self, name, a))
+            self._handed.take(HANDED, lambda name, a: setattr(self, name, a))
 
     @property
     def chunk(self) -> int | None:
@@ -530,12 +507,12 @@ class Fleet:
 
     # -- records of the last step (the buffers behind them are not written while a record holds them) --
 
-    x_prior = _record("_x_prior", "States after the last prediction, shape ``(K, dim_x)`` (fresh).")
-    P1_2_prior = _record("_S_prior", "Lower factors after the last prediction, ``(K, n, n)`` (fresh).")
-    P_prior = _record("_S_prior", "Covariances after the last prediction (fresh).", covariance=True)
-    x_post = _record("_x_post", "States after the last update, shape ``(K, dim_x)`` (fresh).")
-    P1_2_post = _record("_S_post", "Lower factors after the last update, ``(K, n, n)`` (fresh).")
-    P_post = _record("_S_post", "Covariances after the last update (fresh).", covariance=True)
+    x_prior = _record("x_prior_record", "States after the last prediction, shape ``(K, dim_x)`` (fresh).")
+    P1_2_prior = _record("S_prior_record", "Lower factors after the last prediction, ``(K, n, n)`` (fresh).")
+    P_prior = _record("S_prior_record", "Covariances after the last prediction (fresh).", covariance=True)
+    x_post = _record("x_post_record", "States after the last update, shape ``(K, dim_x)`` (fresh).")
+    P1_2_post = _record("S_post_record", "Lower factors after the last update, ``(K, n, n)`` (fresh).")
+    P_post = _record("S_post_record", "Covariances after the last update (fresh).", covariance=True)
 
     @property
     def failed(self) -> np.ndarray:
@@ -550,30 +527,40 @@ class Fleet:
             failure[k] = why
         return failure
 
+    def _last(self) -> Update:
+        """The engine's record of the last update (before any: zeros, no innovation, nothing rejected)."""
+        last = self._engine.last
+        if last is None:
+            K, m = self._K, self._m
+            x, S = self._engine.post_record
+            last = Update(x, S, np.zeros((K, m)), None, None, np.zeros(K), np.zeros(K), None,
+                          np.zeros((K, m), dtype=bool), None, m, np.zeros((K, m)), np.zeros(K))  # fmt: skip
+        return last
+
     @property
     def log_likelihood(self) -> np.ndarray:
         """Log-likelihood of each filter's last measurement, shape ``(K,)``."""
-        return self._loglik.copy()
+        return self._last().log_likelihood.copy()
 
     @property
     def likelihood(self) -> np.ndarray:
         """``exp(log_likelihood)``, never below the smallest normal float, shape ``(K,)``."""
-        return np.maximum(np.exp(self._loglik), np.finfo(float).tiny)
+        return np.maximum(np.exp(self._last().log_likelihood), np.finfo(float).tiny)
 
     @property
     def mahalanobis(self) -> np.ndarray:
         """Mahalanobis distance of each filter's last innovation, shape ``(K,)``."""
-        return np.sqrt(self._nis)
+        return np.sqrt(self._last().nis)
 
     @property
     def y(self) -> np.ndarray:
         """Innovations of the last update, shape ``(K, dim_z)``, NaN where nothing was measured (a copy)."""
-        return self._y.copy()
+        return self._last().y.copy()
 
     @property
     def nis(self) -> np.ndarray:
         """Normalised innovation squared of each filter's last update, shape ``(K,)`` (a copy)."""
-        return self._nis.copy()
+        return self._last().nis.copy()
 
     @property
     def y_whitened(self) -> np.ndarray:
@@ -582,7 +569,7 @@ class Fleet:
         NaN where a component was not measured (or a filter not updated); ``nis`` is each row's squared
         norm, as :attr:`SquareRootUKF.y_whitened`.
         """
-        return self._y_whitened.copy()
+        return self._last().w.copy()
 
     @property
     def log_det_S1_2(self) -> np.ndarray:
@@ -590,12 +577,12 @@ class Fleet:
 
         0 where a filter was not updated.
         """
-        return self._log_det.copy()
+        return self._last().log_det_S1_2.copy()  # type: ignore[union-attr]  # (a fleet's record keeps it)
 
     @property
     def rejected(self) -> np.ndarray:
         """The components the gate rejected in the last update, shape ``(K, dim_z)`` (a copy)."""
-        return self._rejected.copy()
+        return self._last().rejected.copy()
 
     def reset(self, filters=None, x=None, P=None) -> None:
         """Clear the flag of ``filters`` (default: every flagged one), optionally setting their state.
@@ -609,7 +596,9 @@ class Fleet:
         self._take_edits()
         idx = np.flatnonzero(self._failed) if filters is None else np.arange(self._K)[filters]
         idx = np.atleast_1d(idx)
-        self._x, self._S = reset_rows(x, P, idx, self._x, self._S)
+        e = self._engine
+        new_x, new_S = reset_rows(x, P, idx, e.x, e.S)
+        e.assign(new_x, new_S, idle=True)
         if x is not None:
             self._unset_x = self._unset_x.copy()
             self._unset_x[idx] = False
@@ -619,15 +608,13 @@ class Fleet:
         self._handed.drop("x", "P")
         self._failed[idx] = False
         self._failure = {k: why for k, why in self._failure.items() if self._failed[k]}
-        self._pending = _IDLE_STEP
 
     # -- the step -----------------------------------------------------------------
 
     def ask_predict(self) -> np.ndarray:
         """First half of a prediction: the first sigma-point sets, shape ``(K, N, dim_x)`` (fresh)."""
         self._take_edits()
-        X = (self._route or self._route_now()).first_points(self._x, self._S)
-        self._pending = _Pending(PREDICTING, X)
+        X = self._engine.ask_predict()
         return handed_points(X, self._plan.w_xi, self._Q1_2, (self._K,))
 
     def predict(self, dt=None, **fx_args) -> None:
@@ -648,26 +635,22 @@ class Fleet:
         dt = self._dt if dt is None else check_time_step(dt)
         if self._handed.held:
             self._take_edits()
-        self._predict(self._fx_images(dt, fx_args), None)
+        self._predict(self._fx_images(dt, fx_args), True)
 
     def tell_predict(self, sigmas_f) -> None:
         """Second half of a prediction: ``fx`` at the points from :meth:`ask_predict`, ``(K, N, dim_x)``."""
         self._take_edits()
-        X = self._told(PREDICTING, "tell_predict").first
-        F = checks.stacked_shape(sigmas_f, X.shape, "fx values", copy=False)
-        self._predict(lambda rows, X: F[rows], X)
+        X = self._engine.X
+        if self._engine.phase != PREDICTING or X is None:  # (the engine says why)
+            self._engine.tell_predict(None, None)
+        F = checks.stacked_shape(sigmas_f, X.shape, "fx values", copy=False)  # type: ignore[union-attr]
+        self._predict(lambda rows, X: F[rows], False)
 
     def ask_update(self) -> np.ndarray:
         """First half of an update: the second sigma-point sets, shape ``(K, N2, dim_x)`` (fresh)."""
         self._take_edits()
-        p = self._pending_update()
-        sset = p.sset
-        if sset is None:
-            x, S = p.prior
-            sset = (self._route or self._route_now()).second_set(x, S, p.propagated, p.Q1_2)
-        p = _Pending(UPDATING, None, p.prior, p.propagated, p.Q1_2, sset)
-        self._pending = p
-        return handed_points(p.sset.sigmas, self._plan.v_xi, self._R1_2, (self._K,))
+        X = self._engine.ask_update()
+        return handed_points(X, self._plan.v_xi, self._R1_2, (self._K,))
 
     def update(self, z, R=None, **hx_args) -> None:
         """Update every filter with its measurement.
@@ -688,7 +671,7 @@ class Fleet:
         if self._handed.held:
             self._take_edits()
         R1_2 = self._R1_2 if R is None else noise_factors(R, "R", self._rd, self._K)
-        self._update(self._pending_update(), self._hx_images(R1_2, hx_args), zz, R1_2)
+        self._update(self._hx_images(R1_2, hx_args), zz, R1_2, self._engine.pending_update())
 
     def tell_update(self, sigmas_h, z, R=None) -> None:
         """Second half of an update: ``hx`` at the points from :meth:`ask_update`, and ``z`` (K, dim_z)."""
@@ -700,11 +683,12 @@ class Fleet:
                 f" before asking, not R={R!r:.60} here"
             )
         R1_2 = self._R1_2 if R is None else noise_factors(R, "R", self._rd, self._K)
-        p = self._told(UPDATING, "tell_update")
-        sset: SigmaSet = p.sset  # type: ignore[assignment]  # set in phase UPDATING
-        shape = sset.sigmas.shape[:-1] + (self._m,)
+        sset = self._engine.sset
+        if self._engine.phase != UPDATING or sset is None:  # (the engine says why)
+            self._engine.tell_update(None, zz, None, self._R1_2)
+        shape = sset.sigmas.shape[:-1] + (self._m,)  # type: ignore[union-attr]
         H = checks.stacked_shape(sigmas_h, shape, "hx values", copy=True)
-        self._update(p, lambda rows, s: H[rows], zz, R1_2)
+        self._update(lambda rows, s: H[rows], zz, R1_2, None)
 
     # -- the step's parts -----------------------------------------------------------
 
@@ -712,13 +696,17 @@ class Fleet:
         """``images(rows, X)``: ``fx`` at the first sets ``X`` of the filters ``rows``, arguments cut."""
         kwargs = checks.with_filter_axis(fx_args, self._K) if fx_args else fx_args
         K, plan, Q = self._K, self._plan, self._Q1_2
-        fx = self.fx
+        fx = self.__dict__["fx"]  # (as the descriptor reads it)
 
         def images(rows: slice, X: np.ndarray):
             kw = checks.chunk_args(kwargs, K, rows) if kwargs else kwargs
             # the points themselves: the step reads only their shape afterwards
             W = None if plan.w_xi is None else noise_points(plan.w_xi, rows_of(Q, rows, 2), (X.shape[0],))
-            return checks.call_stack(fx, "fx", X, W, (dt,), kw)
+            try:
+                return fx(X, dt, **kw) if W is None else fx(X, W, dt, **kw)
+            except Exception as exc:
+                checks.note_stack_call(exc, "fx", X, W)
+                raise
 
         return images
 
@@ -726,124 +714,71 @@ class Fleet:
         """``images(rows, sset)``: ``hx`` at the second sets of the filters ``rows``, arguments cut."""
         kwargs = checks.with_filter_axis(hx_args, self._K) if hx_args else hx_args
         K, plan = self._K, self._plan
-        hx = self.hx
+        hx = self.__dict__["hx"]  # (as the descriptor reads it)
 
         def images(rows: slice, sset):
             kw = checks.chunk_args(kwargs, K, rows) if kwargs else kwargs
             k = sset.sigmas.shape[0]
             V = None if plan.v_xi is None else noise_points(plan.v_xi, rows_of(R1_2, rows, 2), (k,))
-            return checks.call_stack(hx, "hx", sset.sigmas.copy(), V, (), kw)
+            X = sset.sigmas.copy()  # hx gets its own copy: the update reads the set
+            try:
+                return hx(X, **kw) if V is None else hx(X, V, **kw)
+            except Exception as exc:
+                checks.note_stack_call(exc, "hx", X, V)
+                raise
 
         return images
 
-    def _told(self, phase: str, what: str) -> _Pending:
-        """The pending ask of a ``tell_*`` (phase ``phase``), or a CallSequenceError."""
-        p = self._pending
-        if p.phase != phase:
-            raise CallSequenceError(
-                f"{what} needs a pending {what.replace('tell', 'ask')}, but the step is {p.phase!r}"
-            )
-        return p
-
-    def _pending_update(self) -> _Pending:
-        """The update pending for the current estimate: after a prediction, its prior and what its second
-        set reads; after the estimate was assigned (or with no prediction), the estimate alone."""
-        p = self._pending
-        if p.phase == PREDICTING:
-            raise CallSequenceError(
-                "ask_update called while a prediction is pending: tell_predict the fx values first"
-            )
-        prior = p.prior
-        if p.phase in (PRIOR, UPDATING) and prior is not None and prior[0] is self._x and prior[1] is self._S:
-            return p
-        return _Pending(PRIOR, None, (self._x, self._S))
-
-    def _unset_fails(self) -> dict[int, str]:
-        """The filters a step flags for an ``x`` or ``P`` not set (an all-NaN row), with the reason."""
+    def _step_of(self, images: Callable) -> Step:
+        """The engine's call for a half step (its runner's, ``stacks.Chunks``) when some ``x`` or ``P`` is not
+        set (an all-NaN row): those filters are flagged, with the reason, and the others stepped."""
         unset = self._unset_x | self._unset_P
-        if not unset.any():
-            return {}
-        fails = {}
+        fails: dict[int, str] = {}
         for k in np.flatnonzero(unset & ~self._failed).tolist():
             names = " and ".join(name for name, u in (("x", self._unset_x), ("P", self._unset_P)) if u[k])
             fails[k] = f"{names} of filter {k} was never set (a placeholder, all NaN): assign it, reset({k})"
-        return fails
+        return Step(images, ~self._failed & ~unset, fails, self._chunk, self.on_error == "raise")
 
-    def _predict(self, images: Callable, first: np.ndarray | None) -> None:
-        fails = self._unset_fails()
+    def _predict(self, images: Callable, whole: bool) -> None:
+        """A prediction (``whole``: its points drawn a chunk at a time; else those of the pending ask)."""
+        if self._unset_x.any() or self._unset_P.any():
+            step = self._step_of(images)
+        else:  # (the usual step, built here)
+            step = Step(images, ~self._failed, {}, self._chunk, self.on_error == "raise")
         Q = None if self._plan.w_xi is not None else self._Q1_2  # noise entering fx is in the points already
-        buffers = self._buffers
-        buffers.abandon()
-        route = self._route or self._route_now()
-        prior = stacks.predict(
-            route,
-            self._x,
-            self._S,
-            Q,
-            ~self._failed if not fails else ~self._failed & ~self._unset_x & ~self._unset_P,
-            images,
-            fails,
-            first,
-            self._chunk,
-            buffers,
-            self._held(),
-        )
-        if fails and self.on_error == "raise":
-            raise failures_error(fails)
-        buffers.commit()
-        # commit; the second set is drawn by the update, a chunk at a time (memory)
-        self._pending = _Pending(PRIOR, None, (prior.x, prior.S), prior.propagated, Q)
-        self._stepped(prior.x, prior.S, fails)
-        self._x_prior, self._S_prior = prior.x, prior.S  # not written while held (_held): copied when read
-
-    def _held(self) -> tuple:
-        """The arrays the records hold: what a step must not write (its results go to spare buffers)."""
-        return self._x, self._S, self._x_prior, self._S_prior, self._x_post, self._S_post
-
-    def _stepped(self, x: np.ndarray, S: np.ndarray, fails: dict[int, str]) -> None:
-        """A half step's commit: the new estimate (the arrays handed out for it are history), flags."""
-        self._x, self._S = x, S
+        self._engine.tell_predict(step, Q, None, None, "fx values", whole)
+        # committed: the arrays handed out for the old estimate are history, the failing filters flagged
         if self._handed.held:
             self._handed.drop("x", "P")
-        for k, why in fails.items():
+        for k, why in step.fails.items():
             self._failed[k] = True
             self._failure[int(k)] = why
 
-    def _update(self, pending: _Pending, images: Callable, z: np.ndarray, R1_2) -> None:
-        m, fails = self._m, self._unset_fails()
-        active = ~self._failed  # (and, chunk by chunk, a measurement)
-        if fails:
-            active &= ~self._unset_x & ~self._unset_P
+    def _update(self, images: Callable, z: np.ndarray, R1_2, pending: tuple | None) -> None:
+        """An update (``pending``: the engine's pending update of a whole call; None: the asked one)."""
+        if self._unset_x.any() or self._unset_P.any():
+            step = self._step_of(images)
+        else:  # (the usual step, built here)
+            step = Step(images, ~self._failed, {}, self._chunk, self.on_error == "raise")
         if self._plan.v_xi is not None:  # noise entering hx is in the points: the update adds none
-            R1_2 = np.zeros((m, m))
-        x, S = pending.prior  # type: ignore[misc]
-        buffers = self._buffers
-        buffers.abandon()
-        route = self._route or self._route_now()
-        post = stacks.update(
-            route, x, S, pending.sset, pending.propagated, pending.Q1_2, z, R1_2, active, images,
-            fails, self._chunk, buffers, self._held(),
-        )  # fmt: skip
-        if fails and self.on_error == "raise":
-            raise failures_error(fails)
-        buffers.commit()
-        # commit
-        self._pending = _IDLE_STEP
-        self._stepped(post.x, post.S, fails)
-        self._x_post, self._S_post = post.x, post.S  # not written while held (_held): copied when read
-        self._y, self._loglik = post.y, post.log_likelihood
-        self._nis, self._rejected = post.nis, post.rejected
-        self._y_whitened, self._log_det = post.y_whitened, post.log_det_S1_2
+            R1_2 = np.zeros((self._m, self._m))
+        self._engine.tell_update(step, z, None, R1_2, None, pending)
+        if self._handed.held:
+            self._handed.drop("x", "P")
+        for k, why in step.fails.items():
+            self._failed[k] = True
+            self._failure[int(k)] = why
 
     def _no_update(self) -> None:
         """The records of a step in which no filter had a measurement, as :meth:`update` would leave them."""
         K, m = self._K, self._m
-        self._pending = _IDLE_STEP
+        e = self._engine
         # the record's own copies: the estimate may live in the arrays the next prediction writes
-        self._x_post, self._S_post = self._x.copy(), self._S.copy()
-        self._y, self._loglik = np.full((K, m), np.nan), np.zeros(K)
-        self._nis, self._rejected = np.zeros(K), np.zeros((K, m), dtype=bool)
-        self._y_whitened, self._log_det = np.full((K, m), np.nan), np.zeros(K)
+        none = Update(
+            e.x.copy(), e.S.copy(), np.full((K, m), np.nan), None, None, np.zeros(K), np.zeros(K), None,
+            np.zeros((K, m), dtype=bool), None, m, np.full((K, m), np.nan), np.zeros(K),
+        )  # fmt: skip
+        e.skip_update(none)
 
     # -- many steps ---------------------------------------------------------------
 
@@ -912,22 +847,21 @@ class Fleet:
                 bar.close()
         r = records
         return FleetResult(
-            r.means, r.factors, r.variances, r.loglik, self._failed.copy(), self._x.copy(), self._S.copy(),
+            r.means, r.factors, r.variances, r.loglik, self._failed.copy(), self._engine.x.copy(),
+            self._engine.S.copy(),
             r.rejected, r.nis, r.y_whitened, r.log_det,
         )  # fmt: skip
 
     def _step(self, t: int, z: np.ndarray, dt: float, fx_args: dict, hx_args: dict, records: Records) -> None:
         """Step ``t`` of :meth:`batch_filter`, its records kept."""
         self._take_edits()  # (a progress callback may have edited x, P, Q or R in place)
-        self._predict(self._fx_images(dt, fx_args), None)
+        self._predict(self._fx_images(dt, fx_args), True)
         if np.isnan(z).all():  # no measurement at all: as update() would leave it
             self._no_update()
         else:
             self._take_edits()
-            self._update(self._pending_update(), self._hx_images(self._R1_2, hx_args), z, self._R1_2)
-        records.keep(
-            t, self._x, self._S, self._loglik, self._rejected, self._nis, self._y_whitened, self._log_det
-        )
+            self._update(self._hx_images(self._R1_2, hx_args), z, self._R1_2, self._engine.pending_update())
+        records.keep(t, self._engine.last)  # type: ignore[arg-type]  # (an update or _no_update's)
 
     def transaction(self) -> Transaction:
         """A context manager that puts the fleet back as it was on entry if anything inside raises.
@@ -943,6 +877,7 @@ class Fleet:
     def _restore(self, saved: tuple[Fleet, HandOut]) -> None:
         before, handed = saved
         self.__dict__.update(before.__dict__)
+        self._engine = before._engine
         self.__dict__["_handed"] = handed  # the arrays handed out stay the caller's, still current
 
     # -- one filter and back --------------------------------------------------------
@@ -950,7 +885,8 @@ class Fleet:
     def __getitem__(self, k: int):
         """Filter ``k`` as a :class:`squkf.SquareRootUKF` (vectorised, with its state and configuration)."""
         k = int(np.arange(self._K)[k])
-        return filter_of(SquareRootUKF, self.configuration(), k, self._x, self._S, self._pending.phase)
+        e = self._engine
+        return filter_of(SquareRootUKF, self.configuration(), k, e.x, e.S, e.phase)
 
     def configuration(self) -> Config:
         """The fleet's configuration and noise factors (``squkf.boundary.Config``), edits taken.
@@ -993,21 +929,14 @@ class Fleet:
             raise ParameterError(
                 f"rows selects no filter (rows={rows!r:.100}): a fleet has at least one filter"
             )
-        new = copy.copy(self)
+        new = self._with(self._engine.rows(idx))
         new._K = int(idx.size)
-        new._x, new._S = self._x[idx], self._S[idx]
         new._Q1_2 = rows_of(self._Q1_2, idx, 2)
         new._R1_2 = rows_of(self._R1_2, idx, 2)  # type: ignore[assignment]
         new._handed = HandOut()  # the arrays handed out are this fleet's
         new._failed = self._failed[idx]
         new._unset_x, new._unset_P = self._unset_x[idx], self._unset_P[idx]
         new._failure = {i: self._failure[k] for i, k in enumerate(idx.tolist()) if k in self._failure}
-        new._pending = _IDLE_STEP
-        new._x_prior, new._x_post = self._x_prior[idx], self._x_post[idx]
-        new._S_prior, new._S_post = self._S_prior[idx], self._S_post[idx]
-        new._y, new._loglik = self._y[idx], self._loglik[idx]
-        new._nis, new._rejected = self._nis[idx], self._rejected[idx]
-        new._y_whitened, new._log_det = self._y_whitened[idx], self._log_det[idx]
         return new
 
     @classmethod
@@ -1075,11 +1004,16 @@ class Fleet:
         return fleet
 
     def __copy__(self) -> Fleet:
+        # the engine's copy carries its state and any half-done step, its arrays the copy's own
+        return self._with(copy.copy(self._engine))
+
+    def _with(self, engine: Engine) -> Fleet:
+        """A fleet of this configuration with its own copies of the arrays in ``__dict__``, on ``engine``."""
         new = type(self).__new__(type(self))
         copies: dict[int, np.ndarray] = {}
         d = {}
         for key, v in self.__dict__.items():
-            if isinstance(v, np.ndarray):  # an array two records share is copied once, and stays shared
+            if isinstance(v, np.ndarray):  # an array two entries share is copied once, and stays shared
                 if id(v) not in copies:
                     copies[id(v)] = v.copy()
                 v = copies[id(v)]
@@ -1087,34 +1021,34 @@ class Fleet:
         # the copy's own arrays handed out, pending edits included
         d["_handed"] = self._handed.detached()
         d["_failure"] = dict(self._failure)
-        p = self._pending
-        if p.prior is not None:
-            # the pending update is known by the identity of the estimate it was drawn for: the
-            # copy's pending step must belong to the copy's estimate, and its own propagated set
-            x, S = p.prior
-            prior = (copies.get(id(x), x), copies.get(id(S), S))
-            propagated = None if p.propagated is None else p.propagated.copy()
-            sset = p.sset
-            if sset is not None:  # its arrays may be the original's buffers (the propagated set's are)
-                offsets = None if sset.offsets is None else sset.offsets.copy()
-                sset = sset._replace(sigmas=sset.sigmas.copy(), offsets=offsets)
-            d["_pending"] = _Pending(p.phase, p.first, prior, propagated, p.Q1_2, sset)
-        new._buffers = Buffers()  # the copy's own (not copied: nothing of them outlives a step)
         new.__dict__.update(d)
+        new._engine = engine
         return new
 
     def __getstate__(self) -> dict:
-        return dict(self.__dict__)  # not the buffers
+        return {**self.__dict__, "_engine": self._engine}  # (the engine pickles without its buffers)
 
     def __setstate__(self, state: dict) -> None:
         if "points_fn" in state:  # pickled when the points were a plain attribute
             state = {("_points" if k == "points_fn" else k): v for k, v in state.items()}
         state.setdefault("_unset_x", np.zeros(state["_K"], dtype=bool))  # pickled before placeholders
         state.setdefault("_unset_P", np.zeros(state["_K"], dtype=bool))
-        state.setdefault("_y_whitened", np.full(state["_y"].shape, np.nan))  # pickled before the record
-        state.setdefault("_log_det", np.zeros(state["_K"]))
+        state.setdefault("_vectorized_hooks", False)  # pickled before the option
+        engine = state.pop("_engine", None)
+        old = {k: state.pop(k, None) for k in _BEFORE_ENGINE}
         self.__dict__.update(state)
-        self._buffers = Buffers()
+        if engine is None:  # pickled before the fleet held an engine: its state and records, idle
+            engine = Engine(self._new_route(), old["_x"], old["_S"], None, None, CHUNKS)
+            engine.prior_record = (old["_x_prior"], old["_S_prior"])
+            engine.post_record = (old["_x_post"], old["_S_post"])
+            m = self._m
+            w, ld = old["_y_whitened"], old["_log_det"]  # (pickled before the record: NaN and 0)
+            engine.last = Update(
+                old["_x_post"], old["_S_post"], old["_y"], None, None, old["_loglik"], old["_nis"], None,
+                old["_rejected"], None, m, np.full(old["_y"].shape, np.nan) if w is None else w,
+                np.zeros(self._K) if ld is None else ld,
+            )  # fmt: skip
+        self._engine = engine
         if isinstance(self._failure, np.ndarray):  # pickled before the reasons were kept as a dict
             self._failure = {int(k): str(self._failure[k]) for k in np.flatnonzero(self._failure != "")}
 

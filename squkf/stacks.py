@@ -1,12 +1,14 @@
-"""A fleet's step, a chunk of filters at a time: the engine's route on each chunk, failures flagged alone.
+"""A fleet's step, a chunk of filters at a time: the runner of a fleet's engine, failures flagged alone.
 
-A step of K filters runs chunk by chunk, at most ``Fleet.chunk`` filters each
-(by default :func:`default_chunk`, :data:`CHUNK` on one thread): a chunk's
-first set is drawn, the model is called with the chunk's points, and the
-chunk's prior computed (a prediction); or its second set is drawn, the model
-called, and its posterior computed (an update). Each is a phase of the
-engine's :class:`~squkf.engine.Route` on a block of the chunk's filters, the
-same kernels as one filter's step. The step's temporary arrays are then the
+A fleet's :class:`~squkf.engine.Engine` keeps its pending step and commits;
+how its phases run is :class:`Chunks` (:data:`CHUNKS`). A step of K filters
+runs chunk by chunk, at most ``Fleet.chunk`` filters each (by default
+:func:`default_chunk`, :data:`CHUNK` on one thread): a chunk's first set is
+drawn, the model is called with the chunk's points, and the chunk's prior
+computed (a prediction); or its second set is drawn, the model called, and
+its posterior computed (an update). Each is a phase of the engine's
+:class:`~squkf.engine.Route` on a block of the chunk's filters, the same
+kernels as one filter's step. The step's temporary arrays are then the
 size of a chunk, not of the fleet, and the chunks can run on the threads of
 :func:`squkf.set_num_threads`. Each filter's arithmetic is its own, so its
 numbers are the same, bit for bit, whatever chunk or thread it is in.
@@ -29,31 +31,32 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .boundary.records import failures_error
 from .boundary.records import log_det as log_det_of
 from .checks import describe_nonfinite, finite_images, stacked_shape
-from .engine import Buffers, Route, Scratch
+from .engine import Buffers, Route, Scratch, Update
 from .errors import NonFiniteError, NotPositiveDefiniteError, SqukfError
 from .generators import SigmaSet
 from .kernels.table import kernel_array
 from .kernels.threads import enter_step, exit_step, thread_map
-from .rows import RowForm
 from .statuses import failure
 
 __all__ = [
     "BLOCK",
     "CHUNK",
     "CHUNK_BYTES",
-    "Posteriors",
-    "Prior",
+    "CHUNKS",
+    "Chunks",
+    "Step",
     "chunks",
     "default_chunk",
     "numerical",
-    "predict",
     "rows_of",
     "run_isolated",
     "take_set",
-    "update",
 ]
+
+_FLOAT64 = np.dtype(np.float64)
 
 #: Filters per chunk of a fleet's step on one thread (their arrays stay in cache; see the module docstring).
 CHUNK = 2048
@@ -245,25 +248,16 @@ def _second_size(plan, Q1_2) -> int:
     return fused.xi.shape[0] + (N if fused.augmented else 0)
 
 
-def _as_kernels_take(x: np.ndarray, S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The estimates as the kernels take them (float64, C-contiguous, writeable): so are their chunks.
-
-    :func:`squkf.kernels.table.kernel_array` of each, with the usual case (both already so) in one call.
-    """
-    fx, fS = x.flags, S.flags
-    if fx.c_contiguous and fx.writeable and fS.c_contiguous and fS.writeable and x.dtype == S.dtype == float:
-        return x, S
-    return kernel_array(x), kernel_array(S)
-
-
-def _statuses(k: int) -> tuple:
-    return (np.empty(k, dtype=np.int64),)
+def _chunk_prior(k: int, N: int, n: int) -> tuple:
+    """A chunk's first set ``(k, N, n)`` and the transform kernel's statuses."""
+    return np.empty((k, N, n)), np.empty(k, dtype=np.int64)
 
 
 def _chunk_update(k: int, n: int, m: int) -> tuple:
-    """The joint kernel's outputs a chunk does not keep: ``zp, Sy, L21, dx, status``."""
+    """A chunk's rows of ``z``, and the joint kernel's outputs it does not keep: ``zp, Sy, L21, dx,
+    status``."""
     return (
-        np.empty((k, m)), np.empty((k, m, m)), np.empty((k, n, m)), np.empty((k, n)),
+        np.empty((k, m)), np.empty((k, m)), np.empty((k, m, m)), np.empty((k, n, m)), np.empty((k, n)),
         np.empty(k, dtype=np.int64),
     )  # fmt: skip
 
@@ -414,377 +408,306 @@ def _flag(status: np.ndarray, on: np.ndarray, found: dict[int, str], form, what:
     return on & ~bad
 
 
-# -- the prediction -------------------------------------------------------------------------------
+# -- the runner -------------------------------------------------------------------------------------
 
 
-class Prior(NamedTuple):
-    """The priors of a fleet's prediction (in the fleet's buffers where given, else new arrays).
+class Step(NamedTuple):
+    """A fleet's call as its runner takes it, in place of a block's images (:class:`Chunks`).
 
     Attributes
     ----------
-    x : ndarray, shape (K, n)
-    S : ndarray, shape (K, n, n)
-        A failing or inactive filter keeps its estimate.
-    propagated : ndarray, shape (K, N, n), or None
-        The first sets' images, when the plan's second set reads them.
-    """
-
-    x: np.ndarray
-    S: np.ndarray
-    propagated: np.ndarray | None
-
-
-def predict(
-    route: Route,
-    x: np.ndarray,
-    S: np.ndarray,
-    Q1_2: np.ndarray | None,
-    active: np.ndarray,
-    images: Callable[[slice, np.ndarray], object],
-    fails: dict[int, str],
-    first: np.ndarray | None = None,
-    size: int | None = None,
-    buffers: Buffers | None = None,
-    held: tuple = (),
-) -> Prior:
-    """The prediction of a stack of filters, a chunk at a time, failing filters flagged alone.
-
-    Parameters
-    ----------
-    route : Route
-        The fleet's (``single`` False).
-    x : ndarray, shape (K, n)
-    S : ndarray, shape (K, n, n)
-    Q1_2 : ndarray, shape (d, d) or (K, d, d), or None
-        Additive process noise factor, shared or per filter (None: none added).
-    active : ndarray of bool, shape (K,)
-        The filters to step (the others keep their estimate).
     images : callable
-        ``images(rows, X)``: the model at the first sets ``X`` ``(k, N, n)`` of
-        the filters ``rows`` (a slice), shape ``(k, N, n)``.
+        The model at a chunk: ``images(rows, X)`` for a prediction, with the first sets ``X``
+        ``(k, N, n)`` of the filters ``rows`` (a slice); ``images(rows, sset)`` for an update, with
+        their second sets. Shape ``(k, N, d)``.
+    active : ndarray of bool, shape (K,)
+        The filters to step (the others keep their estimate; for an update, those of them with a
+        measurement).
     fails : dict
         Filled with ``filter -> reason`` for the filters that fail.
-    first : ndarray, shape (K, N, n), optional
-        The first sets already handed out (``ask_predict``); default: drawn per chunk.
-    size : int, optional
-        Filters per chunk, at most (default: :func:`default_chunk` of the thread count and ``K``).
-    buffers : Buffers, optional
-        The fleet's: the results are written into its spare sets (the caller commits them), the
-        estimates into a set none of whose arrays is one of ``held`` (:meth:`Buffers.spare`).
-    held : tuple of ndarray
-        The arrays the fleet's records hold (its estimate, prior and posterior).
-
-    Returns
-    -------
-    Prior
+    size : int or None
+        Filters per chunk, at most (None: :func:`default_chunk` of the thread count and ``K``).
+    raises : bool
+        A failing filter raises :class:`~squkf.errors.FleetStepError` for them all (nothing committed)
+        instead of being flagged.
     """
-    K, n = x.shape
-    x, S = _as_kernels_take(x, S)
-    plan = route.plan
-    N = plan.xi1.shape[0]
-    keep = plan.keeps_propagated
 
-    if buffers is None:
-        x_new, S_new = _estimates(K, n)
-        propagated = _propagated(K, N, n)[0] if keep else None
-    else:
+    images: Callable
+    active: np.ndarray
+    fails: dict[int, str]
+    size: int | None
+    raises: bool
+
+
+class Chunks:
+    """How a fleet's phases run: a chunk of filters at a time, on threads, failing filters flagged alone.
+
+    The runner of a fleet's :class:`~squkf.engine.Engine` (:data:`CHUNKS`), with the methods of
+    :class:`squkf.engine.Block`: the engine keeps the pending step and commits; here each phase is the
+    route's on a chunk's block, its temporaries the chunk's (:class:`_Spare`), its results written
+    into the step's ``(K, ...)`` arrays (the engine's buffers: the estimates in a set none of whose
+    arrays the records hold, :meth:`~squkf.engine.Buffers.spare`).
+    """
+
+    __slots__ = ()
+    defers = True  # the second set is drawn at the update, a chunk at a time: no (K, N2, n) set is kept
+
+    def __reduce__(self) -> str:
+        return "CHUNKS"  # the one runner, by name
+
+    @staticmethod
+    def prior(route: Route, x, S, step: Step, first, Q1_2, UT, name: str, buffers: Buffers, held: tuple):
+        """The prediction of the fleet's filters, a chunk at a time (nothing committed).
+
+        Parameters
+        ----------
+        route : Route
+            The fleet's (``single`` False).
+        x : ndarray, shape (K, n)
+        S : ndarray, shape (K, n, n)
+        step : Step
+            ``step.images(rows, X)``: ``fx`` at the first sets ``X`` of the filters ``rows``.
+        first : ndarray, shape (K, N, n), or None
+            The first sets already handed out (``ask_predict``); None: drawn per chunk.
+        Q1_2 : ndarray, shape (d, d) or (K, d, d), or None
+            Additive process noise factor, shared or per filter (None: none added).
+        UT : None
+        name : str
+        buffers : Buffers
+        held : tuple of ndarray
+            What the records hold: the estimates go to a set of none of them.
+
+        Returns
+        -------
+        x, S : ndarray
+            The priors (a failing or inactive filter keeps its estimate).
+        sset : None
+            (Drawn at the update.)
+        later : tuple
+            ``(propagated, Q1_2)``: the first sets' images ``(K, N, n)`` where the plan's second set
+            reads them (else None), and the noise factor.
+        """
+        K, n = x.shape
+        plan = route.plan
+        N = plan.xi1.shape[0]
         x_new, S_new = buffers.spare(held, _estimates, K, n)
-        propagated = buffers.take(_propagated, K, N, n)[0] if keep else None
-    form = plan.first.rows.best
-    none = route.no_set
+        propagated = buffers.take(_propagated, K, N, n)[0] if plan.keeps_propagated else None
+        images, active, found_all = step.images, step.active, step.fails
+        form = plan.first.rows.best
+        none = route.no_set
 
-    def one(rows: slice) -> dict[int, str]:
-        found: dict[int, str] = {}
-        xs, Ss = x[rows], S[rows]  # (the fleet's own C-contiguous arrays: their rows are as the kernels take)
-        free = _spare.free
-        scratch = free.pop() if free else Scratch()  # this chunk's alone, until given back (_Spare)
-        X = route.first_points(xs, Ss, scratch) if first is None else first[rows]
-        label = "fx values" if rows.stop - rows.start == K else _label("fx values", rows, K)
-        F = stacked_shape(images(rows, X), X.shape, label, False, ("fx", X.shape))
-        F = kernel_array(F)  # (a model's array of another layout: copied once, as kernels take it)
-        on = active[rows]
-        Qr = Q1_2 if Q1_2 is None or Q1_2.ndim == 2 else Q1_2[rows]
-        xo, So = x_new[rows], S_new[rows]
-        if route.plain_x:  # the kernel checks the images and reports each filter's failure
-            k = xs.shape[0]
-            status = scratch.take(_statuses, k)[0]
-            route.prior(F, Qr, None, False, out=(xo, So, status, none, none))  # into the step's results
-            good = _flag(status, on, found, form, "prior", F, "fx values")
-            if not good.all():  # a failing or inactive filter keeps its estimate
-                bad = ~good
-                xo[bad], So[bad] = xs[bad], Ss[bad]
-        else:  # the hooks raise: the chunk is run again a filter at a time to find the failing ones
-            finite = finite_images(F, "fx values", on, found)
+        def one(rows: slice) -> dict[int, str]:
+            found: dict[int, str] = {}
+            xs, Ss = x[rows], S[rows]  # (the engine's C-contiguous arrays: their rows are as kernels take)
+            free = _spare.free
+            scratch = free.pop() if free else Scratch()  # this chunk's alone, until given back (_Spare)
+            X, status = scratch.take(_chunk_prior, xs.shape[0], N, n)
+            X = route.first_points(xs, Ss, X) if first is None else first[rows]
+            F = images(rows, X)
+            f = F.flags if type(F) is np.ndarray and F.dtype == _FLOAT64 and F.shape == X.shape else None
+            if f is None or not (f.c_contiguous and f.writeable):  # checked, copied once as kernels take it
+                label = "fx values" if rows.stop - rows.start == K else _label("fx values", rows, K)
+                F = kernel_array(stacked_shape(F, X.shape, label, False, ("fx", X.shape)))
+            on = active[rows]
+            Qr = Q1_2 if Q1_2 is None or Q1_2.ndim == 2 else Q1_2[rows]
+            xo, So = x_new[rows], S_new[rows]
+            if route.plain_x:  # the kernel checks the images and reports each filter's failure
+                route.prior(F, Qr, None, False, out=(xo, So, status, none, none))  # into the step's results
+                if np.count_nonzero(status) or not on.all():
+                    bad = ~_flag(status, on, found, form, "prior", F, "fx values")
+                    xo[bad], So[bad] = xs[bad], Ss[bad]  # a failing or inactive filter keeps its estimate
+            else:  # the hooks raise: the chunk is run again a filter at a time to find the failing ones
+                finite = finite_images(F, "fx values", on, found)
 
-            def prior(ix):
-                r, ix = _one_or_all(route, ix)  # one filter (an int): as a single filter says its failure
-                mean, Sm, _, _ = r.prior(F[ix], rows_of(Qr, ix, 2), None, False)
-                return mean, Sm
+                def prior(ix):
+                    r, ix = _one_or_all(route, ix)  # one filter (an int): as a single filter says its failure
+                    mean, Sm, _, _ = r.prior(F[ix], rows_of(Qr, ix, 2), None, False)
+                    return mean, Sm
 
-            good_ix, res = run_isolated(prior, np.flatnonzero(on & finite), xs.shape[0], found)
-            xo[...], So[...] = xs, Ss
-            if res is not None:
-                xo[good_ix], So[good_ix] = res
-        if propagated is not None:
-            propagated[rows] = F
-        free.append(scratch)
-        return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
-
-    _map_chunks(one, K, size, fails, 8 * N * n)
-    return Prior(x_new, S_new, propagated)
-
-
-# -- the update ------------------------------------------------------------------------------
-
-
-class Posteriors(NamedTuple):
-    """The records of a fleet's update (in the fleet's buffers where given, else new arrays; a filter not
-    updated keeps its prior).
-
-    Attributes
-    ----------
-    x : ndarray, shape (K, n)
-    S : ndarray, shape (K, n, n)
-    y : ndarray, shape (K, m)
-        Innovations (NaN where a component was missing or the filter not updated).
-    log_likelihood, nis : ndarray, shape (K,)
-        (The Mahalanobis distance is ``sqrt(nis)``.)
-    rejected : ndarray of bool, shape (K, m)
-    y_whitened : ndarray, shape (K, m)
-        ``S1_2^-1 y`` (NaN as ``y``).
-    log_det_S1_2 : ndarray, shape (K,)
-        Of the measured block (0 where a filter was not updated).
-    """
-
-    x: np.ndarray
-    S: np.ndarray
-    y: np.ndarray
-    log_likelihood: np.ndarray
-    nis: np.ndarray
-    rejected: np.ndarray
-    y_whitened: np.ndarray
-    log_det_S1_2: np.ndarray
-
-
-def update(
-    route: Route,
-    x: np.ndarray,
-    S: np.ndarray,
-    sset: SigmaSet | None,
-    propagated: np.ndarray | None,
-    Q1_2: np.ndarray | None,
-    z: np.ndarray,
-    R1_2: np.ndarray,
-    active: np.ndarray,
-    images: Callable[[slice, SigmaSet], object],
-    fails: dict[int, str],
-    size: int | None = None,
-    buffers: Buffers | None = None,
-    held: tuple = (),
-) -> Posteriors:
-    """The update of a stack of filters, a chunk at a time, failing filters flagged alone.
-
-    Parameters
-    ----------
-    route : Route
-    x : ndarray, shape (K, n)
-    S : ndarray, shape (K, n, n)
-        The priors.
-    sset : SigmaSet or None
-        Their second sets ``(K, N2, n)`` (handed out by ``ask_update``), or None
-        to draw them here a chunk at a time.
-    propagated : ndarray, shape (K, N, n), or None
-        The prediction's images, for a second set that reads them.
-    Q1_2 : ndarray or None
-        The prediction's process-noise factor (for the augmented set).
-    z : ndarray, shape (K, m)
-        Measurements, NaN where missing.
-    R1_2 : ndarray, shape (m, m) or (K, m, m)
-        Measurement noise factor, shared or per filter.
-    active : ndarray of bool, shape (K,)
-        The filters not flagged; those of them with a measurement in ``z``
-        are updated (the others keep their prior, with no innovation).
-    images : callable
-        ``images(rows, sset)``: the model at the second sets ``sset`` of the
-        filters ``rows`` (a slice), shape ``(k, N2, m)``.
-    fails, size, buffers, held
-        As for :func:`predict`.
-
-    Returns
-    -------
-    Posteriors
-    """
-    K, m = z.shape
-    n = x.shape[1]
-    x, S = _as_kernels_take(x, S)
-
-    if buffers is None:
-        out = Posteriors(*_estimates(K, n), *_update_records(K, m))
-    else:
-        out = Posteriors(*buffers.spare(held, _estimates, K, n), *buffers.take(_update_records, K, m))
-
-    def one(rows: slice) -> dict[int, str]:
-        found: dict[int, str] = {}
-        xs, Ss = x[rows], S[rows]  # (the fleet's own C-contiguous arrays: their rows are as the kernels take)
-        free = _spare.free
-        scratch = free.pop() if free else Scratch()  # this chunk's alone, until given back (_Spare)
-        if sset is not None:
-            s = take_set(sset, rows)
-        else:
-            prop = None if propagated is None else propagated[rows]
-            s = route.second_set(xs, Ss, prop, rows_of(Q1_2, rows, 2), scratch)
-        shape = s.sigmas.shape[:-1] + (m,)
-        label = "hx values" if rows.stop - rows.start == K else _label("hx values", rows, K)
-        H = kernel_array(stacked_shape(images(rows, s), shape, label, False, ("hx", s.sigmas.shape)))
-        zr = _measured_rows(z, rows, scratch)
-        obs = ~np.isnan(zr)
-        on = active[rows] & obs.any(axis=1)
-        Rr = R1_2 if R1_2.ndim == 2 else R1_2[rows]
-        joint = route.update_route(s, None)
-        plain = joint is not None
-        if joint is not None and route.gate is None and obs.all():  # the usual case: straight into the step's
-            part = out if rows.stop - rows.start == K else [a[rows] for a in out]
-            _whole_chunk(route, joint.form, s, xs, Ss, H, zr, Rr, on, found, part, scratch)
+                good_ix, res = run_isolated(prior, np.flatnonzero(on & finite), xs.shape[0], found)
+                xo[...], So[...] = xs, Ss
+                if res is not None:
+                    xo[good_ix], So[good_ix] = res
+            if propagated is not None:
+                propagated[rows] = F
             free.append(scratch)
             return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
-        if not plain:  # the hooks raise: non-finite images flagged first
-            on = on & finite_images(H, "hx values", on, found)
-        records = _posteriors(route, s, xs, Ss, H, zr, obs, Rr, on, found)
-        for record, rows_record in zip(out, records):
-            record[rows] = rows_record
-        free.append(scratch)
-        return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
 
-    _map_chunks(one, K, size, fails, 8 * _second_size(route.plan, Q1_2) * max(n, m))
-    return out
+        _map_chunks(one, K, step.size, found_all, 8 * N * n)
+        if found_all and step.raises:
+            raise failures_error(found_all)
+        return x_new, S_new, None, (propagated, Q1_2)
+
+    @staticmethod
+    def posterior(route: Route, pending: tuple, step: Step, z, observed, R1_2, UT, name: str, buffers, held):
+        """The update of the fleet's filters, a chunk at a time, through the gate (nothing committed).
+
+        Parameters
+        ----------
+        route : Route
+        pending : tuple
+            The engine's pending update ``((x, S), sset, later)``: the priors ``(K, n)``, ``(K, n, n)``;
+            their second sets ``(K, N2, n)`` (handed out by ``ask_update``), or None to draw them here a
+            chunk at a time from what ``later`` holds (the prediction's images and noise factor).
+        step : Step
+            ``step.images(rows, sset)``: ``hx`` at the second sets of the filters ``rows``.
+        z : ndarray, shape (K, m)
+            Measurements, NaN where missing (each chunk's rows read once, checked as read).
+        observed : None
+            (Each filter's measured components are those of its row of ``z``.)
+        R1_2 : ndarray, shape (m, m) or (K, m, m)
+            Measurement noise factor, shared or per filter.
+        UT : None
+        name : str
+        buffers : Buffers
+        held : tuple of ndarray
+
+        Returns
+        -------
+        update : Update
+            Of every filter: ``y`` ``(K, m)`` NaN where a component was missing or the filter not
+            updated (which keeps its prior, log-likelihood and NIS 0); no innovation factor kept.
+        X1 : None
+        H : None
+            (The images are a chunk's: not kept.)
+        """
+        (x, S), sset, later = pending
+        K, m = z.shape
+        n = x.shape[1]
+        propagated, Q1_2 = (None, None) if later is None else later
+        out = (*buffers.spare(held, _estimates, K, n), *buffers.take(_update_records, K, m))
+        images, active, found_all = step.images, step.active, step.fails
+
+        def one(rows: slice) -> dict[int, str]:
+            found: dict[int, str] = {}
+            k = rows.stop - rows.start
+            xs, Ss = x[rows], S[rows]  # (the engine's C-contiguous arrays: their rows are as kernels take)
+            free = _spare.free
+            scratch = free.pop() if free else Scratch()  # this chunk's alone, until given back (_Spare)
+            if sset is not None:
+                s = take_set(sset, rows)
+            else:
+                prop = None if propagated is None else propagated[rows]
+                Qr = Q1_2 if Q1_2 is None or Q1_2.ndim == 2 else Q1_2[rows]
+                s = route.second_set(xs, Ss, prop, Qr, scratch)
+            shape = s.sigmas.shape[:-1] + (m,)
+            H = images(rows, s)
+            f = H.flags if type(H) is np.ndarray and H.dtype == _FLOAT64 and H.shape == shape else None
+            if f is None or not (f.c_contiguous and f.writeable):  # checked, copied once as kernels take it
+                label = "hx values" if k == K else _label("hx values", rows, K)
+                H = kernel_array(stacked_shape(H, shape, label, False, ("hx", s.sigmas.shape)))
+            # the chunk's rows of z in its own array, checked as read: what the kernels use is what
+            # was checked, even if the model functions wrote into the caller's z (and no (K, m) copy)
+            zr, zp, Sy, L21, dx, status = scratch.take(_chunk_update, k, n, m)
+            np.copyto(zr, z[rows])
+            if np.isinf(zr).any():
+                i = rows.start + int(np.flatnonzero(np.isinf(zr).any(axis=1))[0])
+                raise NonFiniteError(f"z contains inf (row {i}; NaN means a missing component)")
+            obs = ~np.isnan(zr)
+            on = active[rows] & obs.any(axis=1)
+            Rr = R1_2 if R1_2.ndim == 2 else R1_2[rows]
+            part = out if k == K else [a[rows] for a in out]
+            # the usual case, one kernel call: a kernel's update route (as update_route decides it, from
+            # the route's and the set's attributes; kept in posterior), no gate, every component measured
+            if route.kernel_update and s.rows is not None and route.gate is None and obs.all():
+                xo, So, y, ll, nis, rejected, w, log_det = part  # written into the step's records
+                kernel_out = (zp, y, w, Sy, L21, dx, xo, So, ll, nis, status, route.no_set)
+                # (the scratch: the angle kernel's rows, for squkf's angle hooks)
+                route.posterior(s, xs, Ss, H, zr, None, Rr, None, False, buffers=scratch, out=kernel_out)
+                log_det_of(Sy, out=log_det)
+                rejected[...] = False
+                if np.count_nonzero(status) or not on.all():  # a failing or inactive filter keeps its prior
+                    form = route.form_of(s, None)
+                    bad = ~_flag(status, on, found, form, "update", H, "hx values")
+                    xo[bad], So[bad] = xs[bad], Ss[bad]
+                    y[bad], ll[bad], nis[bad], w[bad], log_det[bad] = np.nan, 0.0, 0.0, np.nan, 0.0
+            else:
+                _grouped(route, route.update_route(s, None), s, xs, Ss, H, zr, obs, Rr, on, found, part)
+            free.append(scratch)
+            return {rows.start + i: why for i, why in found.items()} if found and rows.start else found
+
+        _map_chunks(one, K, step.size, found_all, 8 * _second_size(route.plan, Q1_2) * max(n, m))
+        if found_all and step.raises:
+            raise failures_error(found_all)
+        x_new, S_new, y, ll, nis, rejected, w, log_det = out
+        return Update(x_new, S_new, y, None, None, ll, nis, None, rejected, None, m, w, log_det), None, None
 
 
-def _measured_rows(z: np.ndarray, rows: slice, scratch: Scratch) -> np.ndarray:
-    """The chunk's rows of ``z`` in its own array, read once and checked as read.
-
-    A chunk's copy, not the step's: the step never holds a second ``(K, m)`` array, and what the
-    kernels use is what was checked, even if the model functions wrote into the caller's ``z``.
-    """
-    zr = scratch.take(_rows_of_z, rows.stop - rows.start, z.shape[1])[0]
-    np.copyto(zr, z[rows])
-    if np.isinf(zr).any():
-        k = rows.start + int(np.flatnonzero(np.isinf(zr).any(axis=1))[0])
-        raise NonFiniteError(f"z contains inf (row {k}; NaN means a missing component)")
-    return zr
+#: The runner of a fleet's engine.
+CHUNKS = Chunks()
 
 
-def _rows_of_z(k: int, m: int) -> tuple:
-    return (np.empty((k, m)),)
-
-
-def _whole_chunk(
-    route: Route, form: RowForm, sset, x0, S0, H, z, R1_2, on, found, out, scratch: Scratch
-) -> None:
-    """A chunk's update with every component measured and no gate, the joint kernel writing the step's
-    arrays ``out`` (``x, S, y, loglik, nis, rejected, y_whitened, log_det_S1_2`` rows) directly; a failing
-    or inactive filter keeps its prior, with no innovation and no likelihood. ``form``: the joint route's
-    rows (a failure's words)."""
-    x, S, y, ll, nis, rejected, w, log_det = out
-    k, m = z.shape
-    n = x0.shape[1]
-    zp, Sy, L21, dx, status = scratch.take(_chunk_update, k, n, m)
-    kernel_out = (zp, y, w, Sy, L21, dx, x, S, ll, nis, status, route.no_set)
-    _, status, _ = route.posterior(
-        sset, x0, S0, H, z, None, R1_2, None, False, buffers=scratch, out=kernel_out
-    )  # (the scratch: the angle kernel's rows, for squkf's angle hooks)
-    log_det_of(Sy, out=log_det)
-    good = _flag(status, on, found, form, "update", H, "hx values")
-    rejected[...] = False
-    if not good.all():
-        bad = ~good
-        x[bad], S[bad] = x0[bad], S0[bad]
-        y[bad], ll[bad], nis[bad], w[bad], log_det[bad] = np.nan, 0.0, 0.0, np.nan, 0.0
-
-
-def _posteriors(route: Route, sset, x0, S0, H, z, observed, R1_2, todo, found) -> tuple:
-    """A chunk's gated updates, grouped by their missing components; a filter no update reaches keeps its
-    prior, with no innovation and no likelihood. The records ``x, S, y, loglik, nis, rejected, y_whitened,
-    log_det_S1_2``."""
-    k, m = z.shape
-    if todo.all() and observed.all():  # the usual case: every filter, every component, one group
-        groups: list[tuple[np.ndarray | slice, np.ndarray | None]] = [(slice(None), None)]
+def _grouped(route: Route, joint, sset, x0, S0, H, z, observed, R1_2, todo, found, out) -> None:
+    """A chunk's update through the gate or with missing components (or on a route that raises),
+    written into its rows ``out`` of the step's records (``x, S, y, loglik, nis, rejected``): the filters
+    grouped by their measured components, each group through :meth:`Route.posterior` and
+    :meth:`Route.gated` as one filter's update is; a filter no update reaches keeps its prior, with no
+    innovation and no likelihood. ``joint``: the set's update route (None: the hooks' or a ``UT``'s)."""
+    if joint is None:  # the hooks raise: images that are not finite flagged first
+        todo = todo & finite_images(H, "hx values", todo, found)
+    x, S, y, ll, nis, rej, w, log_det = out
+    x[...], S[...], y[...], ll[...], nis[...], rej[...] = x0, S0, np.nan, 0.0, 0.0, False
+    w[...], log_det[...] = np.nan, 0.0
+    groups: list[tuple[np.ndarray, np.ndarray | slice, np.ndarray | None]]
+    if todo.all() and observed.all():  # (a gate's usual chunk: one group, the chunk's arrays as they are)
+        groups = [(np.arange(todo.size), slice(None), None)]
     else:
         todo_idx = np.flatnonzero(todo)
         patterns, which = np.unique(observed[todo], axis=0, return_inverse=True)
         which = which.reshape(-1)
-        groups = [(todo_idx[which == p], None if obs.all() else obs) for p, obs in enumerate(patterns)]
-    records = None
-    for ix, mask in groups:
-        part = _gated_group(route, sset, x0, S0, H, z, R1_2, ix, mask, found)
-        if isinstance(ix, slice) and part[8].all():
-            return part[:8]  # every filter, all measured, all good: the kernels' arrays as they are
-        if records is None:
-            records = _unchanged(x0, S0, m)
-        x, S, y, ll, nis, rej, w, log_det = records
-        good = part[8]
-        gi = np.arange(k)[ix][good]
-        x[gi], S[gi] = part[0][good], part[1][good]
-        ll[gi], nis[gi], log_det[gi] = part[3][good], part[4][good], part[7][good]
+        groups = []
+        for p, obs in enumerate(patterns):
+            ix = todo_idx[which == p]
+            groups.append((ix, ix, None if obs.all() else obs))
+    for ix, sel, mask in groups:
+        s = sset if isinstance(sel, slice) else take_set(sset, ix)
+        xi, Si, Hi, zi, Ri = x0[sel], S0[sel], H[sel], z[sel], rows_of(R1_2, sel, 2)
+        found_rows: dict[int, str] = {}
+        if joint is not None:  # the kernels report each filter's failure
+            post, status, _ = route.posterior(s, xi, Si, Hi, zi, mask, Ri, None, False)
+            upd, status = route.gated(post, status, s, xi, Si, Hi, zi, mask, Ri, None)
+            good = _flag(
+                status, np.ones(ix.size, dtype=bool), found_rows, joint.form, "update", Hi, "hx values"
+            )
+            good_ix = np.flatnonzero(good)
+            res = tuple(a[good_ix] for a in _records(upd))
+        else:  # the hooks or a generator's set raise: a filter at a time after a failure
+            good_ix, res = _isolated(route, s, xi, Si, Hi, zi, mask, Ri, found_rows)
+        for j, why in found_rows.items():
+            found.setdefault(int(ix[j]), why)
+        if res is None:
+            continue
+        gi = ix[good_ix]
+        x[gi], S[gi], ll[gi], nis[gi], log_det[gi] = res[0], res[1], res[3], res[4], res[7]
         if mask is None:
-            y[gi], rej[gi], w[gi] = part[2][good], part[5][good], part[6][good]
+            y[gi], rej[gi], w[gi] = res[2], res[5], res[6]
         else:
             cols = np.ix_(gi, np.flatnonzero(mask))
-            y[cols], rej[cols], w[cols] = part[2][good], part[5][good], part[6][good]
-    return _unchanged(x0, S0, m) if records is None else records
+            y[cols], rej[cols], w[cols] = res[2], res[5], res[6]
 
 
-def _unchanged(x0: np.ndarray, S0: np.ndarray, m: int) -> tuple:
-    """The records of filters that keep their prior: no innovation, no likelihood."""
-    k = x0.shape[0]
-    return (
-        x0.copy(), S0.copy(), np.full((k, m), np.nan), np.zeros(k), np.zeros(k), np.zeros((k, m), dtype=bool),
-        np.full((k, m), np.nan), np.zeros(k),
-    )  # fmt: skip
+def _isolated(route: Route, s, x0, S0, H, z, mask, R1_2, found: dict[int, str]):
+    """The update of a group of filters on a route that raises, run again a filter at a time after a
+    failure (:func:`run_isolated`): the filters that succeeded, and their records (:func:`_records`)."""
 
-
-def _gated_group(route: Route, sset, x0, S0, H, z, R1_2, ix, mask, found):
-    """The gated update of the filters ``ix`` of a chunk (one pattern of missing components ``mask``).
-
-    Returns ``x, S, y, loglik, nis, rejected, y_whitened, log_det_S1_2`` over ``ix`` (the measured
-    components of ``mask``) and the mask of the filters that succeeded.
-    """
-    s = sset if isinstance(ix, slice) else take_set(sset, ix)
-    xi, Si, Hi, zi, Ri = x0[ix], S0[ix], H[ix], z[ix], rows_of(R1_2, ix, 2)
-    B = xi.shape[0]
-    found_rows: dict[int, str] = {}
-    if route.update_route(s, None) is not None:  # the kernels report each filter's failure
-        post, status, _ = route.posterior(s, xi, Si, Hi, zi, mask, Ri, None, False)
-        upd, status = route.gated(post, status, s, xi, Si, Hi, zi, mask, Ri, None)
-        form = route.form_of(s, None)
-        good = _flag(status, np.ones(B, dtype=bool), found_rows, form, "update", Hi, "hx values")
-        _renumber(found_rows, ix, found)
-        return (*_records_of(upd), good)
-
-    def posterior(j):  # the hooks or a generator's set raise: a filter at a time after a failure
+    def posterior(j):
         r, j = _one_or_all(route, j)
-        sub, Rj = take_set(s, j), rows_of(Ri, j, 2)
-        post, _, _ = r.posterior(sub, xi[j], Si[j], Hi[j], zi[j], mask, Rj, None, False)
-        ok = np.zeros(xi[j].shape[0], dtype=np.int64)
-        upd, _ = r.gated(post, ok, sub, xi[j], Si[j], Hi[j], zi[j], mask, Rj, None)
-        return _records_of(upd)
+        sub, Rj = take_set(s, j), rows_of(R1_2, j, 2)
+        post, _, _ = r.posterior(sub, x0[j], S0[j], H[j], z[j], mask, Rj, None, False)
+        ok = np.zeros(x0[j].shape[0], dtype=np.int64)
+        return _records(r.gated(post, ok, sub, x0[j], S0[j], H[j], z[j], mask, Rj, None)[0])
 
-    good_idx, res = run_isolated(posterior, np.arange(B), B, found_rows)
-    _renumber(found_rows, ix, found)
-    n = xi.shape[-1]
-    mo = Hi.shape[-1] if mask is None else int(mask.sum())
-    full = (np.zeros((B, n)), np.zeros((B, n, n)), np.zeros((B, mo)), np.zeros(B), np.zeros(B),
-            np.zeros((B, mo), dtype=bool), np.zeros((B, mo)), np.zeros(B))  # fmt: skip
-    good = np.zeros(B, dtype=bool)
-    good[good_idx] = True
-    if res is not None:
-        for a, r in zip(full, res):
-            a[good_idx] = r
-    return (*full, good)
+    return run_isolated(posterior, np.arange(x0.shape[0]), x0.shape[0], found)
 
 
-def _records_of(upd) -> tuple:
-    """A group's update as its records (over its measured components)."""
-    return upd.x, upd.S, upd.y, upd.log_likelihood, upd.nis, upd.rejected, upd.w, log_det_of(upd.Sy)
+def _records(update: Update) -> tuple:
+    """What a fleet keeps of a group's update, per filter: ``x, S, y, loglik, nis, rejected``, the whitened
+    innovations and ``log det S1_2`` (over the group's measured components)."""
+    assert update.Sy is not None  # (a group's update keeps its factor)
+    return (
+        update.x, update.S, update.y, update.log_likelihood, update.nis, update.rejected, update.w,
+        log_det_of(update.Sy),
+    )  # fmt: skip
 
 
 def _one_or_all(route: Route, ix):
@@ -794,10 +717,3 @@ def _one_or_all(route: Route, ix):
     if isinstance(ix, (int, np.integer)):
         return Route(route.plan, route.hooks, route.gate, single=True), slice(int(ix), int(ix) + 1)
     return route, ix
-
-
-def _renumber(found_rows: dict[int, str], ix, found: dict[int, str]) -> None:
-    """Failures of a group's filters (numbered within the group) as the chunk's."""
-    for j, why in found_rows.items():
-        k = j if isinstance(ix, slice) else int(ix[j])
-        found.setdefault(k, why)

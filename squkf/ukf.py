@@ -662,6 +662,7 @@ class SquareRootUKF:
         stamp = e.shown_f if name == "sigmas_f" else e.H
         held = self._sigmas.get(name)
         if held is None or held[0] is not stamp:
+            assert stamp is not None  # (one filter's engine keeps both sets)
             held = self._sigmas[name] = (stamp, Handed(stamp[0].copy()), False)
         return held[1]
 
@@ -710,6 +711,7 @@ class SquareRootUKF:
         if last is None:
             m = self._dim_z
             return np.zeros((m, m)), None
+        assert last.Sy is not None  # (one filter's update keeps its factors)
         return last.Sy[0], last.observed
 
     @property
@@ -753,6 +755,7 @@ class SquareRootUKF:
         n = self._dim_x
         if last is None:
             return np.zeros((n, self._dim_z))
+        assert last.Sy is not None and last.L21 is not None  # (one filter's update keeps its factors)
         K = last.K[0] if last.K is not None else gain_from_factors(last.Sy[0], last.L21[0])
         if last.observed is None:
             return K
@@ -809,7 +812,10 @@ class SquareRootUKF:
         0 before any update (and when nothing was measured).
         """
         last = self._last()
-        return 0.0 if last is None else float(log_det(last.Sy)[0])
+        if last is None:
+            return 0.0
+        assert last.Sy is not None  # (one filter's update keeps its factors)
+        return float(log_det(last.Sy)[0])
 
     @property
     def rejected(self) -> np.ndarray:
@@ -1015,7 +1021,7 @@ class SquareRootUKF:
         plan = (e.step_route if pending[1] is e.sset else e.route).plan
         given = self._given_set(pending[1].sigmas.shape[1:]) if self._sigmas else None
         if given is not None:  # a set the program wrote as sigmas_f: its spread is not the prior's
-            pending = (pending[0], pending[1].rewritten(given[None]))
+            pending = (pending[0], pending[1].rewritten(given[None]), None)
         sigmas = pending[1].sigmas[0].copy()  # hx gets its own copy: the update reads the set
         if plan.v_xi is None:
             values = hx(sigmas, **hx_args) if self.vectorized else self._per_point(hx, sigmas, (), hx_args)

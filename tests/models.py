@@ -1837,8 +1837,8 @@ FILTER_STATE = (
 
 
 def phase_of(f) -> str:
-    """The phase of a filter's (its engine's) or a fleet's pending ask/tell step."""
-    return f._engine.phase if isinstance(f, SquareRootUKF) else f._pending.phase
+    """The phase of a filter's or a fleet's pending ask/tell step (its engine's)."""
+    return f._engine.phase
 
 
 def filter_state(f) -> dict:

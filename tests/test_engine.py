@@ -16,11 +16,15 @@ alone. (The linalg functions' stacked forms: tests/test_linalg.py.)
 
 from __future__ import annotations
 
+import os
+import sys
+
 import numpy as np
 import pytest
 from filterpy.kalman import MerweScaledSigmaPoints
-from models import heading_fx, l96_fx, l96_hx, xy_radar_hx
+from models import cv_fleet, cv_single, heading_fx, l96_fx, l96_hx, range_bearing_hx, xy_radar_hx
 
+import squkf
 from squkf import (
     Augmented,
     CubatureWeights,
@@ -378,18 +382,26 @@ def test_a_steady_step_allocates_its_buffers_once():
         fleet.predict()
         fleet.update(np.tile(z, (3, 1)))
     scratch = stacks._spare.free[-1]  # the chunk arrays this thread's next chunk takes
-    before = (_array_ids(f._engine._buffers.sets), _array_ids(fleet._buffers.sets), _array_ids(scratch.sets))
+    before = (
+        _array_ids(f._engine._buffers.sets),
+        _array_ids(fleet._engine._buffers.sets),
+        _array_ids(scratch.sets),
+    )
     for _ in range(5):
         f.predict()
         f.update(z)
         fleet.predict()
         fleet.update(np.tile(z, (3, 1)))
-    after = (_array_ids(f._engine._buffers.sets), _array_ids(fleet._buffers.sets), _array_ids(scratch.sets))
+    after = (
+        _array_ids(f._engine._buffers.sets),
+        _array_ids(fleet._engine._buffers.sets),
+        _array_ids(scratch.sets),
+    )
     assert after == before and all(before)
-    assert f._engine._buffers.taken == [] and fleet._buffers.taken == [] and scratch.taken == []
+    assert f._engine._buffers.taken == [] and fleet._engine._buffers.taken == [] and scratch.taken == []
     # the fleet's estimates in three sets, as many as a step held before the engine: the posterior it
     # starts from, the prior it keeps as a record, and the new one
-    estimates = [sets for key, sets in fleet._buffers.sets.items() if key[0] == "spare"]
+    estimates = [sets for key, sets in fleet._engine._buffers.sets.items() if key[0] == "spare"]
     assert [len(sets) for sets in estimates] == [3]
 
 
@@ -466,11 +478,11 @@ def test_a_rewritten_pending_set_is_updated_in_the_downdate_form(gate):
     plan = build_plan(MerweScaledWeights(alpha=1.0, beta=2.0, kappa=0.0), Redrawn(), 4)
     e = engine(plan, Hooks(), TURN.x0[0], TURN.S0[0], single=True, gate=gate)
     e.tell_predict(apply(TURN.fx, e.ask_predict()[0]), TURN.Q1_2)
-    (x, S), sset = e.pending_update()
+    (x, S), sset, _ = e.pending_update()
     written = sset.rewritten(sset.sigmas + 0.05 * np.random.default_rng(1).standard_normal(sset.sigmas.shape))
     H = apply(TURN.hx, written.sigmas[0])
     z = TURN.zs[0][0]
-    e.tell_update(H, z, None, TURN.R1_2, None, ((x, S), written))
+    e.tell_update(H, z, None, TURN.R1_2, None, ((x, S), written, None))
     dz = H - written.Wm @ H
     dx = written.sigmas[0] - x[0]
     Pzz = (dz.T * written.Wc) @ dz + TURN.R1_2 @ TURN.R1_2.T
@@ -576,3 +588,48 @@ def test_every_route_reads_the_kernel_table(monkeypatch):
     monkeypatch.setattr(table, "KERNELS", installed)
     for a, b in zip(_every_route(hooked, fleet()), expected):
         np.testing.assert_array_equal(a, b)
+
+
+def _python_calls(step) -> list[str]:
+    """The Python calls ``step()`` makes in squkf's own files (``sys.setprofile``'s call events), by name."""
+    root = os.path.dirname(os.path.abspath(squkf.__file__)) + os.sep
+    calls: list[str] = []
+
+    def profile(frame, event, arg):
+        code = frame.f_code
+        if event == "call" and code.co_filename.startswith(root):
+            calls.append(code.co_name)
+
+    sys.setprofile(profile)
+    try:
+        step()
+    finally:
+        sys.setprofile(None)
+    return calls
+
+
+def test_a_steady_step_makes_few_python_calls():
+    """Counted, not timed: one filter's vectorised predict + update makes at most 32 calls in squkf's
+    files, and a fleet's step of one chunk at most 40 (both faces on the engine, issue 36;
+    ``benchmarks/python_per_step.py`` says where they go)."""
+    x0 = np.array([1000.0, 5.0, 1500.0, -3.0])
+    f, fleet = cv_single(MerweScaledWeights()), cv_fleet(500, MerweScaledWeights())
+    for g in (f, fleet):
+        g.x, g.P, g.Q, g.R = x0, np.diag([900.0, 4, 900, 4]), 0.01 * np.eye(4), np.diag([25.0, 4e-6])
+    z = range_bearing_hx(x0)
+    zs = np.tile(z, (500, 1))
+
+    def single():
+        f.predict()
+        f.update(z)
+
+    def many():
+        fleet.predict()
+        fleet.update(zs)
+
+    for _ in range(3):  # the routes decided, the buffers made
+        single()
+        many()
+    one, chunk = _python_calls(single), _python_calls(many)
+    assert len(one) <= 32, " ".join(one)
+    assert len(chunk) <= 40, " ".join(chunk)

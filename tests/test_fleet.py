@@ -1229,11 +1229,11 @@ def test_copies_are_independent(how, phase):
 
     def finish(f):
         if phase == "asked-predict":
-            f.tell_predict(cv_fx_stacked(f._pending.first, FLEET_DT))
+            f.tell_predict(cv_fx_stacked(f._engine.X, FLEET_DT))
         if phase in ("asked-predict", "told-predict"):
             f.ask_update()
         if phase != "idle":
-            f.tell_update(range_bearing_hx(f._pending.sset.sigmas), zs[:, 1])
+            f.tell_update(range_bearing_hx(f._engine.sset.sigmas), zs[:, 1])
 
     finish(fleet)
     finish(clone)

@@ -500,7 +500,7 @@ def test_a_fleets_saver_rows_hold_no_engine_buffer():
     assert saved["x"] and saved["P_post"] and "_buffers" not in s.keys
     buffers = [
         a
-        for sets in fl._buffers.sets.values()
+        for sets in fl._engine._buffers.sets.values()
         for group in sets
         for a in (group if isinstance(group, (list, tuple)) else [group])
         if isinstance(a, np.ndarray)

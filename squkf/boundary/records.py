@@ -86,18 +86,22 @@ class Records(NamedTuple):
     y_whitened: np.ndarray | None
     log_det: np.ndarray | None
 
-    def keep(self, t: int, x: np.ndarray, S: np.ndarray, loglik, rejected, nis, y_whitened, log_det) -> None:
-        """Keep step ``t``'s estimates ``x (K, n)``, ``S (K, n, n)`` and its update's records.
+    def keep(self, t: int, update) -> None:
+        """Keep step ``t``'s update: its estimates ``x (K, n)``, ``S (K, n, n)`` and its records.
 
+        ``update`` is the engine's record of the step (:class:`squkf.engine.Update`, a block of K).
         With ``keep="final"`` (no ``nis``), the log-likelihoods and rejections are summed over the run.
         """
+        x, S = update.x, update.S
         if self.nis is None:
-            self.loglik[...] += loglik
-            self.rejected[...] += rejected
+            self.loglik[...] += update.log_likelihood
+            self.rejected[...] += update.rejected
         else:
-            self.loglik[:, t], self.rejected[:, t], self.nis[:, t] = loglik, rejected, nis
+            self.loglik[:, t], self.rejected[:, t], self.nis[:, t] = (
+                update.log_likelihood, update.rejected, update.nis,
+            )  # fmt: skip
         if self.y_whitened is not None and self.log_det is not None:
-            self.y_whitened[:, t], self.log_det[:, t] = y_whitened, log_det
+            self.y_whitened[:, t], self.log_det[:, t] = update.w, update.log_det_S1_2
         if self.means is not None:
             self.means[:, t] = x
         if self.factors is not None:
