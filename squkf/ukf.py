@@ -37,11 +37,11 @@ from .boundary.attributes import (
     set_factor,
 )
 from .boundary.config import Config, model_noise, second_set, sigma_family
-from .boundary.loop import Transaction
-from .boundary.records import embed, innovation_inverse, log_det, whitened
+from .boundary.records import embed, innovation_inverse
 from .checks import as_float_array, as_lower_factor, check_time_step, check_values, noise_factor
 from .engine import Engine, Route, Update
 from .errors import NonFiniteError, ParameterError, ShapeError, UnsetError
+from .face import Face, written_record
 from .gating import Gate, as_gate
 from .generators import sigma_points_from_factor
 from .measurement import gain_from_factors
@@ -75,32 +75,7 @@ _SHOWN = (
 _LABELS = {"log_likelihood": "log-likelihood"}
 
 
-def _written_record(stamp: str, ndim: int) -> Callable[[Callable], property]:
-    """A record filterpy lets a program write, as a ``property`` (a ``Saver`` collects it).
-
-    The getter forms the record; an assignment (validated, a private copy) reads back, as fresh copies,
-    until the step that makes the record again: the engine's attribute ``stamp`` (``prior_record``,
-    ``post_record``, ``last``) is replaced by that step and nothing else.
-    """
-
-    def make(form: Callable) -> property:
-        name = form.__name__
-
-        def get(self):
-            held = self._written.get(name)
-            if held is not None and held[0] is getattr(self._engine, stamp):
-                return held[1].copy()
-            return form(self)
-
-        def set_(self, value) -> None:
-            self._written[name] = (getattr(self._engine, stamp), checks.written_record(value, name, ndim))
-
-        return property(get, set_, doc=form.__doc__)
-
-    return make
-
-
-#: the engine's attribute each written record or set handed out is current with (see _written_record)
+#: the engine's attribute each written record or set handed out is current with (see face.written_record)
 _STAMPS = {
     "x_prior": "prior_record", "P_prior": "prior_record", "x_post": "post_record", "P_post": "post_record",
     "y": "last", "S": "last", "SI": "last", "sigmas_f": "shown_f", "sigmas_h": "H",
@@ -122,7 +97,7 @@ def _restamped(held: dict, old: Engine, new: Engine, copy_value: Callable) -> di
     return out
 
 
-class SquareRootUKF:
+class SquareRootUKF(Face):
     """Square-root Unscented Kalman Filter with filterpy's interface.
 
     The model is ``x[k+1] = fx(x[k], dt) + v``, ``z[k] = hx(x[k]) + w`` with
@@ -238,6 +213,8 @@ class SquareRootUKF:
     # __dict__ (which a filterpy Saver deep-copies at each step, and a deepcopy copies) holds
     # filterpy's own keys alone.
     __slots__ = _SLOTS + ("__dict__", "__weakref__")
+    ONE = True  # a block of one: the records drop the block axis
+    NO_LOG_LIKELIHOOD = _LOG_TINY
 
     _engine: Engine
     _gain_of: tuple
@@ -364,26 +341,6 @@ class SquareRootUKF:
         plan = build_plan(self._family, gen, self._dim_x, self._fx_noise, self._hx_noise)
         self._generator, self._plan = gen, plan
         self._configured()
-
-    @property
-    def gate(self) -> Gate | None:
-        """The outlier gate (None: every measurement is used); assign a probability or a Gate."""
-        return self._gate
-
-    @gate.setter
-    def gate(self, value) -> None:
-        self._gate = as_gate(value)
-        self._configured()
-
-    @property
-    def fx_noise(self) -> int | None:
-        """Dimension of the noise ``fx`` takes as its second argument (None: additive noise)."""
-        return self._fx_noise or None
-
-    @property
-    def hx_noise(self) -> int | None:
-        """Dimension of the noise ``hx`` takes as its second argument (None: additive noise)."""
-        return self._hx_noise or None
 
     @property
     def dim_x(self) -> int:
@@ -601,38 +558,6 @@ class SquareRootUKF:
 
     # -- the records of the last prediction and update (formed when read) --------------------
 
-    @_written_record("prior_record", 1)
-    def x_prior(self) -> np.ndarray:
-        """State after the last prediction, shape ``(dim_x,)`` (a fresh array; writable, as filterpy's)."""
-        return self._engine.prior_record[0][0].copy()
-
-    @property
-    def P1_2_prior(self) -> np.ndarray:
-        """Lower factor of the covariance after the last prediction (a fresh array)."""
-        return self._engine.prior_record[1][0].copy()
-
-    @_written_record("prior_record", 2)
-    def P_prior(self) -> np.ndarray:
-        """Covariance after the last prediction (a fresh array; writable)."""
-        S = self._engine.prior_record[1][0]
-        return S @ S.T
-
-    @_written_record("post_record", 1)
-    def x_post(self) -> np.ndarray:
-        """State after the last update, shape ``(dim_x,)`` (a fresh array; writable)."""
-        return self._engine.post_record[0][0].copy()
-
-    @property
-    def P1_2_post(self) -> np.ndarray:
-        """Lower factor of the covariance after the last update (a fresh array)."""
-        return self._engine.post_record[1][0].copy()
-
-    @_written_record("post_record", 2)
-    def P_post(self) -> np.ndarray:
-        """Covariance after the last update (a fresh array; writable)."""
-        S = self._engine.post_record[1][0]
-        return S @ S.T
-
     @property
     def sigmas_f(self) -> np.ndarray:
         """The second set after a prediction (filterpy's ``sigmas_f``), shape ``(N2, dim_x)``.
@@ -690,19 +615,6 @@ class SquareRootUKF:
         stamp, handed, _ = self._sigmas["sigmas_f"]
         self._sigmas["sigmas_f"] = (stamp, Handed(handed.array), False)
 
-    @_written_record("last", 1)
-    def y(self) -> np.ndarray:
-        """Innovation of the last update, shape ``(dim_z,)``; NaN where not measured (fresh; writable)."""
-        last = self._last()
-        if last is None:
-            return np.zeros(self._dim_z)
-        y = last.y[0]
-        if last.observed is None:
-            return y.copy()
-        out = np.full(last.m, np.nan)
-        out[last.observed] = y
-        return out
-
     def _last(self) -> Update | None:
         return self._engine.last
 
@@ -720,13 +632,13 @@ class SquareRootUKF:
         Sy, observed = self._Sy()
         return embed(Sy, observed, np.nan)
 
-    @_written_record("last", 2)
+    @written_record("last", 2)
     def S(self) -> np.ndarray:
         """Innovation covariance of the last update, ``S1_2 @ S1_2.T`` (NaN where missing)."""
         Sy, observed = self._Sy()
         return embed(Sy @ Sy.T, observed, np.nan)
 
-    @_written_record("last", 2)
+    @written_record("last", 2)
     def SI(self) -> np.ndarray:
         """Inverse of ``S``, by triangular solves with ``S1_2`` (or by ``self.inv`` if replaced)."""
         if self.inv is not np.linalg.inv:
@@ -762,76 +674,6 @@ class SquareRootUKF:
         full = np.zeros((n, last.m))
         full[:, last.observed] = K
         return full
-
-    @property
-    def log_likelihood(self) -> float:
-        """Log-likelihood of the last measurement (the components it used), from the innovation factor.
-
-        0 when a gate rejected them all (``likelihood`` 1).
-        """
-        last = self._last()
-        return float(last.log_likelihood[0]) if last is not None else _LOG_TINY
-
-    @property
-    def likelihood(self) -> float:
-        """``exp(log_likelihood)``, never below ``sys.float_info.min``."""
-        return max(math.exp(self.log_likelihood), sys.float_info.min)
-
-    @property
-    def mahalanobis(self) -> float:
-        """Mahalanobis distance of the last innovation, ``||S1_2^-1 y||`` (measured components)."""
-        return math.sqrt(self.nis)
-
-    @property
-    def nis(self) -> float:
-        """Normalised innovation squared of the last update, ``y^T S^-1 y`` (measured components).
-
-        What a gate tests.
-        """
-        last = self._last()
-        return float(last.nis[0]) if last is not None else 0.0
-
-    @property
-    def y_whitened(self) -> np.ndarray:
-        """The last update's whitened innovation ``S1_2^-1 y``, shape ``(dim_z,)`` (a fresh array).
-
-        NaN where a component was not measured; ``nis`` is its squared norm. With ``log_det_S1_2``
-        it is the whole of the step's log-likelihood,
-        ``-(m log 2 pi + nis) / 2 - log_det_S1_2`` over the ``m`` measured components
-        (:func:`squkf.tune.fit_noise` reads them as least-squares residuals). Zeros before any update.
-        """
-        last = self._last()
-        if last is None:
-            return np.zeros(self._dim_z)
-        return whitened(last.w, last.observed, last.m)[0]
-
-    @property
-    def log_det_S1_2(self) -> float:
-        """``log det S1_2`` of the last update: the log-determinant of the innovation factor's measured block.
-
-        0 before any update (and when nothing was measured).
-        """
-        last = self._last()
-        if last is None:
-            return 0.0
-        assert last.Sy is not None  # (one filter's update keeps its factors)
-        return float(log_det(last.Sy)[0])
-
-    @property
-    def rejected(self) -> np.ndarray:
-        """Which components of the last measurement the gate rejected, shape ``(dim_z,)`` (a fresh array).
-
-        After a gated update ``y``, ``S``, ``S1_2`` are the tested innovation's,
-        ``K`` the gain applied (zero columns for rejected components).
-        """
-        last = self._last()
-        if last is None:
-            return np.zeros(self._dim_z, dtype=bool)
-        if last.observed is None:
-            return last.rejected[0].copy()
-        out = np.zeros(last.m, dtype=bool)
-        out[last.observed] = last.rejected[0]
-        return out
 
     # -- ask/tell: the step in halves ----------------------------------------
 
@@ -1148,13 +990,6 @@ class SquareRootUKF:
             *hooks, self._gate, self.fx_noise, self.hx_noise, self.vectorized,
             self._plan, hooks, self._Q.factor(), self._R.factor(), self._engine.phase,
         )  # fmt: skip
-
-    def transaction(self) -> Transaction:
-        """A context manager that puts the filter back as it was on entry if anything inside raises.
-
-        What :meth:`batch_filter` runs its steps in (``squkf.boundary.loop.Transaction``).
-        """
-        return Transaction(self._snapshot, self._restore)
 
     def _snapshot(self):
         # the engine's arrays are replaced by each step, never changed in place: a shallow copy keeps
