@@ -90,6 +90,8 @@ class Face:
 
     _engine: Engine
     _gate: Gate | None
+    _points: Any
+    _generator: Any
     _fx_noise: int
     _hx_noise: int
     _written: dict
@@ -250,6 +252,31 @@ class Face:
         return self._in_place(last.rejected, last.observed, last.m, False)
 
     # -- the configuration both faces read alike -------------------------------------
+
+    @property
+    def points_fn(self):
+        """The sigma-point family (or filterpy points object) of the first set (a fleet's fixed when it is
+        built)."""
+        return self._points
+
+    @points_fn.setter
+    def points_fn(self, points) -> None:
+        self._set_points(points)
+
+    @property
+    def scheme(self):
+        """The second-set generator (``Redrawn()``, ``Augmented()`` or your own; one filter's assignable)."""
+        return self._generator
+
+    @scheme.setter
+    def scheme(self, value) -> None:
+        self._set_scheme(value)
+
+    def _set_points(self, points) -> None:
+        raise NotImplementedError
+
+    def _set_scheme(self, value) -> None:
+        raise AttributeError(f"{type(self).__name__}.scheme is fixed when it is built")
 
     @property
     def fx_noise(self) -> int | None:

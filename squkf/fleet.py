@@ -319,22 +319,11 @@ class Fleet(Face):
         """Measurement dimension."""
         return self._m
 
-    @property
-    def points_fn(self):
-        """The sigma-point family (or filterpy points object) of the first set, fixed at construction."""
-        return self._points
-
-    @points_fn.setter
-    def points_fn(self, points) -> None:
+    def _set_points(self, points) -> None:
         raise ParameterError(
             f"a fleet's points are fixed when it is built (points_fn={points!r:.80}): build a Fleet with"
             " them, or step its filters apart (fleet[k]) and Fleet.from_filters"
         )
-
-    @property
-    def scheme(self):
-        """The second-set generator."""
-        return self._generator
 
     def _hooks(self) -> Hooks:
         return Hooks(self.x_mean, self.z_mean, self.residual_x, self.residual_z, self.state_add)

@@ -317,29 +317,18 @@ class SquareRootUKF(Face):
 
     # -- configuration -----------------------------------------------------
 
-    @property
-    def points_fn(self):
-        """The sigma-point family (or filterpy points object) of the first set."""
-        return self._points
-
-    @points_fn.setter
-    def points_fn(self, points):
+    def _set_points(self, points):
         family, num = sigma_family(points, self._dim_x, self._fx_noise)
-        plan = build_plan(family, self._generator, self._dim_x, self._fx_noise, self._hx_noise)
-        self._points, self._family, self._plan = points, family, plan
+        self._replan(family, self._generator, points)
         self.__dict__["_num_sigmas"] = num
-        self._configured()
 
-    @property
-    def scheme(self):
-        """The second-set generator (``Redrawn()``, ``Augmented()`` or your own)."""
-        return self._generator
+    def _set_scheme(self, value):
+        self._replan(self._family, second_set(value, self._dim_x, self._family, self._hx_noise), self._points)
 
-    @scheme.setter
-    def scheme(self, value):
-        gen = second_set(value, self._dim_x, self._family, self._hx_noise)
-        plan = build_plan(self._family, gen, self._dim_x, self._fx_noise, self._hx_noise)
-        self._generator, self._plan = gen, plan
+    def _replan(self, family, generator, points) -> None:
+        """New points or a new second set: the plan built again (may raise, changing nothing), then taken."""
+        plan = build_plan(family, generator, self._dim_x, self._fx_noise, self._hx_noise)
+        self._points, self._family, self._generator, self._plan = points, family, generator, plan
         self._configured()
 
     @property
