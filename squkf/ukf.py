@@ -29,6 +29,7 @@ from .boundary.attributes import (
     FactorSlot,
     Flag,
     Handed,
+    HandOut,
     Hook,
     ModelFunction,
     Unformed,
@@ -57,11 +58,11 @@ _REAL = checks.REAL
 
 # What lives outside the __dict__ (see the class): the engine and the gain formed from its last update,
 # the configuration, the noise slots, and what was handed out or written: the arrays ``x``, ``P`` handed
-# out (``_x``, ``_Ph``; None: none), which of them is a placeholder (``_unset``), the records written
-# (``_written``), the sigma points handed out (``_sigmas``).
+# out (``_handed``, a HandOut, as a fleet's), which of them is a placeholder (``_unset``), the records
+# written (``_written``), the sigma points handed out (``_sigmas``).
 _SLOTS = (
     "_engine", "_gain_of", "_unformed", "_points", "_family", "_generator", "_plan", "_gate", "_fx_noise",
-    "_hx_noise", "_noise_cache", "_Q", "_R", "_x", "_Ph", "_unset", "_written", "_sigmas",
+    "_hx_noise", "_noise_cache", "_Q", "_R", "_handed", "_unset", "_written", "_sigmas",
 )  # fmt: skip
 # the slots a copy or a pickle carries (the others are formed again: _unformed, and _gain_of from _engine)
 _CARRIED = _SLOTS[3:]
@@ -229,8 +230,7 @@ class SquareRootUKF(Face):
     _noise_cache: dict
     _Q: FactorSlot
     _R: FactorSlot
-    _x: Handed | None
-    _Ph: Handed | None
+    _handed: HandOut
     _unset: set
     _written: dict
     _sigmas: dict
@@ -295,7 +295,7 @@ class SquareRootUKF(Face):
         self._points, self._family, self._generator = points, family, generator
         self._plan, self._gate = plan, gate_
         self._noise_cache = {}
-        self._x = self._Ph = None
+        self._handed = HandOut()
         self._unset, self._written, self._sigmas = set(), {}, {}
         self._gain_of = (None, None)  # (the update, its gain) once formed
         self.hx = hx
@@ -411,7 +411,7 @@ class SquareRootUKF(Face):
         """The engine has a new estimate: ``x`` and ``P`` are formed from it when read."""
         d = self.__dict__
         d["x"], d["P"] = self._unformed
-        self._x = self._Ph = None
+        self._handed.held.clear()  # (the arrays handed out for the old estimate are history)
 
     def _assign_x(self, value) -> None:
         """``x = value``, validated: the engine's estimate, ``x`` formed again when read.
@@ -425,7 +425,8 @@ class SquareRootUKF(Face):
             return
         x = checks.as_state(value, "x", self._dim_x)
         self._engine.assign(x=x[None])
-        self.__dict__["x"], self._x = self._unformed[0], None
+        self.__dict__["x"] = self._unformed[0]
+        self._handed.drop("x")
         self._unset.discard("x")
 
     def _assign_P(self, value) -> None:
@@ -441,13 +442,16 @@ class SquareRootUKF(Face):
         slot.set_matrix(value)
         self._engine.assign(S=slot.factor()[None])  # type: ignore[index]  # P is never singular
         P = self.__dict__["P"] = slot.matrix()
-        self._Ph = Handed(P)
+        self._handed.held["P"] = Handed(P)
         self._unset.discard("P")
 
     def _unset_as(self, name: str, kept: np.ndarray | None) -> None:
         """``x`` or ``P`` is a placeholder, ``kept`` (None, or an all-NaN copy handed out for edits)."""
         self.__dict__[name] = kept
-        setattr(self, "_x" if name == "x" else "_Ph", None if kept is None else Handed(kept))
+        if kept is None:
+            self._handed.drop(name)
+        else:
+            self._handed.held[name] = Handed(kept)
         self._unset.add(name)
 
     def _take_edits(self) -> None:
@@ -456,14 +460,7 @@ class SquareRootUKF(Face):
         Each array stays handed out, with a fresh record; an invalid edit raises and stays pending.
         A placeholder edited in place is an assignment too (still all NaN: still not set).
         """
-        handed = self._x
-        if handed is not None and handed.edited():
-            self._take_edit("x", handed.array)
-            self._x = Handed(handed.array)
-        handed = self._Ph
-        if handed is not None and handed.edited():
-            self._take_edit("P", handed.array)
-            self._Ph = Handed(handed.array)
+        self._handed.take(("x", "P"), self._take_edit)
 
     def _take_edit(self, name: str, array: np.ndarray) -> None:
         """An array handed out as ``x`` or ``P`` was edited in place: validated and taken (may raise)."""
@@ -482,7 +479,7 @@ class SquareRootUKF(Face):
 
     def _ready(self, call: str) -> None:
         """Edits in place taken; refuse a step while ``x`` or ``P`` is a placeholder (changes nothing)."""
-        if self._x is not None or self._Ph is not None:  # handed out since the step: edits are taken
+        if self._handed.held:  # handed out since the step: edits are taken
             self._take_edits()
         if self._unset:
             self._refuse_unset(call)
@@ -509,7 +506,8 @@ class SquareRootUKF(Face):
     def P1_2(self, value):
         S = as_lower_factor(value, "P1_2", self._dim_x, singular_ok=False)
         self._engine.assign(S=S[None])
-        self.__dict__["P"], self._Ph = self._unformed[1], None
+        self.__dict__["P"] = self._unformed[1]
+        self._handed.drop("P")
         self._unset.discard("P")
 
     @property
@@ -696,7 +694,7 @@ class SquareRootUKF(Face):
         """
         self._ready("ask_predict")
         X = self._engine.ask_predict()[0]
-        return self._handed(X, self._plan.w_xi, "Q")
+        return self._asked(X, self._plan.w_xi, "Q")
 
     def tell_predict(self, sigmas_f, Q=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of a prediction: the propagated points give the prior.
@@ -741,7 +739,7 @@ class SquareRootUKF(Face):
         self._ready("ask_update")
         e = self._engine
         X = e.ask_update()[0]
-        return self._handed(X, e.step_route.plan.v_xi, "R")  # (the plan that drew the set)
+        return self._asked(X, e.step_route.plan.v_xi, "R")  # (the plan that drew the set)
 
     def tell_update(self, sigmas_h, z, R=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of an update: measurement-function values and ``z`` give the posterior.
@@ -817,7 +815,7 @@ class SquareRootUKF(Face):
             values, Q1_2 = self._model(fx, "fx", sigmas[0], (dt,), fx_args, Q, UT), None
         e.tell_predict(values, Q1_2, UT, sigmas)
         self.__dict__["x"], self.__dict__["P"] = self._unformed  # the new estimate: formed when read
-        self._x = self._Ph = None
+        self._handed.held.clear()  # (the arrays handed out for the old estimate are history)
 
     def update(self, z, R=None, UT=None, hx=None, **hx_args) -> None:
         """Update the estimate with measurement ``z``: ``x``, ``P`` become the posterior.
@@ -865,7 +863,7 @@ class SquareRootUKF(Face):
             self._set_used()
         d["z"] = z
         d["x"], d["P"] = self._unformed
-        self._x = self._Ph = None
+        self._handed.held.clear()  # (the arrays handed out for the old estimate are history)
 
     def compute_process_sigmas(self, dt, fx=None, **fx_args) -> None:
         """Set ``sigmas_f`` to the first set propagated through ``fx`` (state unchanged)."""
@@ -949,7 +947,7 @@ class SquareRootUKF(Face):
         W = noise_points(xi, self._noise_factor(noise, name, xi.shape[1]), ())
         return call_model(fn, which, dim, X, W, args, kwargs, self.vectorized)
 
-    def _handed(self, X: np.ndarray, xi: np.ndarray | None, name: str) -> np.ndarray:
+    def _asked(self, X: np.ndarray, xi: np.ndarray | None, name: str) -> np.ndarray:
         """What ``ask_*`` hands out: a copy of the points, with their noise part if any."""
         factor = None if xi is None else self._noise_factor(None, name, xi.shape[1])
         return handed_points(X, xi, factor, ())
@@ -991,6 +989,7 @@ class SquareRootUKF(Face):
                 state[name] = Unformed(slot.matrix)
         engine = copy.copy(self._engine)
         own["_unset"] = set(self._unset)
+        own["_handed"] = self._handed.copy()  # (a step clears the records in place)
         for name in ("_written", "_sigmas"):  # the same records, current with the engine put back
             own[name] = _restamped(own[name], self._engine, engine, _same)
         return state, own, engine, self._kept_gain()
@@ -1029,8 +1028,8 @@ class SquareRootUKF(Face):
         for name, value in self._carried().items():
             if name in ("_Q", "_R"):
                 value = value.detached()  # the factor shared, the matrix handed out copied
-            elif name in ("_x", "_Ph"):
-                value = None if value is None else value.copy()
+            elif name == "_handed":
+                value = value.detached()
             elif name == "_unset":
                 value = set(value)
             elif name == "_noise_cache":
@@ -1073,12 +1072,11 @@ class SquareRootUKF(Face):
 
     def _rebind(self) -> None:
         """After construction or a copy: ``x``, ``P``, ``Q``, ``R`` formed from this filter's own engine and
-        slots, the arrays handed out (``_x``, ``_Ph``) its own; a placeholder as assigned."""
+        slots, the arrays handed out (``_handed``) its own; a placeholder as assigned."""
         self._unformed = (Unformed(self._formed_x), Unformed(self._formed_P))
         d = self.__dict__
         for k, name in enumerate(("x", "P")):
-            record = "_x" if name == "x" else "_Ph"
-            handed = getattr(self, record)
+            handed = self._handed.held.get(name)
             if handed is not None:
                 d[name] = handed.array
             elif name in self._unset:
