@@ -39,7 +39,7 @@ from .angles import check_angle_hooks, is_data
 from .batch import model_kwargs, per_step
 from .boundary.attributes import HandOut, Hook, ModelFunction
 from .boundary.config import Config, check_pending, filter_kwargs, filter_of, model_noise, stacked
-from .boundary.loop import Transaction, annotate_step, check_keep, check_progress, progress_callback
+from .boundary.loop import annotate_step, check_keep, check_progress, progress_callback
 from .boundary.records import FleetResult, Records, new_records
 from .checks import (
     check_flag,
@@ -53,6 +53,7 @@ from .checks import (
 )
 from .engine import Engine, Route, Update
 from .errors import FleetStepError, ParameterError, UnsetError
+from .face import Face
 from .gating import Gate, as_gate
 from .generators import as_generator
 from .noise import handed_points, noise_points
@@ -73,18 +74,6 @@ _BEFORE_ENGINE = (
     "_x", "_S", "_pending", "_route", "_x_prior", "_S_prior", "_x_post", "_S_post", "_y", "_loglik", "_nis",
     "_rejected", "_y_whitened", "_log_det",
 )  # fmt: skip
-
-
-def _record(which: str, doc: str, covariance: bool = False) -> property:
-    """A read-only record of the last step, the engine's ``prior_record`` or ``post_record`` (``which``):
-    a copy of its state or factor, or the factor's ``S @ S.T`` (``covariance``)."""
-    i = 0 if which.startswith("x") else 1
-
-    def read(self) -> np.ndarray:
-        a = getattr(self._engine, which[2:])[i]
-        return a @ np.swapaxes(a, -1, -2) if covariance else a.copy()
-
-    return property(read, doc=doc)
 
 
 def _as_filters(filters) -> list[SquareRootUKF]:
@@ -145,7 +134,7 @@ class PerPoint:
             return np.asarray(values, dtype=object)
 
 
-class Fleet:
+class Fleet(Face):
     """K independent square-root UKFs with one model and one configuration.
 
     Parameters
@@ -244,6 +233,8 @@ class Fleet:
     # the engine (the state, the pending step, the records and the step's buffers) lives outside
     # __dict__, as a filter's does: a Saver's rows never see its buffers, nor deep-copy them at each save
     __slots__ = ("_engine", "__dict__", "__weakref__")
+    ONE = False  # a block of K: the records are (K, ...)
+    NO_LOG_LIKELIHOOD = 0.0  # (a filter without measurement: 0, as after an update that measured nothing)
 
     def __init__(
         self,
@@ -328,45 +319,17 @@ class Fleet:
         """Measurement dimension."""
         return self._m
 
-    @property
-    def points_fn(self):
-        """The sigma-point family (or filterpy points object) of the first set, fixed at construction."""
-        return self._points
-
-    @points_fn.setter
-    def points_fn(self, points) -> None:
+    def _set_points(self, points) -> None:
         raise ParameterError(
             f"a fleet's points are fixed when it is built (points_fn={points!r:.80}): build a Fleet with"
             " them, or step its filters apart (fleet[k]) and Fleet.from_filters"
         )
 
-    @property
-    def scheme(self):
-        """The second-set generator."""
-        return self._generator
-
-    @property
-    def fx_noise(self) -> int | None:
-        """Dimension of the noise ``fx`` takes as its second argument (None: additive noise)."""
-        return self._fx_noise or None
-
-    @property
-    def hx_noise(self) -> int | None:
-        """Dimension of the noise ``hx`` takes as its second argument (None: additive noise)."""
-        return self._hx_noise or None
-
-    @property
-    def gate(self) -> Gate | None:
-        """The outlier gate (None: every measurement is used); assign a probability or a Gate."""
-        return self._gate
-
-    @gate.setter
-    def gate(self, value) -> None:
-        self._gate = as_gate(value)
-        self._engine.configure(self._new_route())
-
     def _hooks(self) -> Hooks:
         return Hooks(self.x_mean, self.z_mean, self.residual_x, self.residual_z, self.state_add)
+
+    def _configured(self) -> None:
+        self._engine.configure(self._new_route())
 
     def _new_route(self) -> Route:
         """The engine's route of this configuration (built again when a hook, the gate or
@@ -384,7 +347,7 @@ class Fleet:
     @vectorized_hooks.setter
     def vectorized_hooks(self, value) -> None:
         self._vectorized_hooks = check_flag(value, "vectorized_hooks")
-        self._engine.configure(self._new_route())
+        self._configured()
 
     # the model functions: a fleet needs both
     hx = ModelFunction(optional=False, why="a fleet needs fx and hx")
@@ -399,7 +362,7 @@ class Fleet:
 
     def _hooks_assigned(self) -> None:
         if "_gate" in self.__dict__:  # (not while __init__ sets the hooks: the engine is built after)
-            self._engine.configure(self._new_route())
+            self._configured()
 
     # -- state and noise: handed out (edits in place taken by boundary.attributes.HandOut) -------
 
@@ -505,15 +468,6 @@ class Fleet:
     def chunk(self, value) -> None:
         self._chunk: int | None = None if value is None else checks.check_sizes(chunk=value)[0]
 
-    # -- records of the last step (the buffers behind them are not written while a record holds them) --
-
-    x_prior = _record("x_prior_record", "States after the last prediction, shape ``(K, dim_x)`` (fresh).")
-    P1_2_prior = _record("S_prior_record", "Lower factors after the last prediction, ``(K, n, n)`` (fresh).")
-    P_prior = _record("S_prior_record", "Covariances after the last prediction (fresh).", covariance=True)
-    x_post = _record("x_post_record", "States after the last update, shape ``(K, dim_x)`` (fresh).")
-    P1_2_post = _record("S_post_record", "Lower factors after the last update, ``(K, n, n)`` (fresh).")
-    P_post = _record("S_post_record", "Covariances after the last update (fresh).", covariance=True)
-
     @property
     def failed(self) -> np.ndarray:
         """Which filters are flagged, shape ``(K,)`` (a copy)."""
@@ -526,63 +480,6 @@ class Fleet:
         for k, why in self._failure.items():
             failure[k] = why
         return failure
-
-    def _last(self) -> Update:
-        """The engine's record of the last update (before any: zeros, no innovation, nothing rejected)."""
-        last = self._engine.last
-        if last is None:
-            K, m = self._K, self._m
-            x, S = self._engine.post_record
-            last = Update(x, S, np.zeros((K, m)), None, None, np.zeros(K), np.zeros(K), None,
-                          np.zeros((K, m), dtype=bool), None, m, np.zeros((K, m)), np.zeros(K))  # fmt: skip
-        return last
-
-    @property
-    def log_likelihood(self) -> np.ndarray:
-        """Log-likelihood of each filter's last measurement, shape ``(K,)``."""
-        return self._last().log_likelihood.copy()
-
-    @property
-    def likelihood(self) -> np.ndarray:
-        """``exp(log_likelihood)``, never below the smallest normal float, shape ``(K,)``."""
-        return np.maximum(np.exp(self._last().log_likelihood), np.finfo(float).tiny)
-
-    @property
-    def mahalanobis(self) -> np.ndarray:
-        """Mahalanobis distance of each filter's last innovation, shape ``(K,)``."""
-        return np.sqrt(self._last().nis)
-
-    @property
-    def y(self) -> np.ndarray:
-        """Innovations of the last update, shape ``(K, dim_z)``, NaN where nothing was measured (a copy)."""
-        return self._last().y.copy()
-
-    @property
-    def nis(self) -> np.ndarray:
-        """Normalised innovation squared of each filter's last update, shape ``(K,)`` (a copy)."""
-        return self._last().nis.copy()
-
-    @property
-    def y_whitened(self) -> np.ndarray:
-        """Whitened innovations ``S1_2^-1 y`` of the last update, shape ``(K, dim_z)`` (a copy).
-
-        NaN where a component was not measured (or a filter not updated); ``nis`` is each row's squared
-        norm, as :attr:`SquareRootUKF.y_whitened`.
-        """
-        return self._last().w.copy()
-
-    @property
-    def log_det_S1_2(self) -> np.ndarray:
-        """``log det S1_2`` of each filter's last update (its measured block), shape ``(K,)`` (a copy).
-
-        0 where a filter was not updated.
-        """
-        return self._last().log_det_S1_2.copy()  # type: ignore[union-attr]  # (a fleet's record keeps it)
-
-    @property
-    def rejected(self) -> np.ndarray:
-        """The components the gate rejected in the last update, shape ``(K, dim_z)`` (a copy)."""
-        return self._last().rejected.copy()
 
     def reset(self, filters=None, x=None, P=None) -> None:
         """Clear the flag of ``filters`` (default: every flagged one), optionally setting their state.
@@ -862,13 +759,6 @@ class Fleet:
             self._take_edits()
             self._update(self._hx_images(self._R1_2, hx_args), z, self._R1_2, self._engine.pending_update())
         records.keep(t, self._engine.last)  # type: ignore[arg-type]  # (an update or _no_update's)
-
-    def transaction(self) -> Transaction:
-        """A context manager that puts the fleet back as it was on entry if anything inside raises.
-
-        What ``batch_filter`` runs its steps in (``squkf.boundary.loop.Transaction``).
-        """
-        return Transaction(self._snapshot, self._restore)
 
     def _snapshot(self) -> tuple[Fleet, HandOut]:
         # a copy: the step's results live in buffers that later steps write again

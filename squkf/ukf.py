@@ -29,6 +29,7 @@ from .boundary.attributes import (
     FactorSlot,
     Flag,
     Handed,
+    HandOut,
     Hook,
     ModelFunction,
     Unformed,
@@ -37,11 +38,11 @@ from .boundary.attributes import (
     set_factor,
 )
 from .boundary.config import Config, model_noise, second_set, sigma_family
-from .boundary.loop import Transaction
-from .boundary.records import embed, innovation_inverse, log_det, whitened
+from .boundary.records import embed, innovation_inverse
 from .checks import as_float_array, as_lower_factor, check_time_step, check_values, noise_factor
 from .engine import Engine, Route, Update
 from .errors import NonFiniteError, ParameterError, ShapeError, UnsetError
+from .face import Face, written_record
 from .gating import Gate, as_gate
 from .generators import sigma_points_from_factor
 from .measurement import gain_from_factors
@@ -57,11 +58,11 @@ _REAL = checks.REAL
 
 # What lives outside the __dict__ (see the class): the engine and the gain formed from its last update,
 # the configuration, the noise slots, and what was handed out or written: the arrays ``x``, ``P`` handed
-# out (``_x``, ``_Ph``; None: none), which of them is a placeholder (``_unset``), the records written
-# (``_written``), the sigma points handed out (``_sigmas``).
+# out (``_handed``, a HandOut, as a fleet's), which of them is a placeholder (``_unset``), the records
+# written (``_written``), the sigma points handed out (``_sigmas``).
 _SLOTS = (
     "_engine", "_gain_of", "_unformed", "_points", "_family", "_generator", "_plan", "_gate", "_fx_noise",
-    "_hx_noise", "_noise_cache", "_Q", "_R", "_x", "_Ph", "_unset", "_written", "_sigmas",
+    "_hx_noise", "_noise_cache", "_Q", "_R", "_handed", "_unset", "_written", "_sigmas",
 )  # fmt: skip
 # the slots a copy or a pickle carries (the others are formed again: _unformed, and _gain_of from _engine)
 _CARRIED = _SLOTS[3:]
@@ -75,32 +76,7 @@ _SHOWN = (
 _LABELS = {"log_likelihood": "log-likelihood"}
 
 
-def _written_record(stamp: str, ndim: int) -> Callable[[Callable], property]:
-    """A record filterpy lets a program write, as a ``property`` (a ``Saver`` collects it).
-
-    The getter forms the record; an assignment (validated, a private copy) reads back, as fresh copies,
-    until the step that makes the record again: the engine's attribute ``stamp`` (``prior_record``,
-    ``post_record``, ``last``) is replaced by that step and nothing else.
-    """
-
-    def make(form: Callable) -> property:
-        name = form.__name__
-
-        def get(self):
-            held = self._written.get(name)
-            if held is not None and held[0] is getattr(self._engine, stamp):
-                return held[1].copy()
-            return form(self)
-
-        def set_(self, value) -> None:
-            self._written[name] = (getattr(self._engine, stamp), checks.written_record(value, name, ndim))
-
-        return property(get, set_, doc=form.__doc__)
-
-    return make
-
-
-#: the engine's attribute each written record or set handed out is current with (see _written_record)
+#: the engine's attribute each written record or set handed out is current with (see face.written_record)
 _STAMPS = {
     "x_prior": "prior_record", "P_prior": "prior_record", "x_post": "post_record", "P_post": "post_record",
     "y": "last", "S": "last", "SI": "last", "sigmas_f": "shown_f", "sigmas_h": "H",
@@ -122,7 +98,7 @@ def _restamped(held: dict, old: Engine, new: Engine, copy_value: Callable) -> di
     return out
 
 
-class SquareRootUKF:
+class SquareRootUKF(Face):
     """Square-root Unscented Kalman Filter with filterpy's interface.
 
     The model is ``x[k+1] = fx(x[k], dt) + v``, ``z[k] = hx(x[k]) + w`` with
@@ -238,6 +214,8 @@ class SquareRootUKF:
     # __dict__ (which a filterpy Saver deep-copies at each step, and a deepcopy copies) holds
     # filterpy's own keys alone.
     __slots__ = _SLOTS + ("__dict__", "__weakref__")
+    ONE = True  # a block of one: the records drop the block axis
+    NO_LOG_LIKELIHOOD = _LOG_TINY
 
     _engine: Engine
     _gain_of: tuple
@@ -252,8 +230,7 @@ class SquareRootUKF:
     _noise_cache: dict
     _Q: FactorSlot
     _R: FactorSlot
-    _x: Handed | None
-    _Ph: Handed | None
+    _handed: HandOut
     _unset: set
     _written: dict
     _sigmas: dict
@@ -318,7 +295,7 @@ class SquareRootUKF:
         self._points, self._family, self._generator = points, family, generator
         self._plan, self._gate = plan, gate_
         self._noise_cache = {}
-        self._x = self._Ph = None
+        self._handed = HandOut()
         self._unset, self._written, self._sigmas = set(), {}, {}
         self._gain_of = (None, None)  # (the update, its gain) once formed
         self.hx = hx
@@ -340,50 +317,19 @@ class SquareRootUKF:
 
     # -- configuration -----------------------------------------------------
 
-    @property
-    def points_fn(self):
-        """The sigma-point family (or filterpy points object) of the first set."""
-        return self._points
-
-    @points_fn.setter
-    def points_fn(self, points):
+    def _set_points(self, points):
         family, num = sigma_family(points, self._dim_x, self._fx_noise)
-        plan = build_plan(family, self._generator, self._dim_x, self._fx_noise, self._hx_noise)
-        self._points, self._family, self._plan = points, family, plan
+        self._replan(family, self._generator, points)
         self.__dict__["_num_sigmas"] = num
+
+    def _set_scheme(self, value):
+        self._replan(self._family, second_set(value, self._dim_x, self._family, self._hx_noise), self._points)
+
+    def _replan(self, family, generator, points) -> None:
+        """New points or a new second set: the plan built again (may raise, changing nothing), then taken."""
+        plan = build_plan(family, generator, self._dim_x, self._fx_noise, self._hx_noise)
+        self._points, self._family, self._generator, self._plan = points, family, generator, plan
         self._configured()
-
-    @property
-    def scheme(self):
-        """The second-set generator (``Redrawn()``, ``Augmented()`` or your own)."""
-        return self._generator
-
-    @scheme.setter
-    def scheme(self, value):
-        gen = second_set(value, self._dim_x, self._family, self._hx_noise)
-        plan = build_plan(self._family, gen, self._dim_x, self._fx_noise, self._hx_noise)
-        self._generator, self._plan = gen, plan
-        self._configured()
-
-    @property
-    def gate(self) -> Gate | None:
-        """The outlier gate (None: every measurement is used); assign a probability or a Gate."""
-        return self._gate
-
-    @gate.setter
-    def gate(self, value) -> None:
-        self._gate = as_gate(value)
-        self._configured()
-
-    @property
-    def fx_noise(self) -> int | None:
-        """Dimension of the noise ``fx`` takes as its second argument (None: additive noise)."""
-        return self._fx_noise or None
-
-    @property
-    def hx_noise(self) -> int | None:
-        """Dimension of the noise ``hx`` takes as its second argument (None: additive noise)."""
-        return self._hx_noise or None
 
     @property
     def dim_x(self) -> int:
@@ -465,7 +411,7 @@ class SquareRootUKF:
         """The engine has a new estimate: ``x`` and ``P`` are formed from it when read."""
         d = self.__dict__
         d["x"], d["P"] = self._unformed
-        self._x = self._Ph = None
+        self._handed.held.clear()  # (the arrays handed out for the old estimate are history)
 
     def _assign_x(self, value) -> None:
         """``x = value``, validated: the engine's estimate, ``x`` formed again when read.
@@ -479,7 +425,8 @@ class SquareRootUKF:
             return
         x = checks.as_state(value, "x", self._dim_x)
         self._engine.assign(x=x[None])
-        self.__dict__["x"], self._x = self._unformed[0], None
+        self.__dict__["x"] = self._unformed[0]
+        self._handed.drop("x")
         self._unset.discard("x")
 
     def _assign_P(self, value) -> None:
@@ -495,13 +442,16 @@ class SquareRootUKF:
         slot.set_matrix(value)
         self._engine.assign(S=slot.factor()[None])  # type: ignore[index]  # P is never singular
         P = self.__dict__["P"] = slot.matrix()
-        self._Ph = Handed(P)
+        self._handed.held["P"] = Handed(P)
         self._unset.discard("P")
 
     def _unset_as(self, name: str, kept: np.ndarray | None) -> None:
         """``x`` or ``P`` is a placeholder, ``kept`` (None, or an all-NaN copy handed out for edits)."""
         self.__dict__[name] = kept
-        setattr(self, "_x" if name == "x" else "_Ph", None if kept is None else Handed(kept))
+        if kept is None:
+            self._handed.drop(name)
+        else:
+            self._handed.held[name] = Handed(kept)
         self._unset.add(name)
 
     def _take_edits(self) -> None:
@@ -510,14 +460,7 @@ class SquareRootUKF:
         Each array stays handed out, with a fresh record; an invalid edit raises and stays pending.
         A placeholder edited in place is an assignment too (still all NaN: still not set).
         """
-        handed = self._x
-        if handed is not None and handed.edited():
-            self._take_edit("x", handed.array)
-            self._x = Handed(handed.array)
-        handed = self._Ph
-        if handed is not None and handed.edited():
-            self._take_edit("P", handed.array)
-            self._Ph = Handed(handed.array)
+        self._handed.take(("x", "P"), self._take_edit)
 
     def _take_edit(self, name: str, array: np.ndarray) -> None:
         """An array handed out as ``x`` or ``P`` was edited in place: validated and taken (may raise)."""
@@ -536,7 +479,7 @@ class SquareRootUKF:
 
     def _ready(self, call: str) -> None:
         """Edits in place taken; refuse a step while ``x`` or ``P`` is a placeholder (changes nothing)."""
-        if self._x is not None or self._Ph is not None:  # handed out since the step: edits are taken
+        if self._handed.held:  # handed out since the step: edits are taken
             self._take_edits()
         if self._unset:
             self._refuse_unset(call)
@@ -563,7 +506,8 @@ class SquareRootUKF:
     def P1_2(self, value):
         S = as_lower_factor(value, "P1_2", self._dim_x, singular_ok=False)
         self._engine.assign(S=S[None])
-        self.__dict__["P"], self._Ph = self._unformed[1], None
+        self.__dict__["P"] = self._unformed[1]
+        self._handed.drop("P")
         self._unset.discard("P")
 
     @property
@@ -600,38 +544,6 @@ class SquareRootUKF:
         return np.zeros((m, m)) if S is None else S
 
     # -- the records of the last prediction and update (formed when read) --------------------
-
-    @_written_record("prior_record", 1)
-    def x_prior(self) -> np.ndarray:
-        """State after the last prediction, shape ``(dim_x,)`` (a fresh array; writable, as filterpy's)."""
-        return self._engine.prior_record[0][0].copy()
-
-    @property
-    def P1_2_prior(self) -> np.ndarray:
-        """Lower factor of the covariance after the last prediction (a fresh array)."""
-        return self._engine.prior_record[1][0].copy()
-
-    @_written_record("prior_record", 2)
-    def P_prior(self) -> np.ndarray:
-        """Covariance after the last prediction (a fresh array; writable)."""
-        S = self._engine.prior_record[1][0]
-        return S @ S.T
-
-    @_written_record("post_record", 1)
-    def x_post(self) -> np.ndarray:
-        """State after the last update, shape ``(dim_x,)`` (a fresh array; writable)."""
-        return self._engine.post_record[0][0].copy()
-
-    @property
-    def P1_2_post(self) -> np.ndarray:
-        """Lower factor of the covariance after the last update (a fresh array)."""
-        return self._engine.post_record[1][0].copy()
-
-    @_written_record("post_record", 2)
-    def P_post(self) -> np.ndarray:
-        """Covariance after the last update (a fresh array; writable)."""
-        S = self._engine.post_record[1][0]
-        return S @ S.T
 
     @property
     def sigmas_f(self) -> np.ndarray:
@@ -690,19 +602,6 @@ class SquareRootUKF:
         stamp, handed, _ = self._sigmas["sigmas_f"]
         self._sigmas["sigmas_f"] = (stamp, Handed(handed.array), False)
 
-    @_written_record("last", 1)
-    def y(self) -> np.ndarray:
-        """Innovation of the last update, shape ``(dim_z,)``; NaN where not measured (fresh; writable)."""
-        last = self._last()
-        if last is None:
-            return np.zeros(self._dim_z)
-        y = last.y[0]
-        if last.observed is None:
-            return y.copy()
-        out = np.full(last.m, np.nan)
-        out[last.observed] = y
-        return out
-
     def _last(self) -> Update | None:
         return self._engine.last
 
@@ -720,13 +619,13 @@ class SquareRootUKF:
         Sy, observed = self._Sy()
         return embed(Sy, observed, np.nan)
 
-    @_written_record("last", 2)
+    @written_record("last", 2)
     def S(self) -> np.ndarray:
         """Innovation covariance of the last update, ``S1_2 @ S1_2.T`` (NaN where missing)."""
         Sy, observed = self._Sy()
         return embed(Sy @ Sy.T, observed, np.nan)
 
-    @_written_record("last", 2)
+    @written_record("last", 2)
     def SI(self) -> np.ndarray:
         """Inverse of ``S``, by triangular solves with ``S1_2`` (or by ``self.inv`` if replaced)."""
         if self.inv is not np.linalg.inv:
@@ -763,76 +662,6 @@ class SquareRootUKF:
         full[:, last.observed] = K
         return full
 
-    @property
-    def log_likelihood(self) -> float:
-        """Log-likelihood of the last measurement (the components it used), from the innovation factor.
-
-        0 when a gate rejected them all (``likelihood`` 1).
-        """
-        last = self._last()
-        return float(last.log_likelihood[0]) if last is not None else _LOG_TINY
-
-    @property
-    def likelihood(self) -> float:
-        """``exp(log_likelihood)``, never below ``sys.float_info.min``."""
-        return max(math.exp(self.log_likelihood), sys.float_info.min)
-
-    @property
-    def mahalanobis(self) -> float:
-        """Mahalanobis distance of the last innovation, ``||S1_2^-1 y||`` (measured components)."""
-        return math.sqrt(self.nis)
-
-    @property
-    def nis(self) -> float:
-        """Normalised innovation squared of the last update, ``y^T S^-1 y`` (measured components).
-
-        What a gate tests.
-        """
-        last = self._last()
-        return float(last.nis[0]) if last is not None else 0.0
-
-    @property
-    def y_whitened(self) -> np.ndarray:
-        """The last update's whitened innovation ``S1_2^-1 y``, shape ``(dim_z,)`` (a fresh array).
-
-        NaN where a component was not measured; ``nis`` is its squared norm. With ``log_det_S1_2``
-        it is the whole of the step's log-likelihood,
-        ``-(m log 2 pi + nis) / 2 - log_det_S1_2`` over the ``m`` measured components
-        (:func:`squkf.tune.fit_noise` reads them as least-squares residuals). Zeros before any update.
-        """
-        last = self._last()
-        if last is None:
-            return np.zeros(self._dim_z)
-        return whitened(last.w, last.observed, last.m)[0]
-
-    @property
-    def log_det_S1_2(self) -> float:
-        """``log det S1_2`` of the last update: the log-determinant of the innovation factor's measured block.
-
-        0 before any update (and when nothing was measured).
-        """
-        last = self._last()
-        if last is None:
-            return 0.0
-        assert last.Sy is not None  # (one filter's update keeps its factors)
-        return float(log_det(last.Sy)[0])
-
-    @property
-    def rejected(self) -> np.ndarray:
-        """Which components of the last measurement the gate rejected, shape ``(dim_z,)`` (a fresh array).
-
-        After a gated update ``y``, ``S``, ``S1_2`` are the tested innovation's,
-        ``K`` the gain applied (zero columns for rejected components).
-        """
-        last = self._last()
-        if last is None:
-            return np.zeros(self._dim_z, dtype=bool)
-        if last.observed is None:
-            return last.rejected[0].copy()
-        out = np.zeros(last.m, dtype=bool)
-        out[last.observed] = last.rejected[0]
-        return out
-
     # -- ask/tell: the step in halves ----------------------------------------
 
     def ask_predict(self) -> np.ndarray:
@@ -865,7 +694,7 @@ class SquareRootUKF:
         """
         self._ready("ask_predict")
         X = self._engine.ask_predict()[0]
-        return self._handed(X, self._plan.w_xi, "Q")
+        return self._asked(X, self._plan.w_xi, "Q")
 
     def tell_predict(self, sigmas_f, Q=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of a prediction: the propagated points give the prior.
@@ -910,7 +739,7 @@ class SquareRootUKF:
         self._ready("ask_update")
         e = self._engine
         X = e.ask_update()[0]
-        return self._handed(X, e.step_route.plan.v_xi, "R")  # (the plan that drew the set)
+        return self._asked(X, e.step_route.plan.v_xi, "R")  # (the plan that drew the set)
 
     def tell_update(self, sigmas_h, z, R=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Second half of an update: measurement-function values and ``z`` give the posterior.
@@ -986,7 +815,7 @@ class SquareRootUKF:
             values, Q1_2 = self._model(fx, "fx", sigmas[0], (dt,), fx_args, Q, UT), None
         e.tell_predict(values, Q1_2, UT, sigmas)
         self.__dict__["x"], self.__dict__["P"] = self._unformed  # the new estimate: formed when read
-        self._x = self._Ph = None
+        self._handed.held.clear()  # (the arrays handed out for the old estimate are history)
 
     def update(self, z, R=None, UT=None, hx=None, **hx_args) -> None:
         """Update the estimate with measurement ``z``: ``x``, ``P`` become the posterior.
@@ -1034,7 +863,7 @@ class SquareRootUKF:
             self._set_used()
         d["z"] = z
         d["x"], d["P"] = self._unformed
-        self._x = self._Ph = None
+        self._handed.held.clear()  # (the arrays handed out for the old estimate are history)
 
     def compute_process_sigmas(self, dt, fx=None, **fx_args) -> None:
         """Set ``sigmas_f`` to the first set propagated through ``fx`` (state unchanged)."""
@@ -1118,7 +947,7 @@ class SquareRootUKF:
         W = noise_points(xi, self._noise_factor(noise, name, xi.shape[1]), ())
         return call_model(fn, which, dim, X, W, args, kwargs, self.vectorized)
 
-    def _handed(self, X: np.ndarray, xi: np.ndarray | None, name: str) -> np.ndarray:
+    def _asked(self, X: np.ndarray, xi: np.ndarray | None, name: str) -> np.ndarray:
         """What ``ask_*`` hands out: a copy of the points, with their noise part if any."""
         factor = None if xi is None else self._noise_factor(None, name, xi.shape[1])
         return handed_points(X, xi, factor, ())
@@ -1149,13 +978,6 @@ class SquareRootUKF:
             self._plan, hooks, self._Q.factor(), self._R.factor(), self._engine.phase,
         )  # fmt: skip
 
-    def transaction(self) -> Transaction:
-        """A context manager that puts the filter back as it was on entry if anything inside raises.
-
-        What :meth:`batch_filter` runs its steps in (``squkf.boundary.loop.Transaction``).
-        """
-        return Transaction(self._snapshot, self._restore)
-
     def _snapshot(self):
         # the engine's arrays are replaced by each step, never changed in place: a shallow copy keeps
         # them; the covariance slots, whose matrices the caller may edit in place, are copied
@@ -1167,6 +989,7 @@ class SquareRootUKF:
                 state[name] = Unformed(slot.matrix)
         engine = copy.copy(self._engine)
         own["_unset"] = set(self._unset)
+        own["_handed"] = self._handed.copy()  # (a step clears the records in place)
         for name in ("_written", "_sigmas"):  # the same records, current with the engine put back
             own[name] = _restamped(own[name], self._engine, engine, _same)
         return state, own, engine, self._kept_gain()
@@ -1205,8 +1028,8 @@ class SquareRootUKF:
         for name, value in self._carried().items():
             if name in ("_Q", "_R"):
                 value = value.detached()  # the factor shared, the matrix handed out copied
-            elif name in ("_x", "_Ph"):
-                value = None if value is None else value.copy()
+            elif name == "_handed":
+                value = value.detached()
             elif name == "_unset":
                 value = set(value)
             elif name == "_noise_cache":
@@ -1249,12 +1072,11 @@ class SquareRootUKF:
 
     def _rebind(self) -> None:
         """After construction or a copy: ``x``, ``P``, ``Q``, ``R`` formed from this filter's own engine and
-        slots, the arrays handed out (``_x``, ``_Ph``) its own; a placeholder as assigned."""
+        slots, the arrays handed out (``_handed``) its own; a placeholder as assigned."""
         self._unformed = (Unformed(self._formed_x), Unformed(self._formed_P))
         d = self.__dict__
         for k, name in enumerate(("x", "P")):
-            record = "_x" if name == "x" else "_Ph"
-            handed = getattr(self, record)
+            handed = self._handed.held.get(name)
             if handed is not None:
                 d[name] = handed.array
             elif name in self._unset:

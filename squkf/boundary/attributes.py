@@ -338,12 +338,11 @@ class Covariance:
 
 class Estimate:
     """``x`` or ``P``: formed from the filter's estimate when first read after a step, and handed out
-    as the same array (with its record, the instance's attribute ``_x`` or ``_Ph``) until the next one;
+    as the same array (with its record, in the instance's :class:`HandOut` ``_handed``) until the next one;
     an assignment is validated by the filter (``_assign_x``, ``_assign_P``). See :class:`Covariance`."""
 
     def __set_name__(self, owner, name: str):
         self.name = name
-        self.record = "_x" if name == "x" else "_Ph"
 
     def __get__(self, obj, owner=None):
         if obj is None:
@@ -352,7 +351,7 @@ class Estimate:
         value = d[self.name]
         if type(value) is Unformed:
             value = d[self.name] = value.form()
-            setattr(obj, self.record, Handed(value))
+            obj._handed.held[self.name] = Handed(value)
         return value
 
     def __set__(self, obj, value):

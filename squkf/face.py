@@ -1,0 +1,318 @@
+"""The face core: what :class:`squkf.SquareRootUKF` and :class:`squkf.Fleet` share, written once.
+
+Both faces hold an :class:`~squkf.engine.Engine` (one filter a block of one, a fleet a block of K) and
+derive from :class:`Face`, which reads the engine's records for them:
+
+- the records of the last prediction and update (``x_prior``, ``P_prior``, ``x_post``, ``P_post``,
+  their factors, ``y``, ``nis``, the likelihoods, ``y_whitened``, ``log_det_S1_2``, ``rejected``) as
+  properties (a filterpy ``Saver`` collects properties), each read from the engine's ``(B, ...)``
+  record and handed out fresh: a fleet's ``(K, ...)``, one filter's with the block axis dropped
+  (scalars as Python floats);
+- the records filterpy lets a program write (:func:`written_record`: on one filter an assignment
+  reads back until the step that makes the record again; a fleet's are read-only);
+- the configuration both faces read alike (``fx_noise``, ``hx_noise``, ``gate``) and
+  :meth:`Face.transaction`.
+
+A face says what it is by its class attributes ``ONE`` (one filter: the block axis dropped) and
+``NO_LOG_LIKELIHOOD`` (the log-likelihood read before any update), and provides ``dim_z``,
+``_configured()`` (its engine's route built again), ``_snapshot()`` and ``_restore()``.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Callable
+from typing import Any, ClassVar
+
+import numpy as np
+
+from . import checks
+from .boundary.loop import Transaction
+from .boundary.records import log_det, whitened
+from .engine import Engine, Update
+from .gating import Gate, as_gate
+
+__all__ = ["Face", "written_record"]
+
+_TINY = sys.float_info.min
+
+
+def written_record(stamp: str, ndim: int) -> Callable[[Callable], property]:
+    """A record filterpy lets a program write, as a ``property`` (a ``Saver`` collects it).
+
+    On one filter an assignment (validated, a private copy kept in ``_written``) reads back, as fresh
+    copies, until the step that makes the record again: the engine's attribute ``stamp``
+    (``prior_record``, ``post_record``, ``last``) is replaced by that step and nothing else. A fleet's
+    record is read-only.
+
+    Parameters
+    ----------
+    stamp : str
+        The engine's attribute the record is current with.
+    ndim : int
+        The axes an assigned value has (one filter's record).
+    """
+
+    def make(form: Callable) -> property:
+        name = form.__name__
+
+        def get(self):
+            if self.ONE:
+                held = self._written.get(name)
+                if held is not None and held[0] is getattr(self._engine, stamp):
+                    return held[1].copy()
+            return form(self)
+
+        def set_(self, value) -> None:
+            if not self.ONE:
+                raise AttributeError(f"{type(self).__name__}.{name} is a record of the last step: read-only")
+            self._written[name] = (getattr(self._engine, stamp), checks.written_record(value, name, ndim))
+
+        return property(get, set_, doc=form.__doc__)
+
+    return make
+
+
+class Face:
+    """The core of both faces: the records read from the engine, the shared configuration, the transaction.
+
+    Not for use alone: a face (:class:`squkf.SquareRootUKF`, :class:`squkf.Fleet`) derives from it and
+    sets the class attributes below.
+    """
+
+    __slots__ = ()
+
+    #: one filter (a block of one whose records drop the block axis), or a fleet's block of K
+    ONE: ClassVar[bool]
+    #: the log-likelihood read before any update
+    NO_LOG_LIKELIHOOD: ClassVar[float]
+
+    _engine: Engine
+    _gate: Gate | None
+    _points: Any
+    _generator: Any
+    _fx_noise: int
+    _hx_noise: int
+    _written: dict
+    dim_z: Any
+
+    # -- reading the engine's records ----------------------------------------------
+
+    def _rows(self, a: np.ndarray) -> np.ndarray:
+        """A ``(B, ...)`` record as handed out: a copy, one filter's without the block axis."""
+        return a[0].copy() if self.ONE else a.copy()
+
+    def _covariance(self, S: np.ndarray) -> np.ndarray:
+        """``S @ S.T`` of a ``(B, n, n)`` stack of factors, one filter's without the block axis."""
+        if self.ONE:
+            s = S[0]
+            return s @ s.T
+        return S @ np.swapaxes(S, -1, -2)
+
+    def _before_update(self, shape: tuple = (), dtype: Any = float) -> np.ndarray:
+        """A record before any update: zeros of ``shape`` per filter (one filter's: of ``shape``)."""
+        lead = () if self.ONE else (self._engine.x.shape[0],)
+        return np.zeros(lead + shape, dtype=dtype)
+
+    def _scalar(self, a: np.ndarray | None, before: float):
+        """A per-filter record ``(B,)`` as handed out (one filter's a float; ``before``: before an update)."""
+        if self.ONE:
+            return before if a is None else float(a[0])
+        return np.full(self._engine.x.shape[0], before) if a is None else a.copy()
+
+    def _in_place(self, a: np.ndarray, observed: np.ndarray | None, m: int, fill) -> np.ndarray:
+        """The record ``a`` ``(B, mo)`` of the observed components, in their places of ``m`` (``fill``
+        elsewhere), as handed out."""
+        if observed is None:
+            return self._rows(a)
+        out = np.full((a.shape[0], m), fill, dtype=a.dtype)
+        out[:, observed] = a
+        return out[0] if self.ONE else out
+
+    # -- the records of the last prediction and update (formed when read, fresh) -------------
+
+    @written_record("prior_record", 1)
+    def x_prior(self) -> np.ndarray:
+        """State after the last prediction, ``(dim_x,)`` (a fleet's ``(K, dim_x)``; fresh; one filter's
+        writable, as filterpy's)."""
+        return self._rows(self._engine.prior_record[0])
+
+    @property
+    def P1_2_prior(self) -> np.ndarray:
+        """Lower factor of the covariance after the last prediction, ``(..., dim_x, dim_x)`` (fresh)."""
+        return self._rows(self._engine.prior_record[1])
+
+    @written_record("prior_record", 2)
+    def P_prior(self) -> np.ndarray:
+        """Covariance after the last prediction, ``(..., dim_x, dim_x)`` (fresh; one filter's writable)."""
+        return self._covariance(self._engine.prior_record[1])
+
+    @written_record("post_record", 1)
+    def x_post(self) -> np.ndarray:
+        """State after the last update, ``(..., dim_x)`` (fresh; one filter's writable)."""
+        return self._rows(self._engine.post_record[0])
+
+    @property
+    def P1_2_post(self) -> np.ndarray:
+        """Lower factor of the covariance after the last update, ``(..., dim_x, dim_x)`` (fresh)."""
+        return self._rows(self._engine.post_record[1])
+
+    @written_record("post_record", 2)
+    def P_post(self) -> np.ndarray:
+        """Covariance after the last update, ``(..., dim_x, dim_x)`` (fresh; one filter's writable)."""
+        return self._covariance(self._engine.post_record[1])
+
+    @written_record("last", 1)
+    def y(self) -> np.ndarray:
+        """Innovation of the last update, ``(..., dim_z)``; NaN where not measured (fresh; one filter's
+        writable). Zeros before any update."""
+        last: Update | None = self._engine.last
+        if last is None:
+            return self._before_update((self.dim_z,))
+        return self._in_place(last.y, last.observed, last.m, np.nan)
+
+    @property
+    def log_likelihood(self):
+        """Log-likelihood of the last measurement (the components it used), from the innovation factor.
+
+        One filter's a float, a fleet's ``(K,)``; 0 when a gate rejected every component, and where a
+        fleet's filter had no measurement.
+        """
+        last = self._engine.last
+        return self._scalar(None if last is None else last.log_likelihood, self.NO_LOG_LIKELIHOOD)
+
+    @property
+    def likelihood(self):
+        """``exp(log_likelihood)``, never below the smallest normal float."""
+        if self.ONE:
+            return max(math.exp(self.log_likelihood), _TINY)
+        last = self._engine.last
+        ll = self._before_update() if last is None else last.log_likelihood
+        return np.maximum(np.exp(ll), _TINY)
+
+    @property
+    def nis(self):
+        """Normalised innovation squared of the last update, ``y^T S^-1 y`` (measured components).
+
+        What a gate tests; one filter's a float, a fleet's ``(K,)``; 0 before any update.
+        """
+        last = self._engine.last
+        return self._scalar(None if last is None else last.nis, 0.0)
+
+    @property
+    def mahalanobis(self):
+        """Mahalanobis distance of the last innovation, ``||S1_2^-1 y||`` (measured components)."""
+        if self.ONE:
+            return math.sqrt(self.nis)
+        last = self._engine.last
+        return np.sqrt(self._before_update() if last is None else last.nis)
+
+    @property
+    def y_whitened(self) -> np.ndarray:
+        """The last update's whitened innovation ``S1_2^-1 y``, ``(..., dim_z)`` (a fresh array).
+
+        NaN where a component was not measured (or a fleet's filter not updated); ``nis`` is its
+        squared norm. With ``log_det_S1_2`` it is the whole of the step's log-likelihood,
+        ``-(m log 2 pi + nis) / 2 - log_det_S1_2`` over the ``m`` measured components
+        (:func:`squkf.tune.fit_noise` reads them as least-squares residuals). Zeros before any update.
+        """
+        last = self._engine.last
+        if last is None:
+            return self._before_update((self.dim_z,))
+        w = whitened(last.w, last.observed, last.m)  # (a new array)
+        return w[0] if self.ONE else w
+
+    @property
+    def log_det_S1_2(self):
+        """``log det S1_2`` of the last update: the log-determinant of the innovation factor's measured
+        block (one filter's a float, a fleet's ``(K,)``).
+
+        0 before any update (and where nothing was measured).
+        """
+        last = self._engine.last
+        if last is None:
+            return self._scalar(None, 0.0)
+        ld = last.log_det_S1_2
+        if ld is None:  # (one filter's update keeps its factor)
+            assert last.Sy is not None
+            ld = log_det(last.Sy)
+        return self._scalar(ld, 0.0)
+
+    @property
+    def rejected(self) -> np.ndarray:
+        """Which components of the last measurement the gate rejected, ``(..., dim_z)`` (fresh).
+
+        After a gated update ``y``, ``S``, ``S1_2`` are the tested innovation's,
+        ``K`` the gain applied (zero columns for rejected components).
+        """
+        last = self._engine.last
+        if last is None:
+            return self._before_update((self.dim_z,), bool)
+        return self._in_place(last.rejected, last.observed, last.m, False)
+
+    # -- the configuration both faces read alike -------------------------------------
+
+    @property
+    def points_fn(self):
+        """The sigma-point family (or filterpy points object) of the first set (a fleet's fixed when it is
+        built)."""
+        return self._points
+
+    @points_fn.setter
+    def points_fn(self, points) -> None:
+        self._set_points(points)
+
+    @property
+    def scheme(self):
+        """The second-set generator (``Redrawn()``, ``Augmented()`` or your own; one filter's assignable)."""
+        return self._generator
+
+    @scheme.setter
+    def scheme(self, value) -> None:
+        self._set_scheme(value)
+
+    def _set_points(self, points) -> None:
+        raise NotImplementedError
+
+    def _set_scheme(self, value) -> None:
+        raise AttributeError(f"{type(self).__name__}.scheme is fixed when it is built")
+
+    @property
+    def fx_noise(self) -> int | None:
+        """Dimension of the noise ``fx`` takes as its second argument (None: additive noise)."""
+        return self._fx_noise or None
+
+    @property
+    def hx_noise(self) -> int | None:
+        """Dimension of the noise ``hx`` takes as its second argument (None: additive noise)."""
+        return self._hx_noise or None
+
+    @property
+    def gate(self) -> Gate | None:
+        """The outlier gate (None: every measurement is used); assign a probability or a Gate."""
+        return self._gate
+
+    @gate.setter
+    def gate(self, value) -> None:
+        self._gate = as_gate(value)  # type: ignore[misc]  # (each face keeps it: a slot, or its __dict__)
+        self._configured()
+
+    def _configured(self) -> None:
+        """The configuration changed: the engine's routes are built again (each face's)."""
+        raise NotImplementedError
+
+    # -- the transaction of a call ------------------------------------------------------
+
+    def transaction(self) -> Transaction:
+        """A context manager that puts the filter back as it was on entry if anything inside raises.
+
+        What ``batch_filter`` runs its steps in (``squkf.boundary.loop.Transaction``).
+        """
+        return Transaction(self._snapshot, self._restore)
+
+    def _snapshot(self) -> Any:
+        raise NotImplementedError
+
+    def _restore(self, saved: Any) -> None:
+        raise NotImplementedError
