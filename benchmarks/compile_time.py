@@ -18,6 +18,15 @@ cache (beside the installed package) is neither read nor written:
   them; the table gives medians). The kernels are loaded from the cache.
 * the Fleet once more on the directory the filter alone filled: whether a
   fleet finds the kernels a single filter compiled.
+* first uses (``firsts``): one process on a new empty cache runs the default
+  filter's first step (filling the cache), then, one after the other, the
+  first step with squkf's angle hooks on the measurement, the first
+  ``batch_filter``, the first ``Fleet`` step and the first smoother (the
+  issue's "at most 2 s more in all"), then routes outside that sum: the
+  first update in the downdate form (a user's ``UT``, as a ``residual_x``,
+  ``state_add`` or the propagated scheme take it) and the first partial
+  measurement. Each row names the kernels it compiled; "angle code compiles
+  only on first use" is the default step's list, without ``angle_rows_kernel``.
 
 Times inside a child: ``import squkf`` (in a process that has imported nothing
 else, so it includes numpy, scipy and numba), building the filter, the first
@@ -33,7 +42,8 @@ process imports it from there (``PYTHONPATH``). ``--cold-reps`` rounds, each
 running every tree's filter and fleet once on a new empty cache, this tree
 first, so that a machine that slows for a while slows all alike. The table
 gives each tree's median build + first predict + update, and the median over
-rounds of this tree's time divided by the revision's.
+rounds of this tree's time divided by the revision's; each round also runs
+each tree's first uses (above) on a new empty cache.
 """
 
 from __future__ import annotations
@@ -108,6 +118,76 @@ def child(kind: str, K: int) -> None:
     )
 
 
+#: The first uses after the default filter's first step, in order; the first four are the issue's sum.
+FIRSTS = ("angle hooks", "batch_filter", "Fleet", "smoother", "downdate form (a user's UT)", "partial z")
+IN_SUM = FIRSTS[:4]
+
+
+def firsts_child() -> None:
+    """The default filter's first step on an empty cache, then each first use; prints a JSON line."""
+    import numpy as np
+
+    import squkf
+    from squkf.angles import AngleMean, AngleResidual
+
+    try:  # which kernels each first use compiled (squkf's compile counter, where the revision has one)
+        from squkf.kernels.cache import compiled
+    except ImportError:
+        compiled = dict
+
+    def fx(x, dt):
+        return np.stack([x[..., 0] + dt * x[..., 1], x[..., 1], x[..., 2] + dt * x[..., 3], x[..., 3]], -1)
+
+    def hx(x):
+        return np.stack([np.hypot(x[..., 0], x[..., 2]), np.arctan2(x[..., 2], x[..., 0])], -1)
+
+    x0 = np.array([1000.0, 5.0, 1500.0, -3.0])
+    P0 = np.diag([30.0**2, 2.0**2, 30.0**2, 2.0**2])
+    Q = np.kron(np.eye(2), 0.05 * np.array([[1 / 3, 1 / 2], [1 / 2, 1.0]]))
+    R = np.diag([5.0**2, 2e-3**2])
+    z = hx(x0) + np.array([3.0, 1e-3])
+    zs = [z + 0.1 * k for k in range(5)]
+
+    def made(cls=squkf.SquareRootUKF, *first, **hooks):
+        f = cls(*first, 4, 2, 1.0, hx, fx, squkf.MerweScaledWeights(), **hooks)
+        f.x, f.P, f.Q, f.R = x0, P0, Q, R
+        return f
+
+    def step(f, zk=z, **kw):
+        f.predict(**kw)
+        f.update(zk, **kw)
+
+    def users_ut(*args):
+        return squkf.sqrt_unscented_transform(*args)
+
+    def fleet():
+        step(made(squkf.Fleet, 1000), np.broadcast_to(z, (1000, 2)).copy())
+
+    def smoother():
+        f = made()
+        f.rts_smoother(*f.batch_filter(zs)[:2])
+
+    uses = {
+        "default filter": lambda: step(made()),
+        "angle hooks": lambda: step(made(z_mean_fn=AngleMean([1]), residual_z=AngleResidual([1]))),
+        "batch_filter": lambda: made().batch_filter(zs),
+        "Fleet": fleet,
+        "smoother": smoother,
+        "downdate form (a user's UT)": lambda: step(made(), UT=users_ut),
+        "partial z": lambda: step(made(), np.array([np.nan, z[1]])),
+    }
+    out = {}
+    for label, use in uses.items():
+        before = compiled()
+        t = time.perf_counter()
+        use()
+        seconds = time.perf_counter() - t
+        after = compiled()
+        kernels = sorted(k for k in after if k.endswith("_kernel") and after[k] > before.get(k, 0))
+        out[label] = {"s": seconds, "kernels": kernels}
+    print(json.dumps(out))
+
+
 def run_child(kind: str, K: int, cache: Path, tree: Path | None = None) -> dict:
     """One child on ``cache``; ``tree``: a folder with the ``squkf`` package to import instead of this one."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
@@ -115,6 +195,7 @@ def run_child(kind: str, K: int, cache: Path, tree: Path | None = None) -> dict:
     if tree is not None:
         env["PYTHONPATH"] = os.pathsep.join([str(tree), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
     cmd = [sys.executable, str(Path(__file__).resolve()), "--child", kind, "--K", str(K)]
+    env.setdefault("SQUKF_QUIET_COMPILE", "1")
     t = time.perf_counter()
     p = subprocess.run(cmd, env=env, capture_output=True, text=True, cwd=str(HERE))
     wall = time.perf_counter() - t
@@ -125,15 +206,23 @@ def run_child(kind: str, K: int, cache: Path, tree: Path | None = None) -> dict:
     return out
 
 
-def cold_against(refs: list[str], rounds: int, K: int, log) -> list[tuple[str, dict[str, list[float]]]]:
-    """Cold compiles (build + first predict + update, s) of this tree and of each revision, alternating."""
+def cold_against(refs: list[str], rounds: int, K: int, log) -> tuple[list, dict[str, list[dict]]]:
+    """Cold compiles (build + first predict + update, s) of this tree and of each revision, alternating;
+    and each tree's first uses (:func:`firsts_child`) per round."""
     trees: list[tuple[str, Path | None]] = [("this tree", None)]
     with tempfile.TemporaryDirectory(prefix="squkf_revisions_") as tmp:
         for rev in refs:
             trees.append((rev, export_package(rev, Path(tmp) / rev)))
         times: dict[str, dict[str, list[float]]] = {label: {"filter": [], "fleet": []} for label, _ in trees}
+        firsts: dict[str, list[dict]] = {label: [] for label, _ in trees}
         for i in range(rounds):
             for label, tree in trees:
+                cache = Path(tempfile.mkdtemp(prefix="squkf_numba_cache_firsts_"))
+                try:
+                    firsts[label].append(run_child("firsts", K, cache, tree))
+                finally:
+                    shutil.rmtree(cache, ignore_errors=True)
+                log(f"round {i + 1}, {label}, first uses: {json.dumps(firsts[label][-1])}")
                 for kind in ("filter", "fleet"):
                     cache = Path(tempfile.mkdtemp(prefix=f"squkf_numba_cache_{kind}_"))
                     try:
@@ -142,7 +231,39 @@ def cold_against(refs: list[str], rounds: int, K: int, log) -> list[tuple[str, d
                         shutil.rmtree(cache, ignore_errors=True)
                     times[label][kind].append(r["build_s"] + r["first_step_s"])
                     log(f"round {i + 1}, {label}, {kind}, cold: {times[label][kind][-1]:.2f} s")
-    return list(times.items())
+    return list(times.items()), firsts
+
+
+def firsts_markdown(firsts: dict[str, list[dict]]) -> list[str]:
+    """The first uses after the default filter's first step, per tree: medians over rounds (ranges)."""
+    labels = list(firsts)
+    rounds = len(firsts[labels[0]])
+    lines = [
+        "",
+        f"## First uses after the default filter's first step ({rounds} rounds, one new empty cache each)",
+        "",
+        "One process per tree and round: the default filter's first step fills the cache, then each first "
+        "use in this order, timed (s; median over rounds, range in brackets) with the kernels it compiled. "
+        f"The sum is of the first four ({', '.join(IN_SUM)}); issue 36's target: at most 2 s.",
+        "",
+        "| first use | " + " | ".join(f"{label} s | {label}: kernels compiled" for label in labels) + " |",
+        "|---|" + "---|---|" * len(labels),
+    ]
+
+    def cell(label: str, key: str) -> str:
+        values = [r[key]["s"] for r in firsts[label]]
+        kernels = sorted({k for r in firsts[label] for k in r[key]["kernels"]})
+        span = f"{statistics.median(values):.2f} ({min(values):.2f}-{max(values):.2f})"
+        return f"{span} | {', '.join(kernels) or 'none'}"
+
+    for key in ("default filter", *FIRSTS):
+        lines.append(f"| {key} | " + " | ".join(cell(label, key) for label in labels) + " |")
+    sums = []
+    for label in labels:
+        values = [sum(r[k]["s"] for k in IN_SUM) for r in firsts[label]]
+        sums.append(f"{statistics.median(values):.2f} ({min(values):.2f}-{max(values):.2f}) | ")
+    lines.append(f"| sum of {', '.join(IN_SUM)} | " + " | ".join(sums) + " |")
+    return lines
 
 
 def against_markdown(table: list[tuple[str, dict[str, list[float]]]], K: int) -> list[str]:
@@ -254,8 +375,11 @@ def main(argv) -> int:
     ap.add_argument("--K", type=int, default=1000, help="filters in the Fleet")
     ap.add_argument("--ref", action="append", default=[], help="also this git revision, cold")
     ap.add_argument("--cold-reps", type=int, default=3, help="alternating rounds against --ref")
-    ap.add_argument("--child", choices=("filter", "fleet"), help=argparse.SUPPRESS)
+    ap.add_argument("--child", choices=("filter", "fleet", "firsts"), help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.child == "firsts":
+        firsts_child()
+        return 0
     if args.child:
         child(args.child, args.K)
         return 0
@@ -282,7 +406,10 @@ def main(argv) -> int:
     finally:
         for d in tmp:
             shutil.rmtree(d, ignore_errors=True)
-    extra = against_markdown(cold_against(args.ref, args.cold_reps, args.K, log), args.K) if args.ref else []
+    extra: list[str] = []
+    if args.ref:
+        table, firsts = cold_against(args.ref, args.cold_reps, args.K, log)
+        extra = against_markdown(table, args.K) + firsts_markdown(firsts)
     command = "python benchmarks/compile_time.py" + "".join(
         f" --{k} {v}" for k, v in (("reps", args.reps), ("K", args.K)) if v != ap.get_default(k)
     )

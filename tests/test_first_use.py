@@ -133,6 +133,31 @@ def test_a_compile_says_how_long_it_usually_takes_what_may_compile_later_and_whe
     assert said(quiet) == [] and said_ended(quiet) == []
 
 
+def test_a_later_compile_in_the_same_process_is_said_with_its_kernel_and_its_end(tmp_path):
+    """A route first used after the first compile has ended (issue 36's unexplained pauses): its
+    kernel's compile is said by a line of its own, and its end; with the cache, nothing is said."""
+    later = (
+        "from squkf.kernels import cache\n"
+        "cache.end_of_compile()\n"  # as after QUIET_PERIOD without a compile
+        "from squkf.kernels.wrappers import finite_rows\n"
+        "finite_rows(np.ones((2, 3)))\n"
+    )
+    cold = run_python(SOME_KERNELS + later, tmp_path / "numba")
+    assert "finite_rows_kernel" in compiles(cold)
+    first, second = said(cold)
+    assert "typically 10-60 s" in first
+    assert "compiling finite_rows_kernel for a route first used in this process" in second
+    assert "python -m squkf precompile" in second and "SQUKF_QUIET_COMPILE" in second
+    assert len(said_ended(cold)) == 2
+    lines = cold.stderr.splitlines()
+    order = ["start" if s.startswith(LINE) else "end" for s in lines if s.startswith("squkf: compil")]
+    assert order == ["start", "end", "start", "end"]
+    warm = run_python(SOME_KERNELS + later, tmp_path / "numba")
+    assert compiles(warm) == [] and said(warm) == [] and said_ended(warm) == []
+    quiet = run_python(SOME_KERNELS + later, tmp_path / "other", SQUKF_QUIET_COMPILE="1")
+    assert said(quiet) == [] and said_ended(quiet) == []
+
+
 def test_precompile_says_it_compiles_every_kernel_not_first_use(tmp_path):
     """Its line (a run cut to squkf.linalg's workload, which leaves kernels unreached) and its end."""
     code = (

@@ -15,7 +15,12 @@ when it is loaded from the cache, and never for other numba functions), and
 one more when that compile has ended (no compile of squkf's for
 :data:`QUIET_PERIOD` seconds, or the process exits, or :func:`end_of_compile`),
 with the time it took, unless ``SQUKF_QUIET_COMPILE`` is set:
-:ref:`first use <first-use>`. Nothing here compiles anything.
+:ref:`first use <first-use>`. A later compile in the same process (a route
+first used after the default step's kernels were compiled or loaded: the
+downdate form of a ``UT`` or ``residual_x``, a partial measurement, the
+smoother) is said too, by a shorter line naming its kernel, and its end, so
+that no pause of seconds goes unexplained; not under :func:`squkf.precompile`,
+whose one line covers every kernel. Nothing here compiles anything.
 """
 
 from __future__ import annotations
@@ -176,6 +181,15 @@ def _compiling_line(py_func: Callable) -> str:
     return f"squkf: {what} ({where}); {QUIET_VARIABLE}=1 hides this"
 
 
+def _later_line(py_func: Callable) -> str:
+    where = cache_label(py_func)
+    kept = "again in every new process" if where == "in memory" else "once"
+    return (
+        f"squkf: compiling {py_func.__name__} for a route first used in this process, typically 1-10 s, "
+        f"{kept}; `python -m squkf precompile` compiles every route ahead; {QUIET_VARIABLE}=1 hides this"
+    )
+
+
 def compiling_all(on: bool) -> None:
     """Whether :func:`squkf.precompile` is running: the line said on a compile then says so."""
     global _all
@@ -210,12 +224,17 @@ class _CompileListener(event.Listener):
             if _timer is not None:
                 _timer.cancel()
                 _timer = None
-            say, _said = not _said, True
-            say = say and not _quiet()
+            first = not _said
+            # a later compile is said when the one before has been said to end (a kernel's helpers, and
+            # the kernels of one step, compile while it runs)
+            later = _said and _said_start is None and _running == 1 and not _all
+            _said = True
+            say = (first or later) and not _quiet()
             if say:
                 _said_start = time.perf_counter()
         if say:
-            print(_compiling_line(dispatcher.py_func), file=sys.stderr, flush=True)
+            line = _compiling_line if first else _later_line
+            print(line(dispatcher.py_func), file=sys.stderr, flush=True)
 
     def on_end(self, ev: event.Event) -> None:
         global _running, _said_last, _timer
