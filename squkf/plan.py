@@ -84,6 +84,11 @@ class Plan:
     fused_draw : FusedDraw or None
         The second set as the prediction's kernel can draw it with the prior
         (redrawn, augmented), or None (the propagated set, a user's generator).
+    set_rows : tuple of WeightRows
+        The weight rows of every set the second-set generator draws (squkf's
+        generators: ``drawn_rows``), which fix the routes of their updates
+        when a route is built (:class:`squkf.engine.Route`); empty for a
+        user's generator, whose sets are classified as they come.
     """
 
     n: int
@@ -101,6 +106,7 @@ class Plan:
     scale1: np.ndarray = field(init=False)
     sign1: np.ndarray = field(init=False)
     fused_draw: FusedDraw | None = field(init=False)
+    set_rows: tuple = field(init=False)
 
     def __post_init__(self):
         # read at every step: attributes, not properties
@@ -119,6 +125,8 @@ class Plan:
         if draw is not None:
             draw = draw._replace(xi=plan_array(draw.xi))
         derived(self, "fused_draw", draw)
+        drawn = getattr(self.second, "drawn_rows", ())
+        derived(self, "set_rows", tuple(r for i, r in enumerate(drawn) if all(r is not o for o in drawn[:i])))
 
     def __reduce__(self):
         # built again when unpickled: its arrays frozen (read-only, as the kernels take them) and derived
