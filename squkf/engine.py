@@ -48,8 +48,8 @@ from .generators import SigmaSet, sigma_points_from_factor
 from .kernels import table
 from .linalg import all_finite
 from .measurement import Posterior, keeps_prior_factor, measurement_update, observed_noise_factor
-from .plan import IDLE, PREDICTING, PRIOR, UPDATING, Hooks, Plan
-from .rows import RowForm, WeightRows
+from .plan import IDLE, PREDICTING, PRIOR, SET_KINDS, UPDATING, Hooks, Plan, SetRoutes, UpdateRoute
+from .rows import RowForm
 from .statuses import failure, first_status, prior_failure, singular_allowed
 from .transform import transform_factor
 
@@ -138,65 +138,12 @@ class Update(NamedTuple):
         )  # fmt: skip
 
 
-class _Joint(NamedTuple):
-    """The route of an update by the joint QR kernel: fixed per set kind and measurement.
-
-    With no hook; or with squkf's angle hooks on the measurement (``angles``): the angle kernel forms
-    the given rows (mode 2) of the images, about the point ``ref``, and the state rows are the set's
-    deviations from the prior mean (its offsets where it has them).
-    """
-
-    form: RowForm
-    mode: int
-    offsets: bool  # the set's offsets are the state rows (else its points, with xref = x for MEAN)
-    xref: bool
-    pair: float
-    wm: np.ndarray
-    scale: np.ndarray
-    sign: np.ndarray
-    angles: bool = False
-    ref: int = 0
-    downdate: bool = False  # the downdate kernel (the set need not reproduce the prior; a residual_x or
-    # state_add of squkf's): its state rows X - xref, wrapped where xkind says, and its mean weights wc
-    wc: np.ndarray | None = None
-    xkind: np.ndarray | None = None
-
-
-def _downdate_route(
-    rows: WeightRows, have: bool, z_angles: bool, xkind: np.ndarray, residual_x: bool
-) -> _Joint:
-    """The downdate kernel's route: the images' rows as the joint route forms them (the given rows of
-    the angle kernel for squkf's angle hooks on the measurement), the state rows the set's points less
-    the prior mean (its offsets where it has them, ``have``, unless squkf's ``residual_x`` wraps the
-    deviations)."""
-    route = _angle_route(rows, have) if z_angles else _joint_route(rows, have, False)
-    have = have and not residual_x
-    return route._replace(offsets=have, xref=not have, pair=0.0, downdate=True, wc=_ro(rows.Wc), xkind=xkind)
-
-
-def _joint_route(rows: WeightRows, have: bool, axis: bool) -> _Joint:
-    """Which rows of a set the joint kernel takes (its offsets where it has them, ``have``) and how (mode,
-    pair: the rotation of an ``axis`` set's pairs)."""
-    form = rows.best
-    if form.central:
-        mode, xref = table.CENTRAL, False
-        pair = rows.pair_scale if (axis and have) else 0.0
-    else:
-        mode, xref, pair = table.MEAN, not have, 0.0
-    return _Joint(form, mode, have, xref, pair, _ro(rows.Wm), _ro(form.scale), _ro(form.sign))
-
-
-def _angle_route(rows: WeightRows, have: bool) -> _Joint:
-    """The joint kernel's route for squkf's angle hooks on the measurement: the mean form's given rows
-    (as the hooks' Python route weighs them), the circular means about the point of the largest ``|Wm|``."""
-    form = rows.mean_form
-    wm = _ro(rows.Wm)
-    ref = int(np.argmax(np.abs(wm)))
-    return _Joint(form, table.GIVEN, have, False, 0.0, wm, _ro(form.scale), _ro(form.sign), True, ref)
-
-
-#: The kinds of set an update route depends on besides its rows: (moments exact, offsets known, axis).
-_SET_KINDS = tuple((e, o, a) for e in (False, True) for o in (False, True) for a in (False, True))
+def _downdate_route(base: UpdateRoute, wc: np.ndarray, xkind: np.ndarray, residual_x: bool) -> UpdateRoute:
+    """The downdate kernel's route from the set's joint or angle route ``base``: the images' rows as
+    that route forms them, the state rows the set's points less the prior mean (its offsets where it
+    has them, unless squkf's ``residual_x`` wraps the deviations), its covariance weights ``wc``."""
+    have = base.offsets and not residual_x
+    return base._replace(offsets=have, xref=not have, pair=0.0, downdate=True, wc=wc, xkind=xkind)
 
 
 def _angle_out(B: int, N: int, m: int) -> tuple:
@@ -433,11 +380,10 @@ class Route:
         # how a prediction draws its second set, per (draw, Q given)
         self._prior_draws = {(d, q): self._prior_draw(d, q) for d in (False, True) for q in (False, True)}
         # the update routes of the sets the plan's generator draws, per rows (held: compared by identity)
-        # and kind of set; a set with other rows (a user's generator's) is classified when it comes
+        # and kind of set, from the plan's (made once per configuration); a set with other rows (a user's
+        # generator's) is classified when it comes
         self._fixed: tuple = (
-            tuple(
-                (rows, {kind: self._classify(rows, *kind) for kind in _SET_KINDS}) for rows in plan.set_rows
-            )
+            tuple((r.rows, {kind: self._classify(r, *kind) for kind in SET_KINDS}) for r in plan.set_routes)
             if self.kernel_update
             else ()
         )
@@ -607,7 +553,7 @@ class Route:
         s = plan.second.draw(one(x), one(S), one(propagated), Q1_2, self.hooks.state_add)
         return s._replace(sigmas=s.sigmas[None], offsets=None if s.offsets is None else s.offsets[None])
 
-    def update_route(self, sset: SigmaSet, UT) -> _Joint | None:
+    def update_route(self, sset: SigmaSet, UT) -> UpdateRoute | None:
         """The kernel route of an update with this set, or None for the general one (Python hooks, ``UT``).
 
         The joint QR where the set reproduces the prior and no ``residual_x`` or ``state_add`` is given;
@@ -622,15 +568,19 @@ class Route:
         for known, routes in self._fixed:
             if known is rows:
                 return routes[kind]
-        return self._classify(rows, *kind)
+        return self._classify(SetRoutes.of(rows), *kind)
 
-    def _classify(self, rows: WeightRows, exact: bool, have: bool, axis: bool) -> _Joint:
-        """The kernel route of a set with ``rows``: moments ``exact`` or not, its offsets known (``have``),
-        its points on the axes (``axis``)."""
+    def _classify(self, routes: SetRoutes, exact: bool, have: bool, axis: bool) -> UpdateRoute:
+        """The kernel route of a set with the plan's ``routes`` of its rows: moments ``exact`` or not, its
+        offsets known (``have``), its points on the axes (``axis``)."""
+        if self.z_angles:
+            base = routes.angle[have]
+        else:
+            base = routes.joint[have, axis and have and exact and not self.downdate]
         if exact and not self.downdate:
-            return _angle_route(rows, have) if self.z_angles else _joint_route(rows, have, axis)
+            return base
         xkind = table.no_angles(self.plan.n) if self.x_kinds is None else self.x_kinds
-        return _downdate_route(rows, have, self.z_angles, xkind, self.hooks.residual_x is not None)
+        return _downdate_route(base, routes.wc, xkind, self.hooks.residual_x is not None)
 
     def posterior(
         self, sset, x, S, H, z, observed, R1_2, UT, draw_first: bool, name: str = "hx values",
@@ -670,7 +620,7 @@ class Route:
         """
         # update_route's fixed route, looked up here (no call for a set the plan's generator draws)
         rows = sset.rows
-        route: _Joint | None = None
+        route: UpdateRoute | None = None
         for known, routes in self._fixed if UT is None else ():
             if known is rows:
                 route = routes[bool(sset.moments_exact), sset.offsets is not None, bool(sset.axis)]
@@ -748,7 +698,7 @@ class Route:
         update = Update(xo, So, y, Sy, L21, ll, ww, observed, _NONE_REJECTED[y.shape], None, m_all, w)
         return update, status, (X1 if draw else None)
 
-    def _angle_rows(self, route: _Joint, H, z, buffers: Buffers | None) -> tuple:
+    def _angle_rows(self, route: UpdateRoute, H, z, buffers: Buffers | None) -> tuple:
         """The angle kernel's predicted measurement, rows and innovation of the images ``H`` ``(B, N, m)``
         and the measurement ``z`` ``(B, m)``, every component (in ``buffers``' arrays where given)."""
         B, N, m = H.shape

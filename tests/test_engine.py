@@ -507,7 +507,7 @@ def test_a_routes_update_routes_are_fixed_when_it_is_built(monkeypatch, scheme, 
     f = merwe_turn_filter(MerweScaledWeights(alpha=0.5), scheme, gate)
     route = f._engine.route
     fixed = [r for _, routes in route._fixed for r in routes.values()]
-    assert fixed and {id(rows) for rows, _ in route._fixed} == {id(r) for r in route.plan.set_rows}
+    assert fixed and [rows for rows, _ in route._fixed] == [r.rows for r in route.plan.set_routes]
 
     def classified(*args):
         raise AssertionError("an update route classified after the route was built")
