@@ -383,9 +383,7 @@ class Route:
         # and kind of set, from the plan's (made once per configuration); a set with other rows (a user's
         # generator's) is classified when it comes
         self._fixed: tuple = (
-            tuple((r.rows, {kind: self._classify(r, *kind) for kind in SET_KINDS}) for r in plan.set_routes)
-            if self.kernel_update
-            else ()
+            tuple((r.rows, self._routes_of(r)) for r in plan.set_routes) if self.kernel_update else ()
         )
 
     def __reduce__(self):
@@ -569,6 +567,14 @@ class Route:
             if known is rows:
                 return routes[kind]
         return self._classify(SetRoutes.of(rows), *kind)
+
+    def _routes_of(self, routes: SetRoutes) -> dict:
+        """Every kind of set's route (``SET_KINDS``) with the plan's ``routes`` of their rows (the downdate
+        form's made once for each of its two kinds and shared)."""
+        down = {have: self._classify(routes, False, have, False) for have in (False, True)}
+        if self.downdate:
+            return {kind: down[kind[1]] for kind in SET_KINDS}
+        return {kind: self._classify(routes, *kind) if kind[0] else down[kind[1]] for kind in SET_KINDS}
 
     def _classify(self, routes: SetRoutes, exact: bool, have: bool, axis: bool) -> UpdateRoute:
         """The kernel route of a set with the plan's ``routes`` of its rows: moments ``exact`` or not, its
