@@ -48,7 +48,7 @@ from .generators import SigmaSet, sigma_points_from_factor
 from .kernels import table
 from .linalg import all_finite
 from .measurement import Posterior, keeps_prior_factor, measurement_update, observed_noise_factor
-from .plan import IDLE, PREDICTING, PRIOR, UPDATING, Hooks, Plan
+from .plan import IDLE, PREDICTING, PRIOR, SET_KINDS, UPDATING, Hooks, Plan, SetRoutes, UpdateRoute
 from .rows import RowForm
 from .statuses import failure, first_status, prior_failure, singular_allowed
 from .transform import transform_factor
@@ -138,65 +138,12 @@ class Update(NamedTuple):
         )  # fmt: skip
 
 
-class _Joint(NamedTuple):
-    """The route of an update by the joint QR kernel: fixed per set kind and measurement.
-
-    With no hook; or with squkf's angle hooks on the measurement (``angles``): the angle kernel forms
-    the given rows (mode 2) of the images, about the point ``ref``, and the state rows are the set's
-    deviations from the prior mean (its offsets where it has them).
-    """
-
-    form: RowForm
-    mode: int
-    offsets: bool  # the set's offsets are the state rows (else its points, with xref = x for MEAN)
-    xref: bool
-    pair: float
-    wm: np.ndarray
-    scale: np.ndarray
-    sign: np.ndarray
-    angles: bool = False
-    ref: int = 0
-    downdate: bool = False  # the downdate kernel (the set need not reproduce the prior; a residual_x or
-    # state_add of squkf's): its state rows X - xref, wrapped where xkind says, and its mean weights wc
-    wc: np.ndarray | None = None
-    xkind: np.ndarray | None = None
-
-
-def _downdate_route(sset: SigmaSet, z_angles: bool, xkind: np.ndarray, residual_x: bool) -> _Joint:
-    """The downdate kernel's route: the images' rows as the joint route forms them (the given rows of
-    the angle kernel for squkf's angle hooks on the measurement), the state rows the set's points less
-    the prior mean (its offsets where known, unless squkf's ``residual_x`` wraps the deviations)."""
-    rows = sset.rows
-    assert rows is not None
-    route = _angle_route(sset) if z_angles else _joint_route(sset)
-    have = sset.offsets is not None and not residual_x
-    return route._replace(offsets=have, xref=not have, pair=0.0, downdate=True, wc=_ro(rows.Wc), xkind=xkind)
-
-
-def _joint_route(sset: SigmaSet) -> _Joint:
-    """Which rows of the set the joint kernel takes (the offsets where known) and how (mode, pair)."""
-    rows = sset.rows
-    assert rows is not None
-    form = rows.best
-    have = sset.offsets is not None
-    if form.central:
-        mode, xref = table.CENTRAL, False
-        pair = rows.pair_scale if (sset.axis and have) else 0.0
-    else:
-        mode, xref, pair = table.MEAN, not have, 0.0
-    return _Joint(form, mode, have, xref, pair, _ro(rows.Wm), _ro(form.scale), _ro(form.sign))
-
-
-def _angle_route(sset: SigmaSet) -> _Joint:
-    """The joint kernel's route for squkf's angle hooks on the measurement: the mean form's given rows
-    (as the hooks' Python route weighs them), the circular means about the point of the largest ``|Wm|``."""
-    rows = sset.rows
-    assert rows is not None
-    form = rows.mean_form
-    wm = _ro(rows.Wm)
-    ref = int(np.argmax(np.abs(wm)))
-    have = sset.offsets is not None
-    return _Joint(form, table.GIVEN, have, False, 0.0, wm, _ro(form.scale), _ro(form.sign), True, ref)
+def _downdate_route(base: UpdateRoute, wc: np.ndarray, xkind: np.ndarray, residual_x: bool) -> UpdateRoute:
+    """The downdate kernel's route from the set's joint or angle route ``base``: the images' rows as
+    that route forms them, the state rows the set's points less the prior mean (its offsets where it
+    has them, unless squkf's ``residual_x`` wraps the deviations), its covariance weights ``wc``."""
+    have = base.offsets and not residual_x
+    return base._replace(offsets=have, xref=not have, pair=0.0, downdate=True, wc=wc, xkind=xkind)
 
 
 def _angle_out(B: int, N: int, m: int) -> tuple:
@@ -342,15 +289,17 @@ def _posterior_out(B: int, n: int, m: int, N1: int) -> tuple:
     )  # fmt: skip
 
 
-#: Update routes a Route keeps, at most (one per kind of second set it has seen).
-_KEPT_ROUTES = 32
-
-
 class Route:
-    """One configuration's step for a block of filters, decided once: which kernels run, how.
+    """One configuration's step for a block of filters, decided when it is built: which kernels run, how.
 
-    The plan's data, the hooks and the gate, and the routes of the updates (:meth:`update_route`,
-    kept per key). Each phase takes a block's arrays and gives its results and a status per filter
+    The route is constants, as a Runge-Kutta method's tableau is: built when the filter is built or
+    its configuration changes (points, scheme, hooks, gate), never re-decided per call. It owns the
+    :class:`~squkf.plan.Plan` (the sets' unit points, weights and rows, and the prediction's kernel
+    data: a value shared by every filter of those sets, whatever their hooks), and adds what a filter's
+    configuration decides on top of it: the hooks (squkf's angle hooks as data), the gate, the kernel
+    table, and the routes of the updates, fixed for every kind of set the plan's generator draws
+    (:meth:`update_route`; a user's generator, whose set may change at each draw, is classified at
+    each draw). Each phase takes a block's arrays and gives its results and a status per filter
     (0: success; :func:`failure` says the rest); the routes through the hooks or a ``UT`` raise
     instead (their Python checks are per call). :class:`Engine` (one filter) and
     :mod:`squkf.stacks` (a fleet's chunks) run a step with them.
@@ -363,9 +312,14 @@ class Route:
     single : bool
         One filter (a block of one whose hooks, ``UT`` and generator see one filter's arrays, with
         no batch axis, as filterpy's do).
+    kernels : KernelTable, optional
+        The kernels every phase of this route calls (default: the table installed as
+        :data:`squkf.kernels.table.KERNELS` when the route is built). A filter on another backend
+        is built with that backend's table; a CPU filter beside it keeps its own.
 
     Attributes
     ----------
+    kernels : KernelTable
     z_angles : bool
         The measurement's hooks are squkf's angle hooks (exact :class:`~squkf.angles.AngleMean`,
         :class:`~squkf.angles.AngleResidual`): their indices go to the kernels, which form the
@@ -388,13 +342,16 @@ class Route:
     """
 
     __slots__ = (
-        "plan", "hooks", "gate", "single", "plain_x", "plain_add", "downdate", "no_set", "zeros", "_updates",
-        "_observed_R", "_noise", "_prior_draws", "z_angles", "_angle_kinds", "x_kinds", "x_angles", "x_rows",
-        "kernel_update",
+        "plan", "hooks", "gate", "single", "kernels", "plain_x", "plain_add", "downdate", "no_set", "zeros",
+        "_fixed", "_observed_R", "_noise", "_prior_draws", "z_angles", "_angle_kinds", "x_kinds", "x_angles",
+        "x_rows", "kernel_update",
     )  # fmt: skip
 
-    def __init__(self, plan: Plan, hooks: Hooks, gate, single: bool):
+    def __init__(
+        self, plan: Plan, hooks: Hooks, gate, single: bool, kernels: table.KernelTable | None = None
+    ):
         self.plan, self.hooks, self.gate, self.single = plan, hooks, gate, single
+        self.kernels = table.KERNELS if kernels is None else kernels
         # squkf's angle hooks on the state are data: the kernels do what they would (x_kinds, per component)
         self.x_kinds = state_angles(hooks.x_mean_fn, hooks.residual_x, hooks.state_add, plan.n)
         self.x_angles = self.x_kinds is not None and (
@@ -417,14 +374,22 @@ class Route:
         )
         self._angle_kinds: dict[int, np.ndarray] = {}  # per measurement size: what the kernel does
         self.no_set = table.no_set(plan.n)  # a kernel's set output when it draws none
-        self._updates: dict = {}
         self._observed_R = _ObservedR()
         self.zeros = _Zeros()
         self._noise: dict[int, tuple] = {}  # per noise factor given: (that array, as the kernels take it)
-        self._prior_draws: dict[tuple[bool, bool], tuple] = {}  # (draw, Q given) -> _prior_draw's
+        # how a prediction draws its second set, per (draw, Q given)
+        self._prior_draws = {(d, q): self._prior_draw(d, q) for d in (False, True) for q in (False, True)}
+        # the update routes of the sets the plan's generator draws, per rows (held: compared by identity)
+        # and kind of set, from the plan's (made once per configuration); a set with other rows (a user's
+        # generator's) is classified when it comes
+        self._fixed: tuple = (
+            tuple((r.rows, self._routes_of(r)) for r in plan.set_routes) if self.kernel_update else ()
+        )
 
     def __reduce__(self):
-        return (Route, (self.plan, self.hooks, self.gate, self.single))
+        # built again when unpickled (or deep-copied); a table that is not the installed one goes with it
+        kernels = None if self.kernels is table.KERNELS else self.kernels
+        return (Route, (self.plan, self.hooks, self.gate, self.single, kernels))
 
     def _one(self, a):
         """``a`` as the hooks, a ``UT`` and a generator see it: one filter's (no batch axis) if single."""
@@ -459,14 +424,14 @@ class Route:
         B, n = x.shape
         N = plan.xi1.shape[0]
         X = np.empty((B, N, n)) if out is None else out
-        table.KERNELS.points(x, S, plan.xi1, plan.gamma1, X, self.no_set)
+        self.kernels.points(x, S, plan.xi1, plan.gamma1, X, self.no_set)
         return X
 
     def _prior_draw(self, draw: bool, with_Q: bool) -> tuple:
         """How a prediction draws its second set with the prior, decided once per (``draw``, Q given).
 
         ``(fused, code, xi2, gamma2, N2, with_offsets)``: the plan's fused draw (None: the kernel draws
-        none) and the transform kernel's arguments for it.
+        none) and the transform kernel's arguments for it (every pair decided when the route is built).
         """
         plan = self.plan
         n, N = plan.n, plan.xi1.shape[0]
@@ -480,7 +445,6 @@ class Route:
         else:
             N2 = fused.xi.shape[0] + (N if fused.augmented else 0)
             drawn = (fused, 2 if fused.augmented else 1, fused.xi, fused.gamma, N2, not fused.augmented)
-        self._prior_draws[(draw, with_Q)] = drawn
         return drawn
 
     def prior(
@@ -512,9 +476,7 @@ class Route:
         plan = self.plan
         B, N, n = F.shape
         if UT is None and self.plain_x:
-            key = (draw, Q1_2 is not None)
-            drawn = self._prior_draws.get(key) or self._prior_draw(*key)
-            fused, code, xi2, gamma2, N2, with_offsets = drawn
+            fused, code, xi2, gamma2, N2, with_offsets = self._prior_draws[draw, Q1_2 is not None]
             if out is not None:
                 mean, S, status, X2, D2 = out
             elif buffers is None:
@@ -529,12 +491,12 @@ class Route:
             if self.x_angles:  # squkf's x_mean_fn, residual_x: the angle kernel's mean and rows, given
                 ref, wm, scale, sign = self.x_rows
                 D = (_angle_out(B, N, n) if buffers is None else buffers.take(_angle_out, B, N, n))[1]
-                table.KERNELS.angle_rows(F, _NO_Z, wm, ref, self.x_kinds, mean, D, _NO_Z)
-                table.KERNELS.transform(
+                self.kernels.angle_rows(F, _NO_Z, wm, ref, self.x_kinds, mean, D, _NO_Z)
+                self.kernels.transform(
                     D, mean, table.GIVEN, wm, scale, sign, noise, mean, S, status, code, xi2, gamma2, X2, D2
                 )
             else:
-                table.KERNELS.transform(
+                self.kernels.transform(
                     F, self.zeros[n], plan.mode1, plan.wm1, plan.scale1, plan.sign1, noise, mean, S, status,
                     code, xi2, gamma2, X2, D2,
                 )  # fmt: skip
@@ -580,7 +542,7 @@ class Route:
             X2, D2 = (
                 _points_out(B, N2, n, True) if buffers is None else buffers.take(_points_out, B, N2, n, True)
             )
-            table.KERNELS.points(x, S, fused.xi, fused.gamma, X2, D2)
+            self.kernels.points(x, S, fused.xi, fused.gamma, X2, D2)
             rows = fused.rows
             return SigmaSet(X2, rows.Wm, rows.Wc, fused.exact, D2, rows, fused.axis)
         if not self.single:
@@ -589,32 +551,42 @@ class Route:
         s = plan.second.draw(one(x), one(S), one(propagated), Q1_2, self.hooks.state_add)
         return s._replace(sigmas=s.sigmas[None], offsets=None if s.offsets is None else s.offsets[None])
 
-    def update_route(self, sset: SigmaSet, UT) -> _Joint | None:
+    def update_route(self, sset: SigmaSet, UT) -> UpdateRoute | None:
         """The kernel route of an update with this set, or None for the general one (Python hooks, ``UT``).
 
         The joint QR where the set reproduces the prior and no ``residual_x`` or ``state_add`` is given;
-        else the downdate form (``downdate``). Decided once per key (the set's weight rows, its kind,
-        ``UT`` given or not) and kept. The rows are known by identity and kept with their route: a
-        user's generator that makes new rows at
-        every draw gets its own route each time (the kept ones are dropped when they are many).
+        else the downdate form (``downdate``). For a set the plan's generator draws (its rows are the
+        plan's), the route fixed when this route was built; for any other (a user's generator's, whose
+        set may change at each draw), classified now.
         """
         rows = sset.rows
-        key = (id(rows), sset.moments_exact, sset.offsets is None, sset.axis, UT is None)
-        kept = self._updates.get(key)
-        if kept is not None and kept[0] is rows:
-            return kept[1]
-        route: _Joint | None = None
-        if UT is None and rows is not None and self.kernel_update:
-            if sset.moments_exact and not self.downdate:
-                route = _angle_route(sset) if self.z_angles else _joint_route(sset)
-            else:
-                xkind = table.no_angles(self.plan.n) if self.x_kinds is None else self.x_kinds
-                residual_x = self.hooks.residual_x is not None
-                route = _downdate_route(sset, self.z_angles, xkind, residual_x)
-        if len(self._updates) >= _KEPT_ROUTES:
-            self._updates.clear()
-        self._updates[key] = (rows, route)
-        return route
+        if UT is not None or rows is None or not self.kernel_update:
+            return None
+        kind = (bool(sset.moments_exact), sset.offsets is not None, bool(sset.axis))
+        for known, routes in self._fixed:
+            if known is rows:
+                return routes[kind]
+        return self._classify(SetRoutes.of(rows), *kind)
+
+    def _routes_of(self, routes: SetRoutes) -> dict:
+        """Every kind of set's route (``SET_KINDS``) with the plan's ``routes`` of their rows (the downdate
+        form's made once for each of its two kinds and shared)."""
+        down = {have: self._classify(routes, False, have, False) for have in (False, True)}
+        if self.downdate:
+            return {kind: down[kind[1]] for kind in SET_KINDS}
+        return {kind: self._classify(routes, *kind) if kind[0] else down[kind[1]] for kind in SET_KINDS}
+
+    def _classify(self, routes: SetRoutes, exact: bool, have: bool, axis: bool) -> UpdateRoute:
+        """The kernel route of a set with the plan's ``routes`` of its rows: moments ``exact`` or not, its
+        offsets known (``have``), its points on the axes (``axis``)."""
+        if self.z_angles:
+            base = routes.angle[have]
+        else:
+            base = routes.joint[have, axis and have and exact and not self.downdate]
+        if exact and not self.downdate:
+            return base
+        xkind = table.no_angles(self.plan.n) if self.x_kinds is None else self.x_kinds
+        return _downdate_route(base, routes.wc, xkind, self.hooks.residual_x is not None)
 
     def posterior(
         self, sset, x, S, H, z, observed, R1_2, UT, draw_first: bool, name: str = "hx values",
@@ -652,10 +624,15 @@ class Route:
         status : ndarray of int, shape (B,)
         X1 : ndarray, shape (B, N, n), or None
         """
-        # update_route's kept route, looked up here (no call on a repeated key), else decided there
+        # update_route's fixed route, looked up here (no call for a set the plan's generator draws)
         rows = sset.rows
-        kept = self._updates.get((id(rows), sset.moments_exact, sset.offsets is None, sset.axis, UT is None))
-        route = kept[1] if kept is not None and kept[0] is rows else self.update_route(sset, UT)
+        route: UpdateRoute | None = None
+        for known, routes in self._fixed if UT is None else ():
+            if known is rows:
+                route = routes[bool(sset.moments_exact), sset.offsets is not None, bool(sset.axis)]
+                break
+        else:
+            route = self.update_route(sset, UT)
         B = x.shape[0]
         m_all = z.shape[-1]
         if route is None:
@@ -667,7 +644,7 @@ class Route:
             post = measurement_update(
                 one(x), one(S), _one_set(sset) if self.single else sset, Ho, one(z), R1_2,
                 observed=observed, z_mean_fn=hooks.z_mean_fn, residual_x=hooks.residual_x,
-                residual_z=hooks.residual_z, state_add=hooks.state_add, UT=UT,
+                residual_z=hooks.residual_z, state_add=hooks.state_add, UT=UT, kernels=self.kernels,
             )  # fmt: skip
             if self.single:
                 post = Posterior(*(a[None] for a in post))
@@ -711,12 +688,12 @@ class Route:
         if not (f.c_contiguous and f.writeable and Xs.dtype is _FLOAT64):  # a user generator's set
             Xs = table.kernel_array(Xs)
         if route.downdate:  # the prior factor kept and downdated: no first set drawn with it
-            table.KERNELS.downdate_update(
+            self.kernels.downdate_update(
                 H, zref, Xs, x if route.xref else self.zeros[n], z, Rs, table.no_factor(m), S, x,
                 route.mode, route.wm, route.wc, route.scale, route.sign, route.xkind, *out[:11],
             )  # fmt: skip
         else:
-            table.KERNELS.joint_update(
+            self.kernels.joint_update(
                 H, zref, Xs, x if route.xref else self.zeros[n], z, Rs, x, route.mode, route.wm,
                 route.scale, route.sign, route.pair, *out[:11], plan.xi1, plan.gamma1, X1,
             )  # fmt: skip
@@ -727,7 +704,7 @@ class Route:
         update = Update(xo, So, y, Sy, L21, ll, ww, observed, _NONE_REJECTED[y.shape], None, m_all, w)
         return update, status, (X1 if draw else None)
 
-    def _angle_rows(self, route: _Joint, H, z, buffers: Buffers | None) -> tuple:
+    def _angle_rows(self, route: UpdateRoute, H, z, buffers: Buffers | None) -> tuple:
         """The angle kernel's predicted measurement, rows and innovation of the images ``H`` ``(B, N, m)``
         and the measurement ``z`` ``(B, m)``, every component (in ``buffers``' arrays where given)."""
         B, N, m = H.shape
@@ -738,7 +715,7 @@ class Route:
             made.setflags(write=False)  # (a plan's array: read-only, one signature)
             kinds = self._angle_kinds[m] = made
         zp, D, y = _angle_out(B, N, m) if buffers is None else buffers.take(_angle_out, B, N, m)
-        table.KERNELS.angle_rows(H, z, route.wm, route.ref, kinds, zp, D, y)
+        self.kernels.angle_rows(H, z, route.wm, route.ref, kinds, zp, D, y)
         return zp, D, y
 
     def form_of(self, sset: SigmaSet, UT) -> RowForm | None:

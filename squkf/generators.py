@@ -357,6 +357,11 @@ class _RedrawnSet:
         axis = u.gamma is not None
         return FusedDraw(u.xi, u.gamma if axis else 0.0, False, u.rows, u.exact, axis)  # type: ignore[arg-type]
 
+    @property
+    def drawn_rows(self) -> tuple[WeightRows, ...]:
+        """The weight rows every set it draws carries (the routes of their updates are fixed by them)."""
+        return (self.unit.rows,)
+
     def draw(self, x, S, propagated, Q1_2, state_add) -> SigmaSet:
         return self.unit.draw(x, S, state_add)
 
@@ -453,6 +458,11 @@ class _AugmentedSet:
         g = 0.0 if self.noise_gamma is None else self.noise_gamma
         return FusedDraw(self.noise_xi, g, True, self.rows, self.exact, False)
 
+    @property
+    def drawn_rows(self) -> tuple[WeightRows, ...]:
+        """The weight rows every set it draws carries: the augmented set's, the first set's."""
+        return (self.rows, self.first.rows)
+
     def draw(self, x, S, propagated, Q1_2, state_add) -> SigmaSet:
         if propagated is None:
             return self.first.draw(x, S, state_add)
@@ -502,6 +512,11 @@ class Propagated:
 class _PropagatedSet:
     def __init__(self, first: UnitSet):
         self.first = first
+
+    @property
+    def drawn_rows(self) -> tuple[WeightRows, ...]:
+        """The weight rows every set it draws carries: the first set's."""
+        return (self.first.rows,)
 
     def draw(self, x, S, propagated, Q1_2, state_add) -> SigmaSet:
         if propagated is None:

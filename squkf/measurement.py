@@ -59,8 +59,8 @@ from .angles import is_data, state_angles
 from .checks import call_hook, check_hook_result
 from .errors import GainError, PosteriorFactorError
 from .generators import SigmaSet
-from .kernels import wrappers
-from .kernels.table import CENTRAL, GIVEN, MEAN
+from .kernels import table, wrappers
+from .kernels.table import CENTRAL, GIVEN, MEAN, KernelTable, no_angles, no_points, no_set, plan_array
 from .linalg import all_finite, solve_lower, tria
 from .rows import RowForm, weight_rows
 from .statuses import failure, first_status, singular_allowed
@@ -188,6 +188,7 @@ def measurement_update(
     residual_z: Callable | None = None,
     state_add: Callable | None = None,
     UT: Callable | None = None,
+    kernels: KernelTable | None = None,
 ) -> Posterior:
     """Square-root measurement update from the second set and its images.
 
@@ -224,6 +225,9 @@ def measurement_update(
     UT : callable, optional
         Replaces the transform of ``sigmas_h`` into ``(z_pred, Sy)``; same
         signature as :func:`squkf.sqrt_unscented_transform`.
+    kernels : KernelTable, optional
+        The kernels to call (a route's: :class:`squkf.engine.Route`); default the table installed
+        as :data:`squkf.kernels.table.KERNELS`.
 
     Returns
     -------
@@ -286,9 +290,11 @@ def measurement_update(
             X, xref = sset.offsets, None
         else:
             X, xref = sset.sigmas, x
-        u = wrappers.joint_update(
-            H, X, z, Ro, x, mode, rows.Wm, form.scale, form.sign, xref=xref, zref=z_pred, pair=pair
-        )
+        st = wrappers.update_stacks(H, X, z, Ro, x, xref=xref, zref=z_pred)
+        (table.KERNELS if kernels is None else kernels).joint_update(
+            st.H, st.zref, st.X, st.xref, st.z, st.R1_2, st.x, mode, plan_array(rows.Wm),
+            plan_array(form.scale), plan_array(form.sign), float(pair), *st.out, no_points(n), 0.0, no_set(n),
+        )  # fmt: skip
     else:  # the downdate form: the prior factor kept, downdated by the gain's columns
         xkind = state_angles(None, _data(residual_x), _data(state_add), n)
         if residual_x is not None and not is_data(residual_x):
@@ -297,10 +303,13 @@ def measurement_update(
             X, xref = sset.sigmas, x
         else:  # (a state_add's points: their offsets are filterpy's sigmas - x)
             X, xref = sset.offsets, np.zeros(n)
-        u = wrappers.downdate_update(
-            H, X, xref, z, Ro, S, x, mode, rows.Wm, rows.Wc, form.scale, form.sign,
-            zref=z_pred, Sy=Sy, xkind=xkind,
+        st = wrappers.update_stacks(H, X, z, Ro, x, xref=xref, zref=z_pred, S=S, Sy=Sy)
+        (table.KERNELS if kernels is None else kernels).downdate_update(
+            st.H, st.zref, st.X, st.xref, st.z, st.R1_2, st.Sy, st.S, st.x, mode, plan_array(rows.Wm),
+            plan_array(rows.Wc), plan_array(form.scale), plan_array(form.sign),
+            no_angles(n) if xkind is None else xkind, *st.out,
         )  # fmt: skip
+    u = st.result()
     _raise_update_status(u.status, form, S, Ro)
     x_post = u.x
     if state_add is not None and not is_data(state_add):

@@ -19,10 +19,23 @@ import numpy as np
 
 from .errors import ParameterError
 from .generators import Augmented, FusedDraw, Propagated, Redrawn, UnitSet, noise_family, prepare_second_set
-from .kernels.table import CENTRAL, MEAN, plan_array
+from .kernels.table import CENTRAL, GIVEN, MEAN, plan_array
+from .rows import RowForm, WeightRows
 from .weights import CubatureWeights, FilterpyPoints, JulierWeights, MerweScaledWeights, SimplexWeights
 
-__all__ = ["IDLE", "PREDICTING", "PRIOR", "UPDATING", "Plan", "Hooks", "build_plan", "check_built_for"]
+__all__ = [
+    "IDLE",
+    "PREDICTING",
+    "PRIOR",
+    "UPDATING",
+    "SET_KINDS",
+    "Plan",
+    "Hooks",
+    "SetRoutes",
+    "UpdateRoute",
+    "build_plan",
+    "check_built_for",
+]
 
 #: The phases of a step done in halves (ask/tell): none pending, a prediction asked, its prior told
 #: (the update pending), an update asked.
@@ -44,6 +57,87 @@ class Hooks(NamedTuple):
     residual_x: Any = None
     residual_z: Any = None
     state_add: Any = None
+
+
+class UpdateRoute(NamedTuple):
+    """The route of an update by one kernel: which rows of the set it takes and how.
+
+    The joint QR kernel's (``downdate`` False), with no hook, or with squkf's angle hooks on the
+    measurement (``angles``: the angle kernel forms the given rows, mode 2, of the images about the
+    point ``ref``; the state rows are the set's deviations from the prior mean, its offsets where it
+    has them); or the downdate kernel's (``downdate``: the set need not reproduce the prior; its state
+    rows ``X - xref``, wrapped where ``xkind`` says, and its covariance weights ``wc``).
+    """
+
+    form: RowForm
+    mode: int
+    offsets: bool  # the set's offsets are the state rows (else its points, with xref = x for MEAN)
+    xref: bool
+    pair: float
+    wm: np.ndarray
+    scale: np.ndarray
+    sign: np.ndarray
+    angles: bool = False
+    ref: int = 0
+    downdate: bool = False
+    wc: np.ndarray | None = None
+    xkind: np.ndarray | None = None
+
+
+#: The kinds of set an update's route depends on besides its rows: (moments exact, offsets known, axis).
+SET_KINDS = tuple((e, o, a) for e in (False, True) for o in (False, True) for a in (False, True))
+
+
+class SetRoutes(NamedTuple):
+    """The update routes of the sets with one pair of weight rows, whatever the hooks: made once per
+    configuration (:attr:`Plan.set_routes`), from which a :class:`squkf.engine.Route` takes its own.
+
+    Attributes
+    ----------
+    rows : WeightRows
+    joint : dict
+        ``(offsets known, axis points) -> UpdateRoute``: the joint QR kernel's (the offsets where known;
+        the pairs of axis points rotated).
+    angle : dict
+        ``offsets known -> UpdateRoute``: the joint kernel's with squkf's angle hooks on the measurement
+        (the mean form's given rows, as the hooks' Python route weighs them; the circular means about
+        the point of the largest ``|Wm|``).
+    wc : ndarray, shape (N,)
+        The covariance weights (the downdate kernel's).
+    """
+
+    rows: WeightRows
+    joint: dict
+    angle: dict
+    wc: np.ndarray
+
+    @classmethod
+    def of(cls, rows: WeightRows) -> SetRoutes:
+        """The routes of sets with ``rows``."""
+        wm = plan_array(rows.Wm)
+        form = rows.best
+        scale, sign = plan_array(form.scale), plan_array(form.sign)
+        if form.central:
+            joint = {
+                (have, axis): UpdateRoute(
+                    form, CENTRAL, have, False, rows.pair_scale if axis else 0.0, wm, scale, sign
+                )
+                for have, axis in ((False, False), (True, False), (True, True))
+            }
+        else:
+            joint = {
+                (have, False): UpdateRoute(form, MEAN, have, not have, 0.0, wm, scale, sign)
+                for have in (False, True)
+            }
+            joint[True, True] = joint[True, False]
+        mean = rows.mean_form
+        ref = int(np.argmax(np.abs(wm)))
+        mscale, msign = plan_array(mean.scale), plan_array(mean.sign)
+        angle = {
+            have: UpdateRoute(mean, GIVEN, have, False, 0.0, wm, mscale, msign, True, ref)
+            for have in (False, True)
+        }
+        return cls(rows, joint, angle, plan_array(rows.Wc))
 
 
 @dataclass(frozen=True)
@@ -84,6 +178,13 @@ class Plan:
     fused_draw : FusedDraw or None
         The second set as the prediction's kernel can draw it with the prior
         (redrawn, augmented), or None (the propagated set, a user's generator).
+    set_routes : tuple of SetRoutes
+        The update routes of every set the second-set generator draws, one per
+        pair of weight rows they carry (squkf's generators: ``drawn_rows``),
+        from which a route fixes its own when it is built
+        (:class:`squkf.engine.Route`); empty for a user's generator, whose
+        sets are classified as they come. Made once per configuration (with
+        its prepared sets).
     """
 
     n: int
@@ -93,6 +194,7 @@ class Plan:
     second: Any
     w_xi: np.ndarray | None = None
     v_xi: np.ndarray | None = None
+    set_routes: tuple = ()
     keeps_propagated: bool = field(init=False)
     xi1: np.ndarray = field(init=False)
     gamma1: float = field(init=False)
@@ -230,7 +332,8 @@ def _value_key(family) -> tuple | None:
 
 
 def _prepare(family, generator, n: int, fx_noise: int, hx_noise: int) -> tuple:
-    """The first set and the second set's drawer (and the noise parts of their unit points)."""
+    """The first set and the second set's drawer (and the noise parts of their unit points), and the update
+    routes of the sets it draws."""
     w_xi = v_xi = None
     with _serving(n, "fx_noise", fx_noise):
         if fx_noise:
@@ -242,7 +345,9 @@ def _prepare(family, generator, n: int, fx_noise: int, hx_noise: int) -> tuple:
             second, v_xi = generator.prepare_augmented(family, n, hx_noise)
         else:
             second = prepare_second_set(generator, noise_family(family, n, 0), n)
-    return first, second, w_xi, v_xi
+    drawn = getattr(second, "drawn_rows", ())
+    distinct = [r for i, r in enumerate(drawn) if all(r is not o for o in drawn[:i])]
+    return first, second, w_xi, v_xi, tuple(SetRoutes.of(r) for r in distinct)
 
 
 def check_built_for(

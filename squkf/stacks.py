@@ -715,5 +715,6 @@ def _one_or_all(route: Route, ix):
     runs as a single filter's block of one, so that its hooks see its own arrays and its error reads as
     that filter's; a slice or index array runs as it is."""
     if isinstance(ix, (int, np.integer)):
-        return Route(route.plan, route.hooks, route.gate, single=True), slice(int(ix), int(ix) + 1)
+        one = Route(route.plan, route.hooks, route.gate, single=True, kernels=route.kernels)
+        return one, slice(int(ix), int(ix) + 1)
     return route, ix

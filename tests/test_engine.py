@@ -16,6 +16,7 @@ alone. (The linalg functions' stacked forms: tests/test_linalg.py.)
 
 from __future__ import annotations
 
+import copy
 import os
 import sys
 
@@ -242,8 +243,9 @@ def test_transform_and_measurement_update_stacked():
 # == the engine's contract ===========================================================================
 
 
-def counting_table(monkeypatch):
-    """The kernel table with each entry wrapped to count its calls (a second table, as a backend gives)."""
+def counting_table(monkeypatch, f):
+    """The kernel table with each entry wrapped to count its calls (a second table, as a backend gives),
+    made the table of the filter ``f``'s route."""
     calls: list[str] = []
 
     def counted(name, kernel):
@@ -253,9 +255,9 @@ def counting_table(monkeypatch):
 
         return call
 
-    real = table.KERNELS
+    real = f._engine.route.kernels
     counting = table.KernelTable(*(counted(name, k) for name, k in zip(real._fields, real)))
-    monkeypatch.setattr(table, "KERNELS", counting)
+    monkeypatch.setattr(f._engine.route, "kernels", counting)
     return calls
 
 
@@ -292,7 +294,7 @@ def test_a_step_is_two_kernel_calls(monkeypatch, name, partial):
         z[1] = np.nan
     f.predict()
     f.update(z)  # the first step draws its first set, and the partial z's factor of R is formed once
-    calls = counting_table(monkeypatch)
+    calls = counting_table(monkeypatch, f)
     for _ in range(3):
         f.predict()
         f.update(z)
@@ -300,23 +302,26 @@ def test_a_step_is_two_kernel_calls(monkeypatch, name, partial):
     assert not f.rejected.any()
 
 
-def test_the_route_is_decided_once_per_key(monkeypatch):
-    """A repeated key (the set's kind, UT, the observed components) decides nothing; a new one does."""
-    import squkf.engine as engine_module
-
+def test_the_route_is_decided_when_it_is_built(monkeypatch):
+    """The update routes are decided when the route is built (the filter built, its configuration
+    changed); a step decides nothing."""
     made = []
-    real = engine_module._joint_route
-    monkeypatch.setattr(engine_module, "_joint_route", lambda s: made.append(1) or real(s))
+    real = Route._classify
+    monkeypatch.setattr(Route, "_classify", lambda self, *kind: made.append(1) or real(self, *kind))
     f = merwe_turn_filter(MerweScaledWeights(alpha=0.5), "redrawn")
+    built = len(made)
+    assert built > 0
     for _ in range(4):
         f.predict()
         f.update(xy_radar_hx(TURN.x0[0]))
-    assert len(made) == 1
-    f.points_fn = JulierWeights()  # a new configuration: its routes are decided anew, once
+    assert len(made) == built
+    f.points_fn = JulierWeights()  # a new configuration: its routes are decided anew, when it is built
+    rebuilt = len(made)
+    assert rebuilt > built
     for _ in range(3):
         f.predict()
         f.update(xy_radar_hx(TURN.x0[0]))
-    assert len(made) == 2
+    assert len(made) == rebuilt
 
 
 @pytest.mark.parametrize("when", ["prior", "posterior"])
@@ -493,9 +498,41 @@ def test_a_rewritten_pending_set_is_updated_in_the_downdate_form(gate):
     np.testing.assert_allclose(e.x[0], x[0] + K @ (z - written.Wm @ H), rtol=1e-12)
 
 
-def test_a_kept_update_route_is_never_another_sets():
-    """Routes are kept per set kind, its rows known by identity: rows made afresh at every draw (whose
-    ids Python reuses) never run with an earlier set's weights, and the kept routes stay few."""
+@pytest.mark.parametrize("scheme", ["redrawn", "augmented", "propagated"])
+@pytest.mark.parametrize("gate", [None, Gate(0.9999)])
+def test_a_routes_update_routes_are_fixed_when_it_is_built(monkeypatch, scheme, gate):
+    """squkf's generators: every set they draw (with and without process noise, a rewritten set, a
+    partial z, through a gate) takes an update route fixed when the route was built; nothing is
+    classified while the filter steps."""
+    f = merwe_turn_filter(MerweScaledWeights(alpha=0.5), scheme, gate)
+    route = f._engine.route
+    fixed = [r for _, routes in route._fixed for r in routes.values()]
+    assert fixed and [rows for rows, _ in route._fixed] == [r.rows for r in route.plan.set_routes]
+
+    def classified(*args):
+        raise AssertionError("an update route classified after the route was built")
+
+    monkeypatch.setattr(Route, "_classify", classified)
+    z = xy_radar_hx(TURN.x0[0])
+    partial = z.copy()
+    partial[1] = np.nan
+    for Q in (TURN.Q1_2, np.zeros((4, 4))):
+        f.Q1_2 = Q
+        for zz in (z, partial):
+            f.predict()
+            sset = f._engine.sset
+            assert any(route.update_route(sset, None) is r for r in fixed)
+            f.update(zz)
+    f.predict()
+    f.sigmas_f = f.sigmas_f + 1e-3  # a written set: the downdate form, fixed too
+    f.update(z)
+    f.update(z)  # no prediction between: a set drawn from the estimate alone
+
+
+def test_a_user_generators_set_is_classified_at_each_draw():
+    """A user's generator: no route is fixed for it, each set is classified by its own rows when it
+    comes, so rows made afresh at every draw (whose ids Python reuses) never run with an earlier set's
+    weights: the numbers equal those of a route built anew before every update (the oracle)."""
 
     def fx(x, dt):
         return np.array([x[0] + dt * x[1], x[1]])
@@ -506,18 +543,54 @@ def test_a_kept_update_route_is_never_another_sets():
     kept, fresh = (
         SquareRootUKF(2, 1, 1.0, hx, fx, MerweScaledWeights(), scheme=_VaryingWeights(1)) for _ in "ab"
     )
+    assert kept._engine.route._fixed == ()
     for f in (kept, fresh):
         f.x, f.R, f.Q = [0.0, 1.0], [[0.01]], 0.1 * np.eye(2)
     for t in range(300):
         z = [np.hypot(t * 1.0, 2.0) + 0.3 * np.sin(t)]
         for f in (kept, fresh):
             f.predict()
-        fresh._engine.route._updates.clear()  # decided anew: the oracle
+        r = fresh._engine.route
+        fresh._engine.route = Route(r.plan, r.hooks, r.gate, r.single)  # decided anew: the oracle
         for f in (kept, fresh):
             f.update(z)
         np.testing.assert_array_equal(kept.x, fresh.x)
         np.testing.assert_array_equal(kept.P1_2, fresh.P1_2)
-    assert len(kept._engine.route._updates) <= 32
+
+
+def test_the_kernel_table_is_the_routes():
+    """Two filters side by side, one built on its own table (as a filter on another backend would be):
+    that table serves all of its steps, the default route's and the hooks' alike, and nothing of the
+    other filter's; the numbers are the same."""
+    calls: list[str] = []
+
+    def counted(name, kernel):
+        def call(*args):
+            calls.append(name)
+            return kernel(*args)
+
+        return call
+
+    own = table.KernelTable(*(counted(name, k) for name, k in zip(table.KERNELS._fields, table.KERNELS)))
+    z = xy_radar_hx(TURN.x0[0])
+    for hooks in (Hooks(), Hooks(residual_z=lambda a, b: a - b)):  # the default route, the hooks' route
+        a, b = (merwe_turn_filter(MerweScaledWeights(alpha=0.5), "redrawn") for _ in "ab")
+        for f in (a, b):
+            f.residual_z = hooks.residual_z
+        r = a._engine.route
+        a._engine.configure(Route(r.plan, r.hooks, r.gate, r.single, kernels=own))
+        assert a._engine.route.kernel_update is (hooks.residual_z is None)
+        assert a._engine.route.kernels is own and b._engine.route.kernels is table.KERNELS
+        calls.clear()
+        for _ in range(2):
+            for f in (a, b):
+                f.predict()
+                f.update(z)
+        first = [] if hooks.residual_z is None else ["points"]  # (the hooks' route draws no first set ahead)
+        assert calls == ["points", "transform", "joint_update", *first, "transform", "joint_update"]
+        np.testing.assert_array_equal(a.x, b.x)
+        np.testing.assert_array_equal(a.P1_2, b.P1_2)
+        assert copy.deepcopy(a._engine.route).kernels == own  # a copied route keeps its table
 
 
 def _every_route(f_hooks, fleet):
@@ -585,7 +658,7 @@ def test_every_route_reads_the_kernel_table(monkeypatch):
             raise AssertionError(f"{_name} called around the kernel table")
 
         monkeypatch.setattr(phases, f"{name}_kernel", gone)
-    monkeypatch.setattr(table, "KERNELS", installed)
+    monkeypatch.setattr(table, "KERNELS", installed)  # the default of the routes built from now on
     for a, b in zip(_every_route(hooked, fleet()), expected):
         np.testing.assert_array_equal(a, b)
 

@@ -23,8 +23,8 @@ def lose_rank(monkeypatch, where):
 
     ``where`` maps the prior means ``(B, n)`` to a bool per filter; those filters get the
     kernel's status for a zero on the posterior diagonal (304), as a kernel that found rank
-    lost to rounding reports it. The kernel is replaced in the engine's table (the one place
-    the engine takes its kernels from).
+    lost to rounding reports it. The kernel is replaced in the installed table, which a route
+    built afterwards takes as its own (the one place the engine takes its kernels from).
     """
     real = table.KERNELS.joint_update
 
@@ -39,11 +39,11 @@ def lose_rank(monkeypatch, where):
 
 
 def test_rank_lost_to_rounding_raises_and_changes_nothing(monkeypatch):
+    lose_rank(monkeypatch, lambda x: np.ones(x.shape[:-1], dtype=bool))  # (a route takes it when built)
     f = SquareRootUKF(3, 2, 1.0, lambda x: np.tanh(x[:2]), lambda x, dt: x + dt, MerweScaledWeights())
     f.x, f.R = np.ones(3), np.eye(2)
     f.predict()
     x, S = f.x.copy(), f.P1_2.copy()
-    lose_rank(monkeypatch, lambda x: np.ones(x.shape[:-1], dtype=bool))
     with pytest.raises(PosteriorFactorError) as info:
         f.update(np.ones(2))
     assert info.value.errno == 303
@@ -74,8 +74,8 @@ def test_in_a_fleet_only_that_filter_is_flagged(monkeypatch):
 
     clean = make()
     clean.update(np.ones((3, 2)))
+    lose_rank(monkeypatch, lambda x: x[..., 0] > 100.0)  # filter 1's (the fleet's route takes it when built)
     fleet = make()
-    lose_rank(monkeypatch, lambda x: x[..., 0] > 100.0)  # filter 1's
     fleet.update(np.ones((3, 2)))
     np.testing.assert_array_equal(fleet.failed, [False, True, False])
     assert "303" in fleet.failure[1] or "rank" in fleet.failure[1]

@@ -11,8 +11,11 @@ the same numbers, bit for bit.
 
 Failures are not raised here: each function returns a status per filter
 (see :mod:`squkf.kernels.phases`), which the callers turn into squkf's
-exceptions (:mod:`squkf.linalg`, :mod:`squkf.transform`,
-:mod:`squkf.measurement`).
+exceptions (:mod:`squkf.linalg`, :mod:`squkf.transform`).
+
+The update kernels are not called here: :func:`update_stacks` gives their
+arguments as stacks, and :mod:`squkf.measurement` calls the kernel of its
+route's table itself (one module fewer between ``z`` and the kernel).
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import table
-from .table import kernel_array, no_angles, no_factor, no_noise, no_points, no_set, plan_array, zeros_row
+from .table import kernel_array, no_factor, no_noise, no_points, no_set, plan_array, zeros_row
 from .threads import split_call
 
 __all__ = [
@@ -32,9 +35,9 @@ __all__ = [
     "sigma_points",
     "finite_rows",
     "transform",
-    "joint_update",
-    "downdate_update",
     "JointUpdate",
+    "UpdateStacks",
+    "update_stacks",
 ]
 
 
@@ -300,58 +303,93 @@ class JointUpdate(NamedTuple):
     status: np.ndarray
 
 
-def joint_update(
+class UpdateStacks(NamedTuple):
+    """An update kernel's inputs as stacks ``(B, ...)`` and the outputs it writes, for one call.
+
+    The caller hands them to its kernel table's ``joint_update`` or ``downdate_update`` (the kernel its
+    route takes, :mod:`squkf.measurement`) with the route's data, and reads :meth:`result`.
+
+    Attributes
+    ----------
+    batch : tuple of int
+        The callers' batch shape.
+    H, zref, X, xref, z, R1_2, x : ndarray
+        As the kernels take them (``zref``, ``xref``, ``R1_2``, ``x`` of one row where shared).
+    S : ndarray, shape (B, n, n), or None
+        The prior factor (the downdate kernel's; None: not given).
+    Sy : ndarray, shape (B, m, m) or (0, m, m)
+        The innovation factor given (a user's ``UT``), or none.
+    out : tuple of ndarray
+        The kernel's outputs, in its order: ``zp, y, w, Sy, L21, dx, x, S, loglik, nis, status``.
+    """
+
+    batch: tuple[int, ...]
+    H: np.ndarray
+    zref: np.ndarray
+    X: np.ndarray
+    xref: np.ndarray
+    z: np.ndarray
+    R1_2: np.ndarray
+    x: np.ndarray
+    S: np.ndarray | None
+    Sy: np.ndarray
+    out: tuple
+
+    def result(self) -> JointUpdate:
+        """What the kernel wrote, in the callers' batch shape."""
+        return JointUpdate(*(_unstack(a, self.batch) for a in self.out))
+
+
+def update_stacks(
     H: np.ndarray,
     X: np.ndarray,
     z: np.ndarray,
     R1_2: np.ndarray,
     x: np.ndarray,
-    mode: int,
-    wm: np.ndarray,
-    scale: np.ndarray,
-    sign: np.ndarray,
     xref: np.ndarray | None = None,
     zref: np.ndarray | None = None,
-    pair: float = 0.0,
-) -> JointUpdate:
-    """The measurement update by one QR of the joint rows (see :func:`phases.joint_update_kernel`).
+    S: np.ndarray | None = None,
+    Sy: np.ndarray | None = None,
+) -> UpdateStacks:
+    """The arguments of an update kernel (:func:`phases.joint_update_kernel`,
+    :func:`phases.downdate_update_kernel`) as stacks over any batch shape, and its outputs.
 
     Parameters
     ----------
     H : ndarray, shape (..., N, m)
+        The images (``CENTRAL``, ``MEAN``) or their rows (``GIVEN``).
     X : ndarray, shape (..., N, n)
+        The second set, its offsets or its state rows (as the route takes them).
     z : ndarray, shape (..., m)
         The measurement, or for ``GIVEN`` the innovation.
     R1_2 : ndarray, shape (..., m, m)
     x : ndarray, shape (..., n)
         The prior mean.
-    mode : int
-    wm, scale, sign : ndarray, shape (N,)
     xref : ndarray, shape (..., n), optional
-        The reference of ``X`` for ``MEAN`` (default: zero, ``X`` are offsets).
+        The reference of ``X`` (default: zero, ``X`` are offsets or deviations).
     zref : ndarray, shape (..., m), optional
         The predicted measurement for ``GIVEN``.
-    pair : float
-        The rotation of axis points' ``+/-`` pairs (``CENTRAL``, offsets as ``X``; see the kernel).
+    S : ndarray, shape (..., n, n), optional
+        The prior factor (the downdate form).
+    Sy : ndarray, shape (..., m, m), optional
+        The innovation factor given (a user's ``UT``; the downdate form); default: formed by the kernel.
 
     Returns
     -------
-    JointUpdate
+    UpdateStacks
     """
-    if H.ndim == 2 and X.ndim == 2 and z.ndim == 1 and R1_2.ndim == 2 and x.ndim == 1:
-        batch: tuple[int, ...] = _batch((xref, 1), (zref, 1))  # one filter, as a rule
-    else:
-        batch = _batch((H, 2), (X, 2), (z, 1), (R1_2, 2), (x, 1), (xref, 1), (zref, 1))
-    N, m = H.shape[-2:]
+    batch = _batch((H, 2), (X, 2), (xref, 1), (z, 1), (R1_2, 2), (S, 2), (x, 1), (zref, 1), (Sy, 2))
+    m = H.shape[-1]
     n = X.shape[-1]
     Hs = _stack(H, batch, 2)
     B = Hs.shape[0]
-    out: list[np.ndarray] = [np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m))]
-    out += [np.empty((B, n, m)), np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n))]
-    out += [np.empty(B), np.empty(B), np.empty(B, dtype=np.int64)]
-    split_call(
-        table.KERNELS.joint_update,
-        B,
+    out = (
+        np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m)), np.empty((B, n, m)),
+        np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B),
+        np.empty(B, dtype=np.int64),
+    )  # fmt: skip
+    return UpdateStacks(
+        batch,
         Hs,
         zeros_row(m) if zref is None else _shared(zref, batch, 1),
         _stack(X, batch, 2),
@@ -359,94 +397,7 @@ def joint_update(
         _stack(z, batch, 1),
         _shared(R1_2, batch, 2),
         _shared(x, batch, 1),
-        mode,
-        plan_array(wm),
-        plan_array(scale),
-        plan_array(sign),
-        float(pair),
-        *out,
-        no_points(n),
-        0.0,
-        no_set(n),
-        plan=(8, 9, 10, 23),
-    )
-    return JointUpdate(*(_unstack(a, batch) for a in out))
-
-
-def downdate_update(
-    H: np.ndarray,
-    X: np.ndarray,
-    xref: np.ndarray,
-    z: np.ndarray,
-    R1_2: np.ndarray,
-    S: np.ndarray,
-    x: np.ndarray,
-    mode: int,
-    wm: np.ndarray,
-    wc: np.ndarray,
-    scale: np.ndarray,
-    sign: np.ndarray,
-    zref: np.ndarray | None = None,
-    Sy: np.ndarray | None = None,
-    xkind: np.ndarray | None = None,
-) -> JointUpdate:
-    """g13ej's update in the downdate form (:func:`phases.downdate_update_kernel`).
-
-    Parameters
-    ----------
-    H : ndarray, shape (..., N, m)
-        The images (``CENTRAL``, ``MEAN``) or their rows (``GIVEN``).
-    X : ndarray, shape (..., N, n)
-    xref : ndarray, shape (..., n)
-        The reference of ``X`` (zero for offsets or deviations).
-    z : ndarray, shape (..., m)
-        The measurement, or for ``GIVEN`` the innovation.
-    R1_2 : ndarray, shape (..., m, m)
-    S : ndarray, shape (..., n, n)
-        The prior factor.
-    x : ndarray, shape (..., n)
-        The prior mean.
-    mode : int
-    wm, wc, scale, sign : ndarray, shape (N,)
-    zref : ndarray, shape (..., m), optional
-        The predicted measurement for ``GIVEN``.
-    Sy : ndarray, shape (..., m, m), optional
-        The innovation factor given (a user's ``UT``); default: formed from the rows and ``R1_2``.
-    xkind : ndarray of int64, shape (n,), optional
-        The state's angle components (:data:`squkf.kernels.table.WRAPPED`,
-        :data:`squkf.kernels.table.WRAPPED_ADD`); default none.
-
-    Returns
-    -------
-    JointUpdate
-    """
-    batch = _batch((H, 2), (X, 2), (xref, 1), (z, 1), (R1_2, 2), (S, 2), (x, 1), (zref, 1), (Sy, 2))
-    N, m = H.shape[-2:]
-    n = X.shape[-1]
-    Hs = _stack(H, batch, 2)
-    B = Hs.shape[0]
-    out: list[np.ndarray] = [np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m))]
-    out += [np.empty((B, n, m)), np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n))]
-    out += [np.empty(B), np.empty(B), np.empty(B, dtype=np.int64)]
-    split_call(
-        table.KERNELS.downdate_update,
-        B,
-        Hs,
-        zeros_row(m) if zref is None else _shared(zref, batch, 1),
-        _stack(X, batch, 2),
-        _shared(xref, batch, 1),
-        _stack(z, batch, 1),
-        _shared(R1_2, batch, 2),
+        None if S is None else _stack(S, batch, 2),
         no_factor(m) if Sy is None else _stack(Sy, batch, 2),
-        _stack(S, batch, 2),
-        _shared(x, batch, 1),
-        mode,
-        plan_array(wm),
-        plan_array(wc),
-        plan_array(scale),
-        plan_array(sign),
-        no_angles(n) if xkind is None else xkind,
-        *out,
-        plan=(9, 10, 11, 12, 13, 14),
+        out,
     )
-    return JointUpdate(*(_unstack(a, batch) for a in out))
