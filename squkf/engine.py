@@ -377,14 +377,24 @@ class Route:
         self._observed_R = _ObservedR()
         self.zeros = _Zeros()
         self._noise: dict[int, tuple] = {}  # per noise factor given: (that array, as the kernels take it)
-        # how a prediction draws its second set, per (draw, Q given)
-        self._prior_draws = {(d, q): self._prior_draw(d, q) for d in (False, True) for q in (False, True)}
-        # the update routes of the sets the plan's generator draws, per rows (held: compared by identity)
-        # and kind of set, from the plan's (made once per configuration); a set with other rows (a user's
-        # generator's) is classified when it comes
-        self._fixed: tuple = (
-            tuple((r.rows, self._routes_of(r)) for r in plan.set_routes) if self.kernel_update else ()
-        )
+        # how a prediction draws its second set, per (draw, Q given); the update routes of the sets the
+        # plan's generator draws, per rows (held: compared by identity) and kind of set, from the plan's
+        # (made once per configuration); a set with other rows (a user's generator's) is classified when
+        # it comes. Both depend on the plan and the hooks' flags alone, without state angle hooks (whose
+        # indices are data): made once per plan and flags, shared.
+        key = (
+            self.kernel_update, self.z_angles, self.downdate, hooks.residual_x is not None, self.plain_add,
+        ) if self.x_kinds is None else None  # fmt: skip
+        made: tuple[dict, tuple] | None = None if key is None else plan.route_cache.get(key)
+        if made is None:
+            made = (
+                {(d, q): self._prior_draw(d, q) for d in (False, True) for q in (False, True)},
+                tuple((r.rows, self._routes_of(r)) for r in plan.set_routes) if self.kernel_update else (),
+            )
+            if key is not None:
+                plan.route_cache[key] = made
+        self._prior_draws: dict = made[0]
+        self._fixed: tuple = made[1]
 
     def __reduce__(self):
         # built again when unpickled (or deep-copied); a table that is not the installed one goes with it

@@ -185,6 +185,11 @@ class Plan:
         (:class:`squkf.engine.Route`); empty for a user's generator, whose
         sets are classified as they come. Made once per configuration (with
         its prepared sets).
+    route_cache : dict
+        What a :class:`squkf.engine.Route` without state angle hooks fixes from
+        this configuration (its prediction's draws and its sets' update routes),
+        per its hooks' flags: made by the first route and shared, with the
+        prepared sets, by every plan of the configuration.
     """
 
     n: int
@@ -195,6 +200,9 @@ class Plan:
     w_xi: np.ndarray | None = None
     v_xi: np.ndarray | None = None
     set_routes: tuple = ()
+    # the routes a filter without state angle hooks takes from this configuration, per its hooks' flags:
+    # made by the first such Route and shared, with the prepared sets, by every plan of the configuration
+    route_cache: dict = field(default_factory=dict, repr=False, compare=False)
     keeps_propagated: bool = field(init=False)
     xi1: np.ndarray = field(init=False)
     gamma1: float = field(init=False)
@@ -347,7 +355,7 @@ def _prepare(family, generator, n: int, fx_noise: int, hx_noise: int) -> tuple:
             second = prepare_second_set(generator, noise_family(family, n, 0), n)
     drawn = getattr(second, "drawn_rows", ())
     distinct = [r for i, r in enumerate(drawn) if all(r is not o for o in drawn[:i])]
-    return first, second, w_xi, v_xi, tuple(SetRoutes.of(r) for r in distinct)
+    return first, second, w_xi, v_xi, tuple(SetRoutes.of(r) for r in distinct), {}
 
 
 def check_built_for(

@@ -304,7 +304,11 @@ def test_a_step_is_two_kernel_calls(monkeypatch, name, partial):
 
 def test_the_route_is_decided_when_it_is_built(monkeypatch):
     """The update routes are decided when the route is built (the filter built, its configuration
-    changed); a step decides nothing."""
+    changed); a step decides nothing. (A configuration's routes are made once and shared by the filters
+    built after: the prepared configurations are emptied first, so that this filter's are made here.)"""
+    import squkf.plan
+
+    monkeypatch.setattr(squkf.plan, "_PREPARED", {})
     made = []
     real = Route._classify
     monkeypatch.setattr(Route, "_classify", lambda self, *kind: made.append(1) or real(self, *kind))
@@ -322,6 +326,9 @@ def test_the_route_is_decided_when_it_is_built(monkeypatch):
         f.predict()
         f.update(xy_radar_hx(TURN.x0[0]))
     assert len(made) == rebuilt
+    again = len(made)
+    merwe_turn_filter(MerweScaledWeights(alpha=0.5), "redrawn")  # the same configuration: shared, not made
+    assert len(made) == again
 
 
 @pytest.mark.parametrize("when", ["prior", "posterior"])
