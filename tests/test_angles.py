@@ -225,53 +225,6 @@ def _plain_fleet(K, chunk=None, **hooks):
     return fleet, zs
 
 
-@pytest.mark.parametrize("gate", [None, 0.9])
-def test_a_fleet_on_the_kernels_route_is_its_single_filters_bit_for_bit(gate):
-    """Plain arithmetic models (component 1 taken as an angle), missing components, a gate."""
-    from squkf import SquareRootUKF
-
-    K = 7
-    fleet, zs = _plain_fleet(K, gate=gate, **PLAIN_HOOKS)
-    x0, P0, Q, R, _ = plain_scenario(K, T=5, seed=2)
-    singles = []
-    for k in range(K):
-        f = SquareRootUKF(4, 2, 0.1, plain_hx, plain_fx, MerweScaledWeights(0.5), vectorized=True, gate=gate,
-                          **PLAIN_HOOKS)  # fmt: skip
-        f.x, f.P, f.Q, f.R = x0[k], P0[k], Q, R[k]
-        singles.append(f)
-    for z in zs:
-        fleet.predict()
-        fleet.update(z)
-        for k, f in enumerate(singles):
-            _step(f, z[k])
-            np.testing.assert_array_equal(fleet.x[k], f.x)
-            np.testing.assert_array_equal(fleet.P[k], f.P)
-            if not np.isnan(z[k]).all():
-                assert fleet.log_likelihood[k] == f.log_likelihood
-    assert not fleet.failed.any()
-
-
-def test_a_fleet_on_the_kernels_route_does_not_depend_on_chunks_or_threads(monkeypatch):
-    K = 23
-    reference, zs = _plain_fleet(K, **PLAIN_HOOKS)
-    for z in zs:
-        reference.predict()
-        reference.update(z)
-    monkeypatch.setattr(kernel_threads, "usable_cores", lambda: 2)
-    for chunk, threads in ((1, 1), (2, 2), (5, 1), (5, 2), (K, 2)):
-        fleet, _ = _plain_fleet(K, chunk=chunk, **PLAIN_HOOKS)
-        kernel_threads.set_num_threads(threads)
-        try:
-            for z in zs:
-                fleet.predict()
-                fleet.update(z)
-        finally:
-            kernel_threads.set_num_threads(1)
-        np.testing.assert_array_equal(fleet.x, reference.x, err_msg=f"chunk {chunk}, {threads} threads")
-        np.testing.assert_array_equal(fleet.P, reference.P, err_msg=f"chunk {chunk}, {threads} threads")
-        np.testing.assert_array_equal(fleet.log_likelihood, reference.log_likelihood)
-
-
 def test_a_radar_fleet_equals_its_single_filters():
     fleet, singles = rbh_fleet_and_singles(5, rbh_hooks("both"))
     zs = rbh_measurements(5, 6)
@@ -558,13 +511,17 @@ def test_the_states_angle_hooks_are_filterpys_ukf():
     assert wrapped  # the points' headings passed pi
 
 
-@pytest.mark.parametrize("hooks", ["state", "both"])
+HOOK_SETS = {"measurement": PLAIN_HOOKS, "state": STATE_HOOKS, "both": {**STATE_HOOKS, **PLAIN_HOOKS}}
+
+
+@pytest.mark.parametrize("hooks", list(HOOK_SETS))
 @pytest.mark.parametrize("gate", [None, 0.9])
-def test_a_fleet_with_the_states_angle_hooks_is_its_single_filters_bit_for_bit(gate, hooks):
-    """Plain arithmetic models (state component 1 taken as an angle), missing components, a gate."""
+def test_a_fleet_on_the_angle_kernels_is_its_single_filters_bit_for_bit(gate, hooks):
+    """Plain arithmetic models (component 1 of the measurement, of the state or both taken as an angle),
+    missing components, a gate."""
     from squkf import SquareRootUKF
 
-    chosen = STATE_HOOKS if hooks == "state" else {**STATE_HOOKS, **PLAIN_HOOKS}
+    chosen = HOOK_SETS[hooks]
     K = 7
     fleet, zs = _plain_fleet(K, gate=gate, **chosen)
     x0, P0, Q, R, _ = plain_scenario(K, T=5, seed=2)
@@ -586,9 +543,10 @@ def test_a_fleet_with_the_states_angle_hooks_is_its_single_filters_bit_for_bit(g
     assert not fleet.failed.any()
 
 
-def test_a_fleet_with_the_states_angle_hooks_does_not_depend_on_chunks_or_threads(monkeypatch):
+@pytest.mark.parametrize("which", ["measurement", "both"])
+def test_a_fleet_on_the_angle_kernels_does_not_depend_on_chunks_or_threads(monkeypatch, which):
     K = 23
-    hooks = {**STATE_HOOKS, **PLAIN_HOOKS}
+    hooks = HOOK_SETS[which]
     reference, zs = _plain_fleet(K, **hooks)
     for z in zs:
         reference.predict()
