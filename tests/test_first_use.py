@@ -121,7 +121,7 @@ def test_a_compile_says_how_long_it_usually_takes_what_may_compile_later_and_whe
     cold = run_python(SOME_KERNELS + "import time\ntime.sleep(0.1)\n" + SOME_KERNELS, cache_dir)
     (line,) = said(cold)
     assert "typically 10-60 s, once" in line
-    assert "batch_filter, a Fleet or hooks may compile once more" in line
+    assert "angle hooks, a partial z or the smoother may compile once more" in line
     assert "python -m squkf precompile" in line
     (seconds,) = said_ended(cold)  # several kernels, one compile said, one end
     lines = cold.stderr.splitlines()

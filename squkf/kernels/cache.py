@@ -174,8 +174,9 @@ def _compiling_line(py_func: Callable) -> str:
         where = "in memory: no writable cache location, set NUMBA_CACHE_DIR"
     else:
         what = (
-            "compiling its numba kernels, typically 10-60 s, once; batch_filter, a Fleet or hooks may "
-            "compile once more unless `python -m squkf precompile` was run"
+            "compiling its numba kernels, typically 10-60 s, once; a UT, residual_x or state_add, angle "
+            "hooks, a partial z or the smoother may compile once more unless `python -m squkf precompile`"
+            " was run"
         )
         where = f"cache: {where}"
     return f"squkf: {what} ({where}); {QUIET_VARIABLE}=1 hides this"
