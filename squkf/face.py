@@ -28,12 +28,13 @@ from typing import Any, ClassVar
 import numpy as np
 
 from . import checks
+from .boundary.attributes import FactorSlot
 from .boundary.loop import Transaction
 from .boundary.records import log_det, whitened
 from .engine import Engine, Update
 from .gating import Gate, as_gate
 
-__all__ = ["Face", "written_record"]
+__all__ = ["Face", "noise_factor", "written_record"]
 
 _TINY = sys.float_info.min
 
@@ -74,6 +75,26 @@ def written_record(stamp: str, ndim: int) -> Callable[[Callable], property]:
     return make
 
 
+def noise_factor(name: str) -> property:
+    """``Q1_2`` or ``R1_2`` (``name``: ``"Q"``, ``"R"``), read from and assigned to the face's noise store
+    (its :class:`~squkf.boundary.attributes.FactorSlot` ``_Q`` or ``_R``)."""
+    slot = "_" + name
+
+    def get(self) -> np.ndarray:
+        self._noise_edits()
+        return getattr(self, slot).factor_or_zeros().copy()
+
+    def set_(self, value) -> None:
+        getattr(self, slot).set_factor(value)  # validated: a failure changes nothing
+        self._noise_assigned(name)
+
+    doc = (
+        f"Lower factor of ``{name}``, ``(d, d)`` (a fleet's shared, or per filter ``(K, d, d)``); zeros when"
+        " there is none (a fresh copy; assign to change)."
+    )
+    return property(get, set_, doc=doc)
+
+
 class Face:
     """The core of both faces: the records read from the engine, the shared configuration, the transaction.
 
@@ -95,6 +116,8 @@ class Face:
     _fx_noise: int
     _hx_noise: int
     _written: dict
+    _Q: FactorSlot
+    _R: FactorSlot
     dim_z: Any
 
     # -- reading the engine's records ----------------------------------------------
@@ -300,6 +323,18 @@ class Face:
 
     def _configured(self) -> None:
         """The configuration changed: the engine's routes are built again (each face's)."""
+        raise NotImplementedError
+
+    # -- the noise store: Q and R, each a FactorSlot (one filter's; a fleet's shared or per filter) -------
+
+    Q1_2 = noise_factor("Q")
+    R1_2 = noise_factor("R")
+
+    def _noise_edits(self) -> None:
+        """Edits in place that reading a noise factor takes first (one filter's slots take their own)."""
+
+    def _noise_assigned(self, name: str) -> None:
+        """``Q`` or ``R`` (``name``) was assigned through its factor: the matrix handed out is history."""
         raise NotImplementedError
 
     # -- the transaction of a call ------------------------------------------------------

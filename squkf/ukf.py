@@ -35,7 +35,6 @@ from .boundary.attributes import (
     Unformed,
     hooks_of,
     initial,
-    set_factor,
 )
 from .boundary.config import Config, model_noise, second_set, sigma_family
 from .boundary.records import embed, innovation_inverse
@@ -510,23 +509,8 @@ class SquareRootUKF(Face):
         self._handed.drop("P")
         self._unset.discard("P")
 
-    @property
-    def Q1_2(self) -> np.ndarray:
-        """Lower factor of ``Q`` (zeros when there is no process noise; a fresh copy)."""
-        return self._Q.factor_or_zeros().copy()
-
-    @Q1_2.setter
-    def Q1_2(self, value):
-        set_factor(self, "Q", value)
-
-    @property
-    def R1_2(self) -> np.ndarray:
-        """Lower factor of ``R`` (a fresh copy)."""
-        return self._R.factor_or_zeros().copy()
-
-    @R1_2.setter
-    def R1_2(self, value):
-        set_factor(self, "R", value)
+    def _noise_assigned(self, name: str) -> None:
+        self.__dict__[name] = Unformed(getattr(self, "_" + name).matrix)
 
     def _noise_factor(self, value, name: str, dim: int) -> np.ndarray | None:
         """Lower factor of ``Q`` or ``R`` (``value`` for this call, else the attribute's); None: zero."""
