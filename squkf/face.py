@@ -28,13 +28,13 @@ from typing import Any, ClassVar
 import numpy as np
 
 from . import checks
-from .boundary.attributes import FactorSlot
+from .boundary.attributes import FactorSlot, HandOut
 from .boundary.loop import Transaction
 from .boundary.records import log_det, whitened
 from .engine import Engine, Update
 from .gating import Gate, as_gate
 
-__all__ = ["Face", "noise_factor", "written_record"]
+__all__ = ["Face", "noise_factor", "own_copy", "written_record"]
 
 _TINY = sys.float_info.min
 
@@ -73,6 +73,26 @@ def written_record(stamp: str, ndim: int) -> Callable[[Callable], property]:
         return property(get, set_, doc=form.__doc__)
 
     return make
+
+
+def own_copy(value: Any, copies: dict[int, np.ndarray]) -> Any:
+    """A copy's own value of a face's attribute (what both faces' copies carry).
+
+    An array is copied (once: two attributes that share one share its copy, ``copies`` maps ``id`` to
+    copy), the arrays handed out (:class:`~squkf.boundary.attributes.HandOut`) and a noise store
+    (:class:`~squkf.boundary.attributes.FactorSlot`) detached, pending edits included; a set or dict
+    copied. The rest (the configuration, never changed in place) is shared.
+    """
+    if isinstance(value, np.ndarray):
+        got = copies.get(id(value))
+        if got is None:
+            got = copies[id(value)] = value.copy()
+        return got
+    if isinstance(value, (HandOut, FactorSlot)):
+        return value.detached()
+    if isinstance(value, (set, dict)):
+        return type(value)(value)
+    return value
 
 
 def noise_factor(name: str) -> property:

@@ -52,7 +52,7 @@ from .checks import (
 )
 from .engine import Engine, Route, Update
 from .errors import FleetStepError, ParameterError, UnsetError
-from .face import Face
+from .face import Face, own_copy
 from .gating import Gate, as_gate
 from .generators import as_generator
 from .noise import handed_points, noise_points
@@ -880,19 +880,7 @@ class Fleet(Face):
         """A fleet of this configuration with its own copies of the arrays in ``__dict__``, on ``engine``."""
         new = type(self).__new__(type(self))
         copies: dict[int, np.ndarray] = {}
-        d = {}
-        for key, v in self.__dict__.items():
-            if isinstance(v, np.ndarray):  # an array two entries share is copied once, and stays shared
-                if id(v) not in copies:
-                    copies[id(v)] = v.copy()
-                v = copies[id(v)]
-            elif isinstance(v, FactorSlot):
-                v = v.detached()
-            d[key] = v
-        # the copy's own arrays handed out, pending edits included
-        d["_handed"] = self._handed.detached()
-        d["_failure"] = dict(self._failure)
-        new.__dict__.update(d)
+        new.__dict__.update({key: own_copy(v, copies) for key, v in self.__dict__.items()})
         new._engine = engine
         return new
 

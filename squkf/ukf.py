@@ -41,7 +41,7 @@ from .boundary.records import embed, innovation_inverse
 from .checks import as_float_array, as_lower_factor, check_time_step, check_values, noise_factor
 from .engine import Engine, Route, Update
 from .errors import NonFiniteError, ParameterError, ShapeError, UnsetError
-from .face import Face, written_record
+from .face import Face, own_copy, written_record
 from .gating import Gate, as_gate
 from .generators import sigma_points_from_factor
 from .measurement import gain_from_factors
@@ -1009,17 +1009,14 @@ class SquareRootUKF(Face):
         """Give the copy ``new`` (on ``engine``) this filter's carried slots: the configuration shared
         (never changed in place), the noise slots, the placeholders, what was written or handed out its
         own (``copy_value`` copies an array or a :class:`Handed`)."""
+        copies: dict[int, np.ndarray] = {}
         for name, value in self._carried().items():
-            if name in ("_Q", "_R"):
-                value = value.detached()  # the factor shared, the matrix handed out copied
-            elif name == "_handed":
-                value = value.detached()
-            elif name == "_unset":
-                value = set(value)
-            elif name == "_noise_cache":
+            if name == "_noise_cache":
                 value = {}
             elif name in ("_written", "_sigmas"):
                 value = _restamped(value, self._engine, engine, copy_value)
+            else:  # the noise slots: the factor shared, the matrix handed out copied
+                value = own_copy(value, copies)
             setattr(new, name, value)
 
     def __deepcopy__(self, memo):
