@@ -34,7 +34,7 @@ from .boundary.records import log_det, whitened
 from .engine import Engine, Update
 from .gating import Gate, as_gate
 
-__all__ = ["Face", "noise_factor", "own_copy", "written_record"]
+__all__ = ["Face", "STAMPS", "noise_factor", "own_copy", "restamped", "written_record"]
 
 _TINY = sys.float_info.min
 
@@ -73,6 +73,28 @@ def written_record(stamp: str, ndim: int) -> Callable[[Callable], property]:
         return property(get, set_, doc=form.__doc__)
 
     return make
+
+
+#: the engine's attribute each written record (or set handed out, one filter's ``sigmas_f`` and
+#: ``sigmas_h``) is current with: its stamp
+STAMPS = {
+    "x_prior": "prior_record", "P_prior": "prior_record", "x_post": "post_record", "P_post": "post_record",
+    "y": "last", "S": "last", "SI": "last", "sigmas_f": "shown_f", "sigmas_h": "H",
+}  # fmt: skip
+
+
+def restamped(held: dict, old: Engine, new: Engine, copy_value: Callable | None = None) -> dict:
+    """Records written (or sets handed out) of a face on engine ``old``, for its copy on engine ``new``.
+
+    Those still current, each with the copy's stamp and its value through ``copy_value`` (None: the
+    same value, as a transaction's snapshot keeps it).
+    """
+    out = {}
+    for name, (stamp, value, *rest) in held.items():
+        attr = STAMPS[name]
+        if stamp is getattr(old, attr):
+            out[name] = (getattr(new, attr), value if copy_value is None else copy_value(value), *rest)
+    return out
 
 
 def own_copy(value: Any, copies: dict[int, np.ndarray]) -> Any:

@@ -41,7 +41,7 @@ from .boundary.records import embed, innovation_inverse
 from .checks import as_float_array, as_lower_factor, check_time_step, check_values, noise_factor
 from .engine import Engine, Route, Update
 from .errors import NonFiniteError, ParameterError, ShapeError, UnsetError
-from .face import Face, own_copy, written_record
+from .face import Face, own_copy, restamped, written_record
 from .gating import Gate, as_gate
 from .generators import sigma_points_from_factor
 from .measurement import gain_from_factors
@@ -73,28 +73,6 @@ _SHOWN = (
     " x_mean z_mean"
 ).split()
 _LABELS = {"log_likelihood": "log-likelihood"}
-
-
-#: the engine's attribute each written record or set handed out is current with (see face.written_record)
-_STAMPS = {
-    "x_prior": "prior_record", "P_prior": "prior_record", "x_post": "post_record", "P_post": "post_record",
-    "y": "last", "S": "last", "SI": "last", "sigmas_f": "shown_f", "sigmas_h": "H",
-}  # fmt: skip
-
-
-def _same(value):
-    return value
-
-
-def _restamped(held: dict, old: Engine, new: Engine, copy_value: Callable) -> dict:
-    """Records written (or sets handed out) of a filter on engine ``old``, for its copy on engine ``new``:
-    those still current, each with the copy's stamp and its value through ``copy_value``."""
-    out = {}
-    for name, (stamp, value, *rest) in held.items():
-        attr = _STAMPS[name]
-        if stamp is getattr(old, attr):
-            out[name] = (getattr(new, attr), copy_value(value), *rest)
-    return out
 
 
 class SquareRootUKF(Face):
@@ -975,7 +953,7 @@ class SquareRootUKF(Face):
         own["_unset"] = set(self._unset)
         own["_handed"] = self._handed.copy()  # (a step clears the records in place)
         for name in ("_written", "_sigmas"):  # the same records, current with the engine put back
-            own[name] = _restamped(own[name], self._engine, engine, _same)
+            own[name] = restamped(own[name], self._engine, engine)
         return state, own, engine, self._kept_gain()
 
     def _restore(self, saved) -> None:
@@ -1014,7 +992,7 @@ class SquareRootUKF(Face):
             if name == "_noise_cache":
                 value = {}
             elif name in ("_written", "_sigmas"):
-                value = _restamped(value, self._engine, engine, copy_value)
+                value = restamped(value, self._engine, engine, copy_value)
             else:  # the noise slots: the factor shared, the matrix handed out copied
                 value = own_copy(value, copies)
             setattr(new, name, value)
