@@ -28,12 +28,13 @@ from typing import Any, ClassVar
 import numpy as np
 
 from . import checks
+from .boundary.attributes import FactorSlot, HandOut
 from .boundary.loop import Transaction
 from .boundary.records import log_det, whitened
 from .engine import Engine, Update
 from .gating import Gate, as_gate
 
-__all__ = ["Face", "written_record"]
+__all__ = ["Face", "STAMPS", "noise_factor", "own_copy", "restamped", "written_record"]
 
 _TINY = sys.float_info.min
 
@@ -74,6 +75,68 @@ def written_record(stamp: str, ndim: int) -> Callable[[Callable], property]:
     return make
 
 
+#: the engine's attribute each written record (or set handed out, one filter's ``sigmas_f`` and
+#: ``sigmas_h``) is current with: its stamp
+STAMPS = {
+    "x_prior": "prior_record", "P_prior": "prior_record", "x_post": "post_record", "P_post": "post_record",
+    "y": "last", "S": "last", "SI": "last", "sigmas_f": "shown_f", "sigmas_h": "H",
+}  # fmt: skip
+
+
+def restamped(held: dict, old: Engine, new: Engine, copy_value: Callable | None = None) -> dict:
+    """Records written (or sets handed out) of a face on engine ``old``, for its copy on engine ``new``.
+
+    Those still current, each with the copy's stamp and its value through ``copy_value`` (None: the
+    same value, as a transaction's snapshot keeps it).
+    """
+    out = {}
+    for name, (stamp, value, *rest) in held.items():
+        attr = STAMPS[name]
+        if stamp is getattr(old, attr):
+            out[name] = (getattr(new, attr), value if copy_value is None else copy_value(value), *rest)
+    return out
+
+
+def own_copy(value: Any, copies: dict[int, np.ndarray]) -> Any:
+    """A copy's own value of a face's attribute (what both faces' copies carry).
+
+    An array is copied (once: two attributes that share one share its copy, ``copies`` maps ``id`` to
+    copy), the arrays handed out (:class:`~squkf.boundary.attributes.HandOut`) and a noise store
+    (:class:`~squkf.boundary.attributes.FactorSlot`) detached, pending edits included; a set or dict
+    copied. The rest (the configuration, never changed in place) is shared.
+    """
+    if isinstance(value, np.ndarray):
+        got = copies.get(id(value))
+        if got is None:
+            got = copies[id(value)] = value.copy()
+        return got
+    if isinstance(value, (HandOut, FactorSlot)):
+        return value.detached()
+    if isinstance(value, (set, dict)):
+        return type(value)(value)
+    return value
+
+
+def noise_factor(name: str) -> property:
+    """``Q1_2`` or ``R1_2`` (``name``: ``"Q"``, ``"R"``), read from and assigned to the face's noise store
+    (its :class:`~squkf.boundary.attributes.FactorSlot` ``_Q`` or ``_R``)."""
+    slot = "_" + name
+
+    def get(self) -> np.ndarray:
+        self._noise_edits()
+        return getattr(self, slot).factor_or_zeros().copy()
+
+    def set_(self, value) -> None:
+        getattr(self, slot).set_factor(value)  # validated: a failure changes nothing
+        self._noise_assigned(name)
+
+    doc = (
+        f"Lower factor of ``{name}``, ``(d, d)`` (a fleet's shared, or per filter ``(K, d, d)``); zeros when"
+        " there is none (a fresh copy; assign to change)."
+    )
+    return property(get, set_, doc=doc)
+
+
 class Face:
     """The core of both faces: the records read from the engine, the shared configuration, the transaction.
 
@@ -95,6 +158,8 @@ class Face:
     _fx_noise: int
     _hx_noise: int
     _written: dict
+    _Q: FactorSlot
+    _R: FactorSlot
     dim_z: Any
 
     # -- reading the engine's records ----------------------------------------------
@@ -300,6 +365,18 @@ class Face:
 
     def _configured(self) -> None:
         """The configuration changed: the engine's routes are built again (each face's)."""
+        raise NotImplementedError
+
+    # -- the noise store: Q and R, each a FactorSlot (one filter's; a fleet's shared or per filter) -------
+
+    Q1_2 = noise_factor("Q")
+    R1_2 = noise_factor("R")
+
+    def _noise_edits(self) -> None:
+        """Edits in place that reading a noise factor takes first (one filter's slots take their own)."""
+
+    def _noise_assigned(self, name: str) -> None:
+        """``Q`` or ``R`` (``name``) was assigned through its factor: the matrix handed out is history."""
         raise NotImplementedError
 
     # -- the transaction of a call ------------------------------------------------------

@@ -37,7 +37,7 @@ import numpy as np
 from . import checks
 from .angles import check_angle_hooks, is_data
 from .batch import model_kwargs, per_step
-from .boundary.attributes import HandOut, Hook, ModelFunction
+from .boundary.attributes import FactorSlot, HandOut, Hook, ModelFunction
 from .boundary.config import Config, check_pending, filter_kwargs, filter_of, model_noise, stacked
 from .boundary.loop import annotate_step, check_keep, check_progress, progress_callback
 from .boundary.records import FleetResult, Records, new_records
@@ -45,7 +45,6 @@ from .checks import (
     check_flag,
     check_time_step,
     covariance_factors,
-    given_noise_factors,
     lower_factors,
     noise_factors,
     reset_rows,
@@ -53,7 +52,7 @@ from .checks import (
 )
 from .engine import Engine, Route, Update
 from .errors import FleetStepError, ParameterError, UnsetError
-from .face import Face
+from .face import Face, own_copy
 from .gating import Gate, as_gate
 from .generators import as_generator
 from .noise import handed_points, noise_points
@@ -293,8 +292,9 @@ class Fleet(Face):
         # the state, the pending step and the records: a block of K run a chunk at a time (stacks.Chunks)
         S0 = np.broadcast_to(np.eye(n), (K, n, n)).copy()
         self._engine = Engine(self._new_route(), np.zeros((K, n)), S0, None, None, CHUNKS)
-        self._Q1_2: np.ndarray | None = np.eye(self._qd)
-        self._R1_2: np.ndarray = np.eye(self._rd)
+        # the noise, shared (d, d) or per filter (K, d, d): handed out and edited as x and P are
+        self._Q = FactorSlot("Q", self._qd, True, np.eye(self._qd), filters=K)
+        self._R = FactorSlot("R", self._rd, True, np.eye(self._rd), filters=K, zero=True)
         self._failed = np.zeros(K, dtype=bool)
         self._failure: dict[int, str] = {}  # filter -> why it is flagged (few: not a (K,) array)
         # filters whose x or P is a placeholder (an all-NaN row): a step flags them (_step_of)
@@ -407,48 +407,28 @@ class Fleet(Face):
 
         ``d`` is ``dim_x``, or ``fx_noise`` when the noise enters ``fx`` (then ``Q`` is w's covariance).
         """
-        S, d = self._Q1_2, self._qd
-        return self._handed.array("Q", lambda: np.zeros((d, d)) if S is None else S @ np.swapaxes(S, -1, -2))
+        return self._handed.array("Q", self._Q.matrix)
 
     @Q.setter
     def Q(self, value):
-        S = noise_factors(value, "Q", self._qd, self._K)
-        self._Q1_2 = None if S is None or not np.any(S) else S
-        self._handed.drop("Q")
-
-    @property
-    def Q1_2(self) -> np.ndarray:
-        """Lower factor(s) of ``Q`` (fresh; assign to change)."""
-        self._take_edits()
-        return np.zeros((self._qd, self._qd)) if self._Q1_2 is None else self._Q1_2.copy()
-
-    @Q1_2.setter
-    def Q1_2(self, value):
-        self._Q1_2 = given_noise_factors(value, "Q1_2", self._qd, self._K)
+        self._Q.set_matrix(value)
         self._handed.drop("Q")
 
     @property
     def R(self) -> np.ndarray:
         """Measurement noise, shared ``(m, m)`` or per filter ``(K, m, m)``."""
-        return self._handed.array("R", lambda: self._R1_2 @ np.swapaxes(self._R1_2, -1, -2))
+        return self._handed.array("R", self._R.matrix)
 
     @R.setter
     def R(self, value):
-        S = noise_factors(value, "R", self._rd, self._K)
-        self._R1_2 = np.zeros((self._rd, self._rd)) if S is None else S
+        self._R.set_matrix(value)
         self._handed.drop("R")
 
-    @property
-    def R1_2(self) -> np.ndarray:
-        """Lower factor(s) of ``R`` (fresh; assign to change)."""
+    def _noise_edits(self) -> None:
         self._take_edits()
-        return self._R1_2.copy()
 
-    @R1_2.setter
-    def R1_2(self, value):
-        S = given_noise_factors(value, "R1_2", self._rd, self._K)
-        self._R1_2 = np.zeros((self._rd, self._rd)) if S is None else S
-        self._handed.drop("R")
+    def _noise_assigned(self, name: str) -> None:
+        self._handed.drop(name)
 
     def _take_edits(self) -> None:
         """Take the edits in place of ``x``, ``P``, ``Q``, ``R`` through their setters (which may raise)."""
@@ -512,7 +492,7 @@ class Fleet(Face):
         """First half of a prediction: the first sigma-point sets, shape ``(K, N, dim_x)`` (fresh)."""
         self._take_edits()
         X = self._engine.ask_predict()
-        return handed_points(X, self._plan.w_xi, self._Q1_2, (self._K,))
+        return handed_points(X, self._plan.w_xi, self._Q.S, (self._K,))
 
     def predict(self, dt=None, **fx_args) -> None:
         """Predict every filter one step ahead (flagged filters stay as they are).
@@ -547,7 +527,7 @@ class Fleet(Face):
         """First half of an update: the second sigma-point sets, shape ``(K, N2, dim_x)`` (fresh)."""
         self._take_edits()
         X = self._engine.ask_update()
-        return handed_points(X, self._plan.v_xi, self._R1_2, (self._K,))
+        return handed_points(X, self._plan.v_xi, self._R.S, (self._K,))
 
     def update(self, z, R=None, **hx_args) -> None:
         """Update every filter with its measurement.
@@ -567,7 +547,7 @@ class Fleet(Face):
         zz = checks.measurements(z, self._K, self._m)
         if self._handed.held:
             self._take_edits()
-        R1_2 = self._R1_2 if R is None else noise_factors(R, "R", self._rd, self._K)
+        R1_2 = self._R.S if R is None else noise_factors(R, "R", self._rd, self._K)
         self._update(self._hx_images(R1_2, hx_args), zz, R1_2, self._engine.pending_update())
 
     def tell_update(self, sigmas_h, z, R=None) -> None:
@@ -579,10 +559,10 @@ class Fleet(Face):
                 f"with hx_noise the noise is in the sigma points handed out by ask_update: assign fleet.R"
                 f" before asking, not R={R!r:.60} here"
             )
-        R1_2 = self._R1_2 if R is None else noise_factors(R, "R", self._rd, self._K)
+        R1_2 = self._R.S if R is None else noise_factors(R, "R", self._rd, self._K)
         sset = self._engine.sset
         if self._engine.phase != UPDATING or sset is None:  # (the engine says why)
-            self._engine.tell_update(None, zz, None, self._R1_2)
+            self._engine.tell_update(None, zz, None, self._R.S)  # type: ignore[arg-type]  # (R: never None)
         shape = sset.sigmas.shape[:-1] + (self._m,)  # type: ignore[union-attr]
         H = checks.stacked_shape(sigmas_h, shape, "hx values", copy=True)
         self._update(lambda rows, s: H[rows], zz, R1_2, None)
@@ -592,7 +572,7 @@ class Fleet(Face):
     def _fx_images(self, dt: float, fx_args: dict) -> Callable:
         """``images(rows, X)``: ``fx`` at the first sets ``X`` of the filters ``rows``, arguments cut."""
         kwargs = checks.with_filter_axis(fx_args, self._K) if fx_args else fx_args
-        K, plan, Q = self._K, self._plan, self._Q1_2
+        K, plan, Q = self._K, self._plan, self._Q.S
         fx = self.__dict__["fx"]  # (as the descriptor reads it)
 
         def images(rows: slice, X: np.ndarray):
@@ -642,7 +622,7 @@ class Fleet(Face):
             step = self._step_of(images)
         else:  # (the usual step, built here)
             step = Step(images, ~self._failed, {}, self._chunk, self.on_error == "raise")
-        Q = None if self._plan.w_xi is not None else self._Q1_2  # noise entering fx is in the points already
+        Q = None if self._plan.w_xi is not None else self._Q.S  # noise entering fx is in the points already
         self._engine.tell_predict(step, Q, None, None, "fx values", whole)
         # committed: the arrays handed out for the old estimate are history, the failing filters flagged
         if self._handed.held:
@@ -757,7 +737,7 @@ class Fleet(Face):
             self._no_update()
         else:
             self._take_edits()
-            self._update(self._hx_images(self._R1_2, hx_args), z, self._R1_2, self._engine.pending_update())
+            self._update(self._hx_images(self._R.S, hx_args), z, self._R.S, self._engine.pending_update())
         records.keep(t, self._engine.last)  # type: ignore[arg-type]  # (an update or _no_update's)
 
     def _snapshot(self) -> tuple[Fleet, HandOut]:
@@ -789,7 +769,7 @@ class Fleet(Face):
             self._n, self._m, self._dt, self.hx, self.fx, self.points_fn, self._family, self._generator,
             self.x_mean, self.z_mean, self.residual_x, self.residual_z, self.state_add, self._gate,
             self._fx_noise or None, self._hx_noise or None, True, self._plan, self._hooks(),
-            self._Q1_2, self._R1_2,
+            self._Q.S, self._R.S,
         )  # fmt: skip
 
     def __len__(self) -> int:
@@ -821,8 +801,7 @@ class Fleet(Face):
             )
         new = self._with(self._engine.rows(idx))
         new._K = int(idx.size)
-        new._Q1_2 = rows_of(self._Q1_2, idx, 2)
-        new._R1_2 = rows_of(self._R1_2, idx, 2)  # type: ignore[assignment]
+        new._Q, new._R = self._Q.rows(idx), self._R.rows(idx)
         new._handed = HandOut()  # the arrays handed out are this fleet's
         new._failed = self._failed[idx]
         new._unset_x, new._unset_P = self._unset_x[idx], self._unset_P[idx]
@@ -901,17 +880,7 @@ class Fleet(Face):
         """A fleet of this configuration with its own copies of the arrays in ``__dict__``, on ``engine``."""
         new = type(self).__new__(type(self))
         copies: dict[int, np.ndarray] = {}
-        d = {}
-        for key, v in self.__dict__.items():
-            if isinstance(v, np.ndarray):  # an array two entries share is copied once, and stays shared
-                if id(v) not in copies:
-                    copies[id(v)] = v.copy()
-                v = copies[id(v)]
-            d[key] = v
-        # the copy's own arrays handed out, pending edits included
-        d["_handed"] = self._handed.detached()
-        d["_failure"] = dict(self._failure)
-        new.__dict__.update(d)
+        new.__dict__.update({key: own_copy(v, copies) for key, v in self.__dict__.items()})
         new._engine = engine
         return new
 
@@ -925,6 +894,10 @@ class Fleet(Face):
         state.setdefault("_unset_P", np.zeros(state["_K"], dtype=bool))
         state.setdefault("_vectorized_hooks", False)  # pickled before the option
         engine = state.pop("_engine", None)
+        if "_Q1_2" in state:  # pickled when the noise factors were kept bare
+            Q, R, K = state.pop("_Q1_2"), state.pop("_R1_2"), state["_K"]
+            state["_Q"] = FactorSlot("Q", state.get("_qd", state["_n"]), True, Q, filters=K)
+            state["_R"] = FactorSlot("R", state.get("_rd", state["_m"]), True, R, filters=K, zero=True)
         old = {k: state.pop(k, None) for k in _BEFORE_ENGINE}
         self.__dict__.update(state)
         if engine is None:  # pickled before the fleet held an engine: its state and records, idle

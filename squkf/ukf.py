@@ -35,14 +35,13 @@ from .boundary.attributes import (
     Unformed,
     hooks_of,
     initial,
-    set_factor,
 )
 from .boundary.config import Config, model_noise, second_set, sigma_family
 from .boundary.records import embed, innovation_inverse
 from .checks import as_float_array, as_lower_factor, check_time_step, check_values, noise_factor
 from .engine import Engine, Route, Update
 from .errors import NonFiniteError, ParameterError, ShapeError, UnsetError
-from .face import Face, written_record
+from .face import Face, own_copy, restamped, written_record
 from .gating import Gate, as_gate
 from .generators import sigma_points_from_factor
 from .measurement import gain_from_factors
@@ -74,28 +73,6 @@ _SHOWN = (
     " x_mean z_mean"
 ).split()
 _LABELS = {"log_likelihood": "log-likelihood"}
-
-
-#: the engine's attribute each written record or set handed out is current with (see face.written_record)
-_STAMPS = {
-    "x_prior": "prior_record", "P_prior": "prior_record", "x_post": "post_record", "P_post": "post_record",
-    "y": "last", "S": "last", "SI": "last", "sigmas_f": "shown_f", "sigmas_h": "H",
-}  # fmt: skip
-
-
-def _same(value):
-    return value
-
-
-def _restamped(held: dict, old: Engine, new: Engine, copy_value: Callable) -> dict:
-    """Records written (or sets handed out) of a filter on engine ``old``, for its copy on engine ``new``:
-    those still current, each with the copy's stamp and its value through ``copy_value``."""
-    out = {}
-    for name, (stamp, value, *rest) in held.items():
-        attr = _STAMPS[name]
-        if stamp is getattr(old, attr):
-            out[name] = (getattr(new, attr), copy_value(value), *rest)
-    return out
 
 
 class SquareRootUKF(Face):
@@ -510,23 +487,8 @@ class SquareRootUKF(Face):
         self._handed.drop("P")
         self._unset.discard("P")
 
-    @property
-    def Q1_2(self) -> np.ndarray:
-        """Lower factor of ``Q`` (zeros when there is no process noise; a fresh copy)."""
-        return self._Q.factor_or_zeros().copy()
-
-    @Q1_2.setter
-    def Q1_2(self, value):
-        set_factor(self, "Q", value)
-
-    @property
-    def R1_2(self) -> np.ndarray:
-        """Lower factor of ``R`` (a fresh copy)."""
-        return self._R.factor_or_zeros().copy()
-
-    @R1_2.setter
-    def R1_2(self, value):
-        set_factor(self, "R", value)
+    def _noise_assigned(self, name: str) -> None:
+        self.__dict__[name] = Unformed(getattr(self, "_" + name).matrix)
 
     def _noise_factor(self, value, name: str, dim: int) -> np.ndarray | None:
         """Lower factor of ``Q`` or ``R`` (``value`` for this call, else the attribute's); None: zero."""
@@ -991,7 +953,7 @@ class SquareRootUKF(Face):
         own["_unset"] = set(self._unset)
         own["_handed"] = self._handed.copy()  # (a step clears the records in place)
         for name in ("_written", "_sigmas"):  # the same records, current with the engine put back
-            own[name] = _restamped(own[name], self._engine, engine, _same)
+            own[name] = restamped(own[name], self._engine, engine)
         return state, own, engine, self._kept_gain()
 
     def _restore(self, saved) -> None:
@@ -1025,17 +987,14 @@ class SquareRootUKF(Face):
         """Give the copy ``new`` (on ``engine``) this filter's carried slots: the configuration shared
         (never changed in place), the noise slots, the placeholders, what was written or handed out its
         own (``copy_value`` copies an array or a :class:`Handed`)."""
+        copies: dict[int, np.ndarray] = {}
         for name, value in self._carried().items():
-            if name in ("_Q", "_R"):
-                value = value.detached()  # the factor shared, the matrix handed out copied
-            elif name == "_handed":
-                value = value.detached()
-            elif name == "_unset":
-                value = set(value)
-            elif name == "_noise_cache":
+            if name == "_noise_cache":
                 value = {}
             elif name in ("_written", "_sigmas"):
-                value = _restamped(value, self._engine, engine, copy_value)
+                value = restamped(value, self._engine, engine, copy_value)
+            else:  # the noise slots: the factor shared, the matrix handed out copied
+                value = own_copy(value, copies)
             setattr(new, name, value)
 
     def __deepcopy__(self, memo):

@@ -1250,6 +1250,51 @@ def test_copies_are_independent(how, phase):
     assert np.abs(clone.x - fleet.x).max() > 1e-3
 
 
+@pytest.mark.parametrize("per_filter", [False, True])
+def test_a_pickle_with_bare_noise_factors_loads(per_filter):
+    """A fleet pickled when it kept its noise factors bare (``_Q1_2``, ``_R1_2``) loads with its noise,
+    and steps as the fleet it was pickled from."""
+    K = 3
+    fleet, _, zs = fleet_and_singles(K, "merwe", "propagated")
+    if per_filter:
+        fleet.Q = np.stack([0.01 * (k + 1) * np.eye(FLEET_N_X) for k in range(K)])
+    fleet.R = np.diag([4.0, 1e-4])
+    advance(fleet, zs, 0)
+    state = fleet.__getstate__()
+    Q, R = state.pop("_Q"), state.pop("_R")
+    state["_Q1_2"], state["_R1_2"] = Q.S, R.S
+    old = squkf.Fleet.__new__(squkf.Fleet)
+    old.__setstate__(state)
+    assert np.array_equal(old.Q1_2, fleet.Q1_2) and np.array_equal(old.R1_2, fleet.R1_2)
+    assert np.array_equal(old.Q, fleet.Q) and np.array_equal(old.R, fleet.R)
+    old.Q = fleet.Q  # assignable as before
+    for f in (fleet, old):
+        advance(f, zs, 1)
+    assert_fleet_state(old, fleet_state(fleet))
+
+
+def test_noise_is_shared_or_per_filter():
+    """``Q`` and ``R`` are one matrix for all or one per filter; their factors read back as assigned, a zero
+    ``Q`` as zeros, and an edit in place is taken at the next step."""
+    K = 3
+    fleet, _, zs = fleet_and_singles(K, "merwe", "propagated")
+    fleet.Q = 0
+    assert np.array_equal(fleet.Q1_2, np.zeros((FLEET_N_X, FLEET_N_X)))
+    Rs = np.stack([np.diag([1.0 + k, 1e-4]) for k in range(K)])
+    fleet.R = Rs
+    assert fleet.R.shape == (K, 2, 2) and fleet.R1_2.shape == (K, 2, 2)
+    assert np.allclose(fleet.R, Rs)
+    sub = fleet.subset([2, 0])
+    assert np.array_equal(sub.R1_2, fleet.R1_2[[2, 0]])
+    fleet.R1_2 = np.diag([2.0, 0.01])
+    assert fleet.R1_2.shape == (2, 2)
+    fleet.R[1, 1] = 4e-4  # in place: taken by the next read
+    assert np.isclose(fleet.R1_2[1, 1], 0.02)
+    with pytest.raises(ShapeError):
+        fleet.Q1_2 = np.eye(FLEET_N_X + 1)
+    assert np.array_equal(fleet.Q1_2, np.zeros((FLEET_N_X, FLEET_N_X)))  # a failed assignment changes nothing
+
+
 def test_ask_tell_values_may_be_edited_by_the_caller():
     """The arrays handed out and told are the caller's: editing them later changes nothing."""
     fleet, _, zs = fleet_and_singles(2, "merwe", "propagated")

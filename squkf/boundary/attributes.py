@@ -31,7 +31,14 @@ from typing import Any
 import numpy as np
 
 from ..angles import check_angle_hook
-from ..checks import as_lower_factor, as_matrix, check_callable, check_flag
+from ..checks import (
+    as_lower_factor,
+    as_matrix,
+    check_callable,
+    check_flag,
+    given_noise_factors,
+    noise_factors,
+)
 from ..errors import SqukfValueError
 from ..linalg import factor_covariance
 from ..plan import Hooks
@@ -49,7 +56,6 @@ __all__ = [
     "ModelFunction",
     "initial",
     "NOISES",
-    "set_factor",
     "Unformed",
 ]
 
@@ -153,7 +159,7 @@ class HandOut:
 
 
 class FactorSlot:
-    """One covariance (``P``, ``Q`` or ``R``) held as its lower factor.
+    """One covariance (``P``, ``Q`` or ``R``) held as its lower factor: one filter's, or a fleet's noise.
 
     The factor is the truth. The matrix is formed when first read and then
     handed out as the same array until the factor changes, so that edits in
@@ -173,13 +179,32 @@ class FactorSlot:
         A factor given directly is accepted exactly when its covariance is.
     factor : ndarray or None
         Initial lower factor; None means a zero covariance (no noise).
+    filters : int or None
+        A fleet's noise (``Q`` or ``R`` of ``filters`` filters): shared ``(dim, dim)`` or per filter
+        ``(filters, dim, dim)``, assigned through :func:`~squkf.checks.noise_factors` and
+        :func:`~squkf.checks.given_noise_factors`. The fleet hands the matrix out and takes its edits
+        itself (its :class:`HandOut`): :meth:`matrix` forms it afresh, and the fleet reads the factor as
+        the attribute ``S`` (no call in a step). None: one filter's covariance, as described above.
+    zero : bool
+        A fleet's zero covariance kept as a zero factor, not None (the fleet's ``R``, which every update
+        adds).
     """
 
-    def __init__(self, name: str, dim: int | None, semidefinite: bool, factor: np.ndarray | None):
+    def __init__(
+        self,
+        name: str,
+        dim: int | None,
+        semidefinite: bool,
+        factor: np.ndarray | None,
+        filters: int | None = None,
+        zero: bool = False,
+    ):
         self.name = name
         self.dim = dim
         self.semidefinite = semidefinite
-        self._factor = factor
+        self.filters, self.zero = filters, zero
+        #: the factor as held (None: a zero covariance), edits in place of the matrix not yet looked for
+        self.S = factor
         self._view: Handed | None = None  # the matrix handed out, and its record when it matched the factor
         self._assigned: np.ndarray | None = None  # the matrix assigned, handed out when first read
 
@@ -197,9 +222,25 @@ class FactorSlot:
             new._assigned = new._assigned.copy()
         return new
 
+    def __setstate__(self, state: dict) -> None:
+        if "_factor" in state:  # pickled when the factor was private
+            state["S"] = state.pop("_factor")
+        state.setdefault("filters", None)
+        state.setdefault("zero", False)
+        self.__dict__.update(state)
+
+    def rows(self, idx) -> FactorSlot:
+        """A fleet's noise for the filters ``idx``: a per-filter factor cut, a shared one shared."""
+        new = copy.copy(self)
+        S = self.S
+        if S is not None and S.ndim == 3:
+            new.S = S[idx]
+        new.filters = len(np.arange(self.filters or 0)[idx])
+        return new
+
     def _size(self) -> int:
-        if self._factor is not None:
-            return self._factor.shape[0]
+        if self.S is not None:
+            return self.S.shape[-1]
         return self.dim if self.dim is not None else 0
 
     def factor(self) -> np.ndarray | None:
@@ -215,10 +256,16 @@ class FactorSlot:
         """
         if self._view is not None:
             self._view = self._view.take(self._take_matrix)
-        return self._factor
+        return self.S
 
     def _take_matrix(self, A: np.ndarray) -> None:
-        self._factor = self._factor_of(as_matrix(A, self.name, self.dim))
+        self.S = self._factor_of(as_matrix(A, self.name, self.dim))
+
+    def _kept(self, S: np.ndarray | None) -> np.ndarray | None:
+        """A fleet's factor as kept: a zero one None, or zeros ``(dim, dim)`` where ``zero``."""
+        if self.zero:
+            return np.zeros((self._size(),) * 2) if S is None else S
+        return S
 
     def _factor_of(self, A: np.ndarray) -> np.ndarray | None:
         if self.semidefinite and not np.any(A):
@@ -228,12 +275,16 @@ class FactorSlot:
     def matrix(self) -> np.ndarray:
         """The covariance ``S @ S.T``; edits to the returned array take effect at the next step.
 
-        ``(dim, dim)``, or ``(1,)`` when a 1-element vector was assigned (:meth:`set_matrix`).
+        ``(dim, dim)``, or ``(1,)`` when a 1-element vector was assigned (:meth:`set_matrix`). A fleet's
+        is formed afresh at each call, ``(dim, dim)`` or ``(filters, dim, dim)``.
         """
+        if self.filters is not None:
+            S = self.S
+            return np.zeros((self._size(),) * 2) if S is None else S @ np.swapaxes(S, -1, -2)
         if self._view is None:
             A = self._assigned
             if A is None:
-                S = self._factor
+                S = self.S
                 A = S @ S.T if S is not None else np.zeros((self._size(),) * 2)
             # handed out from now on: edits in place are looked for at each use of the factor
             self._view, self._assigned = Handed(A), None
@@ -246,30 +297,38 @@ class FactorSlot:
         ``(dim, dim)`` matrix, or for dimension 1 also a 1-element vector
         ``(1,)`` (filterpy keeps what it is given, so ``R[0]`` is a number). A
         scalar ``s`` is the matrix ``s * I``. After :meth:`set_factor` the
-        matrix is formed ``(dim, dim)``.
+        matrix is formed ``(dim, dim)``. A fleet's: one matrix for all, or one per filter.
         """
+        if self.filters is not None:
+            S = noise_factors(value, self.name, self._size(), self.filters)
+            self.S = self._kept(S) if self.zero else None if S is None or not np.any(S) else S
+            return
         if value is None:
             if not self.semidefinite:
                 raise SqukfValueError(f"{self.name} cannot be None")
-            self._factor, self._view, self._assigned = None, None, None
+            self.S, self._view, self._assigned = None, None, None
             return
         A = as_matrix(value, self.name, self.dim)
         S = self._factor_of(A)
         if np.ndim(value) == 1:  # a 1-element vector (dimension 1): handed out as assigned, as filterpy
             A = A.reshape(1)  # does, so that ``R[0]`` is a number; edits in place still reach it
-        self._factor, self._view, self._assigned = S, None, A
+        self.S, self._view, self._assigned = S, None, A
 
     def set_factor(self, value) -> None:
         """Assign from a lower-triangular factor (validated; a copy is kept)."""
+        if self.filters is not None:
+            n = self._size()
+            self.S = self._kept(given_noise_factors(value, f"{self.name}1_2", n, self.filters))
+            return
         if value is None and self.semidefinite:
-            self._factor, self._view, self._assigned = None, None, None
+            self.S, self._view, self._assigned = None, None, None
             return
         S: np.ndarray | None = as_lower_factor(
             value, f"{self.name}1_2", self.dim, singular_ok=self.semidefinite
         )
         if self.semidefinite and not np.any(S):
             S = None
-        self._factor, self._view, self._assigned = S, None, None
+        self.S, self._view, self._assigned = S, None, None
 
     def factor_or_zeros(self) -> np.ndarray:
         """The factor, with an absent (zero) covariance shown as zeros."""
@@ -441,13 +500,6 @@ def initial(obj, m: int, q: int, r: int) -> None:
         setattr(obj, "_" + name, slot)
         d[name] = Unformed(slot.matrix)
     d["z"] = np.array([[None] * m]).T
-
-
-def set_factor(obj, name: str, value) -> None:
-    """Assign ``Q1_2`` or ``R1_2`` (``name``: ``"Q"``, ``"R"``) of the filter ``obj``, validated."""
-    slot = getattr(obj, "_" + name)
-    slot.set_factor(value)
-    obj.__dict__[name] = Unformed(slot.matrix)
 
 
 def hooks_of(d: dict) -> Hooks:
