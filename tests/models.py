@@ -1525,6 +1525,27 @@ def counting(fn):
     return wrapped, calls
 
 
+def counting_kernels(monkeypatch) -> list:
+    """The installed kernel table replaced by one that names each entry it calls, in order, in the list
+    returned (filters built after this call take it)."""
+    from squkf.kernels import table
+
+    calls: list[str] = []
+    real = table.KERNELS
+
+    def counted(name, kernel):
+        def call(*args):
+            calls.append(name)
+            return kernel(*args)
+
+        return call
+
+    monkeypatch.setattr(
+        table, "KERNELS", table.KernelTable(*(counted(n, k) for n, k in zip(real._fields, real)))
+    )
+    return calls
+
+
 FILTERPY_RTOL = 1e-8
 
 

@@ -27,6 +27,7 @@ from models import (
     RBH_TURNING_X0,
     RBH_X0,
     counting,
+    counting_kernels,
     cv_fleet,
     cv_single,
     plain_fx,
@@ -53,7 +54,6 @@ from squkf import (
     SqukfError,
 )
 from squkf.angles import AngleAdd, AngleMean, AngleResidual, wrap
-from squkf.kernels import table
 from squkf.kernels import threads as kernel_threads
 
 #: The kernels' route against the Python hooks': measured at most 4e-12 relative on x and P over these runs
@@ -99,19 +99,7 @@ def no_python_hooks(monkeypatch):
 @pytest.mark.parametrize("which", ["residual", "mean", "both"])
 def test_the_measurements_angle_hooks_are_done_by_the_kernels(no_python_hooks, which, monkeypatch):
     """No Python call of the hooks on either face; one angle kernel and one joint kernel an update."""
-    calls = []
-    real = table.KERNELS
-
-    def counted(name, kernel):
-        def call(*args):
-            calls.append(name)
-            return kernel(*args)
-
-        return call
-
-    monkeypatch.setattr(
-        table, "KERNELS", table.KernelTable(*(counted(n, k) for n, k in zip(real._fields, real)))
-    )
+    calls = counting_kernels(monkeypatch)
     zs = rbh_measurements(3, 4)
     f = rbh_single(rbh_hooks(which))
     fleet, _ = rbh_fleet_and_singles(3, rbh_hooks(which))
@@ -430,19 +418,7 @@ def no_python_state_hooks(monkeypatch):
 def test_the_states_angle_hooks_are_done_by_the_kernels(no_python_state_hooks, monkeypatch):
     """Every hook squkf has, on both faces: no Python call; an update is the angle kernel and the
     downdate kernel, a prediction the angle kernel and the transform kernel (and the points drawn)."""
-    calls = []
-    real = table.KERNELS
-
-    def counted(name, kernel):
-        def call(*args):
-            calls.append(name)
-            return kernel(*args)
-
-        return call
-
-    monkeypatch.setattr(
-        table, "KERNELS", table.KernelTable(*(counted(n, k) for n, k in zip(real._fields, real)))
-    )
+    calls = counting_kernels(monkeypatch)
     zs = rbh_turning_measurements(5)
     f = rbh_turning(rbh_state_hooks())
     fleet, _ = rbh_fleet_and_singles(3, rbh_state_hooks())
