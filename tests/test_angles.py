@@ -82,6 +82,26 @@ def _records(f) -> dict:
     return {"x": f.x, "P": f.P, "S": f.S, "y": f.y, "log_likelihood": f.log_likelihood, "K": f.K}
 
 
+def _updated_alike(data, python, z, t: int) -> bool:
+    """Update both filters with ``z``: both fail alike (False: stop there; the plain mean of angles either
+    side of pi may make P indefinite) or every record agrees to ``ROUNDING`` (True)."""
+    failed = []
+    for f in (data, python):
+        try:
+            f.update(None if np.isnan(z).all() else z)
+            failed.append(None)
+        except SqukfError as exc:
+            failed.append((type(exc), exc.errno))
+    assert failed[0] == failed[1], t
+    if failed[0]:
+        return False
+    for name, value in _records(python).items():
+        got = _records(data)[name]
+        ok = ~np.isnan(value)
+        assert rel(np.asarray(got)[ok], np.asarray(value)[ok]) <= ROUNDING, f"{name} at step {t}"
+    return True
+
+
 # -- the route: the kernels, no Python call per point ---------------------------------------------
 
 
@@ -150,20 +170,8 @@ def test_the_kernels_route_is_the_python_hooks_route_to_rounding(family, scheme,
         for f in (data, python):
             f.predict()
         wrapped += np.ptp(range_bearing_heading_hx(data.sigmas_f)[:, 1]) > np.pi
-        failed = []
-        for f in (data, python):
-            try:
-                f.update(None if np.isnan(z).all() else z)
-                failed.append(None)
-            except SqukfError as exc:  # (the plain mean of bearings either side of pi: P indefinite)
-                failed.append((type(exc), exc.errno))
-        assert failed[0] == failed[1], t
-        if failed[0]:
+        if not _updated_alike(data, python, z, t):
             return
-        for name, value in _records(python).items():
-            got = _records(data)[name]
-            ok = ~np.isnan(value)
-            assert rel(np.asarray(got)[ok], np.asarray(value)[ok]) <= ROUNDING, f"{name} at step {t}"
     assert wrapped  # the points' bearings passed pi: the hooks mattered
 
 
@@ -446,20 +454,8 @@ def test_the_states_angle_hooks_are_the_python_hooks_route_to_rounding(family, s
         for f in (data, python):
             f.predict()
         wrapped += np.ptp(data.sigmas_f[:, 2]) > np.pi
-        failed = []
-        for f in (data, python):
-            try:
-                f.update(None if np.isnan(z).all() else z)
-                failed.append(None)
-            except SqukfError as exc:
-                failed.append((type(exc), exc.errno))
-        assert failed[0] == failed[1], t
-        if failed[0]:
+        if not _updated_alike(data, python, z, t):
             return
-        for name, value in _records(python).items():
-            got = _records(data)[name]
-            ok = ~np.isnan(value)
-            assert rel(np.asarray(got)[ok], np.asarray(value)[ok]) <= ROUNDING, f"{name} at step {t}"
     assert wrapped  # the points' headings passed pi: the hooks mattered
 
 
