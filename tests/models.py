@@ -1525,13 +1525,12 @@ def counting(fn):
     return wrapped, calls
 
 
-def counting_kernels(monkeypatch) -> list:
-    """The installed kernel table replaced by one that names each entry it calls, in order, in the list
-    returned (filters built after this call take it)."""
+def counted_table(base) -> tuple:
+    """A kernel table whose entries are ``base``'s, each naming itself, in order, in the list returned with
+    it when called (a second table, as another backend gives)."""
     from squkf.kernels import table
 
     calls: list[str] = []
-    real = table.KERNELS
 
     def counted(name, kernel):
         def call(*args):
@@ -1540,9 +1539,16 @@ def counting_kernels(monkeypatch) -> list:
 
         return call
 
-    monkeypatch.setattr(
-        table, "KERNELS", table.KernelTable(*(counted(n, k) for n, k in zip(real._fields, real)))
-    )
+    return table.KernelTable(*(counted(n, k) for n, k in zip(base._fields, base))), calls
+
+
+def counting_kernels(monkeypatch) -> list:
+    """The installed kernel table replaced by a :func:`counted_table` of it (filters built after this call
+    take it): the list of its calls."""
+    from squkf.kernels import table
+
+    counting, calls = counted_table(table.KERNELS)
+    monkeypatch.setattr(table, "KERNELS", counting)
     return calls
 
 

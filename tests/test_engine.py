@@ -23,7 +23,16 @@ import sys
 import numpy as np
 import pytest
 from filterpy.kalman import MerweScaledSigmaPoints
-from models import cv_fleet, cv_single, heading_fx, l96_fx, l96_hx, range_bearing_hx, xy_radar_hx
+from models import (
+    counted_table,
+    cv_fleet,
+    cv_single,
+    heading_fx,
+    l96_fx,
+    l96_hx,
+    range_bearing_hx,
+    xy_radar_hx,
+)
 
 import squkf
 from squkf import (
@@ -246,17 +255,7 @@ def test_transform_and_measurement_update_stacked():
 def counting_table(monkeypatch, f):
     """The kernel table with each entry wrapped to count its calls (a second table, as a backend gives),
     made the table of the filter ``f``'s route."""
-    calls: list[str] = []
-
-    def counted(name, kernel):
-        def call(*args):
-            calls.append(name)
-            return kernel(*args)
-
-        return call
-
-    real = f._engine.route.kernels
-    counting = table.KernelTable(*(counted(name, k) for name, k in zip(real._fields, real)))
+    counting, calls = counted_table(f._engine.route.kernels)
     monkeypatch.setattr(f._engine.route, "kernels", counting)
     return calls
 
@@ -569,16 +568,7 @@ def test_the_kernel_table_is_the_routes():
     """Two filters side by side, one built on its own table (as a filter on another backend would be):
     that table serves all of its steps, the default route's and the hooks' alike, and nothing of the
     other filter's; the numbers are the same."""
-    calls: list[str] = []
-
-    def counted(name, kernel):
-        def call(*args):
-            calls.append(name)
-            return kernel(*args)
-
-        return call
-
-    own = table.KernelTable(*(counted(name, k) for name, k in zip(table.KERNELS._fields, table.KERNELS)))
+    own, calls = counted_table(table.KERNELS)
     z = xy_radar_hx(TURN.x0[0])
     for hooks in (Hooks(), Hooks(residual_z=lambda a, b: a - b)):  # the default route, the hooks' route
         a, b = (merwe_turn_filter(MerweScaledWeights(alpha=0.5), "redrawn") for _ in "ab")
