@@ -32,6 +32,21 @@ def covariance_form_update(x, S, sset, H, z, R, residual=None):
     return x + K @ (z - zhat), S @ S.T - K @ Pzz @ K.T, K, Pzz
 
 
+def random_update(n: int, m: int, alpha: float, seed: int) -> tuple:
+    """A random prior ``(x, S)``, its redrawn Merwe set, images mildly nonlinear and bounded, ``z`` and
+    ``R1_2``."""
+    rng = np.random.default_rng(seed)
+    A = rng.standard_normal((n, n))
+    S = np.linalg.cholesky(A @ A.T / n + 0.5 * np.eye(n))
+    x = rng.standard_normal(n)
+    B = rng.standard_normal((m, n))
+    R1_2 = np.linalg.cholesky(np.eye(m) * 0.3 + 0.1 * np.ones((m, m)))
+    sset = Redrawn().second_set(x, S, family=MerweScaledWeights(alpha, 2.0, 0.0))
+    H = np.tanh(sset.sigmas @ B.T)
+    z = rng.standard_normal(m)
+    return x, S, sset, H, z, R1_2
+
+
 @settings(max_examples=60, deadline=None)
 @given(
     n=st.integers(1, 6),
@@ -40,16 +55,7 @@ def covariance_form_update(x, S, sset, H, z, R, residual=None):
     seed=st.integers(0, 2**16),
 )
 def test_joint_qr_update_is_the_published_update(n, m, alpha, seed):
-    rng = np.random.default_rng(seed)
-    A = rng.standard_normal((n, n))
-    S = np.linalg.cholesky(A @ A.T / n + 0.5 * np.eye(n))
-    x = rng.standard_normal(n)
-    B = rng.standard_normal((m, n))
-    R1_2 = np.linalg.cholesky(np.eye(m) * 0.3 + 0.1 * np.ones((m, m)))
-    family = MerweScaledWeights(alpha, 2.0, 0.0)
-    sset = Redrawn().second_set(x, S, family=family)
-    H = np.tanh(sset.sigmas @ B.T)  # mildly nonlinear, bounded
-    z = rng.standard_normal(m)
+    x, S, sset, H, z, R1_2 = random_update(n, m, alpha, seed)
     post = measurement_update(x, S, sset, H, z, R1_2)
     x_ref, P_ref, K_ref, Pzz = covariance_form_update(x, S, sset, H, z, R1_2 @ R1_2.T)
     # cond(P) <= ~20 and cond(Pzz) <= ~40 here: rounding stays near 1e-13; 1e-9 is generous
@@ -168,15 +174,7 @@ def gain_form_update(x, sset, H, z, R1_2):
 @settings(max_examples=60, deadline=None)
 @given(n=st.integers(1, 6), m=st.integers(1, 4), alpha=st.floats(0.01, 1.0), seed=st.integers(0, 2**16))
 def test_a_users_UT_takes_the_downdate_form_the_gain_forms_posterior_to_rounding(n, m, alpha, seed):
-    rng = np.random.default_rng(seed)
-    A = rng.standard_normal((n, n))
-    S = np.linalg.cholesky(A @ A.T / n + 0.5 * np.eye(n))
-    x = rng.standard_normal(n)
-    B = rng.standard_normal((m, n))
-    R1_2 = np.linalg.cholesky(np.eye(m) * 0.3 + 0.1 * np.ones((m, m)))
-    sset = Redrawn().second_set(x, S, family=MerweScaledWeights(alpha, 2.0, 0.0))
-    H = np.tanh(sset.sigmas @ B.T)
-    z = rng.standard_normal(m)
+    x, S, sset, H, z, R1_2 = random_update(n, m, alpha, seed)
     post = measurement_update(x, S, sset, H, z, R1_2, UT=sqrt_unscented_transform)
     x_ref, P_ref = gain_form_update(x, sset, H, z, R1_2)
     P = post.S @ post.S.T
