@@ -25,10 +25,8 @@ __all__ = [
     "candidate_factors",
     "check_template",
     "recordings",
-    "run",
-    "run_paired",
-    "run_whitened",
-    "run_whitened_paired",
+    "Evaluated",
+    "evaluate",
 ]
 
 
@@ -106,138 +104,95 @@ def candidate_factors(value, name: str, d: int) -> tuple[np.ndarray, dict[int, s
     return factors, failures
 
 
-def run(
-    ukf, Z: np.ndarray, c: Candidates, K: int, burn_in: int, kwargs: dict
-) -> tuple[np.ndarray, dict[int, str]]:
-    """Each candidate's log-likelihood on each recording, in one fleet pass of ``K * S`` filters.
+class Evaluated(NamedTuple):
+    """What :func:`evaluate` gives: per candidate and recording (``(K, S, ...)``), or per candidate on its
+    own recording (``paired``: ``(K, ...)``).
+
+    Attributes
+    ----------
+    loglik : ndarray, shape (K, S) or (K,)
+        Sums over the steps from ``burn_in`` (``-inf`` for a failed filter).
+    y_whitened : ndarray, shape (K, S, T - burn_in, m) or (K, T - burn_in, m), or None
+        The whitened innovations (NaN where nothing was measured, all NaN for a failed filter), kept with
+        ``whitened=True``.
+    log_det_S1_2 : ndarray, shape (K, S, T - burn_in) or (K, T - burn_in), or None
+        ``log det S1_2`` (0 where nothing was measured, NaN for a failed filter), with ``y_whitened``.
+    failures : dict of int to str
+        Candidate -> why it (its first failing recording) failed.
+    """
+
+    loglik: np.ndarray
+    y_whitened: np.ndarray | None
+    log_det_S1_2: np.ndarray | None
+    failures: dict[int, str]
+
+
+def evaluate(
+    ukf, Z: np.ndarray, c: Candidates, K: int, burn_in: int, kwargs: dict, *, paired: bool = False,
+    whitened: bool = False,
+) -> Evaluated:  # fmt: skip
+    """K candidates on each of S recordings (``paired``: candidate ``k`` on recording ``Z[k]``), in one fleet
+    pass of ``K * S`` filters (``K``), filter ``k * S + s`` candidate ``k`` on recording ``s``.
 
     Parameters
     ----------
     ukf : SquareRootUKF
         The template (read only).
     Z : ndarray, shape (S, T, m)
+        The recordings (``paired``: one per candidate, ``S == K``).
     c : Candidates
+        Of ``K`` candidates.
     K : int
         Number of candidates.
     burn_in : int
-        Steps left out of the sums.
+        Steps left out.
     kwargs : dict
         ``dts``, ``fx_args``, ``hx_args`` of the run.
+    paired : bool
+    whitened : bool
+        Keep the whitened innovations and ``log det S1_2`` of each step too (what
+        ``fit_noise(method="least_squares")`` takes as residuals: ``-log L = sum |w|^2 / 2 + log det S1_2``
+        up to a constant).
 
     Returns
     -------
-    loglik : ndarray, shape (K, S)
-        Sums over the steps from ``burn_in`` (``-inf`` for a failed filter).
-    failures : dict of int to str
-        Candidate -> why its first failing recording failed.
-    """
-    S = Z.shape[0]
-    every = Candidates(*(None if v is None else np.repeat(v, S, axis=0) for v in c))
-    values, failed = run_paired(ukf, np.tile(Z, (K, 1, 1)), every, burn_in, kwargs)
-    loglik = values.reshape(K, S)
-    failures: dict[int, str] = {}
-    for j, why in failed.items():
-        k = j // S
-        loglik[k] = -np.inf
-        if k not in failures:
-            failures[k] = f"recording {j % S}: {why}" if S > 1 else why
-    return loglik, failures
-
-
-def run_paired(
-    ukf, Z: np.ndarray, c: Candidates, burn_in: int, kwargs: dict
-) -> tuple[np.ndarray, dict[int, str]]:
-    """Candidate ``k`` on recording ``Z[k]``, every one in one fleet pass of ``K`` filters.
-
-    Parameters
-    ----------
-    ukf : SquareRootUKF
-    Z : ndarray, shape (K, T, m)
-        Each candidate's own recording.
-    c : Candidates
-        Of ``K`` candidates.
-    burn_in : int
-    kwargs : dict
-
-    Returns
-    -------
-    loglik : ndarray, shape (K,)
-        ``-inf`` for a failed filter.
-    failures : dict of int to str
-    """
-    result, failures = _pass(ukf, Z, c, "means", kwargs)
-    loglik = np.asarray(result.log_likelihood)[:, burn_in:].sum(axis=1)
-    for j in failures:
-        loglik[j] = -np.inf
-    return loglik, failures
-
-
-def run_whitened(
-    ukf, Z: np.ndarray, c: Candidates, K: int, burn_in: int, kwargs: dict
-) -> tuple[np.ndarray, np.ndarray, dict[int, str]]:
-    """Each candidate's whitened innovations and ``log det S1_2`` on each recording, in one fleet pass.
-
-    The records the log-likelihood is made of (``-log L = sum |w|^2 / 2 + log det S1_2 + const``):
-    what ``fit_noise(method="least_squares")`` takes as residuals.
-
-    Parameters
-    ----------
-    ukf, Z, c, K, burn_in, kwargs
-        As :func:`run`.
-
-    Returns
-    -------
-    y_whitened : ndarray, shape (K, S, T - burn_in, m)
-        NaN where nothing was measured; all NaN for a failed candidate.
-    log_det_S1_2 : ndarray, shape (K, S, T - burn_in)
-        0 where nothing was measured; NaN for a failed candidate.
-    failures : dict of int to str
-        As :func:`run`'s.
+    Evaluated
     """
     S, T, m = Z.shape
-    every = Candidates(*(None if v is None else np.repeat(v, S, axis=0) for v in c))
-    w, log_det, failed = run_whitened_paired(ukf, np.tile(Z, (K, 1, 1)), every, burn_in, kwargs)
-    w, log_det = w.reshape(K, S, T - burn_in, m), log_det.reshape(K, S, T - burn_in)
+    if paired:
+        every, runs = c, Z
+    else:
+        every = Candidates(*(None if v is None else np.repeat(v, S, axis=0) for v in c))
+        runs = np.tile(Z, (K, 1, 1))
+    fleet = Fleet.from_template(ukf, runs.shape[0])
+    for name, value in zip(("Q1_2", "R1_2", "x", "P1_2"), every):
+        if value is not None:
+            setattr(fleet, name, value)
+    result = fleet.batch_filter(runs, keep=("means", "whitened") if whitened else "means", **kwargs)
+    failed = {j: str(fleet.failure[j]) for j in np.flatnonzero(np.asarray(result.failed)).tolist()}
+    loglik = np.asarray(result.log_likelihood)[:, burn_in:].sum(axis=1)
+    w = None if result.y_whitened is None else result.y_whitened[:, burn_in:]
+    log_det = None if result.log_det_S1_2 is None else result.log_det_S1_2[:, burn_in:]
+    for j in failed:
+        loglik[j] = -np.inf
+        if w is not None and log_det is not None:
+            w[j], log_det[j] = np.nan, np.nan
+    if paired:
+        return Evaluated(loglik, w, log_det, failed)
     failures: dict[int, str] = {}
     for j, why in failed.items():
         k = j // S
-        w[k], log_det[k] = np.nan, np.nan
+        loglik[j - j % S : j - j % S + S] = -np.inf  # the candidate fails on every recording
+        if w is not None and log_det is not None:
+            w[k * S : k * S + S], log_det[k * S : k * S + S] = np.nan, np.nan
         if k not in failures:
             failures[k] = f"recording {j % S}: {why}" if S > 1 else why
-    return w, log_det, failures
-
-
-def run_whitened_paired(
-    ukf, Z: np.ndarray, c: Candidates, burn_in: int, kwargs: dict
-) -> tuple[np.ndarray, np.ndarray, dict[int, str]]:
-    """Candidate ``k``'s whitened innovations and ``log det S1_2`` on its own recording ``Z[k]``, every one
-    in one fleet pass of ``K`` filters.
-
-    Returns
-    -------
-    y_whitened : ndarray, shape (K, T - burn_in, m)
-    log_det_S1_2 : ndarray, shape (K, T - burn_in)
-        NaN for a failed filter.
-    failures : dict of int to str
-    """
-    result, failures = _pass(ukf, Z, c, ("means", "whitened"), kwargs)
-    assert result.y_whitened is not None and result.log_det_S1_2 is not None
-    w, log_det = result.y_whitened[:, burn_in:], result.log_det_S1_2[:, burn_in:]
-    for j in failures:
-        w[j], log_det[j] = np.nan, np.nan
-    return w, log_det, failures
-
-
-def _pass(ukf, Z: np.ndarray, c: Candidates, keep, kwargs: dict):
-    """One fleet of ``K`` filters from the template, candidate ``k`` on ``Z[k]``, run: its result and the
-    filters that failed, with their reasons."""
-    fleet = Fleet.from_template(ukf, Z.shape[0])
-    for name, value in zip(("Q1_2", "R1_2", "x", "P1_2"), c):
-        if value is not None:
-            setattr(fleet, name, value)
-    result = fleet.batch_filter(Z, keep=keep, **kwargs)
-    failures = {j: str(fleet.failure[j]) for j in np.flatnonzero(np.asarray(result.failed)).tolist()}
-    return result, failures
+    return Evaluated(
+        loglik.reshape(K, S),
+        None if w is None else w.reshape(K, S, T - burn_in, m),
+        None if log_det is None else log_det.reshape(K, S, T - burn_in),
+        failures,
+    )
 
 
 def all_failed(failures: dict[int, str], what: str = "candidate") -> FleetStepError:

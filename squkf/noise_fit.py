@@ -32,17 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .boundary.loop import progress_callback
-from .candidates import (
-    Candidates,
-    all_failed,
-    candidate_factors,
-    check_template,
-    recordings,
-    run,
-    run_paired,
-    run_whitened,
-    run_whitened_paired,
-)
+from .candidates import Candidates, all_failed, candidate_factors, check_template, evaluate, recordings
 from .errors import ParameterError, ShapeError, SqukfError
 from .parametrise import Scaled
 
@@ -195,25 +185,26 @@ class _Objective:
     def loglik(self, thetas: np.ndarray, rec: np.ndarray | None = None) -> np.ndarray:
         """The exact log-likelihood of each candidate, ``(K,)`` (-inf: failed): summed over every
         recording, or (``rec``, ``(K,)``) on its own recording ``Z[rec[k]]``."""
-        thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
-        per_pass = self.max_filters if rec is not None else max(1, self.max_filters // self.Z.shape[0])
-        out = np.empty(thetas.shape[0])
-        for start in range(0, thetas.shape[0], per_pass):
-            part = slice(start, start + per_pass)
-            out[part] = self._pass(thetas[part], None if rec is None else rec[part])
-        return out
+        return self._passes(thetas, rec, False)[0]
 
     def whitened(self, thetas: np.ndarray, rec: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Each candidate's whitened innovations ``(K, S, T', m)`` and ``log det S1_2`` ``(K, S, T')`` on
         every recording after the burn-in (NaN for a failed candidate), or (``rec``, ``(K,)``) on its own
-        recording ``Z[rec[k]]``, ``(K, T', m)`` and ``(K, T')``; in as few passes as ``max_filters``
-        allows (usually one)."""
+        recording ``Z[rec[k]]``, ``(K, T', m)`` and ``(K, T')``."""
+        _, W, L = self._passes(thetas, rec, True)
+        return W, L
+
+    def _passes(self, thetas: np.ndarray, rec: np.ndarray | None, whitened: bool) -> tuple:
+        """The candidates ``thetas`` run in as few fleet passes as ``max_filters`` allows (usually one):
+        each one's log-likelihood ``(K,)`` summed over the recordings (or on its own, ``rec``), and, with
+        ``whitened``, its whitened records (else None). Invalid or failed candidates: ``-inf``, NaN."""
         thetas = np.atleast_2d(np.asarray(thetas, dtype=float))
         K = thetas.shape[0]
         S, T, m = self.Z.shape
         each = (S,) if rec is None else ()
-        W = np.full((K, *each, T - self.burn_in, m), np.nan)
-        L = np.full((K, *each, T - self.burn_in), np.nan)
+        loglik = np.full(K, -np.inf)
+        W = np.full((K, *each, T - self.burn_in, m), np.nan) if whitened else None
+        L = np.full((K, *each, T - self.burn_in), np.nan) if whitened else None
         per_pass = max(1, self.max_filters // S) if rec is None else self.max_filters
         for start in range(0, K, per_pass):
             part = np.arange(start, min(K, start + per_pass))
@@ -221,18 +212,22 @@ class _Objective:
             good = [j for j in range(part.size) if j not in failures]
             if good:
                 sub = Candidates(*(None if a is None else a[good] for a in cand))
-                if rec is None:
-                    w, ld, failed = run_whitened(self.ukf, self.Z, sub, len(good), self.burn_in, self.kwargs)
-                    self._counted(len(good) * S * T)
-                else:
-                    Zk = self.Z[rec[part[good]]]
-                    w, ld, failed = run_whitened_paired(self.ukf, Zk, sub, self.burn_in, self.kwargs)
-                    self._counted(len(good) * T)
-                W[part[good]], L[part[good]] = w, ld
-                for j, why in failed.items():
+                Z = self.Z if rec is None else self.Z[rec[part[good]]]
+                done = evaluate(
+                    self.ukf, Z, sub, len(good), self.burn_in, self.kwargs, paired=rec is not None,
+                    whitened=whitened,
+                )  # fmt: skip
+                self._counted(len(good) * (S if rec is None else 1) * T)
+                totals = done.loglik.sum(axis=1) if rec is None else done.loglik
+                loglik[part[good]] = totals
+                if W is not None and L is not None:
+                    W[part[good]], L[part[good]] = done.y_whitened, done.log_det_S1_2
+                for j, why in done.failures.items():
                     failures[good[j]] = why
+            for j in failures:
+                loglik[part[j]] = -np.inf
             self._note(thetas[part], failures)
-        return W, L
+        return loglik, W, L
 
     def prior_residuals(self, theta: np.ndarray) -> np.ndarray:
         """The prior's residuals at ``theta`` (none without a prior), checked finite."""
@@ -263,29 +258,6 @@ class _Objective:
                 r = self.prior_residuals(theta)
                 f[k] += 0.5 * float(r @ r)
         return f
-
-    def _pass(self, thetas: np.ndarray, rec: np.ndarray | None) -> np.ndarray:
-        K = thetas.shape[0]
-        cand, failures = self._candidates(thetas)
-        loglik = np.full(K, -np.inf)
-        good = [k for k in range(K) if k not in failures]
-        if good:
-            sub = Candidates(*(None if a is None else a[good] for a in cand))
-            S, T = self.Z.shape[:2]
-            if rec is None:
-                values, failed = run(self.ukf, self.Z, sub, len(good), self.burn_in, self.kwargs)
-                totals = values.sum(axis=1)
-                self._counted(len(good) * S * T)
-            else:
-                totals, failed = run_paired(self.ukf, self.Z[rec[good]], sub, self.burn_in, self.kwargs)
-                self._counted(len(good) * T)
-            for j, k in enumerate(good):
-                if j in failed:
-                    failures[k] = failed[j]
-                else:
-                    loglik[k] = float(totals[j])
-        self._note(thetas, failures)
-        return loglik
 
     def _candidates(self, thetas: np.ndarray) -> tuple[Candidates, dict[int, str]]:
         """The candidates' factors (and initial states) from their ``theta``, and those that are invalid."""

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .candidates import Candidates, all_failed, candidate_factors, check_template, recordings, run
+from .candidates import Candidates, all_failed, candidate_factors, check_template, evaluate, recordings
 from .errors import ShapeError
 from .noise_fit import NoiseFit, fit_noise
 from .parametrise import Custom, Diagonal, Fixed, Full, Scaled
@@ -102,7 +102,7 @@ def log_likelihood(
     if len(failures) == K:  # (a candidate that is not a covariance runs with no noise, and is dropped)
         raise all_failed(failures)
     kwargs = {"dts": dts, "fx_args": fx_args, "hx_args": hx_args}
-    loglik, failed = run(ukf, Z, Candidates(Q1_2, R1_2), K, burn_in, kwargs)
+    loglik, _, _, failed = evaluate(ukf, Z, Candidates(Q1_2, R1_2), K, burn_in, kwargs)
     for k, why in failed.items():
         failures.setdefault(k, why)
     for k in failures:

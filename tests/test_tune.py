@@ -401,15 +401,15 @@ def test_fit_noise_refuses_a_template_between_ask_and_tell_and_bad_parametrisati
 def test_the_whitened_records_are_the_log_likelihood_of_each_candidate(recordings):
     """``log L = sum -(|w|^2 + m log 2 pi) / 2 - log det S1_2`` over the updates, per candidate and
     recording: the residuals the least-squares fit minimises are the likelihood, to rounding."""
-    from squkf.candidates import Candidates, candidate_factors, run, run_whitened
+    from squkf.candidates import Candidates, candidate_factors, evaluate
 
     (Q1_2, _), (R1_2, _) = candidate_factors(CANDIDATES_Q, "Qs", 4), candidate_factors(CANDIDATES_R, "Rs", 2)
     c = Candidates(Q1_2=Q1_2, R1_2=R1_2)
     z = recordings.copy()
     z[0, 5, 1] = np.nan  # a missing component and a missing step: no residuals of theirs
     z[1, 7] = np.nan
-    W, L, failures = run_whitened(template(), z, c, 3, 2, {})
-    loglik, _ = run(template(), z, c, 3, 2, {})
+    loglik, W, L, failures = evaluate(template(), z, c, 3, 2, {}, whitened=True)
+    assert np.array_equal(evaluate(template(), z, c, 3, 2, {}).loglik, loglik)  # the same pass without them
     assert not failures and W.shape == (3, 3, T - 2, 2) and L.shape == (3, 3, T - 2)
     measured = ~np.isnan(z[:, 2:])
     assert np.array_equal(~np.isnan(W[0]), measured)
