@@ -16,10 +16,14 @@ In one process, side by side (issue 37's speed targets; the ratios count, this m
 3. ``consistency.monte_carlo`` of 4 configurations, 1,000 runs of T = 200, against a loop of filterpy
    filters over the same runs, measured on 10 runs a configuration and scaled linearly.
 
-The robot's bearing wraps: the squkf filters take ``AngleResidual([1])`` as ``residual_z`` (done by the
-kernels: squkf's angle hooks are data) and filterpy's the same wrapping function, so both fit the same
-model. squkf's model functions are written for a stack of points (``X[..., i]``, ``vectorized=True``), as
-a squkf user writes them; filterpy's take one point, as it calls them. Written to ``tune.md`` in ``--out``.
+The robot's bearing wraps at 2 pi, so both filters treat it as an angle: its residual wrapped and its
+mean circular. The squkf filters take ``AngleResidual([1])`` as ``residual_z`` and ``AngleMean([1])`` as
+``z_mean_fn`` (done by the kernels: squkf's angle hooks are data), filterpy's a wrapping function and the
+same ``AngleMean([1])``, so both fit the same model. (With a plain mean, the mean of sigma points on both
+sides of the wrap is wrong, and the log-likelihood is rough along ``R``: each local method then stops at
+its own local optimum.) squkf's model functions are written for a stack of points (``X[..., i]``,
+``vectorized=True``), as a squkf user writes them; filterpy's take one point, as it calls them. Written to
+``tune.md`` in ``--out``.
 """
 
 from __future__ import annotations
@@ -34,7 +38,7 @@ from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 from scipy.optimize import minimize
 
 from squkf import JulierWeights, SquareRootUKF, consistency, simulate, tune
-from squkf.angles import AngleResidual
+from squkf.angles import AngleMean, AngleResidual
 from squkf.examples import g13ej_example as ex
 
 HERE = Path(__file__).resolve().parent
@@ -80,8 +84,8 @@ def hx_stacked(X):
 
 def squkf_filter(q_scale=1.0, r=(1.0, 1.0), points=None, scheme="redrawn", wrap=True):
     f = SquareRootUKF(3, 2, 1.0, hx_stacked, fx_stacked, points or MerweScaledSigmaPoints(3, 1.0, 2.0, 0.0),
-                      scheme=scheme, vectorized=True,
-                      residual_z=AngleResidual([1]) if wrap else None)  # fmt: skip
+                      scheme=scheme, vectorized=True, residual_z=AngleResidual([1]) if wrap else None,
+                      z_mean_fn=AngleMean([1]) if wrap else None)  # fmt: skip
     f.x, f.P = X0, P0
     f.Q, f.R = q_scale * Q_TRUE, np.diag(np.asarray(r) * np.diag(R_TRUE))
     return f
@@ -89,7 +93,7 @@ def squkf_filter(q_scale=1.0, r=(1.0, 1.0), points=None, scheme="redrawn", wrap=
 
 def filterpy_filter(theta):
     f = UnscentedKalmanFilter(3, 2, 1.0, hx, fx, MerweScaledSigmaPoints(3, 1.0, 2.0, 0.0),
-                              residual_z=wrap_residual)  # fmt: skip
+                              residual_z=wrap_residual, z_mean_fn=AngleMean([1]))  # fmt: skip
     f.x, f.P = X0.copy(), P0.copy()
     f.Q = np.exp(theta[0]) * 3 * Q_TRUE
     f.R = np.diag(np.exp(theta[1:]) * np.diag(R_TRUE) / 3)
@@ -121,11 +125,19 @@ def squkf_loglik(theta, zs):
         return -np.inf
 
 
-def nelder_mead(loglik, zs):
+def nelder_mead(loglik, zs, restarted=False):
+    """scipy's Nelder-Mead from the template's values; ``restarted``: run again from where it stopped
+    until a run gains less than 1e-4 (Nelder-Mead's simplex can collapse on a flat ridge short of the
+    optimum; a restart gives it a fresh one). Returns the time, the best log-likelihood, the evaluations."""
     t = time.perf_counter()
-    res = minimize(lambda th: -loglik(th, zs), np.zeros(3), method="Nelder-Mead",
-                   options={"xatol": 1e-4, "fatol": 1e-4})  # fmt: skip
-    return time.perf_counter() - t, -res.fun, res.nfev
+    theta, best, nfev = np.zeros(3), -np.inf, 0
+    while True:
+        res = minimize(lambda th: -loglik(th, zs), theta, method="Nelder-Mead",
+                       options={"xatol": 1e-4, "fatol": 1e-4})  # fmt: skip
+        nfev += res.nfev
+        gained, theta, best = -res.fun - best, res.x, max(best, -res.fun)
+        if not restarted or gained < 1e-4:
+            return time.perf_counter() - t, best, nfev
 
 
 def template():
@@ -143,7 +155,9 @@ def monte_carlo_loop(configs, truth, zs, runs):
     t = time.perf_counter()
     for points in configs:
         for r in range(runs):
-            f = UnscentedKalmanFilter(3, 2, 1.0, hx, fx, points, residual_z=wrap_residual)
+            f = UnscentedKalmanFilter(
+                3, 2, 1.0, hx, fx, points, residual_z=wrap_residual, z_mean_fn=AngleMean([1])
+            )
             f.x, f.P, f.Q, f.R = X0.copy(), P0.copy(), Q_TRUE.copy(), R_TRUE.copy()
             err = []
             for k, z in enumerate(zs[r]):
@@ -229,9 +243,12 @@ def main(argv=None) -> int:
     t_fit, one = fit(zs[0])
     t_nm_fp, ll_fp, n_fp = nelder_mead(filterpy_loglik, zs[0])
     t_nm_sq, ll_sq, n_sq = nelder_mead(squkf_loglik, zs[0])
+    t_nm_re, ll_re, n_re = nelder_mead(squkf_loglik, zs[0], restarted=True)
     rows.append(("one fit, 3 parameters: fit_noise", t_fit, one.log_likelihood, f"{one.passes} fleet passes"))
     rows.append(("Nelder-Mead over filterpy's UKF", t_nm_fp, ll_fp, f"{n_fp} evaluations"))
     rows.append(("Nelder-Mead over one SquareRootUKF", t_nm_sq, ll_sq, f"{n_sq} evaluations"))
+    rows.append(("the same, restarted until a run gains < 1e-4", t_nm_re, ll_re, f"{n_re} evaluations"))
+    same = max(one.log_likelihood, ll_fp, ll_sq, ll_re) - min(one.log_likelihood, ll_fp, ll_sq, ll_re)
 
     t_each, fits = fit(zs, shared=False)
     t_fp_each = sum(nelder_mead(filterpy_loglik, zs[b])[0] for b in range(B_fp)) * B / B_fp
@@ -275,6 +292,13 @@ def main(argv=None) -> int:
     ]
     for what, sec, ll, note in rows:
         lines.append(f"| {what} | {sec:.3g} | {'' if np.isnan(ll) else f'{ll:.4f}'} | {note} |")
+    lines += [
+        "",
+        f"The four optima agree to {same:.2g} in log-likelihood"
+        + (" (issue 37 asks for 1e-3)." if same <= 1e-3 else f": Nelder-Mead run once stops {same:.2g} short"
+           f" of the restarted one and of fit_noise, which agree to {abs(one.log_likelihood - ll_re):.2g}."),
+        "The ratios are against Nelder-Mead run once (its time to the optimum, restarted, is longer).",
+    ]  # fmt: skip
     lines += ["", "| ratio | value | target | |", "|---|---|---|---|"]
     for what, value, target in ratios:
         lines.append(f"| {what} | {value:.4f} | <= {target:.4f} | {'met' if value <= target else 'missed'} |")

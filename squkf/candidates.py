@@ -14,7 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .checks import as_float_array, as_matrix, as_measurements
+from .checks import as_float_array, as_matrix, as_measurements, symmetric_stack
 from .errors import FleetStepError, NonFiniteError, ParameterError, ShapeError, SqukfError
 from .fleet import Fleet
 from .linalg import factor_covariance
@@ -95,10 +95,13 @@ def candidate_factors(value, name: str, d: int) -> tuple[np.ndarray, dict[int, s
         raise ShapeError(f"{name} has shape {A.shape}, expected (K, {d}, {d}): one covariance per candidate")
     factors = np.zeros_like(A)
     failures: dict[int, str] = {}
+    symmetric, bad = symmetric_stack(A, name, d)  # (the checks as arrays: a pass may hold thousands)
     for k in range(A.shape[0]):
         label = f"{name}[{k}]"
         try:
-            factors[k] = factor_covariance(as_matrix(A[k], label, d), label, semidefinite=True)
+            factors[k] = factor_covariance(
+                as_matrix(A[k], label, d) if bad[k] else symmetric[k], label, semidefinite=True
+            )
         except SqukfError as exc:
             failures[k] = str(exc)
     return factors, failures

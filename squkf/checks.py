@@ -63,6 +63,8 @@ __all__ = [
     "REAL",
     "as_lower_factor",
     "as_matrix",
+    "lower_factor_stack",
+    "symmetric_stack",
     "as_state",
     "check_chunk_args",
     "check_sizes",
@@ -1274,6 +1276,57 @@ def as_lower_factor(value, name: str, dim: int | None, singular_ok: bool) -> np.
     return S
 
 
+def lower_factor_stack(a: np.ndarray, name: str, dim: int, singular_ok: bool) -> np.ndarray:
+    """:func:`as_lower_factor` of each filter's factor of a stack ``(K, dim, dim)`` at once (the checks and
+    the column flips as arrays, not a Python call a filter): the same factors, and for the first filter
+    that fails a check, the same error (naming ``name[k]``).
+
+    Parameters
+    ----------
+    a : ndarray, shape (K, dim, dim)
+    name : str
+    dim : int
+    singular_ok : bool
+
+    Returns
+    -------
+    S : ndarray, shape (K, dim, dim), float64 copy
+    """
+    S = np.array(a, dtype=float)
+    with np.errstate(over="ignore", invalid="ignore"):  # overflow is what is checked here
+        norms = np.einsum("kij,kij->ki", S, S)
+    d = np.diagonal(S, axis1=1, axis2=2)
+    bad = ~np.isfinite(norms).all(axis=1) | (np.triu(S, 1) != 0).any(axis=(1, 2))
+    if not singular_ok:
+        bad |= (d == 0).any(axis=1)
+    if bad.any():  # (a NaN or inf entry makes its norm non-finite)
+        k = int(np.flatnonzero(bad)[0])
+        as_lower_factor(S[k], f"{name}[{k}]", dim, singular_ok)  # raises, naming it
+    neg = d < 0
+    if neg.any():
+        S *= np.where(neg, -1.0, 1.0)[:, None, :]  # the columns of a negative diagonal entry flipped
+    return S
+
+
+def symmetric_stack(A: np.ndarray, name: str, dim: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`as_matrix` of each matrix of a stack ``(K, dim, dim)`` at once: the symmetrised copies, and
+    which of them failed its checks (their entries unspecified: :func:`as_matrix` of one says why).
+
+    Returns
+    -------
+    A : ndarray, shape (K, dim, dim)
+    bad : ndarray of bool, shape (K,)
+    """
+    A = np.asarray(A, dtype=float)
+    At = np.swapaxes(A, 1, 2)
+    with np.errstate(invalid="ignore"):
+        finite = np.isfinite(A).all(axis=(1, 2))
+        scale = np.abs(A).max(axis=(1, 2), initial=0.0)
+        asym = np.abs(A - At).max(axis=(1, 2), initial=0.0)
+    bad = ~finite | (asym > 1e-9 * scale)
+    return 0.5 * A + 0.5 * At, bad
+
+
 def noise_factor(
     value, name: str, dim: int, default: Callable[[], np.ndarray | None], cache: dict
 ) -> np.ndarray | None:
@@ -1367,7 +1420,7 @@ def given_noise_factors(value, name: str, dim: int, K: int) -> np.ndarray | None
     if a.ndim == 3:
         if a.shape != (K, dim, dim):
             raise ShapeError(f"{name} has shape {a.shape}, expected ({dim}, {dim}) or ({K}, {dim}, {dim})")
-        return np.stack([as_lower_factor(a[k], f"{name}[{k}]", dim, singular_ok=True) for k in range(K)])
+        return lower_factor_stack(a, name, dim, singular_ok=True)
     S = as_lower_factor(a, name, dim, singular_ok=True)
     return S if np.any(S) else None
 
@@ -1418,8 +1471,7 @@ def lower_factors(value, name: str, n: int, K: int) -> np.ndarray:
     -------
     ndarray, shape (K, n, n)
     """
-    S = per_filter(value, name, K, (n, n))
-    return np.stack([as_lower_factor(S[k], f"{name}[{k}]", n, singular_ok=False) for k in range(K)])
+    return lower_factor_stack(per_filter(value, name, K, (n, n)), name, n, singular_ok=False)
 
 
 def reset_rows(x, P, idx: np.ndarray, x_now: np.ndarray, S_now: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -9,8 +9,10 @@ log-likelihood written as residuals, below, for scipy's ``least_squares``), a
 point with the central differences of its gradient (``"quasi_newton"``: scipy's
 L-BFGS-B given the value and gradient of each pass), a population of
 differential evolution, or a grid (in as few passes as ``max_filters``
-allows). At the optimum the observed information, the finite-difference Hessian
-of ``-log L`` (plus the prior's terms), is one pass more; its inverse is
+allows). The least-squares forms end with Newton's method on the
+finite-difference Hessian of ``-log L`` (plus the prior's terms), whose last pass
+is at the optimum: that Hessian, the observed information, costs no pass more
+(the objective keeps every candidate's exact log-likelihood), and its inverse is
 ``theta``'s covariance.
 
 As residuals (as LowLevelParticleFilters.jl writes it): each update's whitened
@@ -50,12 +52,21 @@ C_MARGIN = 16.0
 RESTART_MARGIN = 16.0
 #: restarts of the least-squares solver before it stops where it is
 MAX_RESTARTS = 8
-#: iterations of the batched Levenberg-Marquardt before a problem it has not solved goes to Newton's method
+#: iterations of the batched Levenberg-Marquardt before its problems go to Newton's method all the same
 LM_ITERATIONS = 50
+#: where the least-squares phase hands over to Newton's method: a step that gains less than this in
+#: ``log L`` (the Gauss-Newton model converges only linearly near an optimum, where its matrix misses
+#: the log-determinant's curvature; Newton's method on the exact Hessian ends it in a step or two)
+HANDOVER = 1e-2
+#: Newton's method stops where its step would gain less than this in ``log L`` (the issue's optima agree
+#: to 1e-3)
+NEWTON_TOL = 1e-5
 #: the step of the Hessian's differences (its rounding error in f, about 1e-9, over h**2 stays small)
 HESSIAN_STEP = 1e-3
 #: an eigenvalue of the information below this times the largest is a direction the data do not fix
 WEAK = 1e-8
+#: scipy's smallest tolerance (below it a condition is off, with a warning)
+EPS = float(np.finfo(float).eps)
 
 
 @dataclass
@@ -178,6 +189,10 @@ class _Objective:
         self.passes = 0
         self.filter_steps = 0
         self.failures: dict[tuple, str] = {}
+        # the exact log-likelihood of every candidate run, by (theta's bytes, its recording or -1): asked
+        # again (the start, a stencil's centre, the optimum's Hessian after Newton's last step) it costs
+        # no pass
+        self._known: dict[tuple[bytes, int], float] = {}
         self.after_pass: Callable[[int], object] | None = None  # progress: called with the pass's index
         # the template's values, read once: what a candidate that does not set one keeps
         self.template = {k: _as_floats(getattr(ukf, k)) for k in ("Q", "R", "x", "P")}
@@ -205,9 +220,16 @@ class _Objective:
         loglik = np.full(K, -np.inf)
         W = np.full((K, *each, T - self.burn_in, m), np.nan) if whitened else None
         L = np.full((K, *each, T - self.burn_in), np.nan) if whitened else None
+        recs = np.full(K, -1) if rec is None else np.asarray(rec)
+        keys = [(t.tobytes(), int(r)) for t, r in zip(thetas, recs)]
+        todo = np.arange(K)
+        if not whitened:
+            known = np.array([key in self._known for key in keys], dtype=bool)
+            loglik[known] = [self._known[keys[k]] for k in np.flatnonzero(known)]
+            todo = np.flatnonzero(~known)
         per_pass = max(1, self.max_filters // S) if rec is None else self.max_filters
-        for start in range(0, K, per_pass):
-            part = np.arange(start, min(K, start + per_pass))
+        for start in range(0, todo.size, per_pass):
+            part = todo[start : start + per_pass]
             cand, failures = self._candidates(thetas[part])
             good = [j for j in range(part.size) if j not in failures]
             if good:
@@ -227,6 +249,8 @@ class _Objective:
             for j in failures:
                 loglik[part[j]] = -np.inf
             self._note(thetas[part], failures)
+            for k in part:
+                self._known[keys[k]] = float(loglik[k])
         return loglik, W, L
 
     def prior_residuals(self, theta: np.ndarray) -> np.ndarray:
@@ -371,11 +395,11 @@ def fit_noise(
     shared : bool
         ``True``: the S recordings fit one ``Q`` and ``R``. ``False``: each
         recording gets its own fit (one sensor or asset per recording), all
-        advancing together in the same fleet passes by a batched damped
-        Newton method (Levenberg's damping, one factor per problem, on the
-        finite-difference gradient and Hessian of the exact ``-log L``); a
-        list of S fits is returned. ``method`` is then the default (or
-        ``"quasi_newton"``, the same).
+        advancing together in the same fleet passes by a batched Gauss-Newton
+        method on the residuals, then Newton's method on the
+        finite-difference gradient and Hessian of the exact ``-log L`` (a
+        trust region per problem); a list of S fits is returned. ``method``
+        is then the default (or ``"quasi_newton"``, the same).
     seed : optional
         Of differential evolution.
     maxiter : int, optional
@@ -473,14 +497,21 @@ def _fit(objective: _Objective, method: str, theta0, names, lo_hi, grid, shared,
         theta, success, message = _quasi_newton(objective, np.asarray(res.x, dtype=float), lo_hi, None)
         success = success and bool(res.success)
         message = f"{res.message}; polished: {message}"
+    elif method == "least_squares":
+        theta, success, message = _least_squares(objective, theta0, lo_hi, maxiter)
+        f0 = float(objective(theta0[None])[0])  # (known from the first pass)
+        polished, ok = _batched_newton(
+            objective, theta[None], None, lo_hi, 50 if maxiter is None else maxiter
+        )
+        theta, success = polished[0], success and bool(ok[0])
+        message = (
+            f"{message}; then Newton's method on the exact Hessian: {'converged' if ok[0] else 'stopped'}"
+        )
     else:
         f0 = float(objective(theta0[None])[0])
         if not math.isfinite(f0):
             raise all_failed({0: next(iter(objective.failures.values()), "failed")}, "start")
-        if method == "least_squares":
-            theta, success, message = _least_squares(objective, theta0, lo_hi, maxiter)
-        else:
-            theta, success, message = _quasi_newton(objective, theta0, lo_hi, maxiter)
+        theta, success, message = _quasi_newton(objective, theta0, lo_hi, maxiter)
     H, f_hat = _hessian(objective, theta)
     cov, identifiable, weak = _covariance(H, names)
     loglik_hat = float(objective.loglik(theta[None])[0])
@@ -500,14 +531,13 @@ def _fit_each(
     """``shared=False``: one fit per recording, all advancing together (:func:`_batched_least_squares`)."""
     B = objective.Z.shape[0]
     own = np.arange(B)
-    f0 = objective(np.tile(theta0, (B, 1)), own)
+    thetas, _ = _batched_least_squares(objective, theta0, B, lo_hi, min(maxiter, LM_ITERATIONS))
+    f0 = objective(np.tile(theta0, (B, 1)), own)  # (known from the first pass)
     if not np.any(np.isfinite(f0)):
         raise all_failed({b: "failed at the start" for b in range(B)}, "recording")
-    thetas, success = _batched_least_squares(objective, theta0, B, lo_hi, min(maxiter, LM_ITERATIONS))
+    thetas, success = _batched_newton(objective, thetas, own, lo_hi, maxiter)
     left = np.flatnonzero(~success)
-    if (
-        left.size
-    ):  # where the model did not lead to an optimum: Newton's method from the start, the better kept
+    if left.size:  # where no optimum was reached from there: Newton's method from the start, the better kept
         again, done = _batched_newton(objective, np.tile(theta0, (left.size, 1)), left, lo_hi, maxiter)
         f = objective(np.vstack([thetas[left], again]), np.concatenate([left, left]))
         better = f[left.size :] < f[: left.size]
@@ -589,6 +619,8 @@ class _Residuals:
 
     def __call__(self, theta: np.ndarray) -> np.ndarray:
         """The residuals at ``theta``, and (kept) their Jacobian: ``theta`` and its steps in one pass."""
+        if self._kept is not None and self._kept[0] == theta.tobytes():
+            return self._kept[1]
         p, h = theta.size, RESIDUAL_STEP
         rows = self.rows(np.vstack([theta, theta + h * np.eye(p)]))
         r = rows[0]
@@ -618,6 +650,9 @@ def _least_squares(objective: _Objective, theta0: np.ndarray, lo_hi, maxiter: in
     budget = 200 if maxiter is None else maxiter
     while True:
         try:
+            r = residuals(theta)
+            if not np.all(np.isfinite(r)):
+                raise all_failed({0: next(iter(objective.failures.values()), "failed")}, "start")
             res = least_squares(
                 residuals,
                 theta,
@@ -625,13 +660,15 @@ def _least_squares(objective: _Objective, theta0: np.ndarray, lo_hi, maxiter: in
                 bounds=lo_hi,
                 method="trf",
                 x_scale="jac",
-                ftol=1e-9,
+                ftol=max(
+                    HANDOVER / max(0.5 * float(r @ r), 1.0), EPS
+                ),  # (scipy's ftol is relative to the cost)
                 xtol=1e-9,
                 gtol=1e-9,
                 max_nfev=budget,
             )
         except _RestartError as restart:
-            residuals.c = restart.c
+            residuals.c, residuals._kept = restart.c, None  # (what was kept had the old c)
             assert residuals.best is not None
             theta = np.clip(residuals.best[1], *lo_hi)
             continue
@@ -718,20 +755,24 @@ def _hessians(objective: _Objective, thetas: np.ndarray) -> np.ndarray:
 
 
 def _batched_least_squares(objective: _Objective, theta0: np.ndarray, B: int, lo_hi, maxiter: int):
-    """``B`` fits from ``theta0``, problem ``b`` on recording ``b``, advancing together: Levenberg-Marquardt
-    on each problem's residuals (the log-likelihood as the least-squares form writes it, the module's
-    docstring), a damping factor per problem.
+    """``B`` fits from ``theta0``, problem ``b`` on recording ``b``, advancing together: a Gauss-Newton
+    method in a trust region (one radius per problem, as :func:`_batched_newton`'s) on each problem's
+    residuals (the log-likelihood as the least-squares form writes it, the module's docstring), the model
+    the Gauss-Newton matrix plus a secant estimate of the residuals' own curvature.
 
     Each iteration is one fleet pass: every active problem's trial point and its forward steps (the
     Jacobian there, kept if the trial is taken). A trial is taken when it lowers the exact objective
     (``-log L``, plus the prior's ``|r|^2 / 2``), whatever the constant ``c`` of its roots, which is set
     per problem from its first point and raised (a margin below the lowest ``-2 log det S1_2`` seen)
-    whenever a root would be imaginary: ``c`` shapes the Gauss-Newton model, never the acceptance.
+    whenever a root would be imaginary: ``c`` shapes the model, never the acceptance. A problem is handed
+    on (to :func:`_batched_newton`) where its model is convex and its whole step would gain less than
+    :data:`HANDOVER` in ``log L``, or where it cannot go on.
 
     Returns
     -------
     thetas : ndarray, shape (B, p)
-    success : ndarray of bool, shape (B,)
+    handed : ndarray of bool, shape (B,)
+        Whether the problem reached the hand-over (else it stopped: a failed step, or the iterations ran out).
     """
     p = theta0.size
     h = RESIDUAL_STEP
@@ -743,11 +784,13 @@ def _batched_least_squares(objective: _Objective, theta0: np.ndarray, B: int, lo
     trials = thetas.copy()
     f_now = np.full(B, np.inf)
     c = np.full(B, np.nan)
-    damping = np.full(B, 1e-3)
+    radius = np.ones(B)
+    predicted = np.zeros(B)
     done = np.zeros(B, dtype=bool)
-    success = np.zeros(B, dtype=bool)
+    handed = np.zeros(B, dtype=bool)
     steps = np.eye(p) * h
-    model = [(np.eye(p), np.zeros(p))] * B  # the Hessian's model and the gradient at each theta
+    models: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = [None] * B  # (g, curvatures, V)
+    convex = np.zeros(B, dtype=bool)
     last: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = [None] * B  # theta, J, r at the last point
     second = np.zeros((B, p, p))  # the structured secant part: the residuals' own curvature
     for _ in range(maxiter + 1):
@@ -761,14 +804,15 @@ def _batched_least_squares(objective: _Objective, theta0: np.ndarray, B: int, lo
             w, ld = W[rows][:, measured[b]], L[rows][:, updated[b]]
             prior = np.array([objective.prior_residuals(t) for t in points[rows]])
             f_trial = 0.5 * float(w[0] @ w[0]) + float(ld[0].sum()) + 0.5 * float(prior[0] @ prior[0])
+            moved = float(np.linalg.norm(trials[b] - thetas[b]))
             if not math.isfinite(f_trial) or f_trial > f_now[b]:
-                damping[b] *= 4
-                if damping[b] > 1e8:
-                    done[b] = True  # no step lowers it: it stays where it is
-                    continue
+                radius[b] = moved / 4.0  # a worse trial: a shorter step from where it is
             else:
+                if models[b] is not None:
+                    radius[b] = _new_radius(
+                        radius[b], moved, (f_now[b] - f_trial) / max(predicted[b], 1e-300)
+                    )
                 thetas[b], f_now[b] = trials[b], f_trial
-                damping[b] = max(damping[b] / 3, 1e-9)
                 finite = np.all(np.isfinite(ld), axis=1)
                 lowest = float(np.min(ld[finite]))
                 if math.isnan(c[b]) or 2.0 * lowest + c[b] < 0.0:
@@ -779,57 +823,43 @@ def _batched_least_squares(objective: _Objective, theta0: np.ndarray, B: int, lo
                 if not np.all(np.isfinite(J)):  # a step failed: the filters break next to it (Newton's turn)
                     done[b] = True
                     continue
-                g_new = J @ R[0]
+                g = J @ R[0]
                 before = last[b]
                 if before is not None:
                     theta_old, J_old, r_old = before
-                    s_b, y_b = thetas[b] - theta_old, g_new - J_old @ r_old
+                    s_b, y_b = thetas[b] - theta_old, g - J_old @ r_old
                     second[b] = _secant_update(second[b], s_b, y_b, (J - J_old) @ R[0])
                 last[b] = (thetas[b].copy(), J, R[0])
-                model[b] = (J @ J.T + second[b], g_new)  # (kept for a retry with more damping)
-            trials[b], done[b], success[b] = _damped_step(
-                model[b], damping, int(b), thetas[b], lo, hi, f_now[b]
-            )
-    return thetas, success
+                lam, V = np.linalg.eigh(0.5 * (J @ J.T + second[b] + (J @ J.T + second[b]).T))
+                convex[b] = bool(np.all(lam > 0))
+                models[b] = (g, np.maximum(np.abs(lam), 1e-8 * max(float(np.max(np.abs(lam))), 1e-12)), V)
+            model = models[b]
+            if model is None or radius[b] < 1e-10:
+                done[b] = True  # failed at its start, or no step lowers it: it stays where it is
+                continue
+            if convex[b] and _trust_step(thetas[b], *model, math.inf, lo, hi)[1] <= HANDOVER:
+                done[b] = handed[b] = True
+                continue
+            trials[b], predicted[b] = _trust_step(thetas[b], *model, radius[b], lo, hi)
+    return thetas, handed
 
 
-def _damped_step(
-    model, damping: np.ndarray, b: int, theta, lo, hi, f: float
-) -> tuple[np.ndarray, bool, bool]:
-    """Problem ``b``'s next trial: the damped model step within the bounds, more damping while the model
-    (whose secant part may make it indefinite) predicts no decrease. Returns the trial, and whether the
-    problem is done and converged (the model predicts less than a relative 1e-10: none left)."""
-    A, g = model
-    d = np.maximum(np.diagonal(A), 1e-12 * max(float(np.max(np.abs(np.diagonal(A)))), 1e-300))
-    tol = 1e-10 * (1 + abs(f))
-    try:  # converged: the undamped model is convex and its whole step gains less than tol
-        if np.all(np.linalg.eigvalsh(0.5 * (A + A.T)) > 0) and 0.5 * float(g @ np.linalg.solve(A, g)) <= tol:
-            return theta, True, True
-    except np.linalg.LinAlgError:
-        pass
-    for _ in range(40):
-        try:
-            step = np.linalg.solve(A + damping[b] * np.diag(d), -g)
-        except np.linalg.LinAlgError:
-            damping[b] *= 4
-            continue
-        trial = np.clip(theta + step, lo, hi)
-        taken = trial - theta
-        predicted = -float(g @ taken + 0.5 * taken @ A @ taken)  # the model's decrease of the step
-        if predicted > tol:
-            return trial, False, False
-        if predicted >= 0.0 and np.array_equal(trial, theta):  # against its bounds with nowhere to go
-            return theta, True, True
-        damping[b] *= 4  # the model is not convex there (or its step too short to matter): more damping
-    return theta, True, False
+def _batched_newton(
+    objective: _Objective, thetas: np.ndarray, problems: np.ndarray | None, lo_hi, maxiter: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Problems from ``thetas`` ``(B, p)`` advancing together by Newton's method in a trust region (one
+    radius per problem) on the finite-difference gradient and Hessian of the exact objective: problem ``b``
+    on recording ``problems[b]``, or (``problems`` None, ``B = 1``) on every recording.
 
-
-def _batched_newton(objective: _Objective, thetas: np.ndarray, problems: np.ndarray, lo_hi, maxiter: int):
-    """The problems ``problems`` (on their recordings) from ``thetas`` ``(B, p)``, advancing together: a
-    damped Newton method (Levenberg's damping, one factor per problem) on the finite-difference gradient and
-    Hessian of the exact objective, every problem's points in one fleet pass an iteration, the trial steps
-    in another. Where the least-squares model fails (a likelihood flat along a variance the data do not
-    fix), the exact curvature still leads to the optimum.
+    Each iteration is one fleet pass: the central-difference stencil (:func:`_stencil`) at every active
+    problem's trial point, whose centre says whether the trial is taken and whose differences give the next
+    step. Curvatures are taken in absolute value, with a floor, so that a step goes downhill where the
+    Hessian is not positive; the radius, in ``theta``'s units, bounds the step where the model is not to be
+    trusted (along a variance the data barely fix, the curvature is tiny and the Newton step long), and
+    does not shorten it elsewhere as a damping scaled by the largest curvature would. A problem converges
+    where its Newton step would gain less than :data:`NEWTON_TOL` in ``log L``: its last stencil is then
+    the one at its optimum, and the observed information there costs no further pass (the objective knows
+    those values).
 
     Returns
     -------
@@ -839,8 +869,13 @@ def _batched_newton(objective: _Objective, thetas: np.ndarray, problems: np.ndar
     B, p = thetas.shape
     h = HESSIAN_STEP
     lo, hi = lo_hi
-    thetas = thetas.copy()
-    damping = np.full(B, 1e-3)
+    current, trials = thetas.copy(), thetas.copy()
+    f_now = np.full(B, np.inf)
+    predicted = np.zeros(B)  # what the model predicted the trial would gain
+    models: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = [
+        None
+    ] * B  # (g, curvatures, V) at current
+    radius = np.ones(B)
     done = np.zeros(B, dtype=bool)
     success = np.zeros(B, dtype=bool)
     n_points = 2 * p * p + 1
@@ -848,35 +883,64 @@ def _batched_newton(objective: _Objective, thetas: np.ndarray, problems: np.ndar
         active = np.flatnonzero(~done)
         if active.size == 0:
             break
-        points = np.concatenate([_stencil(thetas[b], h) for b in active])
-        f = objective(points, np.repeat(problems[active], n_points)).reshape(active.size, n_points)
-        trials, f_now = [], []
+        points = np.concatenate([_stencil(trials[b], h) for b in active])
+        rec = None if problems is None else np.repeat(problems[active], n_points)
+        f = objective(points, rec).reshape(active.size, n_points)
         for row, b in enumerate(active):
-            if not np.all(np.isfinite(f[row])):
-                done[b] = True  # a failed candidate next to this point: it stays where it is
+            moved = float(np.linalg.norm(trials[b] - current[b]))
+            if np.all(np.isfinite(f[row])) and f[row, 0] <= f_now[b]:
+                if models[b] is not None:
+                    radius[b] = _new_radius(
+                        radius[b], moved, (f_now[b] - f[row, 0]) / max(predicted[b], 1e-300)
+                    )
+                f0, g, H = _derivatives(f[row], p, h)
+                current[b], f_now[b] = trials[b], f0
+                lam, V = np.linalg.eigh(0.5 * (H + H.T))
+                floor = 1e-8 * max(float(np.max(np.abs(lam))), 1e-12)
+                models[b] = (g, np.maximum(np.abs(lam), floor), V)
+            else:  # a worse trial, or a failed candidate next to it: a shorter step from where it is
+                radius[b] = moved / 4.0
+            model = models[b]
+            if model is None or radius[b] < 1e-10:
+                done[b] = True  # failed at its start, or no step lowers it: it stays where it is
                 continue
-            f0, g, H = _derivatives(f[row], p, h)
-            lam, V = np.linalg.eigh(0.5 * (H + H.T))
-            scale = max(float(np.max(np.abs(lam))), 1e-12)
-            curvature = np.maximum(lam, 1e-8 * scale) + damping[b] * scale
-            trials.append(np.clip(thetas[b] - V @ ((V.T @ g) / curvature), lo, hi))
-            f_now.append(f0)
-        moving = [b for b in active if not done[b]]
-        if not moving:
-            break
-        f_trial = objective(np.array(trials), problems[np.array(moving)])
-        for b, theta_new, ft, f0 in zip(moving, trials, f_trial, f_now):
-            if ft <= f0:
-                change = float(np.max(np.abs(theta_new - thetas[b])))
-                thetas[b] = theta_new
-                damping[b] = max(damping[b] / 3, 1e-9)
-                if change < 1e-7 or f0 - ft <= 1e-10 * (1 + abs(f0)):
-                    done[b] = success[b] = True
+            if _trust_step(current[b], *model, math.inf, lo, hi)[1] <= NEWTON_TOL:  # the whole step gains
+                done[b] = success[b] = True  # too little to matter
+                trials[b] = current[b]
+                continue
+            trials[b], predicted[b] = _trust_step(current[b], *model, radius[b], lo, hi)
+    return current, success
+
+
+def _new_radius(radius: float, moved: float, ratio: float) -> float:
+    """The trust region's radius after a step of length ``moved`` was taken, ``ratio`` the gain it made
+    over the gain its model predicted: longer where the model was right, shorter where it was not."""
+    if ratio > 0.75:
+        return max(radius, 2.0 * moved)
+    if ratio < 0.25:
+        return moved / 4.0
+    return radius
+
+
+def _trust_step(theta, g, curvature, V, radius: float, lo, hi) -> tuple[np.ndarray, float]:
+    """The Newton step from ``theta`` (the Hessian ``V diag(curvature) V^T``, positive, and the gradient
+    ``g``) of length at most ``radius``, within the bounds, and the decrease of the objective its quadratic
+    model predicts. Longer than the radius, the step is the model's minimum on the sphere:
+    ``-(H + mu I)^-1 g`` with ``mu`` found by bisection."""
+    gv = V.T @ g
+    s = -gv / curvature
+    if float(np.linalg.norm(s)) > radius:
+        low, high = 0.0, float(np.linalg.norm(gv)) / radius  # (at mu = high the step is within the radius)
+        for _ in range(60):
+            mu = 0.5 * (low + high)
+            if float(np.linalg.norm(gv / (curvature + mu))) > radius:
+                low = mu
             else:
-                damping[b] *= 4
-                if damping[b] > 1e8:
-                    done[b] = True
-    return thetas, success
+                high = mu
+        s = -gv / (curvature + high)
+    trial = np.clip(theta + V @ s, lo, hi)
+    taken = V.T @ (trial - theta)
+    return trial, -float(gv @ taken + 0.5 * taken @ (curvature * taken))
 
 
 def _secant_update(S: np.ndarray, s: np.ndarray, y: np.ndarray, y_sharp: np.ndarray) -> np.ndarray:

@@ -119,10 +119,12 @@ def robot_hx_stacked(X):
 
 def robot_tune_filter(q_scale=1.0, r=(1.0, 1.0)):
     """The robot as a tuning template: the example's ``Q`` times ``q_scale``, its ``R``'s variances times
-    ``r``, the bearing's residual wrapped (``AngleResidual([1])``), the model written for stacks."""
+    ``r``, the bearing an angle (its residual wrapped, ``AngleResidual([1])``, and its mean circular,
+    ``AngleMean([1])``: the bearing wraps at 2 pi, and a plain mean of points on both sides of it is
+    wrong), the model written for stacks."""
     data = ex.load_data()
     f = SquareRootUKF(3, 2, 1.0, robot_hx_stacked, robot_fx_stacked, MerweScaledWeights(1.0, 2.0, 0.0),
-                      vectorized=True, residual_z=AngleResidual([1]))  # fmt: skip
+                      vectorized=True, residual_z=AngleResidual([1]), z_mean_fn=AngleMean([1]))  # fmt: skip
     f.x, f.P1_2 = np.array(data["x0"], dtype=float), np.array(data["st0"], dtype=float)
     f.Q1_2 = np.sqrt(q_scale) * np.array(data["lx"], dtype=float)
     ly = np.array(data["ly"], dtype=float)
