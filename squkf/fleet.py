@@ -28,7 +28,6 @@ With ``on_error="raise"`` a step with a failing filter instead raises
 
 from __future__ import annotations
 
-import copy
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any
 
@@ -37,7 +36,7 @@ import numpy as np
 from . import checks
 from .angles import check_angle_hooks, is_data
 from .batch import model_kwargs, per_step
-from .boundary.attributes import FactorSlot, HandOut, Hook, ModelFunction
+from .boundary.attributes import FactorSlot, HandOut, ModelFunction
 from .boundary.config import Config, check_pending, filter_kwargs, filter_of, model_noise, stacked
 from .boundary.loop import annotate_step, check_keep, check_progress, progress_callback
 from .boundary.records import FleetResult, Records, new_records
@@ -52,7 +51,7 @@ from .checks import (
 )
 from .engine import Engine, Route, Update
 from .errors import FleetStepError, ParameterError, UnsetError
-from .face import Face, own_copy
+from .face import Face
 from .gating import Gate, as_gate
 from .generators import as_generator
 from .noise import handed_points, noise_points
@@ -352,17 +351,6 @@ class Fleet(Face):
     # the model functions: a fleet needs both
     hx = ModelFunction(optional=False, why="a fleet needs fx and hx")
     fx = ModelFunction(optional=False, why="a fleet needs fx and hx")
-
-    # the hooks: assigning one builds the engine's route again
-    x_mean = Hook()
-    z_mean = Hook()
-    residual_x = Hook()
-    residual_z = Hook()
-    state_add = Hook()
-
-    def _hooks_assigned(self) -> None:
-        if "_gate" in self.__dict__:  # (not while __init__ sets the hooks: the engine is built after)
-            self._configured()
 
     # -- state and noise: handed out (edits in place taken by boundary.attributes.HandOut) -------
 
@@ -740,16 +728,6 @@ class Fleet(Face):
             self._update(self._hx_images(self._R.S, hx_args), z, self._R.S, self._engine.pending_update())
         records.keep(t, self._engine.last)  # type: ignore[arg-type]  # (an update or _no_update's)
 
-    def _snapshot(self) -> tuple[Fleet, HandOut]:
-        # a copy: the step's results live in buffers that later steps write again
-        return copy.copy(self), self._handed.copy()
-
-    def _restore(self, saved: tuple[Fleet, HandOut]) -> None:
-        before, handed = saved
-        self.__dict__.update(before.__dict__)
-        self._engine = before._engine
-        self.__dict__["_handed"] = handed  # the arrays handed out stay the caller's, still current
-
     # -- one filter and back --------------------------------------------------------
 
     def __getitem__(self, k: int):
@@ -799,7 +777,7 @@ class Fleet(Face):
             raise ParameterError(
                 f"rows selects no filter (rows={rows!r:.100}): a fleet has at least one filter"
             )
-        new = self._with(self._engine.rows(idx))
+        new = self._copy(self._engine.rows(idx), "copy")
         new._K = int(idx.size)
         new._Q, new._R = self._Q.rows(idx), self._R.rows(idx)
         new._handed = HandOut()  # the arrays handed out are this fleet's
@@ -872,53 +850,35 @@ class Fleet(Face):
         fleet.x, fleet.P1_2, fleet.Q1_2, fleet.R1_2 = f.x, f.P1_2, f.Q1_2, f.R1_2
         return fleet
 
-    def __copy__(self) -> Fleet:
-        # the engine's copy carries its state and any half-done step, its arrays the copy's own
-        return self._with(copy.copy(self._engine))
+    # the core's skeleton of copies, pickles and snapshots (face.Face): everything in the __dict__
 
-    def _with(self, engine: Engine) -> Fleet:
-        """A fleet of this configuration with its own copies of the arrays in ``__dict__``, on ``engine``."""
-        new = type(self).__new__(type(self))
-        copies: dict[int, np.ndarray] = {}
-        new.__dict__.update({key: own_copy(v, copies) for key, v in self.__dict__.items()})
-        new._engine = engine
-        return new
-
-    def __getstate__(self) -> dict:
-        return {**self.__dict__, "_engine": self._engine}  # (the engine pickles without its buffers)
-
-    def __setstate__(self, state: dict) -> None:
+    def _unpickled(self, state: dict) -> dict:
         if "points_fn" in state:  # pickled when the points were a plain attribute
             state = {("_points" if k == "points_fn" else k): v for k, v in state.items()}
         state.setdefault("_unset_x", np.zeros(state["_K"], dtype=bool))  # pickled before placeholders
         state.setdefault("_unset_P", np.zeros(state["_K"], dtype=bool))
         state.setdefault("_vectorized_hooks", False)  # pickled before the option
-        engine = state.pop("_engine", None)
         if "_Q1_2" in state:  # pickled when the noise factors were kept bare
             Q, R, K = state.pop("_Q1_2"), state.pop("_R1_2"), state["_K"]
             state["_Q"] = FactorSlot("Q", state.get("_qd", state["_n"]), True, Q, filters=K)
             state["_R"] = FactorSlot("R", state.get("_rd", state["_m"]), True, R, filters=K, zero=True)
+        if isinstance(state["_failure"], np.ndarray):  # pickled before the reasons were kept as a dict
+            failure = state["_failure"]
+            state["_failure"] = {int(k): str(failure[k]) for k in np.flatnonzero(failure != "")}
         old = {k: state.pop(k, None) for k in _BEFORE_ENGINE}
-        self.__dict__.update(state)
-        if engine is None:  # pickled before the fleet held an engine: its state and records, idle
+        if "_engine" not in state:  # pickled before the fleet held an engine: its state and records, idle
+            self.__dict__.update(state)
             engine = Engine(self._new_route(), old["_x"], old["_S"], None, None, CHUNKS)
             engine.prior_record = (old["_x_prior"], old["_S_prior"])
             engine.post_record = (old["_x_post"], old["_S_post"])
-            m = self._m
             w, ld = old["_y_whitened"], old["_log_det"]  # (pickled before the record: NaN and 0)
             engine.last = Update(
                 old["_x_post"], old["_S_post"], old["_y"], None, None, old["_loglik"], old["_nis"], None,
-                old["_rejected"], None, m, np.full(old["_y"].shape, np.nan) if w is None else w,
+                old["_rejected"], None, self._m, np.full(old["_y"].shape, np.nan) if w is None else w,
                 np.zeros(self._K) if ld is None else ld,
             )  # fmt: skip
-        self._engine = engine
-        if isinstance(self._failure, np.ndarray):  # pickled before the reasons were kept as a dict
-            self._failure = {int(k): str(self._failure[k]) for k in np.flatnonzero(self._failure != "")}
-
-    def __deepcopy__(self, memo):
-        new = copy.copy(self)
-        memo[id(self)] = new
-        return new
+            state["_engine"] = engine
+        return state
 
     # -- smoothing --------------------------------------------------------------------
 

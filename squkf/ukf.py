@@ -30,7 +30,6 @@ from .boundary.attributes import (
     Flag,
     Handed,
     HandOut,
-    Hook,
     ModelFunction,
     Unformed,
     hooks_of,
@@ -60,11 +59,11 @@ _REAL = checks.REAL
 # out (``_handed``, a HandOut, as a fleet's), which of them is a placeholder (``_unset``), the records
 # written (``_written``), the sigma points handed out (``_sigmas``).
 _SLOTS = (
-    "_engine", "_gain_of", "_unformed", "_points", "_family", "_generator", "_plan", "_gate", "_fx_noise",
+    "_engine", "_unformed", "_gain_of", "_points", "_family", "_generator", "_plan", "_gate", "_fx_noise",
     "_hx_noise", "_noise_cache", "_Q", "_R", "_handed", "_unset", "_written", "_sigmas",
 )  # fmt: skip
-# the slots a copy or a pickle carries (the others are formed again: _unformed, and _gain_of from _engine)
-_CARRIED = _SLOTS[3:]
+# the slots a copy, a pickle or a snapshot carries besides the engine (_unformed is formed again)
+_CARRIED = _SLOTS[2:]
 
 # what repr shows, in order
 _SHOWN = (
@@ -73,6 +72,11 @@ _SHOWN = (
     " x_mean z_mean"
 ).split()
 _LABELS = {"log_likelihood": "log-likelihood"}
+
+
+def _copy_of(value):
+    """A copy's own record written or set handed out (an array, or a ``Handed``)."""
+    return value.copy()
 
 
 class SquareRootUKF(Face):
@@ -192,6 +196,7 @@ class SquareRootUKF(Face):
     # filterpy's own keys alone.
     __slots__ = _SLOTS + ("__dict__", "__weakref__")
     ONE = True  # a block of one: the records drop the block axis
+    _CARRIED = _CARRIED
     NO_LOG_LIKELIHOOD = _LOG_TINY
 
     _engine: Engine
@@ -224,11 +229,6 @@ class SquareRootUKF(Face):
     R = Covariance()
     hx = ModelFunction(optional=True)
     fx = ModelFunction(optional=True)
-    x_mean = Hook()
-    z_mean = Hook()
-    residual_x = Hook()
-    residual_z = Hook()
-    state_add = Hook()
 
     def __init__(
         self,
@@ -368,10 +368,6 @@ class SquareRootUKF(Face):
     def _configured(self) -> None:
         """The plan, hooks or gate changed: the engine's routes are decided again."""
         self._engine.configure(Route(self._plan, hooks_of(self.__dict__), self._gate, single=True))
-
-    def _hooks_assigned(self) -> None:
-        if "_dim_x" in self.__dict__:  # (not while __init__ sets the hooks)
-            self._configured()
 
     # -- state and covariances ---------------------------------------------
 
@@ -940,98 +936,47 @@ class SquareRootUKF(Face):
             self._plan, hooks, self._Q.factor(), self._R.factor(), self._engine.phase,
         )  # fmt: skip
 
-    def _snapshot(self):
-        # the engine's arrays are replaced by each step, never changed in place: a shallow copy keeps
-        # them; the covariance slots, whose matrices the caller may edit in place, are copied
-        state = dict(self.__dict__)
-        own = self._carried()
-        for name in NOISES:
-            slot = own["_" + name] = copy.copy(own["_" + name])
-            if type(state[name]) is Unformed:
-                state[name] = Unformed(slot.matrix)
-        engine = copy.copy(self._engine)
-        own["_unset"] = set(self._unset)
-        own["_handed"] = self._handed.copy()  # (a step clears the records in place)
-        for name in ("_written", "_sigmas"):  # the same records, current with the engine put back
-            own[name] = restamped(own[name], self._engine, engine)
-        return state, own, engine, self._kept_gain()
+    # the core's skeleton of copies, pickles and snapshots (face.Face) with this filter's hooks
 
-    def _restore(self, saved) -> None:
-        state, own, engine, gain = saved
-        self.__dict__.clear()
-        self.__dict__.update(state)
-        for name, value in own.items():
-            setattr(self, name, value)
-        self._engine, self._gain_of = engine, (engine.last, gain)
+    def _dict_for(self, how, memo):
+        d = self.__dict__
+        if how == "snapshot":  # (the caller's arrays kept as they are)
+            return dict(d)
+        if how == "copy":
+            return {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in d.items()}
+        return copy.deepcopy({k: v for k, v in d.items() if type(v) is not Unformed}, memo)
 
-    def _carried(self) -> dict:
-        """The slots a copy or a pickle carries, by name (the values themselves)."""
-        return {name: getattr(self, name) for name in _CARRIED}
+    def _carried(self, name, value, engine, how, copies):
+        if name == "_gain_of":  # the gain formed (or assigned) for the last update: never written in place
+            last, K = value
+            K = K if last is self._engine.last else None
+            return engine.last, (K.copy() if how == "deep" and K is not None else K)
+        if name in ("_written", "_sigmas"):  # those current, with the stamps of the engine carried
+            return restamped(value, self._engine, engine, _copy_of if how in ("copy", "deep") else None)
+        if how == "snapshot":  # the noise slots, placeholders and hand-outs as they are now
+            if name in ("_handed", "_unset"):
+                return value.copy()
+            return copy.copy(value) if name in ("_Q", "_R") else value
+        if name == "_noise_cache":
+            return {}
+        return value if how == "pickle" else own_copy(value, copies)
 
-    def _kept_gain(self) -> np.ndarray | None:
-        """The gain formed (or assigned) for the last update, or None (never written in place)."""
-        last, K = self._gain_of
-        return K if last is self._engine.last else None
+    def _unpickled(self, state):
+        if isinstance(state, tuple):  # pickled as (__dict__, carried slots, engine, gain)
+            d, own, engine, gain = state
+            state = {**d, **own, "_engine": engine, "_gain_of": (engine.last, gain)}
+        return state
 
-    def __copy__(self):
-        new = type(self).__new__(type(self))
-        d = {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in self.__dict__.items()}
-        engine = new._engine = copy.copy(self._engine)
-        new._gain_of = (engine.last, self._kept_gain())  # never written in place: shared
-        new.__dict__.update(d)
-        self._carry_to(new, engine, lambda v: v.copy())
-        new._rebind()
-        return new
-
-    def _carry_to(self, new: SquareRootUKF, engine: Engine, copy_value: Callable) -> None:
-        """Give the copy ``new`` (on ``engine``) this filter's carried slots: the configuration shared
-        (never changed in place), the noise slots, the placeholders, what was written or handed out its
-        own (``copy_value`` copies an array or a :class:`Handed`)."""
-        copies: dict[int, np.ndarray] = {}
-        for name, value in self._carried().items():
-            if name == "_noise_cache":
-                value = {}
-            elif name in ("_written", "_sigmas"):
-                value = restamped(value, self._engine, engine, copy_value)
-            else:  # the noise slots: the factor shared, the matrix handed out copied
-                value = own_copy(value, copies)
-            setattr(new, name, value)
-
-    def __deepcopy__(self, memo):
-        new = type(self).__new__(type(self))
-        memo[id(self)] = new
-        d = copy.deepcopy({k: v for k, v in self.__dict__.items() if type(v) is not Unformed}, memo)
-        engine = new._engine = copy.deepcopy(self._engine, memo)
-        new._gain_of = (engine.last, copy.deepcopy(self._kept_gain(), memo))
-        new.__dict__.update(d)
-        self._carry_to(new, engine, lambda v: v.copy())
-        # the copy's routes run the copy's own hooks (the pending step's route too: it is the copy's)
-        pending_own_route = engine.step_route is engine.route
-        new._configured()
-        if pending_own_route:
-            engine.step_route = engine.route
-        new._rebind()
-        return new
-
-    def __getstate__(self):
-        state = {k: v for k, v in self.__dict__.items() if type(v) is not Unformed}
-        own = self._carried()
-        own["_noise_cache"] = {}
-        # what was written or handed out is current with this engine: pickled with it, the stamps stay its
-        return state, own, self._engine, self._kept_gain()
-
-    def __setstate__(self, saved):
-        state, own, engine, gain = saved
-        self.__dict__.update(state)
-        for name, value in own.items():
-            setattr(self, name, value)
-        self._engine = engine
-        self._gain_of = (engine.last, gain)
-        self._rebind()
-
-    def _rebind(self) -> None:
+    def _rebind(self, how=None) -> None:
         """After construction or a copy: ``x``, ``P``, ``Q``, ``R`` formed from this filter's own engine and
-        slots, the arrays handed out (``_handed``) its own; a placeholder as assigned."""
+        slots, the arrays handed out (``_handed``) its own; a placeholder as assigned. A deep copy's routes
+        run its own hooks (the pending step's route too: it is the copy's)."""
+        if how == "deep":
+            e = self._engine
+            pending_own_route = e.step_route is e.route
+            self._configured()
+            if pending_own_route:
+                e.step_route = e.route
         self._unformed = (Unformed(self._formed_x), Unformed(self._formed_P))
         d = self.__dict__
         for k, name in enumerate(("x", "P")):
