@@ -34,10 +34,13 @@ import numpy as np
 
 from . import checks
 from .boundary.attributes import FactorSlot, HandOut, Hook, Unformed
+from .boundary.config import Config
 from .boundary.loop import Transaction
 from .boundary.records import log_det, whitened
 from .engine import Engine, Update
 from .gating import Gate, as_gate
+from .plan import IDLE, Hooks, Plan
+from .weights import WrittenWeights
 
 __all__ = ["Face", "How", "STAMPS", "noise_factor", "own_copy", "restamped", "written_record"]
 
@@ -164,7 +167,10 @@ class Face:
     _handed: HandOut
     _gate: Gate | None
     _points: Any
+    _family: Any
     _generator: Any
+    _plan: Plan
+    _dt: float | None
     _fx_noise: int
     _hx_noise: int
     _written: dict
@@ -172,6 +178,9 @@ class Face:
     _R: FactorSlot
     dim_x: Any
     dim_z: Any
+    hx: Any
+    fx: Any
+    vectorized: Any  # (one filter's option; a fleet's model functions always take stacked points)
 
     # -- reading the engine's records ----------------------------------------------
 
@@ -377,6 +386,41 @@ class Face:
     def _configured(self) -> None:
         """The configuration changed: the engine's routes are built again (each face's)."""
         raise NotImplementedError
+
+    def _hooks(self) -> Hooks:
+        """The hooks as given (each face's: one filter's None where filterpy's default is meant)."""
+        raise NotImplementedError
+
+    def configuration(self) -> Config:
+        """The configuration and noise factors (``squkf.boundary.Config``), edits in place taken.
+
+        What ``Fleet.from_filters``, ``fleet[k]``, the smoother and :mod:`squkf.dask` read; its arrays
+        are the face's own, to be read and not written. A fleet's ``step`` is left idle.
+        """
+        self._noise_edits()
+        hooks, family = self._hooks(), self._family
+        return Config(
+            self.dim_x, self.dim_z, self._dt, self.hx, self.fx,
+            family if isinstance(family, WrittenWeights) else self._points,  # (weights written)
+            family, self._generator, *hooks, self._gate, self.fx_noise, self.hx_noise,
+            self.vectorized if self.ONE else True, self._plan, hooks, self._Q.factor(), self._R.factor(),
+            self._engine.phase if self.ONE else IDLE,
+        )  # fmt: skip
+
+    # -- edits in place: the arrays handed out, taken back at the next call ----------------------
+
+    #: the attributes whose arrays handed out are taken back (validated) at the next call, in order
+    _HANDED: ClassVar[tuple[str, ...]]
+
+    def _take_edits(self) -> None:
+        """The edits in place of the arrays handed out (``_handed``), validated and taken through
+        :meth:`_take_edit`; either may raise, and what is not taken stays pending."""
+        if self._handed.held:
+            self._handed.take(self._HANDED, self._take_edit)
+
+    def _take_edit(self, name: str, array: np.ndarray) -> None:
+        """An array handed out as ``name`` was edited in place: taken as an assignment (may raise)."""
+        setattr(self, name, array)
 
     # -- the noise store: Q and R, each a FactorSlot (one filter's; a fleet's shared or per filter) -------
 

@@ -37,7 +37,7 @@ from . import checks
 from .angles import check_angle_hooks, is_data
 from .batch import model_kwargs, per_step
 from .boundary.attributes import FactorSlot, HandOut, ModelFunction
-from .boundary.config import Config, check_pending, filter_kwargs, filter_of, model_noise, stacked
+from .boundary.config import check_pending, filter_kwargs, filter_of, model_noise, stacked
 from .boundary.loop import annotate_step, check_keep, check_progress, progress_callback
 from .boundary.records import FleetResult, Records, new_records
 from .checks import (
@@ -63,9 +63,6 @@ from .ukf import SquareRootUKF
 from .weights import as_family
 
 __all__ = ["Fleet", "FleetResult", "FleetStepError"]
-
-# the attributes handed out for editing in place
-HANDED = ("x", "P", "Q", "R")
 
 # what a fleet pickled before it held an engine kept in its __dict__
 _BEFORE_ENGINE = (
@@ -232,6 +229,7 @@ class Fleet(Face):
     # __dict__, as a filter's does: a Saver's rows never see its buffers, nor deep-copy them at each save
     __slots__ = ("_engine", "__dict__", "__weakref__")
     ONE = False  # a block of K: the records are (K, ...)
+    _HANDED = ("x", "P", "Q", "R")  # (their edits in place taken through the setters)
     NO_LOG_LIKELIHOOD = 0.0  # (a filter without measurement: 0, as after an update that measured nothing)
 
     def __init__(
@@ -417,11 +415,6 @@ class Fleet(Face):
 
     def _noise_assigned(self, name: str) -> None:
         self._handed.drop(name)
-
-    def _take_edits(self) -> None:
-        """Take the edits in place of ``x``, ``P``, ``Q``, ``R`` through their setters (which may raise)."""
-        if self._handed.held:
-            self._handed.take(HANDED, lambda name, a: setattr(self, name, a))
 
     @property
     def chunk(self) -> int | None:
@@ -735,20 +728,6 @@ class Fleet(Face):
         k = int(np.arange(self._K)[k])
         e = self._engine
         return filter_of(SquareRootUKF, self.configuration(), k, e.x, e.S, e.phase)
-
-    def configuration(self) -> Config:
-        """The fleet's configuration and noise factors (``squkf.boundary.Config``), edits taken.
-
-        What ``fleet[k]``, the smoother and :mod:`squkf.dask` read; its arrays
-        are the fleet's own, to be read and not written.
-        """
-        self._take_edits()
-        return Config(
-            self._n, self._m, self._dt, self.hx, self.fx, self.points_fn, self._family, self._generator,
-            self.x_mean, self.z_mean, self.residual_x, self.residual_z, self.state_add, self._gate,
-            self._fx_noise or None, self._hx_noise or None, True, self._plan, self._hooks(),
-            self._Q.S, self._R.S,
-        )  # fmt: skip
 
     def __len__(self) -> int:
         return self._K

@@ -35,7 +35,7 @@ from .boundary.attributes import (
     hooks_of,
     initial,
 )
-from .boundary.config import Config, model_noise, second_set, sigma_family
+from .boundary.config import model_noise, second_set, sigma_family
 from .boundary.records import embed, innovation_inverse
 from .checks import as_float_array, as_lower_factor, check_time_step, check_values, noise_factor
 from .engine import Engine, Route, Update
@@ -45,7 +45,7 @@ from .gating import Gate, as_gate
 from .generators import sigma_points_from_factor
 from .measurement import gain_from_factors
 from .noise import call_model, handed_points, noise_points
-from .plan import Plan, build_plan
+from .plan import Hooks, Plan, build_plan
 from .transform import cross_covariance
 from .weights import WrittenWeights
 
@@ -197,6 +197,7 @@ class SquareRootUKF(Face):
     __slots__ = _SLOTS + ("__dict__", "__weakref__")
     ONE = True  # a block of one: the records drop the block axis
     _CARRIED = _CARRIED
+    _HANDED = ("x", "P")
     NO_LOG_LIKELIHOOD = _LOG_TINY
 
     _engine: Engine
@@ -367,7 +368,10 @@ class SquareRootUKF(Face):
 
     def _configured(self) -> None:
         """The plan, hooks or gate changed: the engine's routes are decided again."""
-        self._engine.configure(Route(self._plan, hooks_of(self.__dict__), self._gate, single=True))
+        self._engine.configure(Route(self._plan, self._hooks(), self._gate, single=True))
+
+    def _hooks(self) -> Hooks:
+        return hooks_of(self.__dict__)
 
     # -- state and covariances ---------------------------------------------
 
@@ -427,16 +431,10 @@ class SquareRootUKF(Face):
             self._handed.held[name] = Handed(kept)
         self._unset.add(name)
 
-    def _take_edits(self) -> None:
-        """The edits in place of ``x`` and ``P`` validated and taken into the engine (either may raise).
-
-        Each array stays handed out, with a fresh record; an invalid edit raises and stays pending.
-        A placeholder edited in place is an assignment too (still all NaN: still not set).
-        """
-        self._handed.take(("x", "P"), self._take_edit)
-
     def _take_edit(self, name: str, array: np.ndarray) -> None:
-        """An array handed out as ``x`` or ``P`` was edited in place: validated and taken (may raise)."""
+        """An array handed out as ``x`` or ``P`` was edited in place: validated and taken into the engine
+        (may raise). The array stays handed out, with a fresh record; a placeholder edited in place is an
+        assignment too (still all NaN: still not set)."""
         n = self._dim_x
         if checks.placeholder(array, name, (n,) if name == "x" else (n, n)) is not _REAL:
             self._unset.add(name)
@@ -830,7 +828,7 @@ class SquareRootUKF(Face):
         self._ready("compute_process_sigmas")
         e = self._engine
         first = self._plan.first
-        sigmas = sigma_points_from_factor(e.x[0], e.S[0], first.xi, hooks_of(self.__dict__).state_add)
+        sigmas = sigma_points_from_factor(e.x[0], e.S[0], first.xi, self._hooks().state_add)
         values = self._model(fx, "fx", sigmas, (dt,), fx_args)
         e.shown_f = check_values(values, sigmas.shape, "fx values")[None]
 
@@ -844,7 +842,7 @@ class SquareRootUKF(Face):
         sigmas_h = np.atleast_2d(as_float_array(sigmas_h, "sigmas_h"))
         sset = self._engine.sset
         Wcs = (self._plan.first.rows.Wc, None if sset is None else sset.Wc)
-        return cross_covariance(sigmas_f, sigmas_h, x, z, Wcs, hooks_of(self.__dict__))
+        return cross_covariance(sigmas_f, sigmas_h, x, z, Wcs, self._hooks())
 
     def batch_filter(
         self,
@@ -919,22 +917,6 @@ class SquareRootUKF(Face):
         return self._R.factor_or_zeros().shape[0]
 
     # -- configuration, transactions, copies ------------------------------------
-
-    def configuration(self) -> Config:
-        """The filter's configuration and noise factors (``squkf.boundary.Config``).
-
-        What ``Fleet.from_filters`` and the smoother read; the arrays are the
-        filter's own, to be read and not written.
-        """
-        d = self.__dict__
-        hooks = hooks_of(d)  # the hooks as given, None where filterpy's default is meant
-        return Config(
-            self._dim_x, self._dim_z, self._dt, self.hx, self.fx,
-            self._family if isinstance(self._family, WrittenWeights) else self._points,  # (weights written)
-            self._family, self._generator,
-            *hooks, self._gate, self.fx_noise, self.hx_noise, self.vectorized,
-            self._plan, hooks, self._Q.factor(), self._R.factor(), self._engine.phase,
-        )  # fmt: skip
 
     # the core's skeleton of copies, pickles and snapshots (face.Face) with this filter's hooks
 
