@@ -28,7 +28,7 @@ With ``on_error="raise"`` a step with a failing filter instead raises
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -37,7 +37,7 @@ from . import checks
 from .angles import check_angle_hooks, is_data
 from .batch import model_kwargs, per_step
 from .boundary.attributes import FactorSlot, HandOut, ModelFunction
-from .boundary.config import check_pending, filter_kwargs, filter_of, model_noise, stacked
+from .boundary.config import Config, filter_kwargs, filter_of, model_noise
 from .boundary.loop import annotate_step, check_keep, check_progress, progress_callback
 from .boundary.records import FleetResult, Records, new_records
 from .checks import (
@@ -47,11 +47,11 @@ from .checks import (
     lower_factors,
     noise_factors,
     reset_rows,
-    short_repr,
 )
 from .engine import Engine, Route, Update
-from .errors import FleetStepError, ParameterError, UnsetError
+from .errors import FleetStepError, ParameterError
 from .face import Face
+from .fleet_from import PerPoint, stacked_filters, template  # noqa: F401  (old pickles name squkf.fleet.PerPoint)
 from .gating import Gate, as_gate
 from .generators import as_generator
 from .noise import handed_points, noise_points
@@ -69,64 +69,6 @@ _BEFORE_ENGINE = (
     "_x", "_S", "_pending", "_route", "_x_prior", "_S_prior", "_x_post", "_S_post", "_y", "_loglik", "_nis",
     "_rejected", "_y_whitened", "_log_det",
 )  # fmt: skip
-
-
-def _as_filters(filters) -> list[SquareRootUKF]:
-    """``Fleet.from_filters``'s ``filters`` as a list of :class:`squkf.SquareRootUKF`, or a ParameterError."""
-    if filters is None or isinstance(filters, (str, bytes, Mapping)) or not isinstance(filters, Iterable):
-        raise ParameterError(
-            f"filters must be a sequence of squkf.SquareRootUKF, got filters={short_repr(filters)}"
-            f" ({type(filters).__name__})"
-        )
-    filters = list(filters)
-    for k, f in enumerate(filters):
-        if isinstance(f, SquareRootUKF):
-            continue
-        kind = type(f).__name__
-        if type(f).__module__.split(".")[0] == "filterpy":
-            how = (
-                " build each as squkf.SquareRootUKF with the same arguments (dim_x, dim_z, dt, hx, fx,"
-                " points, the hooks) and vectorized=True, and give it the filterpy filter's x, P, Q and R"
-                " (g.x, g.P, g.Q, g.R = f.x, f.P, f.Q, f.R)"
-                if kind == "UnscentedKalmanFilter"
-                else " a fleet stacks square-root UKFs only"
-            )
-            raise ParameterError(f"filters[{k}] is filterpy's {kind}, not a squkf.SquareRootUKF:{how}")
-        raise ParameterError(f"filters[{k}] is not a squkf.SquareRootUKF: got {short_repr(f)} ({kind})")
-    return filters
-
-
-class PerPoint:
-    """A per-point model function called on a fleet's stacked points, point by point.
-
-    ``fx(x, dt, **kw)``, ``hx(x, **kw)``, or with a noise argument ``fx(x, w, dt)``, ``hx(x, v)``
-    (``noise``), as a filter with ``vectorized=False`` calls them; the fleet gives ``(..., N, d)``
-    points (and noise points) and gets ``(..., N, d_out)`` values. A class, so a fleet of it pickles
-    where the function does.
-
-    Parameters
-    ----------
-    fn : callable
-    noise : bool
-        The first argument after the points is their noise points.
-    """
-
-    def __init__(self, fn: Callable, noise: bool):
-        self.fn, self.noise = fn, noise
-
-    def __call__(self, X: np.ndarray, *args, **kwargs) -> np.ndarray:
-        lead = X.shape[:-1]
-        points = X.reshape(-1, X.shape[-1])
-        if self.noise:
-            W, rest = args[0], args[1:]
-            noise = W.reshape(-1, W.shape[-1])
-            values = [self.fn(x, w, *rest, **kwargs) for x, w in zip(points, noise)]
-        else:
-            values = [self.fn(x, *args, **kwargs) for x in points]
-        try:
-            return np.asarray(values, dtype=float).reshape(lead + (-1,))
-        except (TypeError, ValueError):  # values of different shapes, or not numbers: said by the step
-            return np.asarray(values, dtype=object)
 
 
 class Fleet(Face):
@@ -779,12 +721,8 @@ class Fleet(Face):
             ``UnscentedKalmanFilter`` included: the message says how to build
             one from it), is empty, or the filters differ in configuration.
         """
-        c, x, P1_2, Q1_2, R1_2 = stacked(_as_filters(filters))
-        fleet = cls(
-            len(x), c.dim_x, c.dim_z, c.dt, c.hx, c.fx, c.points, on_error=on_error, **filter_kwargs(c)
-        )
-        fleet.x, fleet.P1_2, fleet.Q1_2, fleet.R1_2 = x, P1_2, Q1_2, R1_2  # validated by the setters
-        return fleet
+        c, *state = stacked_filters(filters)
+        return cls._built(c, len(state[0]), state, on_error)
 
     @classmethod
     def from_template(cls, ukf: SquareRootUKF, n_filters: int, *, on_error: str = "flag") -> Fleet:
@@ -793,7 +731,7 @@ class Fleet(Face):
         What a Monte Carlo study or a noise fit starts from (:mod:`squkf.consistency`,
         :mod:`squkf.tune`). Unlike :meth:`from_filters` the template may be per point
         (``vectorized=False``): its ``fx`` and ``hx`` are then called point by point on the
-        fleet's stacked points (``squkf.fleet.PerPoint``), with ``fx_args`` and ``hx_args`` as given.
+        fleet's stacked points (``squkf.fleet_from.PerPoint``), with ``fx_args`` and ``hx_args`` as given.
 
         Parameters
         ----------
@@ -811,22 +749,15 @@ class Fleet(Face):
         CallSequenceError
             It has a step pending that a fleet cannot carry (an ask not told).
         """
-        f = _as_filters([ukf])[0]
-        c = f.configuration()
-        check_pending(c.step, c.plan, "the template")
-        for name in ("x", "P"):
-            value = getattr(f, name)
-            if value is None or np.isnan(value).all():
-                raise UnsetError(f"a fleet of the template needs its {name}, but {name} was never set")
-        fx, hx = c.fx, c.hx
-        if fx is None or hx is None:
-            missing = "fx" if fx is None else "hx"
-            raise ParameterError(f"a fleet needs fx and hx, but the template has {missing}=None")
-        if not c.vectorized:
-            fx, hx = PerPoint(fx, bool(c.fx_noise)), PerPoint(hx, bool(c.hx_noise))
-        kwargs = filter_kwargs(c)
-        fleet = cls(n_filters, c.dim_x, c.dim_z, c.dt, hx, fx, c.points, on_error=on_error, **kwargs)
-        fleet.x, fleet.P1_2, fleet.Q1_2, fleet.R1_2 = f.x, f.P1_2, f.Q1_2, f.R1_2
+        c, state = template(ukf)
+        return cls._built(c, n_filters, state, on_error)
+
+    @classmethod
+    def _built(cls, c: Config, K: int, state, on_error: str) -> Fleet:
+        """A fleet of ``K`` filters of configuration ``c`` and their ``x``, ``P1_2``, ``Q1_2``, ``R1_2``
+        (``state``, validated by the setters)."""
+        fleet = cls(K, c.dim_x, c.dim_z, c.dt, c.hx, c.fx, c.points, on_error=on_error, **filter_kwargs(c))
+        fleet.x, fleet.P1_2, fleet.Q1_2, fleet.R1_2 = state
         return fleet
 
     # the core's skeleton of copies, pickles and snapshots (face.Face): everything in the __dict__
