@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from . import checks
+from . import checks, old_pickles
 from .angles import check_angle_hooks, is_data
 from .batch import model_kwargs, per_step
 from .boundary.attributes import FactorSlot, HandOut, ModelFunction
@@ -63,12 +63,6 @@ from .ukf import SquareRootUKF
 from .weights import as_family
 
 __all__ = ["Fleet", "FleetResult", "FleetStepError"]
-
-# what a fleet pickled before it held an engine kept in its __dict__
-_BEFORE_ENGINE = (
-    "_x", "_S", "_pending", "_route", "_x_prior", "_S_prior", "_x_post", "_S_post", "_y", "_loglik", "_nis",
-    "_rejected", "_y_whitened", "_log_det",
-)  # fmt: skip
 
 
 class Fleet(Face):
@@ -763,31 +757,10 @@ class Fleet(Face):
     # the core's skeleton of copies, pickles and snapshots (face.Face): everything in the __dict__
 
     def _unpickled(self, state: dict) -> dict:
-        if "points_fn" in state:  # pickled when the points were a plain attribute
-            state = {("_points" if k == "points_fn" else k): v for k, v in state.items()}
-        state.setdefault("_unset_x", np.zeros(state["_K"], dtype=bool))  # pickled before placeholders
-        state.setdefault("_unset_P", np.zeros(state["_K"], dtype=bool))
-        state.setdefault("_vectorized_hooks", False)  # pickled before the option
-        if "_Q1_2" in state:  # pickled when the noise factors were kept bare
-            Q, R, K = state.pop("_Q1_2"), state.pop("_R1_2"), state["_K"]
-            state["_Q"] = FactorSlot("Q", state.get("_qd", state["_n"]), True, Q, filters=K)
-            state["_R"] = FactorSlot("R", state.get("_rd", state["_m"]), True, R, filters=K, zero=True)
-        if isinstance(state["_failure"], np.ndarray):  # pickled before the reasons were kept as a dict
-            failure = state["_failure"]
-            state["_failure"] = {int(k): str(failure[k]) for k in np.flatnonzero(failure != "")}
-        old = {k: state.pop(k, None) for k in _BEFORE_ENGINE}
+        state = old_pickles.fleet_state(state)
         if "_engine" not in state:  # pickled before the fleet held an engine: its state and records, idle
             self.__dict__.update(state)
-            engine = Engine(self._new_route(), old["_x"], old["_S"], None, None, CHUNKS)
-            engine.prior_record = (old["_x_prior"], old["_S_prior"])
-            engine.post_record = (old["_x_post"], old["_S_post"])
-            w, ld = old["_y_whitened"], old["_log_det"]  # (pickled before the record: NaN and 0)
-            engine.last = Update(
-                old["_x_post"], old["_S_post"], old["_y"], None, None, old["_loglik"], old["_nis"], None,
-                old["_rejected"], None, self._m, np.full(old["_y"].shape, np.nan) if w is None else w,
-                np.zeros(self._K) if ld is None else ld,
-            )  # fmt: skip
-            state["_engine"] = engine
+            state["_engine"] = old_pickles.fleet_engine(self._new_route(), state.pop("_before_engine"))
         return state
 
     # -- smoothing --------------------------------------------------------------------

@@ -19,7 +19,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from . import checks, smoother
+from . import checks, old_pickles, smoother
 from .angles import check_angle_hooks
 from .batch import batch_filter
 from .boundary.attributes import (
@@ -944,10 +944,7 @@ class SquareRootUKF(Face):
         return value if how == "pickle" else own_copy(value, copies)
 
     def _unpickled(self, state):
-        if isinstance(state, tuple):  # pickled as (__dict__, carried slots, engine, gain)
-            d, own, engine, gain = state
-            state = {**d, **own, "_engine": engine, "_gain_of": (engine.last, gain)}
-        return state
+        return old_pickles.filter_state(state)
 
     def _rebind(self, how=None) -> None:
         """After construction or a copy: ``x``, ``P``, ``Q``, ``R`` formed from this filter's own engine and
