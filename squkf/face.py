@@ -19,7 +19,7 @@ derive from :class:`Face`, which reads the engine's records for them:
 
 A face says what it is by its class attributes ``ONE`` (one filter: the block axis dropped) and
 ``NO_LOG_LIKELIHOOD`` (the log-likelihood read before any update), and provides ``dim_x``, ``dim_z``
-and ``_configured()`` (its engine's route built again).
+and ``_hooks()`` (the hooks as given).
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from .boundary.attributes import FactorSlot, HandOut, Hook, Unformed
 from .boundary.config import Config
 from .boundary.loop import Transaction
 from .boundary.records import log_det, whitened
-from .engine import Engine, Update
+from .engine import Engine, Route, Update
 from .gating import Gate, as_gate
 from .plan import IDLE, Hooks, Plan
 from .weights import WrittenWeights
@@ -384,8 +384,17 @@ class Face:
         self._configured()
 
     def _configured(self) -> None:
-        """The configuration changed: the engine's routes are built again (each face's)."""
-        raise NotImplementedError
+        """The plan, a hook or the gate changed: the engine's route is built again (a pending step keeps
+        the route it was drawn with)."""
+        self._engine.configure(self._new_route())
+
+    def _new_route(self) -> Route:
+        """This configuration's route, as constants (:class:`~squkf.engine.Route`)."""
+        return Route(self._plan, self._step_hooks(), self._gate, single=self.ONE)
+
+    def _step_hooks(self) -> Hooks:
+        """The hooks as the step calls them (a fleet's ``vectorized_hooks`` wrap a user's)."""
+        return self._hooks()
 
     def _hooks(self) -> Hooks:
         """The hooks as given (each face's: one filter's None where filterpy's default is meant)."""

@@ -8,22 +8,9 @@ time (:mod:`squkf.stacks`). The model functions are called once per chunk
 with the points of its filters; a function written with ``X[..., i]``
 indexing serves a fleet and ``SquareRootUKF(vectorized=True)`` alike.
 
-Failure isolation
------------------
-Bad *input* (shapes, an infinite ``z``, a bad ``R``) raises for the whole call
-and changes nothing, as for one filter. A *numerical* failure of one filter
-in a step (its images are not finite, a factor would lose positive
-definiteness, its innovation factor is singular, its result is not finite)
-is that filter's alone: it keeps its state from before the step, it is
-flagged in :attr:`Fleet.failed` with the reason in :attr:`Fleet.failure`, and
-every other filter completes the step, bit for bit as in a fleet without the
-failing filter (each filter's arithmetic never depends on the others').
-
-A flagged filter is frozen: later steps leave it as it is (its model images
-are still computed with the others', and ignored) until it is reset with
-:meth:`Fleet.reset`, which clears the flag and, optionally, sets its state.
-With ``on_error="raise"`` a step with a failing filter instead raises
-:class:`FleetStepError`, naming the filters, and changes no filter.
+A numerical failure of one filter is that filter's alone: it is flagged (:attr:`Fleet.failed`,
+:attr:`Fleet.failure`), keeps its state, and the others go on (``docs/api/fleet.rst``, "Failure
+isolation", says the whole rule).
 """
 
 from __future__ import annotations
@@ -48,7 +35,7 @@ from .checks import (
     noise_factors,
     reset_rows,
 )
-from .engine import Engine, Route, Update
+from .engine import Engine, Update
 from .errors import FleetStepError, ParameterError
 from .face import Face
 from .fleet_from import PerPoint, stacked_filters, template  # noqa: F401  (old pickles name squkf.fleet.PerPoint)
@@ -102,7 +89,7 @@ class Fleet(Face):
         array's length. ``fleet[k]``, ``from_filters`` and ``from_template``
         make filters and fleets that call them per point (False). Default False.
     on_error : {"flag", "raise"}
-        What a numerical failure of some filters does (module docstring).
+        What a numerical failure of some filters does (:ref:`fleet-failures`).
     gate : None, float or Gate
         Outlier gating, as for :class:`squkf.SquareRootUKF` (each filter
         decided on its own).
@@ -261,16 +248,11 @@ class Fleet(Face):
     def _hooks(self) -> Hooks:
         return Hooks(self.x_mean, self.z_mean, self.residual_x, self.residual_z, self.state_add)
 
-    def _configured(self) -> None:
-        self._engine.configure(self._new_route())
-
-    def _new_route(self) -> Route:
-        """The engine's route of this configuration (built again when a hook, the gate or
-        ``vectorized_hooks`` changes)."""
+    def _step_hooks(self) -> Hooks:
         hooks = self._hooks()
         if self._vectorized_hooks:  # a user's hooks called once per chunk (squkf's angle hooks: data)
             hooks = Hooks(*(h if h is None or is_data(h) else StackedHook(h) for h in hooks))
-        return Route(self._plan, hooks, self._gate, single=False)
+        return hooks
 
     @property
     def vectorized_hooks(self) -> bool:

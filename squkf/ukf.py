@@ -38,7 +38,7 @@ from .boundary.attributes import (
 from .boundary.config import model_noise, second_set, sigma_family
 from .boundary.records import embed, innovation_inverse
 from .checks import as_float_array, as_lower_factor, check_time_step, check_values, noise_factor
-from .engine import Engine, Route, Update
+from .engine import Engine, Update
 from .errors import NonFiniteError, ParameterError, ShapeError, UnsetError
 from .face import Face, own_copy, restamped, written_record
 from .gating import Gate, as_gate
@@ -287,9 +287,8 @@ class SquareRootUKF(Face):
         self.inv = np.linalg.inv
         # P, Q (the noise's own dimension when it enters fx), R; x = 0; the records of no step yet
         initial(self, m, fx_noise_ or n, hx_noise_ or m)
-        route = Route(plan, hooks_of(d), gate_, single=True)
         self._engine = Engine(
-            route, np.zeros((1, n)), np.eye(n)[None], np.zeros((1, num, n)), np.zeros((1, num, m))
+            self._new_route(), np.zeros((1, n)), np.eye(n)[None], np.zeros((1, num, n)), np.zeros((1, num, m))
         )
         self._rebind()
 
@@ -365,10 +364,6 @@ class SquareRootUKF(Face):
             ) from None
         self._family, self._plan = written, plan
         self._configured()
-
-    def _configured(self) -> None:
-        """The plan, hooks or gate changed: the engine's routes are decided again."""
-        self._engine.configure(Route(self._plan, self._hooks(), self._gate, single=True))
 
     def _hooks(self) -> Hooks:
         return hooks_of(self.__dict__)
