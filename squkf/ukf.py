@@ -756,10 +756,10 @@ class SquareRootUKF(Face):
         e = self._engine
         sigmas = e.first_set()  # fx may write on them: the step reads only their shape
         if self._plan.w_xi is None:
+            # (per point: fx(x, dt, **fx_args) at each point, as filterpy calls it)
+            X = sigmas[0]
             values = (
-                fx(sigmas[0], dt, **fx_args)
-                if self.vectorized
-                else self._per_point(fx, sigmas[0], (dt,), fx_args)
+                fx(X, dt, **fx_args) if self.vectorized else checks.evaluate(fx, X, (dt,), fx_args, False)
             )
             Q1_2 = self._Q1_2(Q)
         else:  # noise entering fx is in the points: no noise is added to the prior
@@ -804,7 +804,9 @@ class SquareRootUKF(Face):
             pending = (pending[0], pending[1].rewritten(given[None]), None)
         sigmas = pending[1].sigmas[0].copy()  # hx gets its own copy: the update reads the set
         if plan.v_xi is None:
-            values = hx(sigmas, **hx_args) if self.vectorized else self._per_point(hx, sigmas, (), hx_args)
+            values = (
+                hx(sigmas, **hx_args) if self.vectorized else checks.evaluate(hx, sigmas, (), hx_args, False)
+            )
             R1_2 = self._R1_2(R, z.shape[0])
         else:  # noise entering hx is in the points: the update adds none
             values = self._model(hx, "hx", sigmas, (), hx_args, R, UT, plan)
@@ -902,11 +904,6 @@ class SquareRootUKF(Face):
         """What ``ask_*`` hands out: a copy of the points, with their noise part if any."""
         factor = None if xi is None else self._noise_factor(None, name, xi.shape[1])
         return handed_points(X, xi, factor, ())
-
-    def _per_point(self, fn: Callable, X: np.ndarray, args: tuple, kwargs: dict):
-        """``fn`` at each point of ``X``: ``fx(x, dt)`` (``args``: ``(dt,)``, a ``dt`` of None too), or
-        ``hx(x)`` (``args``: ``()``), as filterpy calls them."""
-        return checks.evaluate(fn, X, args, kwargs, False)
 
     def _R_dim(self) -> int:
         return self._R.factor_or_zeros().shape[0]
