@@ -501,7 +501,7 @@ class Face:
 
     def __setstate__(self, state: Any) -> None:
         state = self._unpickled(state)
-        slots = {name: state.pop(name) for name in ("_engine", *self._CARRIED)}
+        slots = {name: state.pop(name) for name in ("_engine", *self._CARRIED) if name in state}
         self.__dict__.update(state)
         for name, value in slots.items():
             setattr(self, name, value)
