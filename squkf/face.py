@@ -485,17 +485,15 @@ class Face:
             engine = copy.deepcopy(self._engine, memo)
         new._engine = engine  # type: ignore[misc]  # (each face's slot)
         new.__dict__.update(d)
-        copies: dict[int, np.ndarray] = {}
-        for name in self._CARRIED:
-            setattr(new, name, self._carried(name, getattr(self, name), engine, how, copies))
+        for name, value in self._carried(engine, how).items():
+            setattr(new, name, value)
         new._rebind(how)
         return new
 
     def __getstate__(self) -> dict:
         # the __dict__ (what is formed when read left out), the carried slots, the engine (without buffers)
         state = {k: v for k, v in self.__dict__.items() if type(v) is not Unformed}
-        for name in self._CARRIED:
-            state[name] = self._carried(name, getattr(self, name), self._engine, "pickle", {})
+        state.update(self._carried(self._engine, "pickle"))
         state["_engine"] = self._engine
         return state
 
@@ -517,8 +515,7 @@ class Face:
     def _snapshot(self) -> tuple[dict, dict, Engine]:
         # the engine's arrays are replaced by each step, never changed in place: its copy keeps them
         engine = copy.copy(self._engine)
-        kept = {n: self._carried(n, getattr(self, n), engine, "snapshot", {}) for n in self._CARRIED}
-        return self._dict_for("snapshot", None), kept, engine
+        return self._dict_for("snapshot", None), self._carried(engine, "snapshot"), engine
 
     def _restore(self, saved: tuple[dict, dict, Engine]) -> None:
         d, kept, engine = saved
@@ -542,9 +539,14 @@ class Face:
             for k, v in self.__dict__.items()
         }
 
-    def _carried(self, name: str, value: Any, engine: Engine, how: How, copies: dict) -> Any:
-        """Carried slot ``name``'s ``value`` for a copy, a pickle or a snapshot (``how``) on ``engine``."""
-        return value if how in ("pickle", "snapshot") else own_copy(value, copies)
+    def _carried(self, engine: Engine, how: How) -> dict:
+        """The carried slots (``_CARRIED``) by name, as a copy, a pickle or a snapshot (``how``) on ``engine``
+        takes them: a copy's :func:`own_copy`'s, a pickle's and a snapshot's as they are."""
+        own = {name: getattr(self, name) for name in self._CARRIED}
+        if how in ("pickle", "snapshot"):
+            return own
+        copies: dict[int, np.ndarray] = {}
+        return {name: own_copy(value, copies) for name, value in own.items()}
 
     def _unpickled(self, state: Any) -> dict:
         """A pickle's state as :meth:`__getstate__` makes it today (an older layout converted)."""

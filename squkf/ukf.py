@@ -62,8 +62,10 @@ _SLOTS = (
     "_engine", "_unformed", "_gain_of", "_points", "_family", "_generator", "_plan", "_gate", "_fx_noise",
     "_hx_noise", "_noise_cache", "_Q", "_R", "_handed", "_unset", "_written", "_sigmas",
 )  # fmt: skip
-# the slots a copy, a pickle or a snapshot carries besides the engine (_unformed is formed again)
+# the slots a copy, a pickle or a snapshot carries besides the engine (_unformed is formed again), and
+# of them the configuration, noise slots, placeholders and hand-outs
 _CARRIED = _SLOTS[2:]
+_CONFIGURED = tuple(k for k in _CARRIED if k not in ("_gain_of", "_noise_cache", "_written", "_sigmas"))
 
 # what repr shows, in order
 _SHOWN = (
@@ -920,20 +922,23 @@ class SquareRootUKF(Face):
             return {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in d.items()}
         return copy.deepcopy({k: v for k, v in d.items() if type(v) is not Unformed}, memo)
 
-    def _carried(self, name, value, engine, how, copies):
-        if name == "_gain_of":  # the gain formed (or assigned) for the last update: never written in place
-            last, K = value
-            K = K if last is self._engine.last else None
-            return engine.last, (K.copy() if how == "deep" and K is not None else K)
-        if name in ("_written", "_sigmas"):  # those current, with the stamps of the engine carried
-            return restamped(value, self._engine, engine, _copy_of if how in ("copy", "deep") else None)
-        if how == "snapshot":  # the noise slots, placeholders and hand-outs as they are now
-            if name in ("_handed", "_unset"):
-                return value.copy()
-            return copy.copy(value) if name in ("_Q", "_R") else value
-        if name == "_noise_cache":
-            return {}
-        return value if how == "pickle" else own_copy(value, copies)
+    def _carried(self, engine, how):
+        e = self._engine
+        own = {name: getattr(self, name) for name in _CONFIGURED}
+        if how in ("copy", "deep"):  # the configuration shared, the noise slots and hand-outs detached
+            copies: dict[int, np.ndarray] = {}
+            own = {name: own_copy(value, copies) for name, value in own.items()}
+        elif how == "snapshot":  # the noise slots, placeholders and hand-outs as they are now
+            own["_Q"], own["_R"] = copy.copy(self._Q), copy.copy(self._R)
+            own["_unset"], own["_handed"] = set(self._unset), self._handed.copy()
+        copy_value = None if how in ("pickle", "snapshot") else _copy_of
+        for name in ("_written", "_sigmas"):  # those current, with the stamps of the engine carried
+            own[name] = restamped(getattr(self, name), e, engine, copy_value)
+        last, K = self._gain_of  # the gain formed (or assigned) for the last update: never written in place
+        K = K if last is e.last else None
+        own["_gain_of"] = (engine.last, K.copy() if how == "deep" and K is not None else K)
+        own["_noise_cache"] = self._noise_cache if how == "snapshot" else {}
+        return own
 
     def _unpickled(self, state):
         return old_pickles.filter_state(state)
