@@ -85,17 +85,8 @@ def stacked_filters(filters) -> tuple:
 
 def template(ukf) -> tuple[Config, tuple]:
     """``Fleet.from_template``'s filter as a fleet's configuration (a per-point ``fx`` and ``hx`` as
-    :class:`PerPoint`) and its ``x``, ``P1_2``, ``Q1_2``, ``R1_2``.
-
-    Raises
-    ------
-    ParameterError
-        ``ukf`` is not a ``SquareRootUKF``, or has no ``fx`` or ``hx``.
-    UnsetError
-        Its ``x`` or ``P`` is a placeholder.
-    CallSequenceError
-        It has a step pending that a fleet cannot carry (an ask not told).
-    """
+    :class:`PerPoint`) and its ``x``, ``P1_2``, ``Q1_2``, ``R1_2``; raises as ``Fleet.from_template``
+    says."""
     f = as_filters([ukf])[0]
     c = f.configuration()
     check_pending(c.step, c.plan, "the template")
