@@ -10,33 +10,45 @@ derive from :class:`Face`, which reads the engine's records for them:
   (scalars as Python floats);
 - the records filterpy lets a program write (:func:`written_record`: on one filter an assignment
   reads back until the step that makes the record again; a fleet's are read-only);
-- the configuration both faces read alike (``fx_noise``, ``hx_noise``, ``gate``) and
-  :meth:`Face.transaction`.
+- the configuration both faces read alike (``fx_noise``, ``hx_noise``, ``gate``, the hooks) and
+  :meth:`Face.transaction`;
+- copies, deep copies, pickles and the transaction's snapshot, one skeleton for both faces
+  (:meth:`Face._copy`, ``__getstate__``, ``__setstate__``, ``_snapshot``, ``_restore``): what each face
+  carries, copies, shares or forms again is said by its hooks (``_CARRIED``, ``_dict_for``,
+  ``_carried``, ``_unpickled``, ``_rebind``).
 
 A face says what it is by its class attributes ``ONE`` (one filter: the block axis dropped) and
-``NO_LOG_LIKELIHOOD`` (the log-likelihood read before any update), and provides ``dim_z``,
-``_configured()`` (its engine's route built again), ``_snapshot()`` and ``_restore()``.
+``NO_LOG_LIKELIHOOD`` (the log-likelihood read before any update), and provides ``dim_x``, ``dim_z``
+and ``_hooks()`` (the hooks as given).
 """
 
 from __future__ import annotations
 
+import copy
 import math
 import sys
 from collections.abc import Callable
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 
 from . import checks
-from .boundary.attributes import FactorSlot, HandOut
+from .boundary.attributes import FactorSlot, HandOut, Hook, Unformed
+from .boundary.config import Config
 from .boundary.loop import Transaction
 from .boundary.records import log_det, whitened
-from .engine import Engine, Update
+from .engine import Engine, Route, Update
 from .gating import Gate, as_gate
+from .plan import IDLE, Hooks, Plan
+from .weights import WrittenWeights
 
-__all__ = ["Face", "STAMPS", "noise_factor", "own_copy", "restamped", "written_record"]
+__all__ = ["Face", "How", "STAMPS", "noise_factor", "own_copy", "restamped", "written_record"]
 
 _TINY = sys.float_info.min
+
+#: what a face's state is taken for: a copy, a deep copy, a pickle, or a transaction's snapshot (which
+#: keeps the caller's arrays as they are: a failed call puts back what it may have replaced)
+How = Literal["copy", "deep", "pickle", "snapshot"]
 
 
 def written_record(stamp: str, ndim: int) -> Callable[[Callable], property]:
@@ -152,15 +164,23 @@ class Face:
     NO_LOG_LIKELIHOOD: ClassVar[float]
 
     _engine: Engine
+    _handed: HandOut
     _gate: Gate | None
     _points: Any
+    _family: Any
     _generator: Any
+    _plan: Plan
+    _dt: float | None
     _fx_noise: int
     _hx_noise: int
     _written: dict
     _Q: FactorSlot
     _R: FactorSlot
+    dim_x: Any
     dim_z: Any
+    hx: Any
+    fx: Any
+    vectorized: Any  # (one filter's option; a fleet's model functions always take stacked points)
 
     # -- reading the engine's records ----------------------------------------------
 
@@ -364,8 +384,52 @@ class Face:
         self._configured()
 
     def _configured(self) -> None:
-        """The configuration changed: the engine's routes are built again (each face's)."""
+        """The plan, a hook or the gate changed: the engine's route is built again (a pending step keeps
+        the route it was drawn with)."""
+        self._engine.configure(self._new_route())
+
+    def _new_route(self) -> Route:
+        """This configuration's route, as constants (:class:`~squkf.engine.Route`)."""
+        return Route(self._plan, self._step_hooks(), self._gate, single=self.ONE)
+
+    def _step_hooks(self) -> Hooks:
+        """The hooks as the step calls them (a fleet's ``vectorized_hooks`` wrap a user's)."""
+        return self._hooks()
+
+    def _hooks(self) -> Hooks:
+        """The hooks as given (each face's: one filter's None where filterpy's default is meant)."""
         raise NotImplementedError
+
+    def configuration(self) -> Config:
+        """The configuration and noise factors (``squkf.boundary.Config``), edits in place taken.
+
+        What ``Fleet.from_filters``, ``fleet[k]``, the smoother and :mod:`squkf.dask` read; its arrays
+        are the face's own, to be read and not written. A fleet's ``step`` is left idle.
+        """
+        self._noise_edits()
+        hooks, family = self._hooks(), self._family
+        return Config(
+            self.dim_x, self.dim_z, self._dt, self.hx, self.fx,
+            family if isinstance(family, WrittenWeights) else self._points,  # (weights written)
+            family, self._generator, *hooks, self._gate, self.fx_noise, self.hx_noise,
+            self.vectorized if self.ONE else True, self._plan, hooks, self._Q.factor(), self._R.factor(),
+            self._engine.phase if self.ONE else IDLE,
+        )  # fmt: skip
+
+    # -- edits in place: the arrays handed out, taken back at the next call ----------------------
+
+    #: the attributes whose arrays handed out are taken back (validated) at the next call, in order
+    _HANDED: ClassVar[tuple[str, ...]]
+
+    def _take_edits(self) -> None:
+        """The edits in place of the arrays handed out (``_handed``), validated and taken through
+        :meth:`_take_edit`; either may raise, and what is not taken stays pending."""
+        if self._handed.held:
+            self._handed.take(self._HANDED, self._take_edit)
+
+    def _take_edit(self, name: str, array: np.ndarray) -> None:
+        """An array handed out as ``name`` was edited in place: taken as an assignment (may raise)."""
+        setattr(self, name, array)
 
     # -- the noise store: Q and R, each a FactorSlot (one filter's; a fleet's shared or per filter) -------
 
@@ -379,7 +443,67 @@ class Face:
         """``Q`` or ``R`` (``name``) was assigned through its factor: the matrix handed out is history."""
         raise NotImplementedError
 
-    # -- the transaction of a call ------------------------------------------------------
+    # -- the hooks: filterpy's, kept in the __dict__; assigning one builds the engine's route again -----
+
+    x_mean = Hook()
+    z_mean = Hook()
+    residual_x = Hook()
+    residual_z = Hook()
+    state_add = Hook()
+
+    def _hooks_assigned(self) -> None:
+        try:
+            self._engine  # noqa: B018  (not while a face's __init__ sets the hooks: no engine yet)
+        except AttributeError:
+            return
+        self._configured()
+
+    # -- copies, pickles and the transaction of a call: one skeleton, each face's hooks ----------
+
+    #: the slots besides ``_engine`` that copies, pickles and snapshots carry (one filter keeps its
+    #: configuration, noise stores and hand-outs in slots; a fleet keeps them in its ``__dict__``)
+    _CARRIED: ClassVar[tuple[str, ...]] = ()
+
+    def __copy__(self) -> Any:
+        return self._copy(copy.copy(self._engine), "copy")
+
+    def __deepcopy__(self, memo: dict) -> Any:
+        return self._copy(None, "deep", memo)
+
+    def _copy(self, engine: Engine | None, how: How, memo: dict | None = None) -> Any:
+        """A copy of this face on ``engine`` (None: a deep copy of this face's, through ``memo``).
+
+        Its ``__dict__`` is :meth:`_dict_for`'s, its carried slots :meth:`_carried`'s, and what is formed
+        from its own engine and stores is made by :meth:`_rebind`. The engine's copy carries the state and
+        any half-done step, its arrays the copy's own (:class:`~squkf.engine.Engine`).
+        """
+        new = type(self).__new__(type(self))
+        if memo is not None:
+            memo[id(self)] = new
+        d = self._dict_for(how, memo)
+        if engine is None:
+            engine = copy.deepcopy(self._engine, memo)
+        new._engine = engine  # type: ignore[misc]  # (each face's slot)
+        new.__dict__.update(d)
+        for name, value in self._carried(engine, how).items():
+            setattr(new, name, value)
+        new._rebind(how)
+        return new
+
+    def __getstate__(self) -> dict:
+        # the __dict__ (what is formed when read left out), the carried slots, the engine (without buffers)
+        state = {k: v for k, v in self.__dict__.items() if type(v) is not Unformed}
+        state.update(self._carried(self._engine, "pickle"))
+        state["_engine"] = self._engine
+        return state
+
+    def __setstate__(self, state: Any) -> None:
+        state = self._unpickled(state)
+        slots = {name: state.pop(name) for name in ("_engine", *self._CARRIED) if name in state}
+        self.__dict__.update(state)
+        for name, value in slots.items():
+            setattr(self, name, value)
+        self._rebind("pickle")
 
     def transaction(self) -> Transaction:
         """A context manager that puts the filter back as it was on entry if anything inside raises.
@@ -388,8 +512,46 @@ class Face:
         """
         return Transaction(self._snapshot, self._restore)
 
-    def _snapshot(self) -> Any:
-        raise NotImplementedError
+    def _snapshot(self) -> tuple[dict, dict, Engine]:
+        # the engine's arrays are replaced by each step, never changed in place: its copy keeps them
+        engine = copy.copy(self._engine)
+        return self._dict_for("snapshot", None), self._carried(engine, "snapshot"), engine
 
-    def _restore(self, saved: Any) -> None:
-        raise NotImplementedError
+    def _restore(self, saved: tuple[dict, dict, Engine]) -> None:
+        d, kept, engine = saved
+        self.__dict__.clear()
+        self.__dict__.update(d)
+        for name, value in kept.items():
+            setattr(self, name, value)
+        self._engine = engine  # type: ignore[misc]  # (each face's slot)
+        self._rebind("snapshot")
+
+    # the hooks of the skeleton (a fleet's here: everything in its __dict__, nothing formed again)
+
+    def _dict_for(self, how: How, memo: dict | None) -> dict:
+        """The ``__dict__`` of a copy (``how``) or of a snapshot: each value :func:`own_copy`'s (a deep copy
+        too: the model functions and hooks shared), the arrays handed out by a snapshot kept as they are
+        (:meth:`~squkf.boundary.attributes.HandOut.copy`)."""
+        copies: dict[int, np.ndarray] = {}
+        snapshot = how == "snapshot"
+        return {
+            k: v.copy() if snapshot and type(v) is HandOut else own_copy(v, copies)
+            for k, v in self.__dict__.items()
+        }
+
+    def _carried(self, engine: Engine, how: How) -> dict:
+        """The carried slots (``_CARRIED``) by name, as a copy, a pickle or a snapshot (``how``) on ``engine``
+        takes them: a copy's :func:`own_copy`'s, a pickle's and a snapshot's as they are."""
+        own = {name: getattr(self, name) for name in self._CARRIED}
+        if how in ("pickle", "snapshot"):
+            return own
+        copies: dict[int, np.ndarray] = {}
+        return {name: own_copy(value, copies) for name, value in own.items()}
+
+    def _unpickled(self, state: Any) -> dict:
+        """A pickle's state as :meth:`__getstate__` makes it today (an older layout converted)."""
+        return state
+
+    def _rebind(self, how: How | None = None) -> None:
+        """After construction (``how`` None), a copy, a pickle loaded or a snapshot put back: what is formed
+        from this face's own engine and stores, made again."""

@@ -8,37 +8,23 @@ time (:mod:`squkf.stacks`). The model functions are called once per chunk
 with the points of its filters; a function written with ``X[..., i]``
 indexing serves a fleet and ``SquareRootUKF(vectorized=True)`` alike.
 
-Failure isolation
------------------
-Bad *input* (shapes, an infinite ``z``, a bad ``R``) raises for the whole call
-and changes nothing, as for one filter. A *numerical* failure of one filter
-in a step (its images are not finite, a factor would lose positive
-definiteness, its innovation factor is singular, its result is not finite)
-is that filter's alone: it keeps its state from before the step, it is
-flagged in :attr:`Fleet.failed` with the reason in :attr:`Fleet.failure`, and
-every other filter completes the step, bit for bit as in a fleet without the
-failing filter (each filter's arithmetic never depends on the others').
-
-A flagged filter is frozen: later steps leave it as it is (its model images
-are still computed with the others', and ignored) until it is reset with
-:meth:`Fleet.reset`, which clears the flag and, optionally, sets its state.
-With ``on_error="raise"`` a step with a failing filter instead raises
-:class:`FleetStepError`, naming the filters, and changes no filter.
+A numerical failure of one filter is that filter's alone: it is flagged (:attr:`Fleet.failed`,
+:attr:`Fleet.failure`), keeps its state, and the others go on (``docs/api/fleet.rst``, "Failure
+isolation", says the whole rule).
 """
 
 from __future__ import annotations
 
-import copy
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
-from . import checks
+from . import checks, old_pickles
 from .angles import check_angle_hooks, is_data
 from .batch import model_kwargs, per_step
-from .boundary.attributes import FactorSlot, HandOut, Hook, ModelFunction
-from .boundary.config import Config, check_pending, filter_kwargs, filter_of, model_noise, stacked
+from .boundary.attributes import FactorSlot, HandOut, ModelFunction
+from .boundary.config import Config, filter_kwargs, filter_of, model_noise
 from .boundary.loop import annotate_step, check_keep, check_progress, progress_callback
 from .boundary.records import FleetResult, Records, new_records
 from .checks import (
@@ -48,11 +34,11 @@ from .checks import (
     lower_factors,
     noise_factors,
     reset_rows,
-    short_repr,
 )
-from .engine import Engine, Route, Update
-from .errors import FleetStepError, ParameterError, UnsetError
-from .face import Face, own_copy
+from .engine import Engine, Update
+from .errors import FleetStepError, ParameterError
+from .face import Face
+from .fleet_from import PerPoint, stacked_filters, template  # noqa: F401  (old pickles name squkf.fleet.PerPoint)
 from .gating import Gate, as_gate
 from .generators import as_generator
 from .noise import handed_points, noise_points
@@ -64,73 +50,6 @@ from .ukf import SquareRootUKF
 from .weights import as_family
 
 __all__ = ["Fleet", "FleetResult", "FleetStepError"]
-
-# the attributes handed out for editing in place
-HANDED = ("x", "P", "Q", "R")
-
-# what a fleet pickled before it held an engine kept in its __dict__
-_BEFORE_ENGINE = (
-    "_x", "_S", "_pending", "_route", "_x_prior", "_S_prior", "_x_post", "_S_post", "_y", "_loglik", "_nis",
-    "_rejected", "_y_whitened", "_log_det",
-)  # fmt: skip
-
-
-def _as_filters(filters) -> list[SquareRootUKF]:
-    """``Fleet.from_filters``'s ``filters`` as a list of :class:`squkf.SquareRootUKF`, or a ParameterError."""
-    if filters is None or isinstance(filters, (str, bytes, Mapping)) or not isinstance(filters, Iterable):
-        raise ParameterError(
-            f"filters must be a sequence of squkf.SquareRootUKF, got filters={short_repr(filters)}"
-            f" ({type(filters).__name__})"
-        )
-    filters = list(filters)
-    for k, f in enumerate(filters):
-        if isinstance(f, SquareRootUKF):
-            continue
-        kind = type(f).__name__
-        if type(f).__module__.split(".")[0] == "filterpy":
-            how = (
-                " build each as squkf.SquareRootUKF with the same arguments (dim_x, dim_z, dt, hx, fx,"
-                " points, the hooks) and vectorized=True, and give it the filterpy filter's x, P, Q and R"
-                " (g.x, g.P, g.Q, g.R = f.x, f.P, f.Q, f.R)"
-                if kind == "UnscentedKalmanFilter"
-                else " a fleet stacks square-root UKFs only"
-            )
-            raise ParameterError(f"filters[{k}] is filterpy's {kind}, not a squkf.SquareRootUKF:{how}")
-        raise ParameterError(f"filters[{k}] is not a squkf.SquareRootUKF: got {short_repr(f)} ({kind})")
-    return filters
-
-
-class PerPoint:
-    """A per-point model function called on a fleet's stacked points, point by point.
-
-    ``fx(x, dt, **kw)``, ``hx(x, **kw)``, or with a noise argument ``fx(x, w, dt)``, ``hx(x, v)``
-    (``noise``), as a filter with ``vectorized=False`` calls them; the fleet gives ``(..., N, d)``
-    points (and noise points) and gets ``(..., N, d_out)`` values. A class, so a fleet of it pickles
-    where the function does.
-
-    Parameters
-    ----------
-    fn : callable
-    noise : bool
-        The first argument after the points is their noise points.
-    """
-
-    def __init__(self, fn: Callable, noise: bool):
-        self.fn, self.noise = fn, noise
-
-    def __call__(self, X: np.ndarray, *args, **kwargs) -> np.ndarray:
-        lead = X.shape[:-1]
-        points = X.reshape(-1, X.shape[-1])
-        if self.noise:
-            W, rest = args[0], args[1:]
-            noise = W.reshape(-1, W.shape[-1])
-            values = [self.fn(x, w, *rest, **kwargs) for x, w in zip(points, noise)]
-        else:
-            values = [self.fn(x, *args, **kwargs) for x in points]
-        try:
-            return np.asarray(values, dtype=float).reshape(lead + (-1,))
-        except (TypeError, ValueError):  # values of different shapes, or not numbers: said by the step
-            return np.asarray(values, dtype=object)
 
 
 class Fleet(Face):
@@ -170,7 +89,7 @@ class Fleet(Face):
         array's length. ``fleet[k]``, ``from_filters`` and ``from_template``
         make filters and fleets that call them per point (False). Default False.
     on_error : {"flag", "raise"}
-        What a numerical failure of some filters does (module docstring).
+        What a numerical failure of some filters does (:ref:`fleet-failures`).
     gate : None, float or Gate
         Outlier gating, as for :class:`squkf.SquareRootUKF` (each filter
         decided on its own).
@@ -233,6 +152,7 @@ class Fleet(Face):
     # __dict__, as a filter's does: a Saver's rows never see its buffers, nor deep-copy them at each save
     __slots__ = ("_engine", "__dict__", "__weakref__")
     ONE = False  # a block of K: the records are (K, ...)
+    _HANDED = ("x", "P", "Q", "R")  # (their edits in place taken through the setters)
     NO_LOG_LIKELIHOOD = 0.0  # (a filter without measurement: 0, as after an update that measured nothing)
 
     def __init__(
@@ -328,16 +248,11 @@ class Fleet(Face):
     def _hooks(self) -> Hooks:
         return Hooks(self.x_mean, self.z_mean, self.residual_x, self.residual_z, self.state_add)
 
-    def _configured(self) -> None:
-        self._engine.configure(self._new_route())
-
-    def _new_route(self) -> Route:
-        """The engine's route of this configuration (built again when a hook, the gate or
-        ``vectorized_hooks`` changes)."""
+    def _step_hooks(self) -> Hooks:
         hooks = self._hooks()
         if self._vectorized_hooks:  # a user's hooks called once per chunk (squkf's angle hooks: data)
             hooks = Hooks(*(h if h is None or is_data(h) else StackedHook(h) for h in hooks))
-        return Route(self._plan, hooks, self._gate, single=False)
+        return hooks
 
     @property
     def vectorized_hooks(self) -> bool:
@@ -352,17 +267,6 @@ class Fleet(Face):
     # the model functions: a fleet needs both
     hx = ModelFunction(optional=False, why="a fleet needs fx and hx")
     fx = ModelFunction(optional=False, why="a fleet needs fx and hx")
-
-    # the hooks: assigning one builds the engine's route again
-    x_mean = Hook()
-    z_mean = Hook()
-    residual_x = Hook()
-    residual_z = Hook()
-    state_add = Hook()
-
-    def _hooks_assigned(self) -> None:
-        if "_gate" in self.__dict__:  # (not while __init__ sets the hooks: the engine is built after)
-            self._configured()
 
     # -- state and noise: handed out (edits in place taken by boundary.attributes.HandOut) -------
 
@@ -429,11 +333,6 @@ class Fleet(Face):
 
     def _noise_assigned(self, name: str) -> None:
         self._handed.drop(name)
-
-    def _take_edits(self) -> None:
-        """Take the edits in place of ``x``, ``P``, ``Q``, ``R`` through their setters (which may raise)."""
-        if self._handed.held:
-            self._handed.take(HANDED, lambda name, a: setattr(self, name, a))
 
     @property
     def chunk(self) -> int | None:
@@ -740,16 +639,6 @@ class Fleet(Face):
             self._update(self._hx_images(self._R.S, hx_args), z, self._R.S, self._engine.pending_update())
         records.keep(t, self._engine.last)  # type: ignore[arg-type]  # (an update or _no_update's)
 
-    def _snapshot(self) -> tuple[Fleet, HandOut]:
-        # a copy: the step's results live in buffers that later steps write again
-        return copy.copy(self), self._handed.copy()
-
-    def _restore(self, saved: tuple[Fleet, HandOut]) -> None:
-        before, handed = saved
-        self.__dict__.update(before.__dict__)
-        self._engine = before._engine
-        self.__dict__["_handed"] = handed  # the arrays handed out stay the caller's, still current
-
     # -- one filter and back --------------------------------------------------------
 
     def __getitem__(self, k: int):
@@ -757,20 +646,6 @@ class Fleet(Face):
         k = int(np.arange(self._K)[k])
         e = self._engine
         return filter_of(SquareRootUKF, self.configuration(), k, e.x, e.S, e.phase)
-
-    def configuration(self) -> Config:
-        """The fleet's configuration and noise factors (``squkf.boundary.Config``), edits taken.
-
-        What ``fleet[k]``, the smoother and :mod:`squkf.dask` read; its arrays
-        are the fleet's own, to be read and not written.
-        """
-        self._take_edits()
-        return Config(
-            self._n, self._m, self._dt, self.hx, self.fx, self.points_fn, self._family, self._generator,
-            self.x_mean, self.z_mean, self.residual_x, self.residual_z, self.state_add, self._gate,
-            self._fx_noise or None, self._hx_noise or None, True, self._plan, self._hooks(),
-            self._Q.S, self._R.S,
-        )  # fmt: skip
 
     def __len__(self) -> int:
         return self._K
@@ -799,7 +674,7 @@ class Fleet(Face):
             raise ParameterError(
                 f"rows selects no filter (rows={rows!r:.100}): a fleet has at least one filter"
             )
-        new = self._with(self._engine.rows(idx))
+        new = self._copy(self._engine.rows(idx), "copy")
         new._K = int(idx.size)
         new._Q, new._R = self._Q.rows(idx), self._R.rows(idx)
         new._handed = HandOut()  # the arrays handed out are this fleet's
@@ -822,12 +697,8 @@ class Fleet(Face):
             ``UnscentedKalmanFilter`` included: the message says how to build
             one from it), is empty, or the filters differ in configuration.
         """
-        c, x, P1_2, Q1_2, R1_2 = stacked(_as_filters(filters))
-        fleet = cls(
-            len(x), c.dim_x, c.dim_z, c.dt, c.hx, c.fx, c.points, on_error=on_error, **filter_kwargs(c)
-        )
-        fleet.x, fleet.P1_2, fleet.Q1_2, fleet.R1_2 = x, P1_2, Q1_2, R1_2  # validated by the setters
-        return fleet
+        c, *state = stacked_filters(filters)
+        return cls._built(c, len(state[0]), state, on_error)
 
     @classmethod
     def from_template(cls, ukf: SquareRootUKF, n_filters: int, *, on_error: str = "flag") -> Fleet:
@@ -836,7 +707,7 @@ class Fleet(Face):
         What a Monte Carlo study or a noise fit starts from (:mod:`squkf.consistency`,
         :mod:`squkf.tune`). Unlike :meth:`from_filters` the template may be per point
         (``vectorized=False``): its ``fx`` and ``hx`` are then called point by point on the
-        fleet's stacked points (``squkf.fleet.PerPoint``), with ``fx_args`` and ``hx_args`` as given.
+        fleet's stacked points (``squkf.fleet_from.PerPoint``), with ``fx_args`` and ``hx_args`` as given.
 
         Parameters
         ----------
@@ -854,71 +725,25 @@ class Fleet(Face):
         CallSequenceError
             It has a step pending that a fleet cannot carry (an ask not told).
         """
-        f = _as_filters([ukf])[0]
-        c = f.configuration()
-        check_pending(c.step, c.plan, "the template")
-        for name in ("x", "P"):
-            value = getattr(f, name)
-            if value is None or np.isnan(value).all():
-                raise UnsetError(f"a fleet of the template needs its {name}, but {name} was never set")
-        fx, hx = c.fx, c.hx
-        if fx is None or hx is None:
-            missing = "fx" if fx is None else "hx"
-            raise ParameterError(f"a fleet needs fx and hx, but the template has {missing}=None")
-        if not c.vectorized:
-            fx, hx = PerPoint(fx, bool(c.fx_noise)), PerPoint(hx, bool(c.hx_noise))
-        kwargs = filter_kwargs(c)
-        fleet = cls(n_filters, c.dim_x, c.dim_z, c.dt, hx, fx, c.points, on_error=on_error, **kwargs)
-        fleet.x, fleet.P1_2, fleet.Q1_2, fleet.R1_2 = f.x, f.P1_2, f.Q1_2, f.R1_2
+        c, state = template(ukf)
+        return cls._built(c, n_filters, state, on_error)
+
+    @classmethod
+    def _built(cls, c: Config, K: int, state, on_error: str) -> Fleet:
+        """A fleet of ``K`` filters of configuration ``c`` and their ``x``, ``P1_2``, ``Q1_2``, ``R1_2``
+        (``state``, validated by the setters)."""
+        fleet = cls(K, c.dim_x, c.dim_z, c.dt, c.hx, c.fx, c.points, on_error=on_error, **filter_kwargs(c))
+        fleet.x, fleet.P1_2, fleet.Q1_2, fleet.R1_2 = state
         return fleet
 
-    def __copy__(self) -> Fleet:
-        # the engine's copy carries its state and any half-done step, its arrays the copy's own
-        return self._with(copy.copy(self._engine))
+    # the core's skeleton of copies, pickles and snapshots (face.Face): everything in the __dict__
 
-    def _with(self, engine: Engine) -> Fleet:
-        """A fleet of this configuration with its own copies of the arrays in ``__dict__``, on ``engine``."""
-        new = type(self).__new__(type(self))
-        copies: dict[int, np.ndarray] = {}
-        new.__dict__.update({key: own_copy(v, copies) for key, v in self.__dict__.items()})
-        new._engine = engine
-        return new
-
-    def __getstate__(self) -> dict:
-        return {**self.__dict__, "_engine": self._engine}  # (the engine pickles without its buffers)
-
-    def __setstate__(self, state: dict) -> None:
-        if "points_fn" in state:  # pickled when the points were a plain attribute
-            state = {("_points" if k == "points_fn" else k): v for k, v in state.items()}
-        state.setdefault("_unset_x", np.zeros(state["_K"], dtype=bool))  # pickled before placeholders
-        state.setdefault("_unset_P", np.zeros(state["_K"], dtype=bool))
-        state.setdefault("_vectorized_hooks", False)  # pickled before the option
-        engine = state.pop("_engine", None)
-        if "_Q1_2" in state:  # pickled when the noise factors were kept bare
-            Q, R, K = state.pop("_Q1_2"), state.pop("_R1_2"), state["_K"]
-            state["_Q"] = FactorSlot("Q", state.get("_qd", state["_n"]), True, Q, filters=K)
-            state["_R"] = FactorSlot("R", state.get("_rd", state["_m"]), True, R, filters=K, zero=True)
-        old = {k: state.pop(k, None) for k in _BEFORE_ENGINE}
-        self.__dict__.update(state)
-        if engine is None:  # pickled before the fleet held an engine: its state and records, idle
-            engine = Engine(self._new_route(), old["_x"], old["_S"], None, None, CHUNKS)
-            engine.prior_record = (old["_x_prior"], old["_S_prior"])
-            engine.post_record = (old["_x_post"], old["_S_post"])
-            m = self._m
-            w, ld = old["_y_whitened"], old["_log_det"]  # (pickled before the record: NaN and 0)
-            engine.last = Update(
-                old["_x_post"], old["_S_post"], old["_y"], None, None, old["_loglik"], old["_nis"], None,
-                old["_rejected"], None, m, np.full(old["_y"].shape, np.nan) if w is None else w,
-                np.zeros(self._K) if ld is None else ld,
-            )  # fmt: skip
-        self._engine = engine
-        if isinstance(self._failure, np.ndarray):  # pickled before the reasons were kept as a dict
-            self._failure = {int(k): str(self._failure[k]) for k in np.flatnonzero(self._failure != "")}
-
-    def __deepcopy__(self, memo):
-        new = copy.copy(self)
-        memo[id(self)] = new
-        return new
+    def _unpickled(self, state: dict) -> dict:
+        state = old_pickles.fleet_state(state)
+        if "_engine" not in state:  # pickled before the fleet held an engine: its state and records, idle
+            self.__dict__.update(state)
+            state["_engine"] = old_pickles.fleet_engine(self._new_route(), state.pop("_before_engine"))
+        return state
 
     # -- smoothing --------------------------------------------------------------------
 

@@ -19,7 +19,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from . import checks, smoother
+from . import checks, old_pickles, smoother
 from .angles import check_angle_hooks
 from .batch import batch_filter
 from .boundary.attributes import (
@@ -30,23 +30,22 @@ from .boundary.attributes import (
     Flag,
     Handed,
     HandOut,
-    Hook,
     ModelFunction,
     Unformed,
     hooks_of,
     initial,
 )
-from .boundary.config import Config, model_noise, second_set, sigma_family
+from .boundary.config import model_noise, second_set, sigma_family
 from .boundary.records import embed, innovation_inverse
 from .checks import as_float_array, as_lower_factor, check_time_step, check_values, noise_factor
-from .engine import Engine, Route, Update
+from .engine import Engine, Update
 from .errors import NonFiniteError, ParameterError, ShapeError, UnsetError
 from .face import Face, own_copy, restamped, written_record
 from .gating import Gate, as_gate
 from .generators import sigma_points_from_factor
 from .measurement import gain_from_factors
 from .noise import call_model, handed_points, noise_points
-from .plan import Plan, build_plan
+from .plan import Hooks, Plan, build_plan
 from .transform import cross_covariance
 from .weights import WrittenWeights
 
@@ -60,11 +59,13 @@ _REAL = checks.REAL
 # out (``_handed``, a HandOut, as a fleet's), which of them is a placeholder (``_unset``), the records
 # written (``_written``), the sigma points handed out (``_sigmas``).
 _SLOTS = (
-    "_engine", "_gain_of", "_unformed", "_points", "_family", "_generator", "_plan", "_gate", "_fx_noise",
+    "_engine", "_unformed", "_gain_of", "_points", "_family", "_generator", "_plan", "_gate", "_fx_noise",
     "_hx_noise", "_noise_cache", "_Q", "_R", "_handed", "_unset", "_written", "_sigmas",
 )  # fmt: skip
-# the slots a copy or a pickle carries (the others are formed again: _unformed, and _gain_of from _engine)
-_CARRIED = _SLOTS[3:]
+# the slots a copy, a pickle or a snapshot carries besides the engine (_unformed is formed again), and
+# of them the configuration, noise slots, placeholders and hand-outs
+_CARRIED = _SLOTS[2:]
+_CONFIGURED = tuple(k for k in _CARRIED if k not in ("_gain_of", "_noise_cache", "_written", "_sigmas"))
 
 # what repr shows, in order
 _SHOWN = (
@@ -73,6 +74,11 @@ _SHOWN = (
     " x_mean z_mean"
 ).split()
 _LABELS = {"log_likelihood": "log-likelihood"}
+
+
+def _copy_of(value):
+    """A copy's own record written or set handed out (an array, or a ``Handed``)."""
+    return value.copy()
 
 
 class SquareRootUKF(Face):
@@ -192,6 +198,8 @@ class SquareRootUKF(Face):
     # filterpy's own keys alone.
     __slots__ = _SLOTS + ("__dict__", "__weakref__")
     ONE = True  # a block of one: the records drop the block axis
+    _CARRIED = _CARRIED
+    _HANDED = ("x", "P")
     NO_LOG_LIKELIHOOD = _LOG_TINY
 
     _engine: Engine
@@ -224,11 +232,6 @@ class SquareRootUKF(Face):
     R = Covariance()
     hx = ModelFunction(optional=True)
     fx = ModelFunction(optional=True)
-    x_mean = Hook()
-    z_mean = Hook()
-    residual_x = Hook()
-    residual_z = Hook()
-    state_add = Hook()
 
     def __init__(
         self,
@@ -286,9 +289,8 @@ class SquareRootUKF(Face):
         self.inv = np.linalg.inv
         # P, Q (the noise's own dimension when it enters fx), R; x = 0; the records of no step yet
         initial(self, m, fx_noise_ or n, hx_noise_ or m)
-        route = Route(plan, hooks_of(d), gate_, single=True)
         self._engine = Engine(
-            route, np.zeros((1, n)), np.eye(n)[None], np.zeros((1, num, n)), np.zeros((1, num, m))
+            self._new_route(), np.zeros((1, n)), np.eye(n)[None], np.zeros((1, num, n)), np.zeros((1, num, m))
         )
         self._rebind()
 
@@ -365,13 +367,8 @@ class SquareRootUKF(Face):
         self._family, self._plan = written, plan
         self._configured()
 
-    def _configured(self) -> None:
-        """The plan, hooks or gate changed: the engine's routes are decided again."""
-        self._engine.configure(Route(self._plan, hooks_of(self.__dict__), self._gate, single=True))
-
-    def _hooks_assigned(self) -> None:
-        if "_dim_x" in self.__dict__:  # (not while __init__ sets the hooks)
-            self._configured()
+    def _hooks(self) -> Hooks:
+        return hooks_of(self.__dict__)
 
     # -- state and covariances ---------------------------------------------
 
@@ -431,16 +428,10 @@ class SquareRootUKF(Face):
             self._handed.held[name] = Handed(kept)
         self._unset.add(name)
 
-    def _take_edits(self) -> None:
-        """The edits in place of ``x`` and ``P`` validated and taken into the engine (either may raise).
-
-        Each array stays handed out, with a fresh record; an invalid edit raises and stays pending.
-        A placeholder edited in place is an assignment too (still all NaN: still not set).
-        """
-        self._handed.take(("x", "P"), self._take_edit)
-
     def _take_edit(self, name: str, array: np.ndarray) -> None:
-        """An array handed out as ``x`` or ``P`` was edited in place: validated and taken (may raise)."""
+        """An array handed out as ``x`` or ``P`` was edited in place: validated and taken into the engine
+        (may raise). The array stays handed out, with a fresh record; a placeholder edited in place is an
+        assignment too (still all NaN: still not set)."""
         n = self._dim_x
         if checks.placeholder(array, name, (n,) if name == "x" else (n, n)) is not _REAL:
             self._unset.add(name)
@@ -767,10 +758,10 @@ class SquareRootUKF(Face):
         e = self._engine
         sigmas = e.first_set()  # fx may write on them: the step reads only their shape
         if self._plan.w_xi is None:
+            # (per point: fx(x, dt, **fx_args) at each point, as filterpy calls it)
+            X = sigmas[0]
             values = (
-                fx(sigmas[0], dt, **fx_args)
-                if self.vectorized
-                else self._per_point(fx, sigmas[0], (dt,), fx_args)
+                fx(X, dt, **fx_args) if self.vectorized else checks.evaluate(fx, X, (dt,), fx_args, False)
             )
             Q1_2 = self._Q1_2(Q)
         else:  # noise entering fx is in the points: no noise is added to the prior
@@ -815,7 +806,9 @@ class SquareRootUKF(Face):
             pending = (pending[0], pending[1].rewritten(given[None]), None)
         sigmas = pending[1].sigmas[0].copy()  # hx gets its own copy: the update reads the set
         if plan.v_xi is None:
-            values = hx(sigmas, **hx_args) if self.vectorized else self._per_point(hx, sigmas, (), hx_args)
+            values = (
+                hx(sigmas, **hx_args) if self.vectorized else checks.evaluate(hx, sigmas, (), hx_args, False)
+            )
             R1_2 = self._R1_2(R, z.shape[0])
         else:  # noise entering hx is in the points: the update adds none
             values = self._model(hx, "hx", sigmas, (), hx_args, R, UT, plan)
@@ -834,7 +827,7 @@ class SquareRootUKF(Face):
         self._ready("compute_process_sigmas")
         e = self._engine
         first = self._plan.first
-        sigmas = sigma_points_from_factor(e.x[0], e.S[0], first.xi, hooks_of(self.__dict__).state_add)
+        sigmas = sigma_points_from_factor(e.x[0], e.S[0], first.xi, self._hooks().state_add)
         values = self._model(fx, "fx", sigmas, (dt,), fx_args)
         e.shown_f = check_values(values, sigmas.shape, "fx values")[None]
 
@@ -848,7 +841,7 @@ class SquareRootUKF(Face):
         sigmas_h = np.atleast_2d(as_float_array(sigmas_h, "sigmas_h"))
         sset = self._engine.sset
         Wcs = (self._plan.first.rows.Wc, None if sset is None else sset.Wc)
-        return cross_covariance(sigmas_f, sigmas_h, x, z, Wcs, hooks_of(self.__dict__))
+        return cross_covariance(sigmas_f, sigmas_h, x, z, Wcs, self._hooks())
 
     def batch_filter(
         self,
@@ -914,124 +907,52 @@ class SquareRootUKF(Face):
         factor = None if xi is None else self._noise_factor(None, name, xi.shape[1])
         return handed_points(X, xi, factor, ())
 
-    def _per_point(self, fn: Callable, X: np.ndarray, args: tuple, kwargs: dict):
-        """``fn`` at each point of ``X``: ``fx(x, dt)`` (``args``: ``(dt,)``, a ``dt`` of None too), or
-        ``hx(x)`` (``args``: ``()``), as filterpy calls them."""
-        return checks.evaluate(fn, X, args, kwargs, False)
-
     def _R_dim(self) -> int:
         return self._R.factor_or_zeros().shape[0]
 
     # -- configuration, transactions, copies ------------------------------------
 
-    def configuration(self) -> Config:
-        """The filter's configuration and noise factors (``squkf.boundary.Config``).
+    # the core's skeleton of copies, pickles and snapshots (face.Face) with this filter's hooks
 
-        What ``Fleet.from_filters`` and the smoother read; the arrays are the
-        filter's own, to be read and not written.
-        """
+    def _dict_for(self, how, memo):
         d = self.__dict__
-        hooks = hooks_of(d)  # the hooks as given, None where filterpy's default is meant
-        return Config(
-            self._dim_x, self._dim_z, self._dt, self.hx, self.fx,
-            self._family if isinstance(self._family, WrittenWeights) else self._points,  # (weights written)
-            self._family, self._generator,
-            *hooks, self._gate, self.fx_noise, self.hx_noise, self.vectorized,
-            self._plan, hooks, self._Q.factor(), self._R.factor(), self._engine.phase,
-        )  # fmt: skip
+        if how == "snapshot":  # (the caller's arrays kept as they are)
+            return dict(d)
+        if how == "copy":
+            return {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in d.items()}
+        return copy.deepcopy({k: v for k, v in d.items() if type(v) is not Unformed}, memo)
 
-    def _snapshot(self):
-        # the engine's arrays are replaced by each step, never changed in place: a shallow copy keeps
-        # them; the covariance slots, whose matrices the caller may edit in place, are copied
-        state = dict(self.__dict__)
-        own = self._carried()
-        for name in NOISES:
-            slot = own["_" + name] = copy.copy(own["_" + name])
-            if type(state[name]) is Unformed:
-                state[name] = Unformed(slot.matrix)
-        engine = copy.copy(self._engine)
-        own["_unset"] = set(self._unset)
-        own["_handed"] = self._handed.copy()  # (a step clears the records in place)
-        for name in ("_written", "_sigmas"):  # the same records, current with the engine put back
-            own[name] = restamped(own[name], self._engine, engine)
-        return state, own, engine, self._kept_gain()
+    def _carried(self, engine, how):
+        e = self._engine
+        own = {name: getattr(self, name) for name in _CONFIGURED}
+        if how in ("copy", "deep"):  # the configuration shared, the noise slots and hand-outs detached
+            copies: dict[int, np.ndarray] = {}
+            own = {name: own_copy(value, copies) for name, value in own.items()}
+        elif how == "snapshot":  # the noise slots, placeholders and hand-outs as they are now
+            own["_Q"], own["_R"] = copy.copy(self._Q), copy.copy(self._R)
+            own["_unset"], own["_handed"] = set(self._unset), self._handed.copy()
+        copy_value = None if how in ("pickle", "snapshot") else _copy_of
+        for name in ("_written", "_sigmas"):  # those current, with the stamps of the engine carried
+            own[name] = restamped(getattr(self, name), e, engine, copy_value)
+        last, K = self._gain_of  # the gain formed (or assigned) for the last update: never written in place
+        K = K if last is e.last else None
+        own["_gain_of"] = (engine.last, K.copy() if how == "deep" and K is not None else K)
+        own["_noise_cache"] = self._noise_cache if how == "snapshot" else {}
+        return own
 
-    def _restore(self, saved) -> None:
-        state, own, engine, gain = saved
-        self.__dict__.clear()
-        self.__dict__.update(state)
-        for name, value in own.items():
-            setattr(self, name, value)
-        self._engine, self._gain_of = engine, (engine.last, gain)
+    def _unpickled(self, state):
+        return old_pickles.filter_state(state)
 
-    def _carried(self) -> dict:
-        """The slots a copy or a pickle carries, by name (the values themselves)."""
-        return {name: getattr(self, name) for name in _CARRIED}
-
-    def _kept_gain(self) -> np.ndarray | None:
-        """The gain formed (or assigned) for the last update, or None (never written in place)."""
-        last, K = self._gain_of
-        return K if last is self._engine.last else None
-
-    def __copy__(self):
-        new = type(self).__new__(type(self))
-        d = {k: v.copy() if isinstance(v, np.ndarray) else v for k, v in self.__dict__.items()}
-        engine = new._engine = copy.copy(self._engine)
-        new._gain_of = (engine.last, self._kept_gain())  # never written in place: shared
-        new.__dict__.update(d)
-        self._carry_to(new, engine, lambda v: v.copy())
-        new._rebind()
-        return new
-
-    def _carry_to(self, new: SquareRootUKF, engine: Engine, copy_value: Callable) -> None:
-        """Give the copy ``new`` (on ``engine``) this filter's carried slots: the configuration shared
-        (never changed in place), the noise slots, the placeholders, what was written or handed out its
-        own (``copy_value`` copies an array or a :class:`Handed`)."""
-        copies: dict[int, np.ndarray] = {}
-        for name, value in self._carried().items():
-            if name == "_noise_cache":
-                value = {}
-            elif name in ("_written", "_sigmas"):
-                value = restamped(value, self._engine, engine, copy_value)
-            else:  # the noise slots: the factor shared, the matrix handed out copied
-                value = own_copy(value, copies)
-            setattr(new, name, value)
-
-    def __deepcopy__(self, memo):
-        new = type(self).__new__(type(self))
-        memo[id(self)] = new
-        d = copy.deepcopy({k: v for k, v in self.__dict__.items() if type(v) is not Unformed}, memo)
-        engine = new._engine = copy.deepcopy(self._engine, memo)
-        new._gain_of = (engine.last, copy.deepcopy(self._kept_gain(), memo))
-        new.__dict__.update(d)
-        self._carry_to(new, engine, lambda v: v.copy())
-        # the copy's routes run the copy's own hooks (the pending step's route too: it is the copy's)
-        pending_own_route = engine.step_route is engine.route
-        new._configured()
-        if pending_own_route:
-            engine.step_route = engine.route
-        new._rebind()
-        return new
-
-    def __getstate__(self):
-        state = {k: v for k, v in self.__dict__.items() if type(v) is not Unformed}
-        own = self._carried()
-        own["_noise_cache"] = {}
-        # what was written or handed out is current with this engine: pickled with it, the stamps stay its
-        return state, own, self._engine, self._kept_gain()
-
-    def __setstate__(self, saved):
-        state, own, engine, gain = saved
-        self.__dict__.update(state)
-        for name, value in own.items():
-            setattr(self, name, value)
-        self._engine = engine
-        self._gain_of = (engine.last, gain)
-        self._rebind()
-
-    def _rebind(self) -> None:
+    def _rebind(self, how=None) -> None:
         """After construction or a copy: ``x``, ``P``, ``Q``, ``R`` formed from this filter's own engine and
-        slots, the arrays handed out (``_handed``) its own; a placeholder as assigned."""
+        slots, the arrays handed out (``_handed``) its own; a placeholder as assigned. A deep copy's routes
+        run its own hooks (the pending step's route too: it is the copy's)."""
+        if how == "deep":
+            e = self._engine
+            pending_own_route = e.step_route is e.route
+            self._configured()
+            if pending_own_route:
+                e.step_route = e.route
         self._unformed = (Unformed(self._formed_x), Unformed(self._formed_P))
         d = self.__dict__
         for k, name in enumerate(("x", "P")):

@@ -221,7 +221,8 @@ LAYERS = {
     "the engine": ["squkf.engine"],
     "the fleet's stacks": ["squkf.stacks"],
     "the faces": [
-        "squkf", "squkf.__main__", "squkf.face", "squkf.ukf", "squkf.fleet", "squkf.smoother", "squkf.nag",
+        "squkf", "squkf.__main__", "squkf.face", "squkf.ukf", "squkf.fleet", "squkf.fleet_from",
+        "squkf.old_pickles", "squkf.smoother", "squkf.nag",
         "squkf.ut",
         "squkf.dask", "squkf.first_use", "squkf.examples", "squkf.examples.g13ej_example",
         "squkf.consistency", "squkf.simulate", "squkf.parametrise", "squkf.candidates", "squkf.noise_fit",

@@ -1273,6 +1273,37 @@ def test_a_pickle_with_bare_noise_factors_loads(per_filter):
     assert_fleet_state(old, fleet_state(fleet))
 
 
+def test_a_pickle_from_before_the_engine_loads():
+    """A fleet pickled before it held an engine (its state and records in its ``__dict__``, its failures
+    a ``(K,)`` array of reasons, the points a plain attribute, no placeholders) loads idle with its state,
+    records and failures, and steps as the fleet it was pickled from."""
+    K = 3
+    fleet, _, zs = fleet_and_singles(K, "merwe", "propagated")
+    advance(fleet, zs, 0)
+    fleet.x = fleet.x + np.array([[0.0], [np.nan], [0.0]])  # filter 1 flagged by the next step
+    advance(fleet, zs, 1)
+    state = copy.deepcopy(fleet).__getstate__()
+    e, failure = state.pop("_engine"), fleet.failure
+    last = e.last
+    state.update(
+        _x=e.x, _S=e.S, _x_prior=e.prior_record[0], _S_prior=e.prior_record[1], _x_post=e.post_record[0],
+        _S_post=e.post_record[1], _y=last.y, _loglik=last.log_likelihood, _nis=last.nis,
+        _rejected=last.rejected, _y_whitened=None, _log_det=None, _failure=failure,
+        points_fn=state.pop("_points"),
+    )  # fmt: skip
+    for name in ("_unset_x", "_unset_P", "_vectorized_hooks"):
+        del state[name]
+    old = squkf.Fleet.__new__(squkf.Fleet)
+    old.__setstate__(state)
+    for name in ("x", "P1_2", "x_prior", "P1_2_post", "y", "nis", "log_likelihood", "failed", "failure"):
+        np.testing.assert_array_equal(getattr(old, name), getattr(fleet, name), err_msg=name)
+    assert np.isnan(old.y_whitened).all() and not old.log_det_S1_2.any()  # (pickled before the record)
+    assert old.points_fn is fleet.points_fn
+    for f in (fleet, old):
+        advance(f, zs, 2)
+    assert_fleet_state(old, fleet_state(fleet))
+
+
 def test_noise_is_shared_or_per_filter():
     """``Q`` and ``R`` are one matrix for all or one per filter; their factors read back as assigned, a zero
     ``Q`` as zeros, and an edit in place is taken at the next step."""

@@ -535,6 +535,30 @@ def test_a_pickle_is_no_larger_than_before_the_engine():
     assert len(pickle.dumps(fleet)) <= 5722
 
 
+def test_a_filter_pickled_in_four_parts_loads():
+    """A filter pickled as ``(__dict__, carried slots, engine, gain)`` (before both faces shared one
+    pickle layout) loads with its written record, its gain and its edits pending, and steps as the
+    filter it was pickled from."""
+    f = cv_filter("augmented")
+    for z in CV_Z[:2]:
+        step(f, z)
+    f.K = f.K * 2.0
+    f.y = f.y + 1.0
+    f.predict()
+    f.P[0, 0] += 0.5  # an edit in place, taken at the next call
+    state = copy.deepcopy(f).__getstate__()
+    engine, (_, gain) = state.pop("_engine"), state.pop("_gain_of")
+    own = {k: state.pop(k) for k in list(state) if k in type(f).__slots__}
+    old = SquareRootUKF.__new__(SquareRootUKF)
+    old.__setstate__((state, own, engine, gain))
+    for name in ("P", "K", "y"):
+        np.testing.assert_array_equal(getattr(old, name), getattr(f, name), err_msg=name)
+    f.update(CV_Z[2])
+    old.update(CV_Z[2])
+    assert_filter_state(old, filter_state(f))
+    np.testing.assert_array_equal(old.K, f.K)
+
+
 # -- schemes with a propagated set: edits between predict and update ---------------------------
 
 
