@@ -19,6 +19,8 @@ import pickle
 import numpy as np
 import pytest
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from hypothesis import given
+from hypothesis import strategies as st
 from models import (
     RBH_P0,
     RBH_Q,
@@ -100,6 +102,24 @@ def _updated_alike(data, python, z, t: int) -> bool:
         ok = ~np.isnan(value)
         assert rel(np.asarray(got)[ok], np.asarray(value)[ok]) <= ROUNDING, f"{name} at step {t}"
     return True
+
+
+EDGES = [0.0, -0.0, np.pi, -np.pi, 2 * np.pi, -2 * np.pi, np.nextafter(np.pi, 0), np.nextafter(-np.pi, 0),
+         1e300, -1e300, 5e-324, np.inf, -np.inf, np.nan]  # fmt: skip
+
+
+@given(st.lists(st.floats(allow_nan=True, allow_infinity=True, width=64), min_size=1, max_size=50))
+def test_the_kernels_wrap_is_wrap_bit_for_bit(values):
+    """The kernels' wrap skips the modulo where it would change nothing: the same bits as
+    :func:`squkf.angles.wrap` for every float, the edges of its range, NaN and inf included."""
+    from squkf.kernels.phases import _wrap
+
+    a = np.array(values + EDGES, dtype=float)
+    with np.errstate(invalid="ignore"):  # (inf)
+        expected = wrap(a)
+    got = np.array([_wrap(v) for v in a])
+    same = (got.view(np.int64) == expected.view(np.int64)) | (np.isnan(got) & np.isnan(expected))
+    assert same.all(), (a[~same], got[~same], expected[~same])
 
 
 # -- the route: the kernels, no Python call per point ---------------------------------------------

@@ -127,6 +127,17 @@ def _unfold(v):
     return v + 0
 
 
+@_inline
+def _wrap(a):
+    """``(a + pi) % (2 pi) - pi``, as :func:`squkf.angles.wrap` (the same bits): the modulo, a division,
+    skipped where ``a + pi`` is already in ``[0, 2 pi)``, where it would give ``a + pi`` itself (a NaN
+    fails the test and takes the modulo)."""
+    t = a + _PI
+    if 0.0 <= t < _TWO_PI:
+        return t - _PI
+    return t % _TWO_PI - _PI
+
+
 #: From this many columns on, each lane's QR is LAPACK's blocked ``dgeqrf`` (the routine numba's own
 #: ``np.linalg.qr`` calls, through scipy's LAPACK), then a sign pass; below it, the Householder loops
 #: across lanes. Chosen by the matrix's size alone, so a filter takes the same path alone or in a fleet.
@@ -1215,7 +1226,7 @@ def downdate_update_kernel(
             if xkind[l] & 2:
                 for i in range(N):
                     for b in range(nb):
-                        Xl[i, l, b] = (Xl[i, l, b] - xr[l, b] + _PI) % _TWO_PI - _PI
+                        Xl[i, l, b] = _wrap(Xl[i, l, b] - xr[l, b])
             else:
                 for i in range(N):
                     for b in range(nb):
@@ -1255,7 +1266,7 @@ def downdate_update_kernel(
             zk, yk, wk, Lk, xk = zp[k0 + b], y[k0 + b], w[k0 + b], L21[k0 + b], xpost[k0 + b]
             for l in range(n):  # x + dx, wrapped where state_add wraps
                 if xkind[l] & 4:
-                    xk[l] = (xk[l] + _PI) % _TWO_PI - _PI
+                    xk[l] = _wrap(xk[l])
             for j in range(m):
                 zk[j] = zl[j, b]
                 yk[j] = yl[j, b]
@@ -1309,8 +1320,8 @@ def angle_rows_kernel(H, z, wm, ref, kind, zp, D, y):
                 a = Hk[ref, l]
                 s = 0.0
                 for i in range(N):
-                    s += wm[i] * ((Hk[i, l] - a + _PI) % _TWO_PI - _PI)
-                mean = (a + s + _PI) % _TWO_PI - _PI
+                    s += wm[i] * _wrap(Hk[i, l] - a)
+                mean = _wrap(a + s)
             else:
                 a = Hk[0, l]
                 s = 0.0
@@ -1320,9 +1331,9 @@ def angle_rows_kernel(H, z, wm, ref, kind, zp, D, y):
             pk[l] = mean
             if code & 2:
                 for i in range(N):
-                    Dk[i, l] = (Hk[i, l] - mean + _PI) % _TWO_PI - _PI
+                    Dk[i, l] = _wrap(Hk[i, l] - mean)
                 if innovation:
-                    yk[l] = (zk[l] - mean + _PI) % _TWO_PI - _PI
+                    yk[l] = _wrap(zk[l] - mean)
             else:
                 for i in range(N):
                     Dk[i, l] = Hk[i, l] - mean
