@@ -284,7 +284,7 @@ def _posterior_out(B: int, n: int, m: int, N1: int) -> tuple:
     """The update kernel's outputs (as its arguments), and the next first set (``N1`` points, 0: none)."""
     return (
         np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m)), np.empty((B, n, m)),
-        np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B),
+        np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B), np.empty(B),
         np.empty(B, dtype=np.int64), np.empty((B, N1, n)) if N1 else table.no_set(n),
     )  # fmt: skip
 
@@ -625,7 +625,7 @@ class Route:
             Where the kernel's results are written (default: new arrays).
         out : tuple, optional
             The kernel's outputs themselves, as its arguments (``zp, y, w, Sy, L21, dx, x, S, loglik,
-            nis, status, X1``), on the joint route: a fleet writes into its step's arrays.
+            nis, log_det, status, X1``), on the joint route: a fleet writes into its step's arrays.
 
         Returns
         -------
@@ -661,8 +661,9 @@ class Route:
             none = _NONE_REJECTED[post.y.shape]
             ll, nis = post.log_likelihood, post.nis
             update = Update(
-                post.x, post.S, post.y, post.Sy, post.L21, ll, nis, observed, none, None, m_all, post.w
-            )
+                post.x, post.S, post.y, post.Sy, post.L21, ll, nis, observed, none, None, m_all, post.w,
+                post.log_det,
+            )  # fmt: skip
             return update, np.zeros(B, dtype=np.int64), None
         Ro = R1_2
         whole = None
@@ -688,7 +689,7 @@ class Route:
             out = (
                 _posterior_out(B, n, m, N1) if buffers is None else buffers.take(_posterior_out, B, n, m, N1)
             )
-        zp, y, w, Sy, L21, dx, xo, So, ll, ww, status, X1 = out
+        zp, y, w, Sy, L21, dx, xo, So, ll, ww, ld, status, X1 = out
         kept = self._noise.get(1)
         Rs = kept[1] if kept is not None and kept[0] is Ro else self.stacked(Ro, 1)
         Xs = sset.offsets if route.offsets else sset.sigmas
@@ -700,18 +701,18 @@ class Route:
         if route.downdate:  # the prior factor kept and downdated: no first set drawn with it
             self.kernels.downdate_update(
                 H, zref, Xs, x if route.xref else self.zeros[n], z, Rs, table.no_factor(m), S, x,
-                route.mode, route.wm, route.wc, route.scale, route.sign, route.xkind, *out[:11],
+                route.mode, route.wm, route.wc, route.scale, route.sign, route.xkind, *out[:12],
             )  # fmt: skip
         else:
             self.kernels.joint_update(
                 H, zref, Xs, x if route.xref else self.zeros[n], z, Rs, x, route.mode, route.wm,
-                route.scale, route.sign, route.pair, *out[:11], plan.xi1, plan.gamma1, X1,
+                route.scale, route.sign, route.pair, *out[:12], plan.xi1, plan.gamma1, X1,
             )  # fmt: skip
         if whole is not None:
             status[~np.isfinite(whole).reshape(B, -1).all(axis=1)] = NOT_FINITE_IMAGES
         if np.count_nonzero(status):
             status = singular_allowed(status, S, Rs)
-        update = Update(xo, So, y, Sy, L21, ll, ww, observed, _NONE_REJECTED[y.shape], None, m_all, w)
+        update = Update(xo, So, y, Sy, L21, ll, ww, observed, _NONE_REJECTED[y.shape], None, m_all, w, ld)
         return update, status, (X1 if draw else None)
 
     def _angle_rows(self, route: UpdateRoute, H, z, buffers: Buffers | None) -> tuple:
@@ -785,7 +786,9 @@ class Route:
                 Kp = np.zeros((ix.size, n, mo))
                 Kp[:, :, ~pattern] = _gain(part.Sy, part.L21)
                 K[ix] = Kp
-        return Update(x, S, post.y, post.Sy, post.L21, ll, post.nis, observed, rejected, K, m, post.w), status
+        # (y, w, nis, Sy and its log det: the tested innovation's)
+        update = post._replace(x=x, S=S, log_likelihood=ll, observed=observed, rejected=rejected, K=K, m=m)
+        return update, status
 
 
 class Block:

@@ -102,6 +102,8 @@ class Posterior(NamedTuple):
         The measurement's Gaussian log-likelihood, ``-(m log 2 pi + 2 sum log|Sy_ii| + w.w) / 2``.
     nis : ndarray, shape (...)
         ``w.w``, the squared Mahalanobis distance of the innovation (its NIS).
+    log_det : ndarray, shape (...)
+        ``log det Sy = sum log|Sy_ii|`` (the kernel's, the sum the log-likelihood takes).
     """
 
     x: np.ndarray
@@ -113,6 +115,7 @@ class Posterior(NamedTuple):
     w: np.ndarray
     log_likelihood: np.ndarray
     nis: np.ndarray
+    log_det: np.ndarray
 
     def gain(self) -> np.ndarray:
         """The Kalman gain ``K = L21 Sy^-1``, shape ``(..., n, m)`` (one triangular solve)."""
@@ -316,7 +319,7 @@ def measurement_update(
         x_post = _per_filter(state_add, x, u.dx, "state_add")
         if not all_finite(x_post):
             raise PosteriorFactorError("the posterior mean or factor is not finite", errno=303)
-    return Posterior(x_post, u.S, u.y, u.z_pred, u.Sy, u.L21, u.w, u.log_likelihood, u.nis)
+    return Posterior(x_post, u.S, u.y, u.z_pred, u.Sy, u.L21, u.w, u.log_likelihood, u.nis, u.log_det)
 
 
 def _data(hook: Callable | None) -> Callable | None:

@@ -32,7 +32,6 @@ from typing import NamedTuple
 import numpy as np
 
 from .boundary.records import failures_error
-from .boundary.records import log_det as log_det_of
 from .checks import describe_nonfinite, finite_images, stacked_shape
 from .engine import Buffers, Route, Scratch, Update
 from .errors import NonFiniteError, NotPositiveDefiniteError, SqukfError
@@ -611,10 +610,9 @@ class Chunks:
             # the route's and the set's attributes; kept in posterior), no gate, every component measured
             if route.kernel_update and s.rows is not None and route.gate is None and obs.all():
                 xo, So, y, ll, nis, rejected, w, log_det = part  # written into the step's records
-                kernel_out = (zp, y, w, Sy, L21, dx, xo, So, ll, nis, status, route.no_set)
+                kernel_out = (zp, y, w, Sy, L21, dx, xo, So, ll, nis, log_det, status, route.no_set)
                 # (the scratch: the angle kernel's rows, for squkf's angle hooks)
                 route.posterior(s, xs, Ss, H, zr, None, Rr, None, False, buffers=scratch, out=kernel_out)
-                log_det_of(Sy, out=log_det)
                 rejected[...] = False
                 if np.count_nonzero(status) or not on.all():  # a failing or inactive filter keeps its prior
                     form = route.form_of(s, None)
@@ -703,10 +701,9 @@ def _isolated(route: Route, s, x0, S0, H, z, mask, R1_2, found: dict[int, str]):
 def _records(update: Update) -> tuple:
     """What a fleet keeps of a group's update, per filter: ``x, S, y, loglik, nis, rejected``, the whitened
     innovations and ``log det S1_2`` (over the group's measured components)."""
-    assert update.Sy is not None  # (a group's update keeps its factor)
     return (
         update.x, update.S, update.y, update.log_likelihood, update.nis, update.rejected, update.w,
-        log_det_of(update.Sy),
+        update.log_det_S1_2,
     )  # fmt: skip
 
 

@@ -283,8 +283,9 @@ class JointUpdate(NamedTuple):
         ``L21 w`` and the posterior mean ``x + dx``.
     S : ndarray, shape (..., n, n)
         The posterior factor.
-    log_likelihood, nis : ndarray, shape (...)
-        The measurement's Gaussian log-likelihood and its squared Mahalanobis distance ``w.w``.
+    log_likelihood, nis, log_det : ndarray, shape (...)
+        The measurement's Gaussian log-likelihood, its squared Mahalanobis distance ``w.w`` and
+        ``log det Sy``.
     status : ndarray of int, shape (...)
         0, or g13ej's 301, 302, 303 (304: a zero on the posterior factor's diagonal; 306: images
         not finite).
@@ -300,6 +301,7 @@ class JointUpdate(NamedTuple):
     S: np.ndarray
     log_likelihood: np.ndarray
     nis: np.ndarray
+    log_det: np.ndarray
     status: np.ndarray
 
 
@@ -320,7 +322,7 @@ class UpdateStacks(NamedTuple):
     Sy : ndarray, shape (B, m, m) or (0, m, m)
         The innovation factor given (a user's ``UT``), or none.
     out : tuple of ndarray
-        The kernel's outputs, in its order: ``zp, y, w, Sy, L21, dx, x, S, loglik, nis, status``.
+        The kernel's outputs, in its order: ``zp, y, w, Sy, L21, dx, x, S, loglik, nis, log_det, status``.
     """
 
     batch: tuple[int, ...]
@@ -385,7 +387,7 @@ def update_stacks(
     B = Hs.shape[0]
     out = (
         np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m)), np.empty((B, n, m)),
-        np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B),
+        np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B), np.empty(B),
         np.empty(B, dtype=np.int64),
     )  # fmt: skip
     return UpdateStacks(
