@@ -47,7 +47,13 @@ from .errors import CallSequenceError, NonFiniteError, SqukfError
 from .generators import SigmaSet, sigma_points_from_factor
 from .kernels import table
 from .linalg import all_finite
-from .measurement import Posterior, keeps_prior_factor, measurement_update, observed_noise_factor
+from .measurement import (
+    Posterior,
+    gain_from_factors,
+    keeps_prior_factor,
+    measurement_update,
+    observed_noise_factor,
+)
 from .plan import IDLE, PREDICTING, PRIOR, SET_KINDS, UPDATING, Hooks, Plan, SetRoutes, UpdateRoute
 from .rows import RowForm
 from .statuses import failure, first_status, prior_failure, singular_allowed
@@ -179,12 +185,13 @@ class _ObservedR:
     def __init__(self):
         self.kept: tuple = (None, b"", None)
 
-    def of(self, R1_2: np.ndarray, observed: np.ndarray) -> np.ndarray:
-        """``tria(R1_2[observed].T)``: the observed block ``R[obs][:, obs]`` is ``R1_2[obs] R1_2[obs].T``."""
+    def of(self, R1_2: np.ndarray, observed: np.ndarray, kernels: table.KernelTable) -> np.ndarray:
+        """``tria(R1_2[observed].T)`` by the route's ``kernels``: the observed block ``R[obs][:, obs]`` is
+        ``R1_2[obs] R1_2[obs].T``."""
         key = observed.tobytes()
         R, kept_key, factor = self.kept
         if R is not R1_2 or kept_key != key:
-            factor = observed_noise_factor(R1_2, observed)
+            factor = observed_noise_factor(R1_2, observed, kernels=kernels)
             self.kept = (R1_2, key, factor)
         return factor
 
@@ -430,7 +437,8 @@ class Route:
         add = self.hooks.state_add
         if add is not None:  # the hook sees one filter's vectors (a filter of a block at a time)
             first = plan.first
-            return self._block(sigma_points_from_factor(self._one(x), self._one(S), first.xi, add))
+            X1 = sigma_points_from_factor(self._one(x), self._one(S), first.xi, add, kernels=self.kernels)
+            return self._block(X1)
         B, n = x.shape
         N = plan.xi1.shape[0]
         X = np.empty((B, N, n)) if out is None else out
@@ -530,6 +538,7 @@ class Route:
                 hooks.residual_x,
                 errno=301,
                 hooks=("x_mean_fn", "residual_x"),
+                kernels=self.kernels,
             )
         else:
             mean, S = UT(Fo, rows.Wm, rows.Wc, Q1_2, hooks.x_mean_fn, hooks.residual_x)
@@ -676,7 +685,7 @@ class Route:
             H, z = np.ascontiguousarray(H[..., observed]), np.ascontiguousarray(z[..., observed])
             if zref is not None:
                 zref = np.ascontiguousarray(zref[..., observed])
-            Ro = self._observed_R.of(R1_2, observed)
+            Ro = self._observed_R.of(R1_2, observed, self.kernels)
         m = H.shape[2]
         n = x.shape[1]
         if zref is None:
@@ -764,7 +773,7 @@ class Route:
         x, S = post.x.copy(), post.S.copy()
         ll = np.array(post.log_likelihood, dtype=float)
         assert post.Sy is not None and post.L21 is not None  # (the tested update keeps its factors)
-        K = _gain(post.Sy, post.L21).copy()
+        K = gain_from_factors(post.Sy, post.L21, kernels=self.kernels).copy()
         none_left = rejected.all(axis=1)
         x[none_left], S[none_left] = x0[none_left], S0[none_left]
         ll[none_left], K[none_left] = 0.0, 0.0
@@ -784,7 +793,7 @@ class Route:
                 part, st, _ = self.posterior(sub, x0[ix], S0[ix], H[ix], z[ix], mask, R_ix, UT, False)
                 x[ix], S[ix], ll[ix], status[ix] = part.x, part.S, part.log_likelihood, st
                 Kp = np.zeros((ix.size, n, mo))
-                Kp[:, :, ~pattern] = _gain(part.Sy, part.L21)
+                Kp[:, :, ~pattern] = gain_from_factors(part.Sy, part.L21, kernels=self.kernels)
                 K[ix] = Kp
         # (y, w, nis, Sy and its log det: the tested innovation's)
         update = post._replace(x=x, S=S, log_likelihood=ll, observed=observed, rejected=rejected, K=K, m=m)
@@ -1221,12 +1230,6 @@ class Engine:
 def _one_set(sset: SigmaSet) -> SigmaSet:
     """One filter's set of a block of one."""
     return sset._replace(sigmas=sset.sigmas[0], offsets=None if sset.offsets is None else sset.offsets[0])
-
-
-def _gain(Sy: np.ndarray, L21: np.ndarray) -> np.ndarray:
-    from .measurement import gain_from_factors
-
-    return gain_from_factors(Sy, L21)
 
 
 class _NoneRejected(dict):

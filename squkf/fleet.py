@@ -769,7 +769,7 @@ class Fleet(Face):
             self._n, self._m, self._dt, self.hx, self.fx, self.points_fn, self._family, self._generator,
             self.x_mean, self.z_mean, self.residual_x, self.residual_z, self.state_add, self._gate,
             self._fx_noise or None, self._hx_noise or None, True, self._plan, self._hooks(),
-            self._Q.S, self._R.S,
+            self._Q.S, self._R.S, kernels=self._engine.route.kernels,
         )  # fmt: skip
 
     def __len__(self) -> int:

@@ -938,6 +938,7 @@ class SquareRootUKF(Face):
             self._family, self._generator,
             *hooks, self._gate, self.fx_noise, self.hx_noise, self.vectorized,
             self._plan, hooks, self._Q.factor(), self._R.factor(), self._engine.phase,
+            self._engine.route.kernels,
         )  # fmt: skip
 
     def _snapshot(self):
