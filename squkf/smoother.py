@@ -494,7 +494,7 @@ def _backward(
             if F.shape != X.shape:
                 raise ShapeError(f"fx values have shape {F.shape}, expected {X.shape} (a row per point)")
             fails: dict[int, str] = {}
-            finite = finite_images(F, "fx values", ~failed, fails)
+            finite = finite_images(F, "fx values", ~failed, fails, kernels=kernels)
             idx = np.flatnonzero(~failed & finite)
             x_next, S_next = xs_s[:, k + 1], Ss_s[:, k + 1]
 

@@ -516,7 +516,7 @@ class Chunks:
                     bad = ~_flag(status, on, found, form, "prior", F, "fx values")
                     xo[bad], So[bad] = xs[bad], Ss[bad]  # a failing or inactive filter keeps its estimate
             else:  # the hooks raise: the chunk is run again a filter at a time to find the failing ones
-                finite = finite_images(F, "fx values", on, found)
+                finite = finite_images(F, "fx values", on, found, kernels=route.kernels)
 
                 def prior(ix):
                     r, ix = _one_or_all(route, ix)  # one filter (an int): as a single filter says its failure
@@ -642,7 +642,7 @@ def _grouped(route: Route, joint, sset, x0, S0, H, z, observed, R1_2, todo, foun
     :meth:`Route.gated` as one filter's update is; a filter no update reaches keeps its prior, with no
     innovation and no likelihood. ``joint``: the set's update route (None: the hooks' or a ``UT``'s)."""
     if joint is None:  # the hooks raise: images that are not finite flagged first
-        todo = todo & finite_images(H, "hx values", todo, found)
+        todo = todo & finite_images(H, "hx values", todo, found, kernels=route.kernels)
     x, S, y, ll, nis, rej, w, log_det = out
     x[...], S[...], y[...], ll[...], nis[...], rej[...] = x0, S0, np.nan, 0.0, 0.0, False
     w[...], log_det[...] = np.nan, 0.0

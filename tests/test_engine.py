@@ -32,7 +32,9 @@ from models import (
     l96_fx,
     l96_hx,
     range_bearing_hx,
+    turn_fx_stacked,
     xy_radar_hx,
+    xy_radar_hx_stacked,
 )
 
 import squkf
@@ -615,6 +617,39 @@ def test_the_kernel_table_is_the_routes(monkeypatch, hooks, gate):
     for x, y in zip(out[a], out[b]):
         np.testing.assert_array_equal(x, y)
     assert copy.deepcopy(a._engine.route).kernels == own  # a copied route keeps its table
+
+
+@pytest.mark.parametrize("hooks", [{}, {"residual_z": lambda a, b: a - b}], ids=["default", "hooks"])
+def test_a_fleets_kernel_table_is_its_routes(monkeypatch, hooks):
+    """A fleet on its own table beside one on the installed table: its chunks (the checks of what the
+    model gives included), its gated and partial updates and its smoother call its table alone; the
+    numbers are the same."""
+    own, calls = counted_table(table.KERNELS)
+    installed = counting_kernels(monkeypatch)
+    z = xy_radar_hx(TURN.x0[0])
+    partial, wild = z.copy(), z.copy()
+    partial[1] = np.nan
+    wild[0] += 50.0
+    zs = np.stack([np.stack([z, partial, wild, wild])] * 3)  # (3 filters, 4 steps, m)
+    out = []
+    for mine, other, kernels in ((calls, installed, own), (installed, calls, None)):
+        fleet = Fleet(
+            3, 4, 2, 1.0, xy_radar_hx_stacked, turn_fx_stacked, MerweScaledWeights(alpha=0.5),
+            gate=Gate(0.99, per_component=True), **hooks,
+        )  # fmt: skip
+        fleet.x, fleet.P1_2, fleet.Q1_2, fleet.R1_2 = TURN.x0[0], TURN.S0[0], TURN.Q1_2, TURN.R1_2
+        if kernels is not None:
+            r = fleet._engine.route
+            fleet._engine.configure(Route(r.plan, r.hooks, r.gate, r.single, kernels=kernels))
+        mine.clear()
+        other.clear()
+        result = fleet.batch_filter(zs)
+        smoothed = fleet.rts_smoother(result)
+        assert other == [] and {"finite_rows", "solve", "tria"} <= set(mine)
+        assert result.rejected[:, 2].tolist() == [[True, False]] * 3
+        out.append((result.means, result.P1_2s, result.log_likelihood, *smoothed))
+    for x, y in zip(*out):
+        np.testing.assert_array_equal(x, y)
 
 
 def test_the_routes_table_serves_the_default_step_alone():
