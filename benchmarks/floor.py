@@ -87,7 +87,7 @@ def fused_route(f) -> SimpleNamespace:
     # the update's outputs: records, the posterior and the next first set
     r.zp, r.y, r.w, r.Sy = np.empty((1, m)), np.empty((1, m)), np.empty((1, m)), np.empty((1, m, m))
     r.L21, r.dx, r.x, r.Spost = np.empty((1, n, m)), np.empty((1, n)), np.empty((1, n)), np.empty((1, n, n))
-    r.ll, r.ww, r.ustatus = np.empty(1), np.empty(1), np.empty(1, dtype=np.int64)
+    r.ll, r.ww, r.ld, r.ustatus = np.empty(1), np.empty(1), np.empty(1), np.empty(1, dtype=np.int64)
     r.X1 = np.empty((1, N, n))
     rows = fused.rows
     sset = SigmaSet(r.X2, rows.Wm, rows.Wc, fused.exact, r.D2, rows, fused.axis)
@@ -117,7 +117,7 @@ def posterior(r, H: np.ndarray, z: np.ndarray) -> None:
     j, p = r.joint, r.plan
     r.kernels.joint_update(
         H, r.zeros_m, r.Xs, r.xref, z, r.R, r.mean, j.mode, j.wm, j.scale, j.sign, j.pair,
-        r.zp, r.y, r.w, r.Sy, r.L21, r.dx, r.x, r.Spost, r.ll, r.ww, r.ustatus, p.xi1, p.gamma1, r.X1,
+        r.zp, r.y, r.w, r.Sy, r.L21, r.dx, r.x, r.Spost, r.ll, r.ww, r.ld, r.ustatus, p.xi1, p.gamma1, r.X1,
     )  # fmt: skip
 
 

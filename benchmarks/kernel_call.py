@@ -1,4 +1,4 @@
-"""What a kernel's call costs from Python: 26 positional arguments against named records of them.
+"""What a kernel's call costs from Python: 27 positional arguments against named records of them.
 
     python benchmarks/kernel_call.py            # results in benchmarks/results/kernel_call.md
     python benchmarks/kernel_call.py --quick
@@ -8,7 +8,7 @@ or a number is typed in C; a tuple (a named tuple of arrays among them) is typed
 through numba's Python ``typeof``. This script measures that difference in one process, on the
 arguments of :func:`squkf.kernels.phases.joint_update_kernel` for one filter at n = 3, m = 2:
 
-* ``positional``: a compiled function taking the 26 arguments as the kernel does;
+* ``positional``: a compiled function taking the 27 arguments as the kernel does;
 * ``records``: the same function taking four named tuples (the inputs, the route's data, the
   outputs, the next first set) and unpacking them;
 * ``kernel``: the real ``joint_update_kernel`` (its call and its arithmetic), for scale.
@@ -61,6 +61,7 @@ class Outputs(NamedTuple):
     Spost: np.ndarray
     ll: np.ndarray
     ww: np.ndarray
+    ld: np.ndarray
     status: np.ndarray
 
 
@@ -72,7 +73,7 @@ class FirstSet(NamedTuple):
 
 @njit(error_model="numpy")
 def positional(H, zref, X, xref, z, R1_2, x, mode, wm, scale, sign, pair, zp, y, w, Sy, L21, dx, xpost, Spost,
-               ll, ww, status, xi1, gamma1, X1):  # fmt: skip
+               ll, ww, ld, status, xi1, gamma1, X1):  # fmt: skip
     status[0] = mode
 
 
@@ -100,7 +101,7 @@ def arguments(n: int = 3, m: int = 2) -> tuple[Inputs, RouteData, Outputs, First
     B = 1
     out = Outputs(
         np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m)), np.empty((B, n, m)),
-        np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B),
+        np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B), np.empty(B),
         np.empty(B, dtype=np.int64),
     )  # fmt: skip
     first = FirstSet(ro(np.vstack([np.zeros(n), np.eye(n), -np.eye(n)])), 0.0, np.empty((B, N, n)))

@@ -43,6 +43,7 @@ from .errors import (
     SqukfValueError,
 )
 from .kernels import wrappers
+from .kernels.table import KernelTable
 from .linalg import all_finite, factor_covariance
 
 _FLOAT64 = np.dtype(np.float64)  # numpy's native float64 dtype is one object: compared by identity
@@ -1104,7 +1105,9 @@ def note_stack_call(exc: BaseException, name: str, X: np.ndarray, noise: np.ndar
     note_on_user_error(exc, note)
 
 
-def finite_images(A: np.ndarray, name: str, active, fails: dict) -> np.ndarray:
+def finite_images(
+    A: np.ndarray, name: str, active, fails: dict, *, kernels: KernelTable | None = None
+) -> np.ndarray:
     """Which filters' images ``A`` ``(K, N, d)`` are finite; an active filter's that are not is a failure.
 
     Parameters
@@ -1116,12 +1119,14 @@ def finite_images(A: np.ndarray, name: str, active, fails: dict) -> np.ndarray:
     fails : dict
         An active filter with a non-finite image is added, ``filter -> reason``,
         described by its own rows (as one filter's error would say it).
+    kernels : KernelTable, optional
+        The kernel table to call (the fleet's route's); default the installed one.
 
     Returns
     -------
     ndarray of bool, shape (K,)
     """
-    finite = wrappers.finite_rows(A)
+    finite = wrappers.finite_rows(A, kernels=kernels)
     for k in np.flatnonzero(active & ~finite).tolist():
         fails.setdefault(int(k), f"NonFiniteError: {describe_nonfinite(A[k], name)}")
     return finite

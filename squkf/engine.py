@@ -47,7 +47,13 @@ from .errors import CallSequenceError, NonFiniteError, SqukfError
 from .generators import SigmaSet, sigma_points_from_factor
 from .kernels import table
 from .linalg import all_finite
-from .measurement import Posterior, keeps_prior_factor, measurement_update, observed_noise_factor
+from .measurement import (
+    Posterior,
+    gain_from_factors,
+    keeps_prior_factor,
+    measurement_update,
+    observed_noise_factor,
+)
 from .plan import IDLE, PREDICTING, PRIOR, SET_KINDS, UPDATING, Hooks, Plan, SetRoutes, UpdateRoute
 from .rows import RowForm
 from .statuses import failure, first_status, prior_failure, singular_allowed
@@ -179,12 +185,13 @@ class _ObservedR:
     def __init__(self):
         self.kept: tuple = (None, b"", None)
 
-    def of(self, R1_2: np.ndarray, observed: np.ndarray) -> np.ndarray:
-        """``tria(R1_2[observed].T)``: the observed block ``R[obs][:, obs]`` is ``R1_2[obs] R1_2[obs].T``."""
+    def of(self, R1_2: np.ndarray, observed: np.ndarray, kernels: table.KernelTable) -> np.ndarray:
+        """``tria(R1_2[observed].T)`` by the route's ``kernels``: the observed block ``R[obs][:, obs]`` is
+        ``R1_2[obs] R1_2[obs].T``."""
         key = observed.tobytes()
         R, kept_key, factor = self.kept
         if R is not R1_2 or kept_key != key:
-            factor = observed_noise_factor(R1_2, observed)
+            factor = observed_noise_factor(R1_2, observed, kernels=kernels)
             self.kept = (R1_2, key, factor)
         return factor
 
@@ -284,7 +291,7 @@ def _posterior_out(B: int, n: int, m: int, N1: int) -> tuple:
     """The update kernel's outputs (as its arguments), and the next first set (``N1`` points, 0: none)."""
     return (
         np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m)), np.empty((B, n, m)),
-        np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B),
+        np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B), np.empty(B),
         np.empty(B, dtype=np.int64), np.empty((B, N1, n)) if N1 else table.no_set(n),
     )  # fmt: skip
 
@@ -430,7 +437,8 @@ class Route:
         add = self.hooks.state_add
         if add is not None:  # the hook sees one filter's vectors (a filter of a block at a time)
             first = plan.first
-            return self._block(sigma_points_from_factor(self._one(x), self._one(S), first.xi, add))
+            X1 = sigma_points_from_factor(self._one(x), self._one(S), first.xi, add, kernels=self.kernels)
+            return self._block(X1)
         B, n = x.shape
         N = plan.xi1.shape[0]
         X = np.empty((B, N, n)) if out is None else out
@@ -530,6 +538,7 @@ class Route:
                 hooks.residual_x,
                 errno=301,
                 hooks=("x_mean_fn", "residual_x"),
+                kernels=self.kernels,
             )
         else:
             mean, S = UT(Fo, rows.Wm, rows.Wc, Q1_2, hooks.x_mean_fn, hooks.residual_x)
@@ -625,7 +634,7 @@ class Route:
             Where the kernel's results are written (default: new arrays).
         out : tuple, optional
             The kernel's outputs themselves, as its arguments (``zp, y, w, Sy, L21, dx, x, S, loglik,
-            nis, status, X1``), on the joint route: a fleet writes into its step's arrays.
+            nis, log_det, status, X1``), on the joint route: a fleet writes into its step's arrays.
 
         Returns
         -------
@@ -661,8 +670,9 @@ class Route:
             none = _NONE_REJECTED[post.y.shape]
             ll, nis = post.log_likelihood, post.nis
             update = Update(
-                post.x, post.S, post.y, post.Sy, post.L21, ll, nis, observed, none, None, m_all, post.w
-            )
+                post.x, post.S, post.y, post.Sy, post.L21, ll, nis, observed, none, None, m_all, post.w,
+                post.log_det,
+            )  # fmt: skip
             return update, np.zeros(B, dtype=np.int64), None
         Ro = R1_2
         whole = None
@@ -675,7 +685,7 @@ class Route:
             H, z = np.ascontiguousarray(H[..., observed]), np.ascontiguousarray(z[..., observed])
             if zref is not None:
                 zref = np.ascontiguousarray(zref[..., observed])
-            Ro = self._observed_R.of(R1_2, observed)
+            Ro = self._observed_R.of(R1_2, observed, self.kernels)
         m = H.shape[2]
         n = x.shape[1]
         if zref is None:
@@ -688,7 +698,7 @@ class Route:
             out = (
                 _posterior_out(B, n, m, N1) if buffers is None else buffers.take(_posterior_out, B, n, m, N1)
             )
-        zp, y, w, Sy, L21, dx, xo, So, ll, ww, status, X1 = out
+        zp, y, w, Sy, L21, dx, xo, So, ll, ww, ld, status, X1 = out
         kept = self._noise.get(1)
         Rs = kept[1] if kept is not None and kept[0] is Ro else self.stacked(Ro, 1)
         Xs = sset.offsets if route.offsets else sset.sigmas
@@ -700,18 +710,18 @@ class Route:
         if route.downdate:  # the prior factor kept and downdated: no first set drawn with it
             self.kernels.downdate_update(
                 H, zref, Xs, x if route.xref else self.zeros[n], z, Rs, table.no_factor(m), S, x,
-                route.mode, route.wm, route.wc, route.scale, route.sign, route.xkind, *out[:11],
+                route.mode, route.wm, route.wc, route.scale, route.sign, route.xkind, *out[:12],
             )  # fmt: skip
         else:
             self.kernels.joint_update(
                 H, zref, Xs, x if route.xref else self.zeros[n], z, Rs, x, route.mode, route.wm,
-                route.scale, route.sign, route.pair, *out[:11], plan.xi1, plan.gamma1, X1,
+                route.scale, route.sign, route.pair, *out[:12], plan.xi1, plan.gamma1, X1,
             )  # fmt: skip
         if whole is not None:
             status[~np.isfinite(whole).reshape(B, -1).all(axis=1)] = NOT_FINITE_IMAGES
         if np.count_nonzero(status):
             status = singular_allowed(status, S, Rs)
-        update = Update(xo, So, y, Sy, L21, ll, ww, observed, _NONE_REJECTED[y.shape], None, m_all, w)
+        update = Update(xo, So, y, Sy, L21, ll, ww, observed, _NONE_REJECTED[y.shape], None, m_all, w, ld)
         return update, status, (X1 if draw else None)
 
     def _angle_rows(self, route: UpdateRoute, H, z, buffers: Buffers | None) -> tuple:
@@ -763,7 +773,7 @@ class Route:
         x, S = post.x.copy(), post.S.copy()
         ll = np.array(post.log_likelihood, dtype=float)
         assert post.Sy is not None and post.L21 is not None  # (the tested update keeps its factors)
-        K = _gain(post.Sy, post.L21).copy()
+        K = gain_from_factors(post.Sy, post.L21, kernels=self.kernels).copy()
         none_left = rejected.all(axis=1)
         x[none_left], S[none_left] = x0[none_left], S0[none_left]
         ll[none_left], K[none_left] = 0.0, 0.0
@@ -783,9 +793,11 @@ class Route:
                 part, st, _ = self.posterior(sub, x0[ix], S0[ix], H[ix], z[ix], mask, R_ix, UT, False)
                 x[ix], S[ix], ll[ix], status[ix] = part.x, part.S, part.log_likelihood, st
                 Kp = np.zeros((ix.size, n, mo))
-                Kp[:, :, ~pattern] = _gain(part.Sy, part.L21)
+                Kp[:, :, ~pattern] = gain_from_factors(part.Sy, part.L21, kernels=self.kernels)
                 K[ix] = Kp
-        return Update(x, S, post.y, post.Sy, post.L21, ll, post.nis, observed, rejected, K, m, post.w), status
+        # (y, w, nis, Sy and its log det: the tested innovation's)
+        update = post._replace(x=x, S=S, log_likelihood=ll, observed=observed, rejected=rejected, K=K, m=m)
+        return update, status
 
 
 class Block:
@@ -1218,12 +1230,6 @@ class Engine:
 def _one_set(sset: SigmaSet) -> SigmaSet:
     """One filter's set of a block of one."""
     return sset._replace(sigmas=sset.sigmas[0], offsets=None if sset.offsets is None else sset.offsets[0])
-
-
-def _gain(Sy: np.ndarray, L21: np.ndarray) -> np.ndarray:
-    from .measurement import gain_from_factors
-
-    return gain_from_factors(Sy, L21)
 
 
 class _NoneRejected(dict):

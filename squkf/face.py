@@ -413,7 +413,7 @@ class Face:
             family if isinstance(family, WrittenWeights) else self._points,  # (weights written)
             family, self._generator, *hooks, self._gate, self.fx_noise, self.hx_noise,
             self.vectorized if self.ONE else True, self._plan, hooks, self._Q.factor(), self._R.factor(),
-            self._engine.phase if self.ONE else IDLE,
+            self._engine.phase if self.ONE else IDLE, self._engine.route.kernels,
         )  # fmt: skip
 
     # -- edits in place: the arrays handed out, taken back at the next call ----------------------

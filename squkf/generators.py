@@ -40,6 +40,7 @@ from .angles import is_data, wrap
 from .checks import call_hook
 from .errors import ParameterError
 from .kernels import wrappers
+from .kernels.table import KernelTable
 from .rows import WeightRows, weight_rows
 from .transform import StackedHook
 from .weights import FilterpyPoints, as_family
@@ -161,7 +162,13 @@ def _plain_sum(state_add) -> bool:
 
 
 def sigma_points_and_offsets(
-    x: np.ndarray, S: np.ndarray, xi: np.ndarray, state_add=None, gamma: float | None = None
+    x: np.ndarray,
+    S: np.ndarray,
+    xi: np.ndarray,
+    state_add=None,
+    gamma: float | None = None,
+    *,
+    kernels: KernelTable | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Sigma points ``x + xi[i] @ S.T`` (one per row) and their offsets ``xi @ S.T``.
 
@@ -179,13 +186,15 @@ def sigma_points_and_offsets(
         ``xi`` is ``[0; gamma I; -gamma I]`` (see :func:`axis_gamma`) or
         ``[gamma I; -gamma I]``: the offsets are ``+/- gamma S^T``, formed in
         O(n^2) (the same numbers as the product).
+    kernels : KernelTable, optional
+        The kernel table to call (a filter's route's); default the installed one.
 
     Returns
     -------
     sigmas : ndarray, shape (..., N, n)
     offsets : ndarray, shape (..., N, n)
     """
-    sigmas, dx = wrappers.sigma_points(x, S, xi, 0.0 if gamma is None else gamma)
+    sigmas, dx = wrappers.sigma_points(x, S, xi, 0.0 if gamma is None else gamma, kernels=kernels)
     assert dx is not None
     if _plain_sum(state_add):
         return sigmas, dx
@@ -209,12 +218,19 @@ def sigma_points_and_offsets(
 
 
 def sigma_points_from_factor(
-    x: np.ndarray, S: np.ndarray, xi: np.ndarray, state_add=None, gamma: float | None = None
+    x: np.ndarray,
+    S: np.ndarray,
+    xi: np.ndarray,
+    state_add=None,
+    gamma: float | None = None,
+    *,
+    kernels: KernelTable | None = None,
 ) -> np.ndarray:
     """The sigma points of :func:`sigma_points_and_offsets` alone, shape ``(..., N, n)``."""
+    g = 0.0 if gamma is None else gamma
     if _plain_sum(state_add):  # the offsets are not needed: not formed
-        return wrappers.sigma_points(x, S, xi, 0.0 if gamma is None else gamma, offsets=False)[0]
-    return sigma_points_and_offsets(x, S, xi, state_add, gamma)[0]
+        return wrappers.sigma_points(x, S, xi, g, offsets=False, kernels=kernels)[0]
+    return sigma_points_and_offsets(x, S, xi, state_add, gamma, kernels=kernels)[0]
 
 
 def _frozen(a: np.ndarray) -> np.ndarray:

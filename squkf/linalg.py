@@ -8,7 +8,9 @@ The factorisations, solves and rank-1 modifications are the compiled kernels
 of :mod:`squkf.kernels` (no ``check_finite`` pass, no argument re-validation:
 every input reaching these functions has been validated once at the boundary
 of the library); these functions turn the kernels' status into squkf's
-exceptions.
+exceptions. Each takes the kernel table to call (``kernels``: a filter's route's,
+when one of its phases calls it); without one, the table installed as
+:data:`squkf.kernels.table.KERNELS` when it is called.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from scipy.linalg import lapack
 
 from .errors import DowndateError, GainError, NotPositiveDefiniteError
 from .kernels import wrappers
+from .kernels.table import KernelTable
 
 __all__ = [
     "all_finite",
@@ -58,7 +61,7 @@ def all_finite(a: np.ndarray) -> bool:
     return math.isfinite(s) or bool(np.isfinite(a).all())
 
 
-def tria(rows: np.ndarray) -> np.ndarray:
+def tria(rows: np.ndarray, *, kernels: KernelTable | None = None) -> np.ndarray:
     """Lower-triangular factor of ``rows.T @ rows``, by one QR factorisation.
 
     Parameters
@@ -67,6 +70,8 @@ def tria(rows: np.ndarray) -> np.ndarray:
         Each row is one weighted column of a square root: the result ``S``
         satisfies ``S @ S.T == rows.T @ rows`` (for every leading index).
         Factored by the compiled Householder QR of :mod:`squkf.kernels`.
+    kernels : KernelTable, optional
+        The kernel table to call (a filter's route's); default the installed one.
 
     Returns
     -------
@@ -74,10 +79,12 @@ def tria(rows: np.ndarray) -> np.ndarray:
         Lower triangular with a non-negative diagonal. If ``k < n`` the last
         ``n - k`` columns are zero.
     """
-    return wrappers.tria(rows)
+    return wrappers.tria(rows, kernels=kernels)
 
 
-def solve_lower(S: np.ndarray, b: np.ndarray, trans: bool = False) -> np.ndarray:
+def solve_lower(
+    S: np.ndarray, b: np.ndarray, trans: bool = False, *, kernels: KernelTable | None = None
+) -> np.ndarray:
     """Solve ``S @ x = b`` (or ``S.T @ x = b``) for lower-triangular ``S``.
 
     Parameters
@@ -88,6 +95,8 @@ def solve_lower(S: np.ndarray, b: np.ndarray, trans: bool = False) -> np.ndarray
         Right-hand side(s); a stack of vectors when ``b.ndim == S.ndim - 1``.
     trans : bool
         Solve with ``S.T`` instead of ``S``.
+    kernels : KernelTable, optional
+        The kernel table to call (a filter's route's); default the installed one.
 
     Returns
     -------
@@ -98,13 +107,15 @@ def solve_lower(S: np.ndarray, b: np.ndarray, trans: bool = False) -> np.ndarray
     numpy.linalg.LinAlgError
         If ``S`` has a zero on its diagonal.
     """
-    x, ok = wrappers.solve_lower(S, b, trans)
+    x, ok = wrappers.solve_lower(S, b, trans, kernels=kernels)
     if not ok.all():
         raise np.linalg.LinAlgError("triangular factor is singular: a diagonal element is zero")
     return x
 
 
-def chol_update(S: np.ndarray, v: np.ndarray, sign: float = 1.0) -> np.ndarray:
+def chol_update(
+    S: np.ndarray, v: np.ndarray, sign: float = 1.0, *, kernels: KernelTable | None = None
+) -> np.ndarray:
     """Rank-1 update or downdate of a lower Cholesky factor in O(n^2).
 
     Returns ``S1`` with ``S1 @ S1.T == S @ S.T + sign * outer(v, v)``, by one
@@ -118,6 +129,8 @@ def chol_update(S: np.ndarray, v: np.ndarray, sign: float = 1.0) -> np.ndarray:
         The update vector.
     sign : float
         ``+1`` for an update, ``-1`` for a downdate.
+    kernels : KernelTable, optional
+        The kernel table to call (a filter's route's); default the installed one.
 
     Returns
     -------
@@ -131,7 +144,7 @@ def chol_update(S: np.ndarray, v: np.ndarray, sign: float = 1.0) -> np.ndarray:
         (``||S^{-1} v|| >= 1``), a singular ``S``, or a result that is not
         finite (g13ej IFAIL 301).
     """
-    S1, fail = wrappers.chol_update(S, v, -1.0 if sign < 0 else 1.0)
+    S1, fail = wrappers.chol_update(S, v, -1.0 if sign < 0 else 1.0, kernels=kernels)
     if (fail >= 0).any():
         d = np.diagonal(S, axis1=-2, axis2=-1)
         if not (d > 0).all():
@@ -149,7 +162,12 @@ def chol_update(S: np.ndarray, v: np.ndarray, sign: float = 1.0) -> np.ndarray:
 
 
 def chol_downdate_columns(
-    S: np.ndarray, U: np.ndarray, errno: int = 303, error: type = DowndateError
+    S: np.ndarray,
+    U: np.ndarray,
+    errno: int = 303,
+    error: type = DowndateError,
+    *,
+    kernels: KernelTable | None = None,
 ) -> np.ndarray:
     """Downdate a lower factor by every column of ``U``.
 
@@ -165,6 +183,8 @@ def chol_downdate_columns(
         g13ej error number to attach if a downdate fails.
     error : exception class
         Raised when a downdate fails (a :class:`DowndateError` subclass).
+    kernels : KernelTable, optional
+        The kernel table to call (a filter's route's); default the installed one.
 
     Returns
     -------
@@ -177,13 +197,13 @@ def chol_downdate_columns(
     """
     for j in range(U.shape[-1]):
         try:
-            S = chol_update(S, U[..., j], -1.0)
+            S = chol_update(S, U[..., j], -1.0, kernels=kernels)
         except DowndateError as exc:
             raise error(f"downdate by column {j}: {exc}", errno=errno) from None
     return S
 
 
-def kalman_gain(Pxy: np.ndarray, Sy: np.ndarray) -> np.ndarray:
+def kalman_gain(Pxy: np.ndarray, Sy: np.ndarray, *, kernels: KernelTable | None = None) -> np.ndarray:
     """Kalman gain ``K = Pxy @ inv(Sy @ Sy.T)`` by two triangular solves.
 
     Parameters
@@ -192,6 +212,8 @@ def kalman_gain(Pxy: np.ndarray, Sy: np.ndarray) -> np.ndarray:
         State-measurement cross-covariance.
     Sy : ndarray, shape (..., m, m)
         Lower-triangular factor of the innovation covariance.
+    kernels : KernelTable, optional
+        The kernel table to call (a filter's route's); default the installed one.
 
     Returns
     -------
@@ -210,8 +232,8 @@ def kalman_gain(Pxy: np.ndarray, Sy: np.ndarray) -> np.ndarray:
             errno=302,
         )
     # K^T = Sy^-T Sy^-1 Pxy^T
-    W = solve_lower(Sy, np.ascontiguousarray(np.swapaxes(Pxy, -1, -2)))
-    return np.swapaxes(solve_lower(Sy, W, trans=True), -1, -2)
+    W = solve_lower(Sy, np.ascontiguousarray(np.swapaxes(Pxy, -1, -2)), kernels=kernels)
+    return np.swapaxes(solve_lower(Sy, W, trans=True, kernels=kernels), -1, -2)
 
 
 def factor_covariance(A: np.ndarray, name: str, semidefinite: bool = False) -> np.ndarray:

@@ -102,6 +102,8 @@ class Posterior(NamedTuple):
         The measurement's Gaussian log-likelihood, ``-(m log 2 pi + 2 sum log|Sy_ii| + w.w) / 2``.
     nis : ndarray, shape (...)
         ``w.w``, the squared Mahalanobis distance of the innovation (its NIS).
+    log_det : ndarray, shape (...)
+        ``log det Sy = sum log|Sy_ii|`` (the kernel's, the sum the log-likelihood takes).
     """
 
     x: np.ndarray
@@ -113,13 +115,14 @@ class Posterior(NamedTuple):
     w: np.ndarray
     log_likelihood: np.ndarray
     nis: np.ndarray
+    log_det: np.ndarray
 
     def gain(self) -> np.ndarray:
         """The Kalman gain ``K = L21 Sy^-1``, shape ``(..., n, m)`` (one triangular solve)."""
         return gain_from_factors(self.Sy, self.L21)
 
 
-def gain_from_factors(Sy: np.ndarray, L21: np.ndarray) -> np.ndarray:
+def gain_from_factors(Sy: np.ndarray, L21: np.ndarray, *, kernels: KernelTable | None = None) -> np.ndarray:
     """Kalman gain ``K = L21 Sy^-1`` from the blocks of the joint factor.
 
     Parameters
@@ -128,12 +131,14 @@ def gain_from_factors(Sy: np.ndarray, L21: np.ndarray) -> np.ndarray:
         Lower factor of the innovation covariance.
     L21 : ndarray, shape (..., n, m)
         ``Pxy Sy^-T``.
+    kernels : KernelTable, optional
+        The kernel table to call (a filter's route's); default the installed one.
 
     Returns
     -------
     K : ndarray, shape (..., n, m)
     """
-    Kt = solve_lower(Sy, np.ascontiguousarray(np.swapaxes(L21, -1, -2)), trans=True)
+    Kt = solve_lower(Sy, np.ascontiguousarray(np.swapaxes(L21, -1, -2)), trans=True, kernels=kernels)
     return np.swapaxes(Kt, -1, -2)
 
 
@@ -155,7 +160,9 @@ def keeps_prior_factor(residual_x: Callable | None, state_add: Callable | None) 
     return residual_x is not None or state_add is not None
 
 
-def observed_noise_factor(R1_2: np.ndarray, observed: np.ndarray) -> np.ndarray:
+def observed_noise_factor(
+    R1_2: np.ndarray, observed: np.ndarray, *, kernels: KernelTable | None = None
+) -> np.ndarray:
     """Lower factor of the observed block of ``R = R1_2 R1_2^T``, by one QR.
 
     The block ``R[obs][:, obs]`` is ``R1_2[obs] R1_2[obs]^T``: the rows of the
@@ -165,13 +172,15 @@ def observed_noise_factor(R1_2: np.ndarray, observed: np.ndarray) -> np.ndarray:
     ----------
     R1_2 : ndarray, shape (..., m, m)
     observed : ndarray of bool, shape (m,)
+    kernels : KernelTable, optional
+        The kernel table to call (a filter's route's); default the installed one.
 
     Returns
     -------
     ndarray, shape (..., m_obs, m_obs)
     """
     rows = np.swapaxes(R1_2[..., observed, :], -1, -2)
-    return tria(rows.copy(order="F") if rows.ndim == 2 else rows.copy())
+    return tria(rows.copy(order="F") if rows.ndim == 2 else rows.copy(), kernels=kernels)
 
 
 def measurement_update(
@@ -246,12 +255,13 @@ def measurement_update(
         form, a downdate of the prior factor failed (``P_prior - K S K^T`` is
         not positive definite).
     """
+    kernels = table.KERNELS if kernels is None else kernels
     rows = sset.rows if sset.rows is not None else weight_rows(sset.Wm, sset.Wc)
     z_hooks = z_mean_fn is not None or residual_z is not None
     cols: np.ndarray | slice = slice(None)  # the observed components of what is formed over all of them
     Ro = R1_2
     if observed is not None and not observed.all():
-        Ro = observed_noise_factor(R1_2, observed)
+        Ro = observed_noise_factor(R1_2, observed, kernels=kernels)
         if z_hooks or UT is not None:  # they see every component: their results are cut below
             cols = observed
         else:  # the kernels form everything from the measured components alone
@@ -268,7 +278,7 @@ def measurement_update(
             z_pred = check_hook_result(z_pred, sigmas_h.shape[:-2] + (m,), "UT")
             Sy = check_hook_result(Sy, sigmas_h.shape[:-2] + (m, m), "UT")
             if not isinstance(cols, slice):  # the factor of the observed block: its rows, by one QR
-                Sy = observed_noise_factor(Sy, cols)
+                Sy = observed_noise_factor(Sy, cols, kernels=kernels)
         D, y = _rows_and_innovation(sigmas_h, _present(z, z_pred, cols), z_pred, residual_z)
         H, z, z_pred = D[..., cols], y[..., cols], z_pred[..., cols]
         form, mode = rows.mean_form, GIVEN
@@ -291,7 +301,7 @@ def measurement_update(
         else:
             X, xref = sset.sigmas, x
         st = wrappers.update_stacks(H, X, z, Ro, x, xref=xref, zref=z_pred)
-        (table.KERNELS if kernels is None else kernels).joint_update(
+        kernels.joint_update(
             st.H, st.zref, st.X, st.xref, st.z, st.R1_2, st.x, mode, plan_array(rows.Wm),
             plan_array(form.scale), plan_array(form.sign), float(pair), *st.out, no_points(n), 0.0, no_set(n),
         )  # fmt: skip
@@ -304,7 +314,7 @@ def measurement_update(
         else:  # (a state_add's points: their offsets are filterpy's sigmas - x)
             X, xref = sset.offsets, np.zeros(n)
         st = wrappers.update_stacks(H, X, z, Ro, x, xref=xref, zref=z_pred, S=S, Sy=Sy)
-        (table.KERNELS if kernels is None else kernels).downdate_update(
+        kernels.downdate_update(
             st.H, st.zref, st.X, st.xref, st.z, st.R1_2, st.Sy, st.S, st.x, mode, plan_array(rows.Wm),
             plan_array(rows.Wc), plan_array(form.scale), plan_array(form.sign),
             no_angles(n) if xkind is None else xkind, *st.out,
@@ -316,7 +326,7 @@ def measurement_update(
         x_post = _per_filter(state_add, x, u.dx, "state_add")
         if not all_finite(x_post):
             raise PosteriorFactorError("the posterior mean or factor is not finite", errno=303)
-    return Posterior(x_post, u.S, u.y, u.z_pred, u.Sy, u.L21, u.w, u.log_likelihood, u.nis)
+    return Posterior(x_post, u.S, u.y, u.z_pred, u.Sy, u.L21, u.w, u.log_likelihood, u.nis, u.log_det)
 
 
 def _data(hook: Callable | None) -> Callable | None:

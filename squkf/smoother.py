@@ -78,6 +78,7 @@ from .errors import (
 )
 from .generators import UnitSet, sigma_points_from_factor
 from .kernels import wrappers
+from .kernels.table import KernelTable
 from .linalg import chol_downdate_columns, kalman_gain, tria
 from .plan import Hooks
 from .stacks import rows_of, run_isolated
@@ -304,6 +305,7 @@ def rts_smoother_factors(
         c.hooks,
         ut=UT,
         label=lambda k: f"Qs[{k + 1}], dts[{k + 1}], fx_args[{k + 1}]",
+        kernels=c.kernels,
     )
     return out.xs, out.Ss, out.Gs
 
@@ -362,6 +364,7 @@ def _smooth_step(
     unit: UnitSet,
     hooks: Hooks,
     ut: Callable | None,
+    kernels: KernelTable | None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One backward step, for every filter of the batch at once (pure).
 
@@ -380,6 +383,8 @@ def _smooth_step(
     hooks : Hooks
     ut : callable or None
         A user's square-root transform (default: :func:`squkf.transform.transform_factor`).
+    kernels : KernelTable or None
+        The filter's kernel table (its route's; None: the installed one).
 
     Returns
     -------
@@ -390,23 +395,23 @@ def _smooth_step(
     rows = unit.rows
     residual_x = hooks.residual_x
     if ut is None:
-        x_pred, S_pred = transform_factor(F, rows, Q1_2, hooks.x_mean_fn, residual_x)
+        x_pred, S_pred = transform_factor(F, rows, Q1_2, hooks.x_mean_fn, residual_x, kernels=kernels)
     else:
         x_pred, S_pred = ut(F, rows.Wm, rows.Wc, Q1_2, hooks.x_mean_fn, residual_x)
     dF = deviations(F, x_pred, residual_x, "residual_x")
     dX = deviations(X, x, residual_x, "residual_x")
     C = np.matmul(swap_last(dX) * rows.Wc, dF)
-    G = kalman_gain(C, S_pred)
+    G = kalman_gain(C, S_pred, kernels=kernels)
     diff = _combine(residual_x, x_next, x_pred, np.subtract, "residual_x")
     x_s = _combine(hooks.state_add, x, _matvec(G, diff), np.add, "state_add")
     GS = np.matmul(G, S_next)
     if unit.exact:
         # the points reproduce P[k]: P[k] - G P_pred G^T = sum Wc (dX - G dF)(...)^T + G Q G^T
         extra = GS if Q1_2 is None else np.concatenate([np.matmul(G, Q1_2), GS], axis=-1)
-        S_s = factor_rows(dX - np.matmul(dF, swap_last(G)), rows.mean_form, extra)
+        S_s = factor_rows(dX - np.matmul(dF, swap_last(G)), rows.mean_form, extra, kernels=kernels)
     else:
-        base = chol_downdate_columns(S, np.matmul(G, S_pred))
-        S_s = tria(np.concatenate([swap_last(base), swap_last(GS)], axis=-2))
+        base = chol_downdate_columns(S, np.matmul(G, S_pred), kernels=kernels)
+        S_s = tria(np.concatenate([swap_last(base), swap_last(GS)], axis=-2), kernels=kernels)
     return x_s, S_s, G
 
 
@@ -421,6 +426,7 @@ def _backward(
     ut: Callable | None = None,
     isolate: np.ndarray | None = None,
     label: Callable[[int], str] | None = None,
+    kernels: KernelTable | None = None,
 ) -> Smoothed:
     """The square-root unscented RTS backward recursion on stacked arrays.
 
@@ -448,6 +454,8 @@ def _backward(
         is its input (unsmoothed, zero gains). Without it, every error raises.
     label : callable ``label(k) -> str``, optional
         The per-step arguments of backward step ``k``, for error messages.
+    kernels : KernelTable, optional
+        The filter's kernel table (its route's, from its configuration); default the installed one.
 
     Returns
     -------
@@ -475,26 +483,27 @@ def _backward(
         for k in range(T - 2, -1, -1):
             Q1_2 = Q1_2_at(k)
             x, S = xs[..., k, :], Ss[..., k, :, :]
-            X = sigma_points_from_factor(x, S, unit.xi, state_add)
+            X = sigma_points_from_factor(x, S, unit.xi, state_add, kernels=kernels)
             if isolate is None:
                 F = check_values(fx_eval(k, X), X.shape, "fx values")
                 xs_s[..., k, :], Ss_s[..., k, :, :], Gs[..., k, :, :] = _smooth_step(
-                    x, S, X, F, xs_s[..., k + 1, :], Ss_s[..., k + 1, :, :], Q1_2, unit, hooks, ut
+                    x, S, X, F, xs_s[..., k + 1, :], Ss_s[..., k + 1, :, :], Q1_2, unit, hooks, ut, kernels
                 )
                 continue
             F = as_float_array(fx_eval(k, X), "fx values")
             if F.shape != X.shape:
                 raise ShapeError(f"fx values have shape {F.shape}, expected {X.shape} (a row per point)")
             fails: dict[int, str] = {}
-            finite = finite_images(F, "fx values", ~failed, fails)
+            finite = finite_images(F, "fx values", ~failed, fails, kernels=kernels)
             idx = np.flatnonzero(~failed & finite)
             x_next, S_next = xs_s[:, k + 1], Ss_s[:, k + 1]
 
             def step(ix, X=X, F=F, x=x, S=S, x_next=x_next, S_next=S_next, Q1_2=Q1_2):
                 out = _smooth_step(
-                    x[ix], S[ix], X[ix], F[ix], x_next[ix], S_next[ix], rows_of(Q1_2, ix, 2), unit, hooks, ut
-                )
-                if not _finite_per_filter(out).all():
+                    x[ix], S[ix], X[ix], F[ix], x_next[ix], S_next[ix], rows_of(Q1_2, ix, 2), unit, hooks, ut,
+                    kernels,
+                )  # fmt: skip
+                if not _finite_per_filter(out, kernels).all():
                     raise NonFiniteError("the smoothed estimate is not finite")
                 return out
 
@@ -516,11 +525,11 @@ def _where(k: int, label: Callable[[int], str] | None) -> str:
     return f"at smoothing step {k}" + (f" ({label(k)})" if label is not None else "")
 
 
-def _finite_per_filter(arrays: tuple[np.ndarray, ...]) -> np.ndarray:
+def _finite_per_filter(arrays: tuple[np.ndarray, ...], kernels: KernelTable | None) -> np.ndarray:
     """Whether each filter's slice (leading axis) of every array is finite."""
     ok = np.ones(arrays[0].shape[0], dtype=bool)
     for a in arrays:
-        ok &= wrappers.finite_rows(a)
+        ok &= wrappers.finite_rows(a, kernels=kernels)
     return ok
 
 
@@ -655,6 +664,7 @@ def fleet_rts_smoother(fleet, result, dts=None, fx_args: Mapping[str, Any] | Non
         c.hooks,
         isolate=failed.copy(),
         label=lambda k: f"dts[{k + 1}]",
+        kernels=c.kernels,
     )
     new = np.flatnonzero(out.failed & ~failed)
     if fleet.on_error == "raise" and new.size:

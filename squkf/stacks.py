@@ -32,7 +32,6 @@ from typing import NamedTuple
 import numpy as np
 
 from .boundary.records import failures_error
-from .boundary.records import log_det as log_det_of
 from .checks import describe_nonfinite, finite_images, stacked_shape
 from .engine import Buffers, Route, Scratch, Update
 from .errors import NonFiniteError, NotPositiveDefiniteError, SqukfError
@@ -517,7 +516,7 @@ class Chunks:
                     bad = ~_flag(status, on, found, form, "prior", F, "fx values")
                     xo[bad], So[bad] = xs[bad], Ss[bad]  # a failing or inactive filter keeps its estimate
             else:  # the hooks raise: the chunk is run again a filter at a time to find the failing ones
-                finite = finite_images(F, "fx values", on, found)
+                finite = finite_images(F, "fx values", on, found, kernels=route.kernels)
 
                 def prior(ix):
                     r, ix = _one_or_all(route, ix)  # one filter (an int): as a single filter says its failure
@@ -611,10 +610,9 @@ class Chunks:
             # the route's and the set's attributes; kept in posterior), no gate, every component measured
             if route.kernel_update and s.rows is not None and route.gate is None and obs.all():
                 xo, So, y, ll, nis, rejected, w, log_det = part  # written into the step's records
-                kernel_out = (zp, y, w, Sy, L21, dx, xo, So, ll, nis, status, route.no_set)
+                kernel_out = (zp, y, w, Sy, L21, dx, xo, So, ll, nis, log_det, status, route.no_set)
                 # (the scratch: the angle kernel's rows, for squkf's angle hooks)
                 route.posterior(s, xs, Ss, H, zr, None, Rr, None, False, buffers=scratch, out=kernel_out)
-                log_det_of(Sy, out=log_det)
                 rejected[...] = False
                 if np.count_nonzero(status) or not on.all():  # a failing or inactive filter keeps its prior
                     form = route.form_of(s, None)
@@ -644,7 +642,7 @@ def _grouped(route: Route, joint, sset, x0, S0, H, z, observed, R1_2, todo, foun
     :meth:`Route.gated` as one filter's update is; a filter no update reaches keeps its prior, with no
     innovation and no likelihood. ``joint``: the set's update route (None: the hooks' or a ``UT``'s)."""
     if joint is None:  # the hooks raise: images that are not finite flagged first
-        todo = todo & finite_images(H, "hx values", todo, found)
+        todo = todo & finite_images(H, "hx values", todo, found, kernels=route.kernels)
     x, S, y, ll, nis, rej, w, log_det = out
     x[...], S[...], y[...], ll[...], nis[...], rej[...] = x0, S0, np.nan, 0.0, 0.0, False
     w[...], log_det[...] = np.nan, 0.0
@@ -703,10 +701,9 @@ def _isolated(route: Route, s, x0, S0, H, z, mask, R1_2, found: dict[int, str]):
 def _records(update: Update) -> tuple:
     """What a fleet keeps of a group's update, per filter: ``x, S, y, loglik, nis, rejected``, the whitened
     innovations and ``log det S1_2`` (over the group's measured components)."""
-    assert update.Sy is not None  # (a group's update keeps its factor)
     return (
         update.x, update.S, update.y, update.log_likelihood, update.nis, update.rejected, update.w,
-        log_det_of(update.Sy),
+        update.log_det_S1_2,
     )  # fmt: skip
 
 

@@ -18,7 +18,7 @@ import numpy as np
 from .checks import as_float_array, call_hook
 from .errors import DowndateError, NonFiniteError, NotPositiveDefiniteError, ShapeError
 from .kernels import wrappers
-from .kernels.table import CENTRAL, GIVEN, MEAN
+from .kernels.table import CENTRAL, GIVEN, MEAN, KernelTable
 from .linalg import all_finite
 from .rows import RowForm, WeightRows, weight_rows
 
@@ -213,6 +213,8 @@ def factor_rows(
     noise_sqrt: np.ndarray | None = None,
     errno: int = 301,
     error: type[NotPositiveDefiniteError] = DowndateError,
+    *,
+    kernels: KernelTable | None = None,
 ) -> np.ndarray:
     """Lower factor of ``sum_k w_k D_k D_k^T + noise_sqrt @ noise_sqrt.T``.
 
@@ -232,6 +234,8 @@ def factor_rows(
         g13ej error number for a failed downdate.
     error : exception class
         Raised for a failed downdate (a :class:`NotPositiveDefiniteError` subclass).
+    kernels : KernelTable, optional
+        The kernel table to call (a filter's route's); default the installed one.
 
     Returns
     -------
@@ -243,7 +247,9 @@ def factor_rows(
         If a negative weight's downdate would lose positive-definiteness.
     """
     # given rows: the kernel reads no mean weights
-    _, S, status = wrappers.transform(D, GIVEN, form.scale, form.scale, form.sign, noise_sqrt)
+    _, S, status = wrappers.transform(
+        D, GIVEN, form.scale, form.scale, form.sign, noise_sqrt, kernels=kernels
+    )
     _raise_status(status, form, errno, error)
     return S
 
@@ -257,6 +263,8 @@ def transform_factor(
     errno: int = 301,
     error: type[DowndateError] = DowndateError,
     hooks: tuple[str, str] = ("mean_fn", "residual_fn"),
+    *,
+    kernels: KernelTable | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Weighted mean and lower factor of the points' covariance plus additive noise.
 
@@ -277,6 +285,8 @@ def transform_factor(
         For a failed downdate.
     hooks : tuple of str
         The hooks' names for error messages.
+    kernels : KernelTable, optional
+        The kernel table to call (a filter's route's); default the installed one.
 
     Returns
     -------
@@ -287,12 +297,16 @@ def transform_factor(
     if plain:
         form = rows.best
         mode = CENTRAL if form.central else MEAN
-        mean, S, status = wrappers.transform(sigmas, mode, rows.Wm, form.scale, form.sign, noise_sqrt)
+        mean, S, status = wrappers.transform(
+            sigmas, mode, rows.Wm, form.scale, form.sign, noise_sqrt, kernels=kernels
+        )
     else:
         form = rows.mean_form
         mean = weighted_mean(sigmas, rows.Wm, mean_fn, hooks[0])
         D = deviations(sigmas, mean, residual_fn, hooks[1])
-        _, S, status = wrappers.transform(D, GIVEN, rows.Wm, form.scale, form.sign, noise_sqrt, mean)
+        _, S, status = wrappers.transform(
+            D, GIVEN, rows.Wm, form.scale, form.sign, noise_sqrt, mean, kernels=kernels
+        )
     _raise_status(status, form, errno, error)
     return mean, S
 

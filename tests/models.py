@@ -954,10 +954,10 @@ def line_measurements(K, T, seed=1):
 
 
 def l96_fx(x, dt, F=8.0):
-    """Lorenz-96, one RK4 step."""
+    """Lorenz-96, one RK4 step (of a state ``(n,)`` or a stack of them ``(..., n)``)."""
 
     def f(v):
-        return (np.roll(v, -1) - np.roll(v, 2)) * np.roll(v, 1) - v + F
+        return (np.roll(v, -1, axis=-1) - np.roll(v, 2, axis=-1)) * np.roll(v, 1, axis=-1) - v + F
 
     k1 = f(x)
     k2 = f(x + 0.5 * dt * k1)
@@ -967,8 +967,8 @@ def l96_fx(x, dt, F=8.0):
 
 
 def l96_hx(x):
-    """Every other component observed."""
-    return x[::2].copy()
+    """Every other component observed (of a state ``(n,)`` or a stack of them ``(..., n)``)."""
+    return x[..., ::2].copy()
 
 
 # -- heading models: state [px, py, heading, speed], the heading an angle --------------------

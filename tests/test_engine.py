@@ -25,13 +25,16 @@ import pytest
 from filterpy.kalman import MerweScaledSigmaPoints
 from models import (
     counted_table,
+    counting_kernels,
     cv_fleet,
     cv_single,
     heading_fx,
     l96_fx,
     l96_hx,
     range_bearing_hx,
+    turn_fx_stacked,
     xy_radar_hx,
+    xy_radar_hx_stacked,
 )
 
 import squkf
@@ -564,30 +567,106 @@ def test_a_user_generators_set_is_classified_at_each_draw():
         np.testing.assert_array_equal(kept.P1_2, fresh.P1_2)
 
 
-def test_the_kernel_table_is_the_routes():
+def _python_mean(sigmas, Wm):
+    """A user's ``x_mean_fn``: the weighted mean in Python (the hooks' route of the prediction)."""
+    return np.dot(Wm, sigmas)
+
+
+@pytest.mark.parametrize(
+    "hooks, gate",
+    [
+        (Hooks(), None),
+        (Hooks(residual_z=lambda a, b: a - b, x_mean_fn=_python_mean), None),
+        (Hooks(), Gate(0.99, per_component=True)),
+        (Hooks(residual_z=lambda a, b: a - b), Gate(0.99, per_component=True)),
+    ],
+    ids=["default", "hooks", "gate", "hooks-gate"],
+)
+def test_the_kernel_table_is_the_routes(monkeypatch, hooks, gate):
     """Two filters side by side, one built on its own table (as a filter on another backend would be):
-    that table serves all of its steps, the default route's and the hooks' alike, and nothing of the
-    other filter's; the numbers are the same."""
+    each table serves every phase of its own filter and nothing of the other's (the default route and
+    the hooks' prediction and update, a partial z's factor of R's observed block, a gate's gain and
+    its update again with the components it kept, the smoother); the numbers are the same."""
+    own, calls = counted_table(table.KERNELS)  # (of the numba kernels themselves)
+    installed = counting_kernels(monkeypatch)  # the table installed when the filters are built: b's
+    z = xy_radar_hx(TURN.x0[0])
+    partial, wild = z.copy(), z.copy()
+    partial[1] = np.nan
+    wild[0] += 50.0  # the gate rejects this component alone
+    a, b = (merwe_turn_filter(MerweScaledWeights(alpha=0.5), "redrawn", gate) for _ in "ab")
+    for f in (a, b):
+        f.residual_z, f.x_mean_fn = hooks.residual_z, hooks.x_mean_fn
+    r = a._engine.route
+    a._engine.configure(Route(r.plan, r.hooks, r.gate, r.single, kernels=own))
+    assert a._engine.route.kernel_update is (hooks.residual_z is None)
+    assert a._engine.route.kernels is own and b._engine.route.kernels is table.KERNELS
+    out = {}
+    for f, mine, other in ((a, calls, installed), (b, installed, calls)):
+        mine.clear()
+        other.clear()
+        for zz in (z, partial, wild):
+            f.predict()
+            f.update(zz)
+        if gate is not None:  # (the wild component rejected, the filter updated again with the other)
+            assert f.rejected.tolist() == [True, False]
+        means, covariances = f.batch_filter([z, partial, wild, wild])[:2]
+        smoothed = f.rts_smoother(means, covariances)[:2]
+        assert other == []  # nothing of the other filter's table
+        assert {"tria", "solve", "chol_update"} & set(mine)  # R's observed block, the gain, the smoother
+        out[f] = (f.x, f.P1_2, f.log_likelihood, means, covariances, *smoothed)
+    for x, y in zip(out[a], out[b]):
+        np.testing.assert_array_equal(x, y)
+    assert copy.deepcopy(a._engine.route).kernels == own  # a copied route keeps its table
+
+
+@pytest.mark.parametrize("hooks", [{}, {"residual_z": lambda a, b: a - b}], ids=["default", "hooks"])
+def test_a_fleets_kernel_table_is_its_routes(monkeypatch, hooks):
+    """A fleet on its own table beside one on the installed table: its chunks (the checks of what the
+    model gives included), its gated and partial updates and its smoother call its table alone; the
+    numbers are the same."""
+    own, calls = counted_table(table.KERNELS)
+    installed = counting_kernels(monkeypatch)
+    z = xy_radar_hx(TURN.x0[0])
+    partial, wild = z.copy(), z.copy()
+    partial[1] = np.nan
+    wild[0] += 50.0
+    zs = np.stack([np.stack([z, partial, wild, wild])] * 3)  # (3 filters, 4 steps, m)
+    out = []
+    for mine, other, kernels in ((calls, installed, own), (installed, calls, None)):
+        fleet = Fleet(
+            3, 4, 2, 1.0, xy_radar_hx_stacked, turn_fx_stacked, MerweScaledWeights(alpha=0.5),
+            gate=Gate(0.99, per_component=True), **hooks,
+        )  # fmt: skip
+        fleet.x, fleet.P1_2, fleet.Q1_2, fleet.R1_2 = TURN.x0[0], TURN.S0[0], TURN.Q1_2, TURN.R1_2
+        if kernels is not None:
+            r = fleet._engine.route
+            fleet._engine.configure(Route(r.plan, r.hooks, r.gate, r.single, kernels=kernels))
+        mine.clear()
+        other.clear()
+        result = fleet.batch_filter(zs)
+        smoothed = fleet.rts_smoother(result)
+        assert other == [] and {"finite_rows", "solve", "tria"} <= set(mine)
+        assert result.rejected[:, 2].tolist() == [[True, False]] * 3
+        out.append((result.means, result.P1_2s, result.log_likelihood, *smoothed))
+    for x, y in zip(*out):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_the_routes_table_serves_the_default_step_alone():
+    """On the default route and the hooks' update, a step's kernel calls are the route's table's."""
     own, calls = counted_table(table.KERNELS)
     z = xy_radar_hx(TURN.x0[0])
     for hooks in (Hooks(), Hooks(residual_z=lambda a, b: a - b)):  # the default route, the hooks' route
-        a, b = (merwe_turn_filter(MerweScaledWeights(alpha=0.5), "redrawn") for _ in "ab")
-        for f in (a, b):
-            f.residual_z = hooks.residual_z
+        a = merwe_turn_filter(MerweScaledWeights(alpha=0.5), "redrawn")
+        a.residual_z = hooks.residual_z
         r = a._engine.route
         a._engine.configure(Route(r.plan, r.hooks, r.gate, r.single, kernels=own))
-        assert a._engine.route.kernel_update is (hooks.residual_z is None)
-        assert a._engine.route.kernels is own and b._engine.route.kernels is table.KERNELS
         calls.clear()
         for _ in range(2):
-            for f in (a, b):
-                f.predict()
-                f.update(z)
+            a.predict()
+            a.update(z)
         first = [] if hooks.residual_z is None else ["points"]  # (the hooks' route draws no first set ahead)
         assert calls == ["points", "transform", "joint_update", *first, "transform", "joint_update"]
-        np.testing.assert_array_equal(a.x, b.x)
-        np.testing.assert_array_equal(a.P1_2, b.P1_2)
-        assert copy.deepcopy(a._engine.route).kernels == own  # a copied route keeps its table
 
 
 def _every_route(f_hooks, fleet):

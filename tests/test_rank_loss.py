@@ -30,7 +30,7 @@ def lose_rank(monkeypatch, where):
 
     def joint_update(*args):
         real(*args)
-        x, S, status = args[6], args[19], args[22]  # the prior mean, the posterior factor, the status
+        x, S, status = args[6], args[19], args[23]  # the prior mean, the posterior factor, the status
         lost = np.broadcast_to(where(x), status.shape)
         S[lost, -1, -1] = 0.0
         status[lost] = 304

@@ -35,6 +35,8 @@ from models import (
     filter_state,
     fleet_batch_setup,
     fleet_state,
+    l96_fx,
+    l96_hx,
     linear_pair,
     make_cv3_fleet,
     near_filter,
@@ -46,6 +48,7 @@ from models import (
 )
 
 from squkf import (
+    Fleet,
     Gate,
     JulierWeights,
     MerweScaledWeights,
@@ -887,6 +890,47 @@ def test_a_fleets_whitened_records_equal_its_single_filters_bit_for_bit(gate):
         assert np.array_equal(fleet.y_whitened[k], f.y_whitened, equal_nan=True)
         assert fleet.log_det_S1_2[k] == f.log_det_S1_2
     assert fleet.subset([2]).y_whitened[0].tolist() == fleet.y_whitened[2].tolist()
+
+
+def _log_det_as_the_likelihood_sums_it(S1_2) -> float:
+    """``sum log|S1_2_ii|`` over the measured block, in the order and with the ``log`` of the update
+    kernel's log-likelihood (Python's ``math.log`` is numba's; numpy's ``log`` and its sum's order differ
+    in the last bits)."""
+    total = 0.0
+    for d in np.abs(np.diagonal(S1_2)).tolist():
+        if not math.isnan(d):  # (a component not measured)
+            total += math.log(d)
+    return total
+
+
+@pytest.mark.parametrize("route", ["joint", "hooks", "downdate", "partial"])
+def test_log_det_is_the_update_kernels_own_sum_on_both_faces(route):
+    """``log_det_S1_2`` is the update kernel's ``sum log|Sy_ii|``, the sum its log-likelihood takes, not a
+    second one in numpy; a fleet's equals its single filters' bit for bit, on every update route (m = 10:
+    numpy sums 8 terms or more in another order)."""
+    n, m, K = 20, 10, 4
+    rng = np.random.default_rng(7)
+    hooks = {"hooks": {"residual_z": np.subtract}, "downdate": {"residual_x": np.subtract}}.get(route, {})
+
+    def one():
+        f = SquareRootUKF(n, m, 0.05, l96_hx, l96_fx, MerweScaledWeights(alpha=0.5), vectorized=True, **hooks)
+        f.x, f.P, f.Q = 8.0 + rng.normal(size=n), np.eye(n), 0.01 * np.eye(n)
+        f.R = np.diag(np.exp(rng.uniform(-4.0, 4.0, size=m)))  # (log|Sy_ii| of either sign)
+        return f
+
+    singles = [one() for _ in range(K)]
+    fleet = Fleet.from_filters(singles)
+    zs = 8.0 + rng.normal(size=(6, K, m))
+    if route == "partial":
+        zs[:, :, 1] = np.nan
+    for z in zs:
+        fleet.predict()
+        fleet.update(z)
+        for k, f in enumerate(singles):
+            f.predict()
+            f.update(z[k])
+            assert f.log_det_S1_2 == _log_det_as_the_likelihood_sums_it(f.S1_2)
+            assert fleet.log_det_S1_2[k] == f.log_det_S1_2
 
 
 def test_whitened_records_are_kept_only_when_asked_and_keep_is_checked():

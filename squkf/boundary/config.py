@@ -24,6 +24,7 @@ from ..angles import AngleHook
 from ..errors import CallSequenceError, ParameterError
 from ..gating import Gate
 from ..generators import as_generator, noise_family
+from ..kernels.table import KernelTable
 from ..noise import check_accepts_noise, check_noise_dim
 from ..plan import IDLE, PRIOR, Hooks, Plan, check_built_for
 from ..weights import FilterpyPoints, WrittenWeights, as_family
@@ -71,6 +72,8 @@ class Config(NamedTuple):
         The phase of one filter's pending ask/tell step (``squkf.plan.IDLE``,
         ...), which ``Fleet.from_filters`` checks; a fleet's is left idle
         (``fleet[k]`` checks the fleet's own).
+    kernels : KernelTable or None
+        The kernel table of the filter's route, which the smoother calls (None: the installed one).
     """
 
     dim_x: int
@@ -95,6 +98,7 @@ class Config(NamedTuple):
     Q1_2: np.ndarray | None
     R1_2: np.ndarray | None
     step: str = "idle"
+    kernels: KernelTable | None = None
 
 
 def filter_kwargs(c: Config) -> dict:

@@ -910,6 +910,7 @@ def joint_update_kernel(
     Spost,
     ll,
     ww,
+    ld,
     status,
     xi1,
     gamma1,
@@ -955,8 +956,9 @@ def joint_update_kernel(
     L21 : ndarray, shape (B, n, m)
     dx, xpost : ndarray, shape (B, n)
     Spost : ndarray, shape (B, n, n)
-    ll, ww : ndarray, shape (B,)
-        The log-likelihood of the measurement and the squared Mahalanobis distance ``w.w``.
+    ll, ww, ld : ndarray, shape (B,)
+        The log-likelihood of the measurement, the squared Mahalanobis distance ``w.w`` and
+        ``log det Sy`` (``sum log|Sy_ii|``, the sum the log-likelihood takes).
     status : ndarray of int64, shape (B,)
         Outputs (306 when ``H[k]`` holds a value that is not finite).
     xi1 : ndarray, shape (N1, n)
@@ -1018,7 +1020,7 @@ def joint_update_kernel(
             _weighted_rows(Hl, Xl, N, nb, mode, scale, sign, R1_2, k0, At)
             tria_lanes(At, c, rows, nb, V)
             _downdated_rows(Hl, Xl, N, nb, mode, scale, sign, m, At, V, v, fl, st)
-        _innovation(L, L, m, yl, wl, xr, m, n, k0, nb, st, ll, ww)
+        _innovation(L, L, m, yl, wl, xr, m, n, k0, nb, st, ll, ww, ld)
         _load_vector(x, k0, nb, xl)
         _finish(L, m, n, xl, xr, st, k0, nb, dx, xpost)
         for b in range(nb):
@@ -1038,10 +1040,10 @@ def joint_update_kernel(
 
 
 @_helper
-def _innovation(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
-    """From the innovation factor: g13ej's 302 unless ``Sy`` is regular, ``w = Sy^-1 y``, ``ww = w.w``
-    and the Gaussian log-likelihood ``-(m log 2 pi + 2 sum log|Sy_ii| + w.w) / 2``, and ``dx = L21 w``
-    with ``L21`` the rows ``r0 .. r0 + n`` of its buffer."""
+def _innovation(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww, ld):
+    """From the innovation factor: g13ej's 302 unless ``Sy`` is regular, ``w = Sy^-1 y``, ``ww = w.w``,
+    ``ld = log det Sy = sum log|Sy_ii|`` and the Gaussian log-likelihood ``-(m log 2 pi + 2 ld + w.w) / 2``,
+    and ``dx = L21 w`` with ``L21`` the rows ``r0 .. r0 + n`` of its buffer."""
     for b in range(nb):
         good = True
         for i in range(m):
@@ -1058,6 +1060,7 @@ def _innovation(Sy, L21, r0, yl, wl, dxl, m, n, k0, nb, st, ll, ww):
             s += wl[i, b] * wl[i, b]
             logdet += math.log(abs(Sy[i, i, b]))
         ww[k0 + b] = s
+        ld[k0 + b] = logdet
         ll[k0 + b] = -0.5 * (m * _LOG_2PI + 2.0 * logdet + s)
     for l in range(n):
         for b in range(nb):
@@ -1118,6 +1121,7 @@ def downdate_update_kernel(
     Spost,
     ll,
     ww,
+    ld,
     status,
 ):
     """g13ej's measurement update for a set whose covariance need not be the prior's (the downdate form).
@@ -1160,7 +1164,7 @@ def downdate_update_kernel(
     L21 : ndarray, shape (B, n, m)
     dx, xpost : ndarray, shape (B, n)
     Spost : ndarray, shape (B, n, n)
-    ll, ww : ndarray, shape (B,)
+    ll, ww, ld : ndarray, shape (B,)
     status : ndarray of int64, shape (B,)
         Outputs, as :func:`joint_update_kernel`'s (306 when ``H[k]`` is not finite; 301 when a
         negative row's downdate of ``Sy`` failed).
@@ -1249,7 +1253,7 @@ def downdate_update_kernel(
             for l in range(m):
                 for b in range(nb):
                     yl[l, b] -= zl[l, b]
-        _innovation(Syl, Ll, _unfold(0), yl, wl, xr, m, n, k0, nb, st, ll, ww)
+        _innovation(Syl, Ll, _unfold(0), yl, wl, xr, m, n, k0, nb, st, ll, ww, ld)
         _load_vector(x, k0, nb, xl)
         for b in range(nb):
             fl[b] = -1

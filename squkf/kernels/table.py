@@ -1,12 +1,15 @@
-"""The kernel table every numerical route reads, and the arrays as its entries take them.
+"""The kernel tables, and the arrays as their entries take them.
 
-:data:`KERNELS` is the table installed: the engine reads an entry at each
-call (``table.KERNELS.points(...)``), and so do the wrappers of
-:mod:`squkf.kernels.wrappers`, which the hooks' routes, the smoother and
-:mod:`squkf.linalg` call. Another backend replaces it by assigning a
-:class:`KernelTable` with the same entries and arguments to
-``squkf.kernels.table.KERNELS`` (as ``tests/test_engine.py`` does); nothing
-keeps a reference to the table itself, so no face changes.
+A filter's route (:class:`squkf.engine.Route`) holds its :class:`KernelTable`, given when it is
+built; every phase of the route calls it, and so do the wrappers of
+:mod:`squkf.kernels.wrappers` (the hooks' prediction, the factor of R's observed block, a gate's
+gain, the smoother) and :mod:`squkf.linalg` when a route's phase hands them its table
+(``kernels=``). :data:`KERNELS` is the table installed: a route built without a table takes the one
+installed at that moment, and a wrapper called without one (a user's call of :mod:`squkf.linalg`)
+the one installed when it is called. Another backend gives its own table to the routes of its filters
+(``Route(..., kernels=...)``), or replaces the installed one by assigning a :class:`KernelTable`
+with the same entries and arguments to ``squkf.kernels.table.KERNELS`` (as ``tests/test_engine.py``
+does).
 
 The entries take C-contiguous float64 stacks with the filter axis first (one
 signature each): :func:`kernel_array` gives an array so, :func:`plan_array` a
@@ -53,10 +56,9 @@ class KernelTable(NamedTuple):
 
     Each entry takes C-contiguous float64 stacks with the filter axis first and writes its
     results into the outputs it is given (:mod:`squkf.kernels.phases` documents the arguments).
-    A second table (another backend) gives the same entries with the same arguments. Every
-    numerical route reads the table when it runs (the engine, and the wrappers of
-    :mod:`squkf.kernels.wrappers`, which the hooks' routes, the smoother and :mod:`squkf.linalg`
-    call), so the table installed as :data:`KERNELS` serves them all.
+    A second table (another backend) gives the same entries with the same arguments. A route holds
+    one and hands it to every wrapper its phases call (the smoother takes its filter's from the
+    configuration), so two filters on two tables each call only their own.
     """
 
     points: Callable

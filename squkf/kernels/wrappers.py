@@ -2,7 +2,8 @@
 
 Each function here takes arrays with any leading batch shape (numpy's
 ``np.linalg`` convention: one filter has none, a fleet ``(K,)``), flattens it
-to a stack, calls its kernel from the installed table
+to a stack, calls its kernel from the table it is given (``kernels``: the
+route's, when a filter's phase calls it), or else from the installed table
 (:data:`squkf.kernels.table.KERNELS`, read at each call; a large stack cut
 between the threads by :func:`squkf.kernels.threads.split_call`) and gives
 the results back in that shape. One filter is a stack of one, computed by the
@@ -25,7 +26,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import table
-from .table import kernel_array, no_factor, no_noise, no_points, no_set, plan_array, zeros_row
+from .table import KernelTable, kernel_array, no_factor, no_noise, no_points, no_set, plan_array, zeros_row
 from .threads import split_call
 
 __all__ = [
@@ -39,6 +40,11 @@ __all__ = [
     "UpdateStacks",
     "update_stacks",
 ]
+
+
+def _table(kernels: KernelTable | None) -> KernelTable:
+    """The table a call takes: the one given (a route's), else the one installed now."""
+    return table.KERNELS if kernels is None else kernels
 
 
 def _batch(*arrays: tuple[np.ndarray | None, int]) -> tuple[int, ...]:
@@ -76,12 +82,14 @@ def _shared(a: np.ndarray, batch: tuple[int, ...], core: int) -> np.ndarray:
     return _stack(a, batch, core)
 
 
-def tria(rows: np.ndarray) -> np.ndarray:
+def tria(rows: np.ndarray, *, kernels: KernelTable | None = None) -> np.ndarray:
     """Lower factor with a non-negative diagonal of ``rows.T @ rows``, by Householder QR.
 
     Parameters
     ----------
     rows : ndarray, shape (..., k, n)
+    kernels : KernelTable, optional
+        The table whose kernel is called (a route's); default the installed one.
 
     Returns
     -------
@@ -92,11 +100,13 @@ def tria(rows: np.ndarray) -> np.ndarray:
     k, n = rows.shape[-2:]
     A = _stack(rows, batch, 2)
     S = np.empty((A.shape[0], n, n))
-    split_call(table.KERNELS.tria, A.shape[0], A, S)
+    split_call(_table(kernels).tria, A.shape[0], A, S)
     return _unstack(S, batch)
 
 
-def solve_lower(L: np.ndarray, b: np.ndarray, trans: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def solve_lower(
+    L: np.ndarray, b: np.ndarray, trans: bool = False, *, kernels: KernelTable | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Solve ``L x = b`` (``L.T x = b`` for ``trans``) for lower-triangular ``L``.
 
     Parameters
@@ -105,6 +115,8 @@ def solve_lower(L: np.ndarray, b: np.ndarray, trans: bool = False) -> tuple[np.n
     b : ndarray, shape (..., n) or (..., n, q)
         A stack of vectors when ``b.ndim == L.ndim - 1``.
     trans : bool
+    kernels : KernelTable, optional
+        The table whose kernel is called (a route's); default the installed one.
 
     Returns
     -------
@@ -119,12 +131,14 @@ def solve_lower(L: np.ndarray, b: np.ndarray, trans: bool = False) -> tuple[np.n
     Y = _stack(B_, batch, 2)
     X = np.empty(Y.shape)
     ok = np.empty(Y.shape[0], dtype=np.bool_)
-    split_call(table.KERNELS.solve, Y.shape[0], _shared(L, batch, 2), Y, 1 if trans else 0, X, ok)
+    split_call(_table(kernels).solve, Y.shape[0], _shared(L, batch, 2), Y, 1 if trans else 0, X, ok)
     X = _unstack(X, batch)
     return (X[..., 0] if vector else X), _unstack(ok, batch)
 
 
-def chol_update(S: np.ndarray, v: np.ndarray, sign: float) -> tuple[np.ndarray, np.ndarray]:
+def chol_update(
+    S: np.ndarray, v: np.ndarray, sign: float, *, kernels: KernelTable | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Rank-1 update (``sign > 0``) or downdate of lower factors, O(n^2) each.
 
     Parameters
@@ -132,6 +146,8 @@ def chol_update(S: np.ndarray, v: np.ndarray, sign: float) -> tuple[np.ndarray, 
     S : ndarray, shape (..., n, n)
     v : ndarray, shape (..., n)
     sign : float
+    kernels : KernelTable, optional
+        The table whose kernel is called (a route's); default the installed one.
 
     Returns
     -------
@@ -144,11 +160,19 @@ def chol_update(S: np.ndarray, v: np.ndarray, sign: float) -> tuple[np.ndarray, 
     L = _stack(S, batch, 2)
     out = np.empty(L.shape)
     fail = np.empty(L.shape[0], dtype=np.int64)
-    split_call(table.KERNELS.chol_update, L.shape[0], L, _stack(v, batch, 1), float(sign), out, fail)
+    split_call(_table(kernels).chol_update, L.shape[0], L, _stack(v, batch, 1), float(sign), out, fail)
     return _unstack(out, batch), _unstack(fail, batch)
 
 
-def sigma_points(x: np.ndarray, S: np.ndarray, xi: np.ndarray, gamma: float = 0.0, offsets: bool = True):
+def sigma_points(
+    x: np.ndarray,
+    S: np.ndarray,
+    xi: np.ndarray,
+    gamma: float = 0.0,
+    offsets: bool = True,
+    *,
+    kernels: KernelTable | None = None,
+):
     """Sigma points ``x + xi @ S.T`` and their offsets ``xi @ S.T``.
 
     Parameters
@@ -162,6 +186,8 @@ def sigma_points(x: np.ndarray, S: np.ndarray, xi: np.ndarray, gamma: float = 0.
         Non-zero when ``xi`` is ``[0; gamma I; -gamma I]`` or ``[gamma I; -gamma I]`` (offsets in O(n^2)).
     offsets : bool
         Whether the offsets are wanted (not written otherwise).
+    kernels : KernelTable, optional
+        The table whose kernel is called (a route's); default the installed one.
 
     Returns
     -------
@@ -175,7 +201,7 @@ def sigma_points(x: np.ndarray, S: np.ndarray, xi: np.ndarray, gamma: float = 0.
     X = np.empty((Ss.shape[0], N, n))
     dX = np.empty(X.shape if offsets else (0, N, n))
     split_call(
-        table.KERNELS.points,
+        _table(kernels).points,
         Ss.shape[0],
         _shared(x, batch, 1),
         Ss,
@@ -188,12 +214,14 @@ def sigma_points(x: np.ndarray, S: np.ndarray, xi: np.ndarray, gamma: float = 0.
     return _unstack(X, batch), (_unstack(dX, batch) if offsets else None)
 
 
-def finite_rows(A: np.ndarray) -> np.ndarray:
+def finite_rows(A: np.ndarray, *, kernels: KernelTable | None = None) -> np.ndarray:
     """Which filters' values are all finite.
 
     Parameters
     ----------
     A : ndarray, shape (K, ...)
+    kernels : KernelTable, optional
+        The table whose kernel is called (a route's); default the installed one.
 
     Returns
     -------
@@ -201,7 +229,7 @@ def finite_rows(A: np.ndarray) -> np.ndarray:
     """
     rows = kernel_array(A.reshape(A.shape[0], -1))
     ok = np.empty(rows.shape[0], dtype=np.bool_)
-    split_call(table.KERNELS.finite_rows, rows.shape[0], rows, ok)
+    split_call(_table(kernels).finite_rows, rows.shape[0], rows, ok)
     return ok
 
 
@@ -213,6 +241,8 @@ def transform(
     sign: np.ndarray,
     noise: np.ndarray | None = None,
     ref: np.ndarray | None = None,
+    *,
+    kernels: KernelTable | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mean and lower factor of weighted rows plus additive noise (one QR, a downdate per negative row).
 
@@ -228,6 +258,8 @@ def transform(
         A square root of the additive noise.
     ref : ndarray, shape (..., d), optional
         The mean, for ``GIVEN``.
+    kernels : KernelTable, optional
+        The table whose kernel is called (a route's); default the installed one.
 
     Returns
     -------
@@ -248,7 +280,7 @@ def transform(
     status = np.empty(B, dtype=np.int64)
     nothing = no_set(d)
     split_call(
-        table.KERNELS.transform,
+        _table(kernels).transform,
         B,
         Ps,
         R,
@@ -283,8 +315,9 @@ class JointUpdate(NamedTuple):
         ``L21 w`` and the posterior mean ``x + dx``.
     S : ndarray, shape (..., n, n)
         The posterior factor.
-    log_likelihood, nis : ndarray, shape (...)
-        The measurement's Gaussian log-likelihood and its squared Mahalanobis distance ``w.w``.
+    log_likelihood, nis, log_det : ndarray, shape (...)
+        The measurement's Gaussian log-likelihood, its squared Mahalanobis distance ``w.w`` and
+        ``log det Sy``.
     status : ndarray of int, shape (...)
         0, or g13ej's 301, 302, 303 (304: a zero on the posterior factor's diagonal; 306: images
         not finite).
@@ -300,6 +333,7 @@ class JointUpdate(NamedTuple):
     S: np.ndarray
     log_likelihood: np.ndarray
     nis: np.ndarray
+    log_det: np.ndarray
     status: np.ndarray
 
 
@@ -320,7 +354,7 @@ class UpdateStacks(NamedTuple):
     Sy : ndarray, shape (B, m, m) or (0, m, m)
         The innovation factor given (a user's ``UT``), or none.
     out : tuple of ndarray
-        The kernel's outputs, in its order: ``zp, y, w, Sy, L21, dx, x, S, loglik, nis, status``.
+        The kernel's outputs, in its order: ``zp, y, w, Sy, L21, dx, x, S, loglik, nis, log_det, status``.
     """
 
     batch: tuple[int, ...]
@@ -385,7 +419,7 @@ def update_stacks(
     B = Hs.shape[0]
     out = (
         np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m)), np.empty((B, n, m)),
-        np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B),
+        np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B), np.empty(B),
         np.empty(B, dtype=np.int64),
     )  # fmt: skip
     return UpdateStacks(
