@@ -221,7 +221,8 @@ LAYERS = {
     "the engine": ["squkf.engine"],
     "the fleet's stacks": ["squkf.stacks"],
     "the faces": [
-        "squkf", "squkf.__main__", "squkf.face", "squkf.ukf", "squkf.fleet", "squkf.fleet_from",
+        "squkf", "squkf.__main__", "squkf.face", "squkf.ukf_state", "squkf.ukf_records", "squkf.ask_tell",
+        "squkf.ukf", "squkf.fleet", "squkf.fleet_from",
         "squkf.old_pickles", "squkf.smoother", "squkf.nag",
         "squkf.ut",
         "squkf.dask", "squkf.first_use", "squkf.examples", "squkf.examples.g13ej_example",
