@@ -222,7 +222,7 @@ LAYERS = {
     "the fleet's stacks": ["squkf.stacks"],
     "the faces": [
         "squkf", "squkf.__main__", "squkf.face", "squkf.ukf_state", "squkf.ukf_records", "squkf.ask_tell",
-        "squkf.ukf", "squkf.fleet", "squkf.fleet_from",
+        "squkf.ukf", "squkf.fleet_state", "squkf.fleet_batch", "squkf.fleet", "squkf.fleet_from",
         "squkf.old_pickles", "squkf.smoother", "squkf.nag",
         "squkf.ut",
         "squkf.dask", "squkf.first_use", "squkf.examples", "squkf.examples.g13ej_example",
