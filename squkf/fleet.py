@@ -11,6 +11,11 @@ indexing serves a fleet and ``SquareRootUKF(vectorized=True)`` alike.
 A numerical failure of one filter is that filter's alone: it is flagged (:attr:`Fleet.failed`,
 :attr:`Fleet.failure`), keeps its state, and the others go on (``docs/api/fleet.rst``, "Failure
 isolation", says the whole rule).
+
+This module holds the chunks, the flags (``failed``, ``reset``), ``subset``,
+indexing and the step; the fleet's base classes hold its hand-outs of ``x``,
+``P``, ``Q``, ``R`` (:mod:`squkf.fleet_state`), its runs over a recording
+(:mod:`squkf.fleet_batch`) and what both faces share (:mod:`squkf.face`).
 """
 
 from __future__ import annotations

@@ -8,6 +8,13 @@ call that fails changes nothing. What is handed out is the caller's (fresh
 arrays, the records formed from the engine's factors when read), and what
 the caller may edit in place (``x``, ``P``, ``Q``, ``R``) is validated at the
 next call.
+
+This module holds filterpy's constructor, ``predict`` and ``update`` (the
+model called per point, or vectorised), the configuration and the copy
+hooks; the filter's base classes hold the rest: ``x``, ``P`` and the noise
+factors (:mod:`squkf.ukf_state`), filterpy's other records and the weights
+(:mod:`squkf.ukf_records`), the step in halves (:mod:`squkf.ask_tell`), and
+what both faces share (:mod:`squkf.face`).
 """
 
 from __future__ import annotations
@@ -49,7 +56,6 @@ from .ukf_records import FilterRecords
 __all__ = ["SquareRootUKF"]
 
 _LOG_TINY = math.log(sys.float_info.min)
-_REAL = checks.REAL
 
 # What lives outside the __dict__ (see the class): the engine and the gain formed from its last update,
 # the configuration, the noise slots, and what was handed out or written: the arrays ``x``, ``P`` handed
