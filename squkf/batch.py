@@ -24,7 +24,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from .boundary.loop import annotate_step, progress_callback
+from .boundary.loop import run_steps
 from .checks import check_time_step, iter_measurements
 from .errors import ParameterError, ShapeError
 
@@ -465,41 +465,33 @@ def batch_filter(
     loglik: list[float] = []
     whitened: list[np.ndarray] = []
     log_dets: list[float] = []
-    bar, callback = progress_callback(progress, T)
-    k = 0
-    at_step = True
+
+    def step(k: int, z) -> None:
+        ukf.predict(dt=dt_k.at(k), UT=UT, Q=Q_k.at(k), **fx_k.at(k))
+        ukf.update(z, R=R_k.at(k), UT=UT, **hx_k.at(k))
+        measured = ukf.z.dtype != object  # update(None) leaves filterpy's column of Nones
+        # a step's own records: of nothing measured, nothing rejected and NIS 0
+        rejected.append(ukf.rejected if measured else np.zeros(ukf.dim_z, dtype=bool))
+        nis.append(ukf.nis if measured else 0.0)
+        loglik.append(ukf.log_likelihood if measured else 0.0)
+        whitened.append(ukf.y_whitened if measured else np.full(ukf.dim_z, np.nan))
+        log_dets.append(ukf.log_det_S1_2 if measured else 0.0)
+        means.append(ukf.x)
+        S = ukf.P1_2
+        covs.append(S if return_factors else S @ S.T)
+        if saver is not None:
+            saver.save()
+
+    def finish(T: int) -> None:  # (a per-step argument longer than a generator's zs)
+        for s in steps:
+            s.finish(T)
+
+    def partial(k: int) -> tuple[np.ndarray, np.ndarray]:
+        return means.result()[:k], covs.result()[:k]
+
     try:
-        with ukf.transaction():  # put back on any error
-            while True:
-                z = next(it, _END)
-                if z is _END:
-                    break
-                ukf.predict(dt=dt_k.at(k), UT=UT, Q=Q_k.at(k), **fx_k.at(k))
-                ukf.update(z, R=R_k.at(k), UT=UT, **hx_k.at(k))
-                measured = ukf.z.dtype != object  # update(None) leaves filterpy's column of Nones
-                # a step's own records: of nothing measured, nothing rejected and NIS 0
-                rejected.append(ukf.rejected if measured else np.zeros(ukf.dim_z, dtype=bool))
-                nis.append(ukf.nis if measured else 0.0)
-                loglik.append(ukf.log_likelihood if measured else 0.0)
-                whitened.append(ukf.y_whitened if measured else np.full(ukf.dim_z, np.nan))
-                log_dets.append(ukf.log_det_S1_2 if measured else 0.0)
-                means.append(ukf.x)
-                S = ukf.P1_2
-                covs.append(S if return_factors else S @ S.T)
-                if saver is not None:
-                    saver.save()
-                if callback is not None:
-                    callback(k)
-                k += 1
-            at_step = False
-            for s in steps:
-                s.finish(k)
-    except BaseException as exc:
-        annotate_step(exc, k, (means.result()[:k], covs.result()[:k]), at_step)
-        raise
+        run_steps(ukf.transaction(), it, step, partial, progress, T, finish)
     finally:
-        if bar is not None:
-            bar.close()
         if it is not zs and hasattr(it, "close"):  # an iterator we made, e.g. tqdm's: let it finish
             it.close()
     m = ukf.dim_z

@@ -11,6 +11,11 @@ indexing serves a fleet and ``SquareRootUKF(vectorized=True)`` alike.
 A numerical failure of one filter is that filter's alone: it is flagged (:attr:`Fleet.failed`,
 :attr:`Fleet.failure`), keeps its state, and the others go on (``docs/api/fleet.rst``, "Failure
 isolation", says the whole rule).
+
+This module holds the chunks, the flags (``failed``, ``reset``), ``subset``,
+indexing and the step; the fleet's base classes hold its hand-outs of ``x``,
+``P``, ``Q``, ``R`` (:mod:`squkf.fleet_state`), its runs over a recording
+(:mod:`squkf.fleet_batch`) and what both faces share (:mod:`squkf.face`).
 """
 
 from __future__ import annotations
@@ -22,28 +27,24 @@ import numpy as np
 
 from . import checks, old_pickles
 from .angles import check_angle_hooks, is_data
-from .batch import model_kwargs, per_step
 from .boundary.attributes import FactorSlot, HandOut, ModelFunction
 from .boundary.config import Config, filter_kwargs, filter_of, model_noise
-from .boundary.loop import annotate_step, check_keep, check_progress, progress_callback
-from .boundary.records import FleetResult, Records, new_records
+from .boundary.records import FleetResult, Records
 from .checks import (
     check_flag,
     check_time_step,
-    covariance_factors,
-    lower_factors,
     noise_factors,
     reset_rows,
 )
 from .engine import Engine, Update
 from .errors import FleetStepError, ParameterError
-from .face import Face
+from .fleet_batch import FleetBatch
 from .fleet_from import PerPoint, stacked_filters, template  # noqa: F401  (old pickles name squkf.fleet.PerPoint)
+from .fleet_state import FleetState
 from .gating import Gate, as_gate
 from .generators import as_generator
 from .noise import handed_points, noise_points
 from .plan import PREDICTING, UPDATING, Hooks, build_plan
-from .smoother import fleet_rts_smoother
 from .stacks import CHUNKS, Step, rows_of
 from .transform import StackedHook
 from .ukf import SquareRootUKF
@@ -52,7 +53,7 @@ from .weights import as_family
 __all__ = ["Fleet", "FleetResult", "FleetStepError"]
 
 
-class Fleet(Face):
+class Fleet(FleetState, FleetBatch):
     """K independent square-root UKFs with one model and one configuration.
 
     Parameters
@@ -267,72 +268,6 @@ class Fleet(Face):
     # the model functions: a fleet needs both
     hx = ModelFunction(optional=False, why="a fleet needs fx and hx")
     fx = ModelFunction(optional=False, why="a fleet needs fx and hx")
-
-    # -- state and noise: handed out (edits in place taken by boundary.attributes.HandOut) -------
-
-    @property
-    def x(self) -> np.ndarray:
-        """States, shape ``(K, dim_x)``."""
-        return self._handed.array("x", self._engine.x.copy)
-
-    @x.setter
-    def x(self, value):
-        x, self._unset_x = checks.per_filter(value, "x", self._K, (self._n,), placeholders=True)
-        self._engine.assign(x=x, idle=True)
-        self._handed.drop("x")  # the array handed out is history
-
-    @property
-    def P1_2(self) -> np.ndarray:
-        """Lower factors of the covariances, shape ``(K, dim_x, dim_x)`` (fresh; assign to change)."""
-        self._take_edits()
-        return self._engine.S.copy()
-
-    @P1_2.setter
-    def P1_2(self, value):
-        self._engine.assign(S=lower_factors(value, "P1_2", self._n, self._K), idle=True)
-        self._unset_P = np.zeros(self._K, dtype=bool)
-        self._handed.drop("P")
-
-    @property
-    def P(self) -> np.ndarray:
-        """Covariances, shape ``(K, dim_x, dim_x)``."""
-        S = self._engine.S
-        return self._handed.array("P", lambda: S @ np.swapaxes(S, -1, -2))
-
-    @P.setter
-    def P(self, value):
-        S, self._unset_P = covariance_factors(value, "P", self._n, self._K, placeholders=True)
-        self._engine.assign(S=S, idle=True)
-        self._handed.drop("P")
-
-    @property
-    def Q(self) -> np.ndarray:
-        """Process noise, shared ``(d, d)`` or per filter ``(K, d, d)``.
-
-        ``d`` is ``dim_x``, or ``fx_noise`` when the noise enters ``fx`` (then ``Q`` is w's covariance).
-        """
-        return self._handed.array("Q", self._Q.matrix)
-
-    @Q.setter
-    def Q(self, value):
-        self._Q.set_matrix(value)
-        self._handed.drop("Q")
-
-    @property
-    def R(self) -> np.ndarray:
-        """Measurement noise, shared ``(m, m)`` or per filter ``(K, m, m)``."""
-        return self._handed.array("R", self._R.matrix)
-
-    @R.setter
-    def R(self, value):
-        self._R.set_matrix(value)
-        self._handed.drop("R")
-
-    def _noise_edits(self) -> None:
-        self._take_edits()
-
-    def _noise_assigned(self, name: str) -> None:
-        self._handed.drop(name)
 
     @property
     def chunk(self) -> int | None:
@@ -556,78 +491,6 @@ class Fleet(Face):
         )  # fmt: skip
         e.skip_update(none)
 
-    # -- many steps ---------------------------------------------------------------
-
-    def batch_filter(
-        self, zs, *, dts=None, keep: str | tuple[str, ...] = "all", fx_args=None, hx_args=None, progress=False
-    ) -> FleetResult:
-        """Filter ``T`` steps of measurements for every filter.
-
-        Parameters
-        ----------
-        zs : array_like, shape (K, T, dim_z), or an iterable of (K, dim_z) arrays
-            NaN rows and entries are missing measurements, as are masked ones
-            (a ``numpy.ma.MaskedArray``), as for :meth:`update`.
-            Any other iterable (a generator, ``tqdm(...)``) yields one step's
-            measurements at a time, each checked as for :meth:`update` (a wrong
-            shape, ``None`` or text is a ShapeError naming the step, ``zs[t]``);
-            it is read to its end before the run starts. Lists and tuples are
-            read as the ``(K, T, dim_z)`` array; a string, a dict or a set is a
-            ShapeError.
-        dts : float or array_like of shape (T,), optional
-            Time step of each prediction (default: the constructor's), as
-            :ref:`promise-dt` says.
-        keep : {"all", "diagonals", "means", "final"} or tuple
-            What to store: everything; means and the covariances' diagonals;
-            means only; or only the final state (for long runs). A tuple of
-            one of the first three and ``"whitened"`` (``("means", "whitened")``)
-            keeps each step's whitened innovations and ``log det S1_2`` too
-            (``FleetResult.y_whitened``, ``log_det_S1_2``).
-        fx_args, hx_args : dict, optional
-            Passed to ``fx`` and ``hx`` at every step, and to nothing else: a
-            key that names an argument of the step (``dt``, ``z``, ``R``, ...,
-            see :func:`squkf.batch.model_kwargs`) is a ParameterError.
-        progress : bool or callable
-            ``True`` shows a tqdm bar (the ``progress`` extra); a callable is
-            called with the step index after each step.
-
-        Returns
-        -------
-        FleetResult
-            The fleet itself is left after the last step, as after a loop of
-            ``predict`` and ``update``; an error leaves it as it was before the call.
-        """
-        state, whitened = check_keep(keep)
-        check_progress(progress)
-        Z = checks.measurement_series(zs, self._K, self._m)
-        T = Z.shape[1]
-        # step-major: each step's (K, m) contiguous, read by the kernels as it is (no copy per step)
-        Z = np.ascontiguousarray(np.swapaxes(Z, 0, 1))
-        dt_list = per_step(dts, T, "dts", "dt", default=self._dt, ref="zs")
-        fx_args, hx_args = model_kwargs(fx_args, "fx_args"), model_kwargs(hx_args, "hx_args")
-        records = new_records(state, self._K, T, self._n, self._m, whitened)
-        self._take_edits()
-        bar, callback = progress_callback(progress, T)
-        t = 0
-        try:
-            with self.transaction():  # an error at any step leaves the fleet as it was before the call
-                for t in range(T):
-                    self._step(t, Z[t], dt_list[t], fx_args, hx_args, records)
-                    if callback is not None:
-                        callback(t)
-        except BaseException as exc:
-            annotate_step(exc, t, records.so_far(t), True)
-            raise
-        finally:
-            if bar is not None:
-                bar.close()
-        r = records
-        return FleetResult(
-            r.means, r.factors, r.variances, r.loglik, self._failed.copy(), self._engine.x.copy(),
-            self._engine.S.copy(),
-            r.rejected, r.nis, r.y_whitened, r.log_det,
-        )  # fmt: skip
-
     def _step(self, t: int, z: np.ndarray, dt: float, fx_args: dict, hx_args: dict, records: Records) -> None:
         """Step ``t`` of :meth:`batch_filter`, its records kept."""
         self._take_edits()  # (a progress callback may have edited x, P, Q or R in place)
@@ -744,50 +607,3 @@ class Fleet(Face):
             self.__dict__.update(state)
             state["_engine"] = old_pickles.fleet_engine(self._new_route(), state.pop("_before_engine"))
         return state
-
-    # -- smoothing --------------------------------------------------------------------
-
-    def rts_smoother(self, result: FleetResult, dts=None, fx_args=None):
-        """Square-root unscented RTS smoother for every filter at once.
-
-        The same backward recursion as :meth:`squkf.SquareRootUKF.rts_smoother_factors`
-        (one function, ``squkf.smoother._backward``, on stacked arrays), with
-        ``fx`` called once per backward step with the points of all filters,
-        ``(K, N, dim_x)``, and the fleet's ``Q`` (shared or per filter). The fleet
-        itself is not changed.
-
-        Parameters
-        ----------
-        result : FleetResult
-            From :meth:`batch_filter` with ``keep="all"`` (its means and factors).
-        dts : float or array_like of shape (T,), optional
-            ``dts[k]``: time step of the prediction into step ``k``, as given to
-            :meth:`batch_filter` (default: the constructor's), as
-            :ref:`promise-dt` says.
-        fx_args : dict, optional
-            Passed to ``fx`` at every step (per-filter arrays as for :meth:`predict`).
-
-        Returns
-        -------
-        FleetSmoothed
-            Unpacks as ``(means, P1_2s, Gs)`` of shapes ``(K, T, dim_x)``,
-            ``(K, T, dim_x, dim_x)`` (lower factors) and ``(K, T, dim_x, dim_x)``
-            (gains, zero at the last step); ``failed`` ``(K,)`` and ``failure``
-            are attached. A filter flagged in ``result.failed``, or one that fails
-            numerically while smoothing, is returned unsmoothed (its filtered
-            values, zero gains) and flagged; the others are unaffected. With
-            ``on_error="raise"``, a smoothing failure raises instead.
-
-        Raises
-        ------
-        ParameterError
-            ``result`` is not a FleetResult, or was kept without factors (``keep``
-            other than ``"all"``); ``fx_args`` not a dict; a non-finite ``dts`` entry.
-        ShapeError, NonFiniteError
-            ``result`` does not fit this fleet, or holds NaN or inf; ``dts`` of
-            the wrong length; ``fx`` values of the wrong shape.
-        FleetStepError
-            With ``on_error="raise"``, if some filters failed numerically.
-        """
-        checks.refuse_smoother_noise(self._fx_noise, "fleet")
-        return fleet_rts_smoother(self, result, dts=dts, fx_args=fx_args)

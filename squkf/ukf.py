@@ -8,6 +8,13 @@ call that fails changes nothing. What is handed out is the caller's (fresh
 arrays, the records formed from the engine's factors when read), and what
 the caller may edit in place (``x``, ``P``, ``Q``, ``R``) is validated at the
 next call.
+
+This module holds filterpy's constructor, ``predict`` and ``update`` (the
+model called per point, or vectorised), the configuration and the copy
+hooks; the filter's base classes hold the rest: ``x``, ``P`` and the noise
+factors (:mod:`squkf.ukf_state`), filterpy's other records and the weights
+(:mod:`squkf.ukf_records`), the step in halves (:mod:`squkf.ask_tell`), and
+what both faces share (:mod:`squkf.face`).
 """
 
 from __future__ import annotations
@@ -21,6 +28,7 @@ import numpy as np
 
 from . import checks, old_pickles, smoother
 from .angles import check_angle_hooks
+from .ask_tell import AskTell
 from .batch import batch_filter
 from .boundary.attributes import (
     NOISES,
@@ -28,7 +36,6 @@ from .boundary.attributes import (
     Estimate,
     FactorSlot,
     Flag,
-    Handed,
     HandOut,
     ModelFunction,
     Unformed,
@@ -36,23 +43,19 @@ from .boundary.attributes import (
     initial,
 )
 from .boundary.config import model_noise, second_set, sigma_family
-from .boundary.records import embed, innovation_inverse
-from .checks import as_float_array, as_lower_factor, check_time_step, check_values, noise_factor
-from .engine import Engine, Update
-from .errors import NonFiniteError, ParameterError, ShapeError, UnsetError
-from .face import Face, own_copy, restamped, written_record
+from .checks import as_float_array, check_time_step, check_values
+from .engine import Engine
+from .face import own_copy, restamped
 from .gating import Gate, as_gate
 from .generators import sigma_points_from_factor
-from .measurement import gain_from_factors
-from .noise import call_model, handed_points, noise_points
+from .noise import call_model, noise_points
 from .plan import Hooks, Plan, build_plan
 from .transform import cross_covariance
-from .weights import WrittenWeights
+from .ukf_records import FilterRecords
 
 __all__ = ["SquareRootUKF"]
 
 _LOG_TINY = math.log(sys.float_info.min)
-_REAL = checks.REAL
 
 # What lives outside the __dict__ (see the class): the engine and the gain formed from its last update,
 # the configuration, the noise slots, and what was handed out or written: the arrays ``x``, ``P`` handed
@@ -81,7 +84,7 @@ def _copy_of(value):
     return value.copy()
 
 
-class SquareRootUKF(Face):
+class SquareRootUKF(AskTell, FilterRecords):
     """Square-root Unscented Kalman Filter with filterpy's interface.
 
     The model is ``x[k+1] = fx(x[k], dt) + v``, ``z[k] = hx(x[k]) + w`` with
@@ -320,418 +323,8 @@ class SquareRootUKF(Face):
         """Default number of measurement variables."""
         return self._dim_z
 
-    @property
-    def Wm(self) -> np.ndarray:
-        """Mean weights of the first sigma-point set, shape ``(N,)`` (a copy).
-
-        Writable, as filterpy's: the weights written are used by every later step (the family's unit
-        points kept), or refused naming ``points`` where they cannot serve (:ref:`promise-records`).
-        """
-        return self._plan.first.rows.Wm.copy()
-
-    @Wm.setter
-    def Wm(self, value) -> None:
-        self._write_weights(value, self._plan.first.rows.Wc)
-
-    @property
-    def Wc(self) -> np.ndarray:
-        """Covariance weights of the first sigma-point set, shape ``(N,)`` (a copy; writable, as ``Wm``)."""
-        return self._plan.first.rows.Wc.copy()
-
-    @Wc.setter
-    def Wc(self, value) -> None:
-        self._write_weights(self._plan.first.rows.Wm, value)
-
-    def _write_weights(self, Wm, Wc) -> None:
-        """New weights of the first set (and of a redrawn second set that has none of its own)."""
-        first = self._plan.first.rows
-        N = first.Wm.shape[0]
-        Wm, Wc = (checks.written_record(w, name, 1) for w, name in ((Wm, "Wm"), (Wc, "Wc")))
-        for w, name in ((Wm, "Wm"), (Wc, "Wc")):
-            if w.shape != (N,):
-                raise ShapeError(f"{name} has shape {w.shape}, expected ({N},): one weight per sigma point")
-            if not np.all(np.isfinite(w)):
-                raise NonFiniteError(f"{name} contains NaN or inf: {w!r}")
-        if np.array_equal(Wm, first.Wm) and np.array_equal(Wc, first.Wc):
-            return  # (a program writing back the weights it read)
-        family = self._family
-        base = family.base if isinstance(family, WrittenWeights) else family
-        written = WrittenWeights(base, self._dim_x, Wm, Wc)
-        try:
-            plan = build_plan(written, self._generator, self._dim_x, self._fx_noise, self._hx_noise)
-        except ParameterError as exc:
-            raise ParameterError(
-                f"points={self._points!r} with the weights written as Wm and Wc cannot serve this filter"
-                f" ({exc}); give points= a family with those weights"
-            ) from None
-        self._family, self._plan = written, plan
-        self._configured()
-
     def _hooks(self) -> Hooks:
         return hooks_of(self.__dict__)
-
-    # -- state and covariances ---------------------------------------------
-
-    def _formed_x(self) -> np.ndarray:
-        """``x`` as handed out: a copy of the estimate."""
-        return self._engine.x[0].copy()
-
-    def _formed_P(self) -> np.ndarray:
-        """``P`` as handed out: the estimate's covariance, formed from its factor."""
-        S = self._engine.S[0]
-        return S @ S.T
-
-    def _stepped(self) -> None:
-        """The engine has a new estimate: ``x`` and ``P`` are formed from it when read."""
-        d = self.__dict__
-        d["x"], d["P"] = self._unformed
-        self._handed.held.clear()  # (the arrays handed out for the old estimate are history)
-
-    def _assign_x(self, value) -> None:
-        """``x = value``, validated: the engine's estimate, ``x`` formed again when read.
-
-        ``None`` or an all-NaN array is a placeholder (:func:`checks.placeholder`): ``x`` is then not
-        set, reads back as assigned, and a step refuses until it is.
-        """
-        kept = checks.placeholder(value, "x", (self._dim_x,))
-        if kept is not _REAL:
-            self._unset_as("x", kept)
-            return
-        x = checks.as_state(value, "x", self._dim_x)
-        self._engine.assign(x=x[None])
-        self.__dict__["x"] = self._unformed[0]
-        self._handed.drop("x")
-        self._unset.discard("x")
-
-    def _assign_P(self, value) -> None:
-        """``P = value``, validated and factored once; handed out as assigned (a copy).
-
-        A placeholder (``None``, all NaN) leaves ``P`` not set, as :meth:`_assign_x` says.
-        """
-        kept = checks.placeholder(value, "P", (self._dim_x, self._dim_x))
-        if kept is not _REAL:
-            self._unset_as("P", kept)
-            return
-        slot = FactorSlot("P", self._dim_x, semidefinite=False, factor=None)
-        slot.set_matrix(value)
-        self._engine.assign(S=slot.factor()[None])  # type: ignore[index]  # P is never singular
-        P = self.__dict__["P"] = slot.matrix()
-        self._handed.held["P"] = Handed(P)
-        self._unset.discard("P")
-
-    def _unset_as(self, name: str, kept: np.ndarray | None) -> None:
-        """``x`` or ``P`` is a placeholder, ``kept`` (None, or an all-NaN copy handed out for edits)."""
-        self.__dict__[name] = kept
-        if kept is None:
-            self._handed.drop(name)
-        else:
-            self._handed.held[name] = Handed(kept)
-        self._unset.add(name)
-
-    def _take_edit(self, name: str, array: np.ndarray) -> None:
-        """An array handed out as ``x`` or ``P`` was edited in place: validated and taken into the engine
-        (may raise). The array stays handed out, with a fresh record; a placeholder edited in place is an
-        assignment too (still all NaN: still not set)."""
-        n = self._dim_x
-        if checks.placeholder(array, name, (n,) if name == "x" else (n, n)) is not _REAL:
-            self._unset.add(name)
-            return
-        if name == "x":
-            x = checks.as_state(array, "x", n)
-            self._engine.assign(x=x[None])
-        else:
-            slot = FactorSlot("P", n, semidefinite=False, factor=None)
-            slot.set_matrix(array)
-            self._engine.assign(S=slot.factor()[None])  # type: ignore[index]  # P is never singular
-        self._unset.discard(name)
-
-    def _ready(self, call: str) -> None:
-        """Edits in place taken; refuse a step while ``x`` or ``P`` is a placeholder (changes nothing)."""
-        if self._handed.held:  # handed out since the step: edits are taken
-            self._take_edits()
-        if self._unset:
-            self._refuse_unset(call)
-
-    def _refuse_unset(self, call: str) -> None:
-        """Raise the UnsetError of a step that meets ``x`` or ``P`` not set (if one is not)."""
-        if self._unset:
-            name = "x" if "x" in self._unset else "P"
-            raise UnsetError(
-                f"{call} needs {name}, but {name} was never set: it holds the placeholder"
-                f" {'None' if self.__dict__[name] is None else 'all NaN'}; assign the initial {name}"
-                " first"
-            )
-
-    @property
-    def P1_2(self) -> np.ndarray:
-        """Lower Cholesky factor of ``P`` (a fresh copy; assign to change); all NaN while ``P`` is not set."""
-        self._take_edits()
-        if "P" in self._unset:
-            return np.full((self._dim_x,) * 2, np.nan)
-        return self._engine.S[0].copy()
-
-    @P1_2.setter
-    def P1_2(self, value):
-        S = as_lower_factor(value, "P1_2", self._dim_x, singular_ok=False)
-        self._engine.assign(S=S[None])
-        self.__dict__["P"] = self._unformed[1]
-        self._handed.drop("P")
-        self._unset.discard("P")
-
-    def _noise_assigned(self, name: str) -> None:
-        self.__dict__[name] = Unformed(getattr(self, "_" + name).matrix)
-
-    def _noise_factor(self, value, name: str, dim: int) -> np.ndarray | None:
-        """Lower factor of ``Q`` or ``R`` (``value`` for this call, else the attribute's); None: zero."""
-        return noise_factor(value, name, dim, getattr(self, "_" + name).factor, self._noise_cache)
-
-    def _Q1_2(self, Q) -> np.ndarray | None:
-        """The prediction's process-noise factor: this call's ``Q``, else the filter's (None: none added)."""
-        if Q is None:
-            return self._Q.factor()  # of the state's dimension: the slot's fixed size
-        return self._noise_factor(Q, "Q", self._dim_x)
-
-    def _R1_2(self, R, m: int) -> np.ndarray:
-        """The update's measurement-noise factor ``(m, m)``: this call's ``R``, else the filter's."""
-        S = self._R.factor() if (R is None and m == self._dim_z) else self._noise_factor(R, "R", m)
-        return np.zeros((m, m)) if S is None else S
-
-    # -- the records of the last prediction and update (formed when read) --------------------
-
-    @property
-    def sigmas_f(self) -> np.ndarray:
-        """The second set after a prediction (filterpy's ``sigmas_f``), shape ``(N2, dim_x)``.
-
-        The same array at every read until a step makes a new set (:ref:`promise-sigmas`); a set
-        written here, or this array changed in place, is the set of the next ``update``.
-        """
-        return self._handed_sigmas("sigmas_f").array
-
-    @sigmas_f.setter
-    def sigmas_f(self, value) -> None:
-        self._write_sigmas("sigmas_f", value)
-
-    @property
-    def sigmas_h(self) -> np.ndarray:
-        """``hx`` at the second set in the last update, ``(N2, dim_z)``; one array until the next update."""
-        return self._handed_sigmas("sigmas_h").array
-
-    @sigmas_h.setter
-    def sigmas_h(self, value) -> None:
-        self._write_sigmas("sigmas_h", value)
-
-    def _handed_sigmas(self, name: str) -> Handed:
-        """The array handed out as ``sigmas_f`` or ``sigmas_h`` since the step that made the set (made now
-        if none is), with the record it was handed out with."""
-        e = self._engine
-        stamp = e.shown_f if name == "sigmas_f" else e.H
-        held = self._sigmas.get(name)
-        if held is None or held[0] is not stamp:
-            assert stamp is not None  # (one filter's engine keeps both sets)
-            held = self._sigmas[name] = (stamp, Handed(stamp[0].copy()), False)
-        return held[1]
-
-    def _write_sigmas(self, name: str, value) -> None:
-        e = self._engine
-        stamp = e.shown_f if name == "sigmas_f" else e.H
-        A = checks.written_record(value, name, 2)
-        if name == "sigmas_f" and A.shape[1:] != (self._dim_x,):
-            raise ShapeError(f"sigmas_f has shape {A.shape}, expected (N, dim_x={self._dim_x})")
-        self._sigmas[name] = (stamp, Handed(A), True)
-
-    def _given_set(self, expected: tuple) -> np.ndarray | None:
-        """The set written as ``sigmas_f`` (or changed in place) since the prediction, for the update to
-        use (validated: ``expected`` is the set's shape); None if it was not."""
-        held = self._sigmas.get("sigmas_f")
-        if held is None or held[0] is not self._engine.shown_f:
-            return None
-        stamp, handed, written = held
-        if not (written or handed.edited()):
-            return None
-        return check_values(handed.array, expected, "sigmas_f")
-
-    def _set_used(self) -> None:
-        """The update used the set written as ``sigmas_f``: it reads back, and is not used again."""
-        stamp, handed, _ = self._sigmas["sigmas_f"]
-        self._sigmas["sigmas_f"] = (stamp, Handed(handed.array), False)
-
-    def _last(self) -> Update | None:
-        return self._engine.last
-
-    def _Sy(self) -> tuple[np.ndarray, np.ndarray | None]:
-        last = self._last()
-        if last is None:
-            m = self._dim_z
-            return np.zeros((m, m)), None
-        assert last.Sy is not None  # (one filter's update keeps its factors)
-        return last.Sy[0], last.observed
-
-    @property
-    def S1_2(self) -> np.ndarray:
-        """Lower factor of the last innovation covariance (NaN where a component was missing)."""
-        Sy, observed = self._Sy()
-        return embed(Sy, observed, np.nan)
-
-    @written_record("last", 2)
-    def S(self) -> np.ndarray:
-        """Innovation covariance of the last update, ``S1_2 @ S1_2.T`` (NaN where missing)."""
-        Sy, observed = self._Sy()
-        return embed(Sy @ Sy.T, observed, np.nan)
-
-    @written_record("last", 2)
-    def SI(self) -> np.ndarray:
-        """Inverse of ``S``, by triangular solves with ``S1_2`` (or by ``self.inv`` if replaced)."""
-        if self.inv is not np.linalg.inv:
-            return self.inv(self.S)
-        Sy, observed = self._Sy()
-        return innovation_inverse(Sy, observed)
-
-    @property
-    def K(self) -> np.ndarray:
-        """Kalman gain of the last update, shape ``(dim_x, dim_z)`` (zero columns where missing).
-
-        Formed once per update; a fresh copy on each read (:ref:`promise-records`).
-        """
-        last, K = self._gain_of
-        if K is None or last is not self._last():
-            last = self._last()
-            K = self._gain(last)
-            self._gain_of = (last, K)
-        return K.copy()
-
-    @K.setter
-    def K(self, value):
-        self._gain_of = (self._last(), checks.written_record(value, "K", 2))  # read as fresh copies
-
-    def _gain(self, last: Update | None) -> np.ndarray:
-        n = self._dim_x
-        if last is None:
-            return np.zeros((n, self._dim_z))
-        assert last.Sy is not None and last.L21 is not None  # (one filter's update keeps its factors)
-        K = last.K[0] if last.K is not None else gain_from_factors(last.Sy[0], last.L21[0])
-        if last.observed is None:
-            return K
-        full = np.zeros((n, last.m))
-        full[:, last.observed] = K
-        return full
-
-    # -- ask/tell: the step in halves ----------------------------------------
-
-    def ask_predict(self) -> np.ndarray:
-        """First half of a prediction: the sigma points to propagate.
-
-        Returns
-        -------
-        sigmas : ndarray, shape (N, dim_x)
-            One point per row (a fresh array); evaluate the state transition
-            at each and pass the results to :meth:`tell_predict`.
-
-        Examples
-        --------
-        >>> import numpy as np
-        >>> from squkf import MerweScaledWeights, SquareRootUKF
-        >>> ukf = SquareRootUKF(
-        ...     2, 1, 1.0, hx=lambda x: x[:1], fx=lambda x, dt: x, points=MerweScaledWeights()
-        ... )
-        >>> X = ukf.ask_predict()  # x = 0, P = I: the unit points, gamma = sqrt(3)
-        >>> print(np.round(X, 4))
-        [[ 0.      0.    ]
-         [ 1.7321  0.    ]
-         [ 0.      1.7321]
-         [-1.7321  0.    ]
-         [ 0.     -1.7321]]
-        >>> x_prior, P1_2_prior = ukf.tell_predict(X)  # the identity model: the prior adds Q = I
-        >>> print(np.round(P1_2_prior @ P1_2_prior.T, 6))
-        [[2. 0.]
-         [0. 2.]]
-        """
-        self._ready("ask_predict")
-        X = self._engine.ask_predict()[0]
-        return self._asked(X, self._plan.w_xi, "Q")
-
-    def tell_predict(self, sigmas_f, Q=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Second half of a prediction: the propagated points give the prior.
-
-        Parameters
-        ----------
-        sigmas_f : array_like, shape (N, dim_x)
-            The state transition at each point from :meth:`ask_predict`
-            (with ``fx_noise``, at each augmented point ``[x_i, w_i]`` it gave).
-        Q : ndarray, shape (dim_x, dim_x), optional
-            Process noise for this step only (default ``self.Q``); not with
-            ``fx_noise``, where the noise is in the points already.
-        UT : callable, optional
-            Square-root transform with the signature of
-            :func:`squkf.sqrt_unscented_transform`.
-
-        Returns
-        -------
-        x_prior : ndarray, shape (dim_x,)
-        P1_2_prior : ndarray, shape (dim_x, dim_x)
-            Fresh arrays.
-        """
-        self._refuse_unset("tell_predict")  # (assigned a placeholder since the ask)
-        e = self._engine
-        w_xi = e.step_route.plan.w_xi
-        checks.refuse_noise_args(w_xi, "Q", Q, UT)
-        # noise entering fx is in the points: no noise is added to the prior
-        e.tell_predict(sigmas_f, None if w_xi is not None else self._Q1_2(Q), UT)
-        self._stepped()
-        return e.x[0].copy(), e.S[0].copy()
-
-    def ask_update(self) -> np.ndarray:
-        """First half of an update: the sigma points to pass through the measurement function.
-
-        Returns
-        -------
-        sigmas : ndarray, shape (N2, dim_x)
-            The second set (redrawn from the prior, or augmented; a fresh
-            array); evaluate ``hx`` at each and pass the results to
-            :meth:`tell_update`.
-        """
-        self._ready("ask_update")
-        e = self._engine
-        X = e.ask_update()[0]
-        return self._asked(X, e.step_route.plan.v_xi, "R")  # (the plan that drew the set)
-
-    def tell_update(self, sigmas_h, z, R=None, UT: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Second half of an update: measurement-function values and ``z`` give the posterior.
-
-        Parameters
-        ----------
-        sigmas_h : array_like, shape (N2, dim_z)
-            The measurement function at each point from :meth:`ask_update`.
-        z : array_like, shape (dim_z,)
-            The measurement (missing components: :ref:`promise-missing`); its
-            length may differ from ``dim_z`` if ``R`` has the matching size.
-        R : ndarray, optional
-            Measurement noise for this update only (default ``self.R``); a
-            scalar means ``R * I``.
-        UT : callable, optional
-
-        Returns
-        -------
-        x_post : ndarray, shape (dim_x,)
-        P1_2_post : ndarray, shape (dim_x, dim_x)
-            Fresh arrays.
-        """
-        self._refuse_unset("tell_update")  # (assigned a placeholder since the ask)
-        e = self._engine
-        v_xi = e.step_route.plan.v_xi  # the noise of the set handed out (drawn by the step's route)
-        checks.refuse_noise_args(v_xi, "R", R, UT)
-        meas = checks.measurement(z, R, self._dim_z, self._R_dim, self._hx_noise)
-        if meas is None:
-            raise NonFiniteError(
-                "tell_update needs a measurement, but z holds none (all NaN, masked or None)"
-            )
-        z, observed = meas
-        m = z.shape[0]
-        # noise entering hx is in the points: the update adds none
-        R1_2 = np.zeros((m, m)) if v_xi is not None else self._R1_2(R, m)
-        e.tell_update(sigmas_h, z, observed, R1_2, UT)
-        self.__dict__["z"] = z
-        self._stepped()
-        return e.x[0].copy(), e.S[0].copy()
 
     # -- filterpy's methods ---------------------------------------------------
 
@@ -901,14 +494,6 @@ class SquareRootUKF(Face):
         checks.refuse_noise_args(xi, name, noise, UT)
         W = noise_points(xi, self._noise_factor(noise, name, xi.shape[1]), ())
         return call_model(fn, which, dim, X, W, args, kwargs, self.vectorized)
-
-    def _asked(self, X: np.ndarray, xi: np.ndarray | None, name: str) -> np.ndarray:
-        """What ``ask_*`` hands out: a copy of the points, with their noise part if any."""
-        factor = None if xi is None else self._noise_factor(None, name, xi.shape[1])
-        return handed_points(X, xi, factor, ())
-
-    def _R_dim(self) -> int:
-        return self._R.factor_or_zeros().shape[0]
 
     # -- configuration, transactions, copies ------------------------------------
 

@@ -115,6 +115,40 @@ def test_a_transaction_puts_back_what_was_taken_on_any_error():
     assert state == {"x": 3}
 
 
+def test_the_batch_loop_runs_each_step_and_puts_everything_back_on_an_error():
+    """``loop.run_steps``, both faces' ``batch_filter`` loop: each step, the progress callable after it,
+    and on an error at step k the state put back, the error annotated with k and the first k results
+    (kept apart from the state, as a run's records are)."""
+    state: dict = {"x": 0}
+    results: list = []
+
+    def transaction():
+        return loop.Transaction(lambda: dict(state), lambda s: state.update(s))
+
+    def step(k, item):
+        if item is None:
+            raise ParameterError("no item")
+        state["x"] += item
+        results.append(state["x"])
+
+    told: list = []
+    assert loop.run_steps(transaction(), [1, 2, 3], step, lambda k: results[:k], told.append, 3) == 3
+    assert state["x"] == 6 and results == [1, 3, 6] and told == [0, 1, 2]
+    results.clear()
+    with pytest.raises(ParameterError, match="^at step 2: no item") as err:
+        loop.run_steps(transaction(), [1, 1, None], step, lambda k: results[:k], None, 3)
+    assert state["x"] == 6  # (put back)
+    assert err.value.step == 2 and err.value.partial == [7, 8]
+
+    def longer(T):
+        raise ParameterError(f"dts has more than {T} entries")
+
+    results.clear()
+    with pytest.raises(ParameterError, match="^dts has") as err:  # after the steps: no step named
+        loop.run_steps(transaction(), [4], step, lambda k: results[:k], None, None, longer)
+    assert err.value.step is None and err.value.partial == [10] and state["x"] == 6
+
+
 def test_a_fleet_run_that_fails_leaves_the_fleet_as_it_was():
     fleet = make_cv3_fleet()
     before = fleet_state(fleet)
@@ -221,7 +255,8 @@ LAYERS = {
     "the engine": ["squkf.engine"],
     "the fleet's stacks": ["squkf.stacks"],
     "the faces": [
-        "squkf", "squkf.__main__", "squkf.face", "squkf.ukf", "squkf.fleet", "squkf.fleet_from",
+        "squkf", "squkf.__main__", "squkf.face", "squkf.ukf_state", "squkf.ukf_records", "squkf.ask_tell",
+        "squkf.ukf", "squkf.fleet_state", "squkf.fleet_batch", "squkf.fleet", "squkf.fleet_from",
         "squkf.old_pickles", "squkf.smoother", "squkf.nag",
         "squkf.ut",
         "squkf.dask", "squkf.first_use", "squkf.examples", "squkf.examples.g13ej_example",

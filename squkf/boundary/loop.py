@@ -4,13 +4,15 @@ A call that runs many steps (``batch_filter``) changes the filter step by
 step; if anything fails (or is interrupted) the filter is put back as it was
 before the call. Each facade says what its state is (``_snapshot`` and
 ``_restore``) and hands out a :class:`Transaction` over them from its public
-``transaction()``; the loops (:func:`squkf.batch.batch_filter`,
-``Fleet.batch_filter``) run inside one.
+``transaction()``. Both faces' loops (:func:`squkf.batch.batch_filter`,
+``Fleet.batch_filter``) are :func:`run_steps`: the steps inside one
+transaction, the progress option, and an error annotated with its step and the
+results so far; each face says only what a step is and what it keeps.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
@@ -25,6 +27,7 @@ __all__ = [
     "check_keep",
     "check_progress",
     "progress_callback",
+    "run_steps",
 ]
 
 KEEP = ("all", "diagonals", "means", "final")
@@ -171,3 +174,64 @@ def annotate_step(exc: BaseException, k: int, partial: Any, at_step: bool) -> No
         exc.step = k if at_step else None  # type: ignore[attr-defined]
     except AttributeError:  # an exception type that takes no attributes
         pass
+
+
+def run_steps(
+    transaction: Transaction,
+    steps: Iterable[Any],
+    step: Callable[[int, Any], object],
+    partial: Callable[[int], Any],
+    progress,
+    total: int | None,
+    after: Callable[[int], object] | None = None,
+) -> int:
+    """A batch run: ``step(k, item)`` for each item of ``steps``, inside ``transaction``.
+
+    The one loop of both faces' ``batch_filter``. After step ``k`` the ``progress`` option is told
+    (a bar advanced, or the callable called with ``k``); after the last step ``after(T)`` may check
+    the whole run (a per-step argument longer than the steps). On any exception (``KeyboardInterrupt``
+    too) the transaction puts the face back as it was, and the exception is annotated
+    (:func:`annotate_step`) with the step and ``partial(k)``, the results of the ``k`` steps before it.
+
+    Parameters
+    ----------
+    transaction : Transaction
+        The face's, as its ``transaction()`` hands it out.
+    steps : iterable
+        One item per step (a measurement, or a step index), read as the run goes.
+    step : callable
+        ``step(k, item)``: step ``k``, its records kept.
+    partial : callable
+        ``partial(k)``: what the run would return after its first ``k`` steps.
+    progress : bool, None or callable
+        As :func:`progress_callback` takes it.
+    total : int or None
+        The number of steps, when known (for the bar).
+    after : callable, optional
+        ``after(T)``, called after the last step, inside the transaction.
+
+    Returns
+    -------
+    int
+        The number of steps run, ``T``.
+    """
+    bar, callback = progress_callback(progress, total)
+    k = 0
+    at_step = True
+    try:
+        with transaction:
+            for item in steps:
+                step(k, item)
+                if callback is not None:
+                    callback(k)
+                k += 1
+            at_step = False
+            if after is not None:
+                after(k)
+    except BaseException as exc:
+        annotate_step(exc, k, partial(k), at_step)
+        raise
+    finally:
+        if bar is not None:
+            bar.close()
+    return k
