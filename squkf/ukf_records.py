@@ -205,7 +205,10 @@ class FilterRecords(Face):
         if last is None:
             return np.zeros((n, self._dim_z))
         assert last.Sy is not None and last.L21 is not None  # (one filter's update keeps its factors)
-        K = last.K[0] if last.K is not None else gain_from_factors(last.Sy[0], last.L21[0])
+        if last.K is not None:
+            K = last.K[0]
+        else:  # (the route's kernel table: a gain is a phase of this filter's step, read late)
+            K = gain_from_factors(last.Sy[0], last.L21[0], kernels=self._engine.route.kernels)
         if last.observed is None:
             return K
         full = np.zeros((n, last.m))
