@@ -1307,6 +1307,7 @@ def lower_factor_stack(a: np.ndarray, name: str, dim: int, singular_ok: bool) ->
     if bad.any():  # (a NaN or inf entry makes its norm non-finite)
         k = int(np.flatnonzero(bad)[0])
         as_lower_factor(S[k], f"{name}[{k}]", dim, singular_ok)  # raises, naming it
+        raise AssertionError(f"{name}[{k}] failed a check here that as_lower_factor passed")
     neg = d < 0
     if neg.any():
         S *= np.where(neg, -1.0, 1.0)[:, None, :]  # the columns of a negative diagonal entry flipped

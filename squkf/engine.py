@@ -565,9 +565,11 @@ class Route:
             rows = fused.rows
             return SigmaSet(X2, rows.Wm, rows.Wc, fused.exact, D2, rows, fused.axis)
         if not self.single:
-            return plan.second.draw(x, S, propagated, Q1_2, self.hooks.state_add)
+            return plan.second.draw(x, S, propagated, Q1_2, self.hooks.state_add, kernels=self.kernels)
         one = self._one
-        s = plan.second.draw(one(x), one(S), one(propagated), Q1_2, self.hooks.state_add)
+        s = plan.second.draw(
+            one(x), one(S), one(propagated), Q1_2, self.hooks.state_add, kernels=self.kernels
+        )
         return s._replace(sigmas=s.sigmas[None], offsets=None if s.offsets is None else s.offsets[None])
 
     def update_route(self, sset: SigmaSet, UT) -> UpdateRoute | None:

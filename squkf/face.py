@@ -39,6 +39,7 @@ from .boundary.loop import Transaction
 from .boundary.records import log_det, whitened
 from .engine import Engine, Route, Update
 from .gating import Gate, as_gate
+from .kernels.table import KernelTable
 from .plan import IDLE, Hooks, Plan
 from .weights import WrittenWeights
 
@@ -388,9 +389,20 @@ class Face:
         the route it was drawn with)."""
         self._engine.configure(self._new_route())
 
-    def _new_route(self) -> Route:
-        """This configuration's route, as constants (:class:`~squkf.engine.Route`)."""
-        return Route(self._plan, self._step_hooks(), self._gate, single=self.ONE)
+    def _new_route(self, kernels: KernelTable | None = None) -> Route:
+        """This configuration's route, as constants (:class:`~squkf.engine.Route`), on ``kernels`` (None:
+        the table of the route it replaces, so that a filter keeps its table through changes and copies;
+        the installed one for a new filter)."""
+        if kernels is None:
+            engine = getattr(self, "_engine", None)  # (none yet while a face's __init__ builds it)
+            kernels = None if engine is None else engine.route.kernels
+        return Route(self._plan, self._step_hooks(), self._gate, single=self.ONE, kernels=kernels)
+
+    def _use_kernels(self, kernels: KernelTable | None) -> None:
+        """This face's phases on the kernel table ``kernels`` (a configuration's, ``Config.kernels``; None:
+        as it is)."""
+        if kernels is not None:
+            self._engine.configure(self._new_route(kernels))
 
     def _step_hooks(self) -> Hooks:
         """The hooks as the step calls them (a fleet's ``vectorized_hooks`` wrap a user's)."""

@@ -507,8 +507,10 @@ class Fleet(FleetState, FleetBatch):
     def __getitem__(self, k: int):
         """Filter ``k`` as a :class:`squkf.SquareRootUKF` (vectorised, with its state and configuration)."""
         k = int(np.arange(self._K)[k])
-        e = self._engine
-        return filter_of(SquareRootUKF, self.configuration(), k, e.x, e.S, e.phase)
+        e, c = self._engine, self.configuration()
+        f = filter_of(SquareRootUKF, c, k, e.x, e.S, e.phase)
+        f._use_kernels(c.kernels)  # (on the fleet's kernel table)
+        return f
 
     def __len__(self) -> int:
         return self._K
@@ -597,6 +599,7 @@ class Fleet(FleetState, FleetBatch):
         (``state``, validated by the setters)."""
         fleet = cls(K, c.dim_x, c.dim_z, c.dt, c.hx, c.fx, c.points, on_error=on_error, **filter_kwargs(c))
         fleet.x, fleet.P1_2, fleet.Q1_2, fleet.R1_2 = state
+        fleet._use_kernels(c.kernels)
         return fleet
 
     # the core's skeleton of copies, pickles and snapshots (face.Face): everything in the __dict__
@@ -604,6 +607,7 @@ class Fleet(FleetState, FleetBatch):
     def _unpickled(self, state: dict) -> dict:
         state = old_pickles.fleet_state(state)
         if "_engine" not in state:  # pickled before the fleet held an engine: its state and records, idle
+            before = state.pop("_before_engine")  # (not kept: what the engine is made of)
             self.__dict__.update(state)
-            state["_engine"] = old_pickles.fleet_engine(self._new_route(), state.pop("_before_engine"))
+            state["_engine"] = old_pickles.fleet_engine(self._new_route(), before)
         return state

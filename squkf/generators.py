@@ -306,9 +306,12 @@ class UnitSet:
         unit.rows, unit.exact, unit.gamma = full.rows, full.exact, None
         return unit, _frozen(full.xi[:, n:].copy())
 
-    def draw(self, x: np.ndarray, S: np.ndarray, state_add=None) -> SigmaSet:
-        """The set for mean ``x`` ``(..., n)`` and lower factor ``S`` ``(..., n, n)``."""
-        sigmas, offsets = sigma_points_and_offsets(x, S, self.xi, state_add, self.gamma)
+    def draw(
+        self, x: np.ndarray, S: np.ndarray, state_add=None, *, kernels: KernelTable | None = None
+    ) -> SigmaSet:
+        """The set for mean ``x`` ``(..., n)`` and lower factor ``S`` ``(..., n, n)`` (by ``kernels``, a
+        route's table; None: the installed one)."""
+        sigmas, offsets = sigma_points_and_offsets(x, S, self.xi, state_add, self.gamma, kernels=kernels)
         rows = self.rows
         axis = self.gamma is not None and _plain_sum(state_add)
         return SigmaSet(sigmas, rows.Wm, rows.Wc, self.exact, offsets, rows, axis)
@@ -378,8 +381,8 @@ class _RedrawnSet:
         """The weight rows every set it draws carries (the routes of their updates are fixed by them)."""
         return (self.unit.rows,)
 
-    def draw(self, x, S, propagated, Q1_2, state_add) -> SigmaSet:
-        return self.unit.draw(x, S, state_add)
+    def draw(self, x, S, propagated, Q1_2, state_add, *, kernels: KernelTable | None = None) -> SigmaSet:
+        return self.unit.draw(x, S, state_add, kernels=kernels)
 
 
 class Augmented:
@@ -479,14 +482,16 @@ class _AugmentedSet:
         """The weight rows every set it draws carries: the augmented set's, the first set's."""
         return (self.rows, self.first.rows)
 
-    def draw(self, x, S, propagated, Q1_2, state_add) -> SigmaSet:
+    def draw(self, x, S, propagated, Q1_2, state_add, *, kernels: KernelTable | None = None) -> SigmaSet:
         if propagated is None:
-            return self.first.draw(x, S, state_add)
+            return self.first.draw(x, S, state_add, kernels=kernels)
         if Q1_2 is None:
             r = self.first.rows
             return SigmaSet(propagated, r.Wm, r.Wc, True, None, r)
         centre = propagated[..., 0, :]
-        extra = sigma_points_from_factor(centre, Q1_2, self.noise_xi, state_add, self.noise_gamma)
+        extra = sigma_points_from_factor(
+            centre, Q1_2, self.noise_xi, state_add, self.noise_gamma, kernels=kernels
+        )
         batch = np.broadcast_shapes(propagated.shape[:-2], extra.shape[:-2])
         sigmas = np.concatenate(
             [
@@ -534,9 +539,9 @@ class _PropagatedSet:
         """The weight rows every set it draws carries: the first set's."""
         return (self.first.rows,)
 
-    def draw(self, x, S, propagated, Q1_2, state_add) -> SigmaSet:
+    def draw(self, x, S, propagated, Q1_2, state_add, *, kernels: KernelTable | None = None) -> SigmaSet:
         if propagated is None:
-            return self.first.draw(x, S, state_add)
+            return self.first.draw(x, S, state_add, kernels=kernels)
         r = self.first.rows
         return SigmaSet(propagated, r.Wm, r.Wc, Q1_2 is None, None, r)
 
@@ -548,7 +553,8 @@ class _UserSet:
         self.generator = generator
         self.family = family
 
-    def draw(self, x, S, propagated, Q1_2, state_add) -> SigmaSet:
+    def draw(self, x, S, propagated, Q1_2, state_add, *, kernels: KernelTable | None = None) -> SigmaSet:
+        # (the protocol takes no kernel table: a user's generator draws by the installed one)
         sset = self.generator.second_set(
             x, S, family=self.family, propagated=propagated, Q1_2=Q1_2, state_add=state_add
         )

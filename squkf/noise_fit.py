@@ -52,7 +52,7 @@ C_MARGIN = 16.0
 RESTART_MARGIN = 16.0
 #: restarts of the least-squares solver before it stops where it is
 MAX_RESTARTS = 8
-#: iterations of the batched Levenberg-Marquardt before its problems go to Newton's method all the same
+#: iterations of the batched Gauss-Newton method before its problems go to Newton's method all the same
 LM_ITERATIONS = 50
 #: where the least-squares phase hands over to Newton's method: a step that gains less than this in
 #: ``log L`` (the Gauss-Newton model converges only linearly near an optimum, where its matrix misses
@@ -434,8 +434,8 @@ def fit_noise(
         raise ParameterError(f"shared must be True or False, got shared={shared!r}")
     if not shared and method not in ("least_squares", "quasi_newton"):
         raise ParameterError(
-            f"shared=False fits every recording together by a batched damped Newton method: method={method!r}"
-            " is for shared fits (leave method at its default)"
+            "shared=False fits every recording together by a batched least-squares and Newton method:"
+            f" method={method!r} is for shared fits (leave method at its default)"
         )
     c = ukf.configuration()
     Z, _ = recordings(zs, c.dim_z)
@@ -561,7 +561,9 @@ def _fit_each(
                 log_likelihood=float(loglik[b]),
                 log_likelihood_template=float(t0[b]),
                 success=bool(success[b]) and math.isfinite(loglik[b]),
-                message="converged" if success[b] else "stopped: no step decreased -log L further",
+                message="converged"
+                if success[b]
+                else "stopped short of an optimum (no step lowered -log L, or the iterations ran out)",
                 method="batched_least_squares",
                 passes=objective.passes,
                 filter_steps=objective.filter_steps,
@@ -599,7 +601,7 @@ class _Residuals:
         """The residuals of each candidate ``(K, r)`` (inf for a failed one), from one fleet pass."""
         W, L = self.objective.whitened(thetas)
         logdets = L[:, self.updated]
-        if math.isnan(self.c):  # the first point: c from its own values
+        if math.isnan(self.c) and np.isfinite(logdets[0]).any():  # the first point: c from its own values
             self.c = -2.0 * float(np.nanmin(logdets[0])) + C_MARGIN
         lowest = np.nanmin(logdets, initial=np.inf)
         if 2.0 * lowest + self.c < 0.0 and self.restarts < MAX_RESTARTS:
@@ -789,7 +791,8 @@ def _batched_least_squares(objective: _Objective, theta0: np.ndarray, B: int, lo
     done = np.zeros(B, dtype=bool)
     handed = np.zeros(B, dtype=bool)
     steps = np.eye(p) * h
-    models: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = [None] * B  # (g, curvatures, V)
+    # the model at each problem's current point: the gradient, the Hessian made positive (_positive)
+    models: list[tuple[np.ndarray, np.ndarray] | None] = [None] * B
     convex = np.zeros(B, dtype=bool)
     last: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = [None] * B  # theta, J, r at the last point
     second = np.zeros((B, p, p))  # the structured secant part: the residuals' own curvature
@@ -809,9 +812,7 @@ def _batched_least_squares(objective: _Objective, theta0: np.ndarray, B: int, lo
                 radius[b] = moved / 4.0  # a worse trial: a shorter step from where it is
             else:
                 if models[b] is not None:
-                    radius[b] = _new_radius(
-                        radius[b], moved, (f_now[b] - f_trial) / max(predicted[b], 1e-300)
-                    )
+                    radius[b] = _new_radius(radius[b], moved, _ratio(f_now[b] - f_trial, predicted[b]))
                 thetas[b], f_now[b] = trials[b], f_trial
                 finite = np.all(np.isfinite(ld), axis=1)
                 lowest = float(np.min(ld[finite]))
@@ -830,14 +831,13 @@ def _batched_least_squares(objective: _Objective, theta0: np.ndarray, B: int, lo
                     s_b, y_b = thetas[b] - theta_old, g - J_old @ r_old
                     second[b] = _secant_update(second[b], s_b, y_b, (J - J_old) @ R[0])
                 last[b] = (thetas[b].copy(), J, R[0])
-                lam, V = np.linalg.eigh(0.5 * (J @ J.T + second[b] + (J @ J.T + second[b]).T))
-                convex[b] = bool(np.all(lam > 0))
-                models[b] = (g, np.maximum(np.abs(lam), 1e-8 * max(float(np.max(np.abs(lam))), 1e-12)), V)
+                A = J @ J.T + second[b]
+                convex[b], models[b] = _positive(0.5 * (A + A.T), g)
             model = models[b]
             if model is None or radius[b] < 1e-10:
                 done[b] = True  # failed at its start, or no step lowers it: it stays where it is
                 continue
-            if convex[b] and _trust_step(thetas[b], *model, math.inf, lo, hi)[1] <= HANDOVER:
+            if convex[b] and _decrement(thetas[b], *model, lo, hi) <= HANDOVER:
                 done[b] = handed[b] = True
                 continue
             trials[b], predicted[b] = _trust_step(thetas[b], *model, radius[b], lo, hi)
@@ -872,9 +872,8 @@ def _batched_newton(
     current, trials = thetas.copy(), thetas.copy()
     f_now = np.full(B, np.inf)
     predicted = np.zeros(B)  # what the model predicted the trial would gain
-    models: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = [
-        None
-    ] * B  # (g, curvatures, V) at current
+    # the model at each problem's current point: the gradient, the Hessian made positive (_positive)
+    models: list[tuple[np.ndarray, np.ndarray] | None] = [None] * B
     radius = np.ones(B)
     done = np.zeros(B, dtype=bool)
     success = np.zeros(B, dtype=bool)
@@ -890,22 +889,18 @@ def _batched_newton(
             moved = float(np.linalg.norm(trials[b] - current[b]))
             if np.all(np.isfinite(f[row])) and f[row, 0] <= f_now[b]:
                 if models[b] is not None:
-                    radius[b] = _new_radius(
-                        radius[b], moved, (f_now[b] - f[row, 0]) / max(predicted[b], 1e-300)
-                    )
+                    radius[b] = _new_radius(radius[b], moved, _ratio(f_now[b] - f[row, 0], predicted[b]))
                 f0, g, H = _derivatives(f[row], p, h)
                 current[b], f_now[b] = trials[b], f0
-                lam, V = np.linalg.eigh(0.5 * (H + H.T))
-                floor = 1e-8 * max(float(np.max(np.abs(lam))), 1e-12)
-                models[b] = (g, np.maximum(np.abs(lam), floor), V)
+                models[b] = _positive(0.5 * (H + H.T), g)[1]
             else:  # a worse trial, or a failed candidate next to it: a shorter step from where it is
                 radius[b] = moved / 4.0
             model = models[b]
             if model is None or radius[b] < 1e-10:
                 done[b] = True  # failed at its start, or no step lowers it: it stays where it is
                 continue
-            if _trust_step(current[b], *model, math.inf, lo, hi)[1] <= NEWTON_TOL:  # the whole step gains
-                done[b] = success[b] = True  # too little to matter
+            if _decrement(current[b], *model, lo, hi) <= NEWTON_TOL:  # the whole step gains too little
+                done[b] = success[b] = True
                 trials[b] = current[b]
                 continue
             trials[b], predicted[b] = _trust_step(current[b], *model, radius[b], lo, hi)
@@ -922,25 +917,69 @@ def _new_radius(radius: float, moved: float, ratio: float) -> float:
     return radius
 
 
-def _trust_step(theta, g, curvature, V, radius: float, lo, hi) -> tuple[np.ndarray, float]:
-    """The Newton step from ``theta`` (the Hessian ``V diag(curvature) V^T``, positive, and the gradient
-    ``g``) of length at most ``radius``, within the bounds, and the decrease of the objective its quadratic
-    model predicts. Longer than the radius, the step is the model's minimum on the sphere:
-    ``-(H + mu I)^-1 g`` with ``mu`` found by bisection."""
-    gv = V.T @ g
-    s = -gv / curvature
-    if float(np.linalg.norm(s)) > radius:
-        low, high = 0.0, float(np.linalg.norm(gv)) / radius  # (at mu = high the step is within the radius)
-        for _ in range(60):
-            mu = 0.5 * (low + high)
-            if float(np.linalg.norm(gv / (curvature + mu))) > radius:
-                low = mu
-            else:
-                high = mu
-        s = -gv / (curvature + high)
-    trial = np.clip(theta + V @ s, lo, hi)
-    taken = V.T @ (trial - theta)
-    return trial, -float(gv @ taken + 0.5 * taken @ (curvature * taken))
+def _ratio(gained: float, predicted: float) -> float:
+    """The gain a step made over the gain its model predicted (0 where the model predicted none)."""
+    return gained / predicted if predicted > 0.0 else 0.0
+
+
+def _positive(H: np.ndarray, g: np.ndarray) -> tuple[bool, tuple[np.ndarray, np.ndarray]]:
+    """Whether the symmetric ``H`` is positive definite, and the model ``(g, M)``: ``M`` is ``H`` with its
+    eigenvalues taken in absolute value and floored at 1e-8 of the largest, so that a step goes downhill
+    where ``H`` is not positive and stays finite along a direction of no curvature."""
+    lam, V = np.linalg.eigh(H)
+    curvature = np.maximum(np.abs(lam), 1e-8 * max(float(np.max(np.abs(lam))), 1e-12))
+    return bool(np.all(lam > 0)), (g, (V * curvature) @ V.T)
+
+
+def _free(theta, g, lo, hi) -> np.ndarray:
+    """The parameters free to move: not held at a bound by a gradient that points out of the box."""
+    return ~(((theta <= lo) & (g > 0)) | ((theta >= hi) & (g < 0)))
+
+
+def _decrement(theta, g, M, lo, hi) -> float:
+    """What the whole Newton step of the free parameters (:func:`_free`) would gain by the model
+    ``(g, M)``: ``g_f^T M_ff^-1 g_f / 2``, never negative (those held at a bound are where they belong)."""
+    f = _free(theta, g, lo, hi)
+    if not f.any():
+        return 0.0
+    return 0.5 * float(g[f] @ np.linalg.solve(M[np.ix_(f, f)], g[f]))
+
+
+def _trust_step(theta, g, M, radius: float, lo, hi) -> tuple[np.ndarray, float]:
+    """The Newton step from ``theta`` of the free parameters (:func:`_free`; the model's gradient ``g`` and
+    positive Hessian ``M``), of length at most ``radius``, within the bounds, and the decrease of the
+    objective the model predicts. Longer than the radius, the step is the model's minimum on the sphere:
+    ``-(M_ff + mu I)^-1 g_f`` with ``mu`` found by bisection. Where the bounds cut it and the cut step
+    would predict no decrease, it is the longest fraction of the step within them instead."""
+    f = _free(theta, g, lo, hi)
+    step = np.zeros_like(theta)
+    if f.any():
+        lam, V = np.linalg.eigh(M[np.ix_(f, f)])
+        gv = V.T @ g[f]
+        s = -gv / lam
+        if float(np.linalg.norm(s)) > radius:
+            low, high = 0.0, float(np.linalg.norm(gv)) / radius  # (at mu = high the step is within it)
+            for _ in range(60):
+                mu = 0.5 * (low + high)
+                if float(np.linalg.norm(gv / (lam + mu))) > radius:
+                    low = mu
+                else:
+                    high = mu
+            s = -gv / (lam + high)
+        step[f] = V @ s
+
+    def predicted(taken):
+        return -float(g @ taken + 0.5 * taken @ M @ taken)
+
+    trial = np.clip(theta + step, lo, hi)
+    gain = predicted(trial - theta)
+    if gain <= 0.0 and np.any(step):  # the bounds' cut spoiled it: the part of the step within them
+        with np.errstate(divide="ignore", invalid="ignore"):
+            room = np.where(step > 0, (hi - theta) / step, np.where(step < 0, (lo - theta) / step, np.inf))
+        t = float(np.clip(np.min(room), 0.0, 1.0))
+        trial = np.clip(theta + t * step, lo, hi)
+        gain = predicted(trial - theta)
+    return trial, gain
 
 
 def _secant_update(S: np.ndarray, s: np.ndarray, y: np.ndarray, y_sharp: np.ndarray) -> np.ndarray:

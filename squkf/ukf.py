@@ -420,7 +420,9 @@ class SquareRootUKF(AskTell, FilterRecords):
         self._ready("compute_process_sigmas")
         e = self._engine
         first = self._plan.first
-        sigmas = sigma_points_from_factor(e.x[0], e.S[0], first.xi, self._hooks().state_add)
+        sigmas = sigma_points_from_factor(
+            e.x[0], e.S[0], first.xi, self._hooks().state_add, kernels=e.route.kernels
+        )
         values = self._model(fx, "fx", sigmas, (dt,), fx_args)
         e.shown_f = check_values(values, sigmas.shape, "fx values")[None]
 

@@ -579,8 +579,9 @@ def _python_mean(sigmas, Wm):
         (Hooks(residual_z=lambda a, b: a - b, x_mean_fn=_python_mean), None),
         (Hooks(), Gate(0.99, per_component=True)),
         (Hooks(residual_z=lambda a, b: a - b), Gate(0.99, per_component=True)),
+        (Hooks(state_add=lambda x, dx: x + dx), None),
     ],
-    ids=["default", "hooks", "gate", "hooks-gate"],
+    ids=["default", "hooks", "gate", "hooks-gate", "state_add"],
 )
 def test_the_kernel_table_is_the_routes(monkeypatch, hooks, gate):
     """Two filters side by side, one built on its own table (as a filter on another backend would be):
@@ -595,10 +596,10 @@ def test_the_kernel_table_is_the_routes(monkeypatch, hooks, gate):
     wild[0] += 50.0  # the gate rejects this component alone
     a, b = (merwe_turn_filter(MerweScaledWeights(alpha=0.5), "redrawn", gate) for _ in "ab")
     for f in (a, b):
-        f.residual_z, f.x_mean_fn = hooks.residual_z, hooks.x_mean_fn
+        f.residual_z, f.x_mean_fn, f.state_add = hooks.residual_z, hooks.x_mean_fn, hooks.state_add
     r = a._engine.route
     a._engine.configure(Route(r.plan, r.hooks, r.gate, r.single, kernels=own))
-    assert a._engine.route.kernel_update is (hooks.residual_z is None)
+    assert a._engine.route.kernel_update is (hooks.residual_z is None and hooks.state_add is None)
     assert a._engine.route.kernels is own and b._engine.route.kernels is table.KERNELS
     out = {}
     for f, mine, other in ((a, calls, installed), (b, installed, calls)):
@@ -617,6 +618,13 @@ def test_the_kernel_table_is_the_routes(monkeypatch, hooks, gate):
     for x, y in zip(out[a], out[b]):
         np.testing.assert_array_equal(x, y)
     assert copy.deepcopy(a._engine.route).kernels == own  # a copied route keeps its table
+    # and so does the filter: copied, deep-copied, given another hook or gate, made a fleet
+    kept = [copy.copy(a), copy.deepcopy(a)]
+    a.gate = 0.95
+    a.residual_x = lambda u, v: u - v
+    fleet = Fleet.from_filters([a, a])
+    kept += [a, fleet, fleet[1]]
+    assert all(f._engine.route.kernels == own for f in kept)
 
 
 @pytest.mark.parametrize("hooks", [{}, {"residual_z": lambda a, b: a - b}], ids=["default", "hooks"])

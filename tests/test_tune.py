@@ -7,6 +7,8 @@ arithmetics differ by rounding at each of T steps).
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from filterpy.common import Q_discrete_white_noise
@@ -362,6 +364,13 @@ def test_a_failing_candidate_is_a_wall_and_every_failure_is_an_error(cv_recordin
         tune.fit_noise(
             tune_template(), cv_recordings[0], Q=tune.Fixed(), R=R, method="grid", grid=np.array([[0.0]])
         )
+    # a start that fails: the least-squares fit and the per-recording fits say so, and nothing else
+    bad = tune.Custom(lambda t: (t[0] - 0.2) * np.diag([1.0, 4.0]), [0.0], names=["r"])
+    for shared in (True, False):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # (no numpy warning on the way)
+            with pytest.raises(FleetStepError, match="start|recording"):
+                tune.fit_noise(tune_template(), cv_recordings[:2], Q=tune.Fixed(), R=bad, shared=shared)
 
 
 def test_progress_is_called_after_every_fleet_pass(cv_recordings):
@@ -489,6 +498,25 @@ def test_the_optimum_s_information_is_newton_s_last_pass(cv_recordings):
     # Newton's last, ran the last pass
     assert [after - before for before, after in seen[-2:]] == [0, 0]
     assert seen[-3][1] == fit.passes
+
+
+def test_newton_s_method_reaches_an_optimum_held_by_a_bound():
+    """A quadratic whose optimum in the box has one parameter at its lower bound, the two coupled: the
+    step of the free parameter alone reaches it (a clipped whole step would predict no gain there and
+    stop at the start, calling it converged)."""
+    from squkf import noise_fit
+
+    H, g0 = np.array([[1.0, 0.9], [0.9, 1.0]]), np.array([0.955, 0.85])
+
+    def objective(points, rec=None):
+        return np.array([g0 @ t + 0.5 * t @ H @ t for t in points])
+
+    lo, hi = np.array([0.0, -10.0]), np.array([10.0, 10.0])
+    theta, success = noise_fit._batched_newton(objective, np.zeros((1, 2)), None, (lo, hi), 50)
+    assert success[0]
+    np.testing.assert_allclose(theta[0], [0.0, -0.85], atol=1e-6)
+    # and the least-squares phase's hand-over reads the same decrement: none left at that optimum
+    assert noise_fit._decrement(theta[0], g0 + H @ theta[0], H, lo, hi) < 1e-12
 
 
 def test_on_the_robot_one_fit_reaches_the_same_optimum_from_every_start():
