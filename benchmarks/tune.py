@@ -239,6 +239,11 @@ def main(argv=None) -> int:
     truth_filter = squkf_filter(wrap=False)
     _, zs = simulate(truth_filter, T, B, seed=1)
     rows = []
+    # warm up: every kernel the runs below call loaded from numba's cache (about 0.2 s in a new process)
+    # and filterpy's code run once, before anything is timed
+    tune.fit_noise(template(), zs[0, :20], Q=tune.Scaled(), R=tune.Diagonal(), maxiter=2)
+    squkf_loglik(np.zeros(3), zs[0, :20])
+    filterpy_loglik(np.zeros(3), zs[0, :20])
 
     t_fit, one = fit(zs[0])
     t_nm_fp, ll_fp, n_fp = nelder_mead(filterpy_loglik, zs[0])

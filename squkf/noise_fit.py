@@ -505,7 +505,8 @@ def _fit(objective: _Objective, method: str, theta0, names, lo_hi, grid, shared,
         )
         theta, success = polished[0], success and bool(ok[0])
         message = (
-            f"{message}; then Newton's method on the exact Hessian: {'converged' if ok[0] else 'stopped'}"
+            f"{message.rstrip('.')}; then Newton's method on the exact Hessian:"
+            f" {'converged' if ok[0] else 'stopped'}"
         )
     else:
         f0 = float(objective(theta0[None])[0])
