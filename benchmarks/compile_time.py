@@ -69,15 +69,13 @@ THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "BL
 COLD_TARGET_S, CACHED_TARGET_S = 30.0, 1.0
 
 
-def child(kind: str, K: int) -> None:
-    """One measurement in this (fresh) process; prints a JSON line."""
-    t0 = time.perf_counter()
-    import squkf
-
-    t1 = time.perf_counter()
+def radar():
+    """The children's model, a constant-velocity target seen by a range-bearing radar (n = 4, m = 2):
+    ``fx``, ``hx`` (per point for a filter, ``(K, N, n)`` for a fleet), ``x0``, ``P0``, ``Q``, ``R`` and a
+    first measurement ``z``. Imports numpy itself: a child times ``import squkf`` before it."""
     import numpy as np
 
-    def fx(x, dt):  # per point for the filter, (K, N, n) for the fleet
+    def fx(x, dt):
         return np.stack([x[..., 0] + dt * x[..., 1], x[..., 1], x[..., 2] + dt * x[..., 3], x[..., 3]], -1)
 
     def hx(x):
@@ -87,7 +85,18 @@ def child(kind: str, K: int) -> None:
     P0 = np.diag([30.0**2, 2.0**2, 30.0**2, 2.0**2])
     Q = np.kron(np.eye(2), 0.05 * np.array([[1 / 3, 1 / 2], [1 / 2, 1.0]]))
     R = np.diag([5.0**2, 2e-3**2])
-    z = hx(x0) + np.array([3.0, 1e-3])
+    return fx, hx, x0, P0, Q, R, hx(x0) + np.array([3.0, 1e-3])
+
+
+def child(kind: str, K: int) -> None:
+    """One measurement in this (fresh) process; prints a JSON line."""
+    t0 = time.perf_counter()
+    import squkf
+
+    t1 = time.perf_counter()
+    import numpy as np
+
+    fx, hx, x0, P0, Q, R, z = radar()
     t2 = time.perf_counter()
     if kind == "filter":
         f = squkf.SquareRootUKF(4, 2, 1.0, hx, fx, squkf.MerweScaledWeights())
@@ -135,17 +144,7 @@ def firsts_child() -> None:
     except ImportError:
         compiled = dict
 
-    def fx(x, dt):
-        return np.stack([x[..., 0] + dt * x[..., 1], x[..., 1], x[..., 2] + dt * x[..., 3], x[..., 3]], -1)
-
-    def hx(x):
-        return np.stack([np.hypot(x[..., 0], x[..., 2]), np.arctan2(x[..., 2], x[..., 0])], -1)
-
-    x0 = np.array([1000.0, 5.0, 1500.0, -3.0])
-    P0 = np.diag([30.0**2, 2.0**2, 30.0**2, 2.0**2])
-    Q = np.kron(np.eye(2), 0.05 * np.array([[1 / 3, 1 / 2], [1 / 2, 1.0]]))
-    R = np.diag([5.0**2, 2e-3**2])
-    z = hx(x0) + np.array([3.0, 1e-3])
+    fx, hx, x0, P0, Q, R, z = radar()
     zs = [z + 0.1 * k for k in range(5)]
 
     def made(cls=squkf.SquareRootUKF, *first, **hooks):

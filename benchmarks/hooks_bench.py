@@ -191,31 +191,30 @@ def fleet(K: int, steps: int, reps: int, python_steps: int = 2) -> dict:
 
 
 def single_section(res: dict, steps: int, reps: int) -> list[str]:
-    lines = [
-        "## Angle hooks: one filter with a wrapping bearing (n = 4, range-bearing radar)",
-        "",
+    return _table(
+        "Angle hooks: one filter with a wrapping bearing (n = 4, range-bearing radar)",
         f"`hooks_bench.single`: {steps} steps x {reps} interleaved repetitions, one process; a "
         "filter's `residual_z=AngleResidual([1])` is data to the kernels (no Python call per point). "
         "Target (issue 36): squkf with AngleResidual at most 0.5x filterpy's time with its own "
         "wrapping residual_z.",
-        "",
-        "| implementation | us/step | ratio to filterpy |",
-        "|---|---|---|",
-    ]
-    lines += [f"| {SINGLE_LABELS[k]} | {r['us']:.1f} | {r['ratio']:.2f} |" for k, r in res.items()]
-    return lines + [""]
+        ("implementation", "us/step", "ratio to filterpy"),
+        {SINGLE_LABELS[k]: (f"{r['us']:.1f}", r["ratio"]) for k, r in res.items()},
+    )
 
 
 def fleet_section(res: dict, K: int, steps: int, reps: int) -> list[str]:
-    lines = [
-        f"## Angle hooks: a fleet of {K:,} with a wrapping bearing (n = 4, range-bearing radar)",
-        "",
+    return _table(
+        f"Angle hooks: a fleet of {K:,} with a wrapping bearing (n = 4, range-bearing radar)",
         f"`hooks_bench.fleet`: {steps} steps x {reps} interleaved repetitions, one process (the "
         "per-point Python hook fewer steps). Target (issue 36): with AngleResidual at most 1.3x the "
         "time of the same fleet with no hook.",
-        "",
-        "| hook | us/filter-step | ratio to no hook |",
-        "|---|---|---|",
-    ]
-    lines += [f"| {FLEET_LABELS[k]} | {r['us']:.3g} | {r['ratio']:.2f} |" for k, r in res.items()]
+        ("hook", "us/filter-step", "ratio to no hook"),
+        {FLEET_LABELS[k]: (f"{r['us']:.3g}", r["ratio"]) for k, r in res.items()},
+    )
+
+
+def _table(title: str, how: str, columns: tuple[str, str, str], rows: dict) -> list[str]:
+    """A markdown section: its title, how it was measured, and a row per implementation (time, ratio)."""
+    lines = [f"## {title}", "", how, "", f"| {' | '.join(columns)} |", "|---|---|---|"]
+    lines += [f"| {label} | {us} | {ratio:.2f} |" for label, (us, ratio) in rows.items()]
     return lines + [""]
