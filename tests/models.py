@@ -1997,7 +1997,9 @@ def rbh_turning_measurements(T: int, seed: int = 0) -> np.ndarray:
     x, zs = RBH_TURNING_X0, []
     for _ in range(T):
         x = turn_fx_stacked(x, 1.0)
-        zs.append(wrap(range_bearing_heading_hx(x) + rng.normal(size=3) * np.sqrt(np.diag(RBH_R))))
+        z = range_bearing_heading_hx(x) + rng.normal(size=3) * np.sqrt(np.diag(RBH_R))
+        z[1:] = wrap(z[1:])  # (the angles as a sensor reports them; not the range)
+        zs.append(z)
     zs = np.array(zs)
     zs[2 % T, 0] = np.nan
     zs[3 % T] = np.nan
@@ -2051,7 +2053,8 @@ def rbh_measurements(K: int, T: int, seed: int = 0) -> np.ndarray:
     for _ in range(T):
         x = turn_fx_stacked(x, 1.0)
         z = range_bearing_heading_hx(x) + rng.normal(size=(K, 3)) * np.sqrt(np.diag(RBH_R))
-        zs.append(wrap(z))  # (the bearing as a sensor reports it; the range and heading are small)
+        z[:, 1:] = wrap(z[:, 1:])  # (the bearing and heading as a sensor reports them; not the range)
+        zs.append(z)
     zs = np.stack(zs, axis=1)
     zs[0, 2 % T, 0] = np.nan  # a missing range
     zs[K - 1, 1 % T, 1] = np.nan  # a missing bearing
