@@ -128,7 +128,10 @@ def child(kind: str, K: int) -> None:
 
 
 #: The first uses after the default filter's first step, in order; the first four are the issue's sum.
-FIRSTS = ("angle hooks", "batch_filter", "Fleet", "smoother", "downdate form (a user's UT)", "partial z")
+FIRSTS = (
+    "angle hooks", "batch_filter", "Fleet", "smoother", "a user's residual_z", "downdate form (a user's UT)",
+    "partial z",
+)  # fmt: skip
 IN_SUM = FIRSTS[:4]
 
 
@@ -159,6 +162,11 @@ def firsts_child() -> None:
     def users_ut(*args):
         return squkf.sqrt_unscented_transform(*args)
 
+    def users_residual_z(a, b):  # a radar user's first addition: the bearing wrapped
+        d = np.subtract(a, b)
+        d[..., 1] = (d[..., 1] + np.pi) % (2 * np.pi) - np.pi
+        return d
+
     def fleet():
         step(made(squkf.Fleet, 1000), np.broadcast_to(z, (1000, 2)).copy())
 
@@ -172,6 +180,7 @@ def firsts_child() -> None:
         "batch_filter": lambda: made().batch_filter(zs),
         "Fleet": fleet,
         "smoother": smoother,
+        "a user's residual_z": lambda: step(made(residual_z=users_residual_z)),
         "downdate form (a user's UT)": lambda: step(made(), UT=users_ut),
         "partial z": lambda: step(made(), np.array([np.nan, z[1]])),
     }
