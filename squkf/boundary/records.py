@@ -143,7 +143,10 @@ class StepProperty(property, Generic[T]):
 
     def __set_name__(self, owner: type, name: str) -> None:
         if getattr(self, "record", None) is None:  # (declared by its name: the registry's record of it)
-            self._use(next(r for r in STEP_RECORDS if r.name == name))
+            found = [r for r in STEP_RECORDS if r.name == name]
+            if not found:
+                raise LookupError(f"{owner.__name__}.{name}: no record {name!r} in STEP_RECORDS")
+            self._use(found[0])
 
     def _use(self, record: StepRecord) -> None:
         self.record = record
