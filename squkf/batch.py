@@ -24,7 +24,9 @@ from typing import Any, cast
 
 import numpy as np
 
+from .boundary import records
 from .boundary.loop import run_steps
+from .boundary.records import BatchResult  # (defined with the per-step records; found here too)
 from .checks import check_time_step, iter_measurements
 from .errors import ParameterError, ShapeError
 
@@ -246,55 +248,6 @@ def _known_length(zs) -> int | None:
     return n if isinstance(n, int) else None
 
 
-class BatchResult(tuple):
-    """``(means, covariances)``, as filterpy's ``batch_filter`` returns them, with the gate's record.
-
-    Unpacks as the pair (``means, covs = ukf.batch_filter(zs)``) and is a
-    tuple; the gate's decisions and the test statistic are attributes.
-
-    Attributes
-    ----------
-    rejected : ndarray of bool, shape (T, dim_z)
-        The components the gate rejected at each step (all False without a
-        gate, or at a step without a measurement).
-    nis : ndarray, shape (T,)
-        Each step's normalised innovation squared (0 without a measurement).
-    log_likelihood : ndarray, shape (T,)
-        Each step's log-likelihood of the components used (0 without a
-        measurement, or when the gate rejected them all).
-    y_whitened : ndarray, shape (T, dim_z)
-        Each step's whitened innovation ``S1_2^-1 y`` (NaN where a component,
-        or the whole step, was not measured): ``nis`` is its squared norm.
-    log_det_S1_2 : ndarray, shape (T,)
-        Each step's ``log det S1_2`` of the measured block (0 without a measurement).
-    """
-
-    rejected: np.ndarray
-    nis: np.ndarray
-    log_likelihood: np.ndarray
-    y_whitened: np.ndarray
-    log_det_S1_2: np.ndarray
-
-    def __new__(
-        cls,
-        means: np.ndarray,
-        covariances: np.ndarray,
-        rejected,
-        nis,
-        log_likelihood,
-        y_whitened,
-        log_det_S1_2,
-    ):
-        self = super().__new__(cls, (means, covariances))
-        self.rejected, self.nis, self.log_likelihood = rejected, nis, log_likelihood
-        self.y_whitened, self.log_det_S1_2 = y_whitened, log_det_S1_2
-        return self
-
-    def __reduce__(self):
-        fields = (self.rejected, self.nis, self.log_likelihood, self.y_whitened, self.log_det_S1_2)
-        return (type(self), (self[0], self[1], *fields))
-
-
 def _stack_rows(rows: list, width: int, dtype) -> np.ndarray:
     """Per-step records of one length each as ``(T, width)`` (a step of another size: object rows)."""
     if all(r.shape == (width,) for r in rows):
@@ -463,8 +416,8 @@ def batch_filter(
     rejected: list[np.ndarray] = []
     nis: list[float] = []
     loglik: list[float] = []
-    whitened: list[np.ndarray] = []
-    log_dets: list[float] = []
+    kept = records.STEP_RECORDS  # (the per-step records: each step's value, or of nothing measured)
+    rows: list[list] = [[] for _ in kept]
 
     def step(k: int, z) -> None:
         ukf.predict(dt=dt_k.at(k), UT=UT, Q=Q_k.at(k), **fx_k.at(k))
@@ -474,8 +427,8 @@ def batch_filter(
         rejected.append(ukf.rejected if measured else np.zeros(ukf.dim_z, dtype=bool))
         nis.append(ukf.nis if measured else 0.0)
         loglik.append(ukf.log_likelihood if measured else 0.0)
-        whitened.append(ukf.y_whitened if measured else np.full(ukf.dim_z, np.nan))
-        log_dets.append(ukf.log_det_S1_2 if measured else 0.0)
+        for r, got in zip(kept, rows):
+            got.append(getattr(ukf, r.name) if measured else r.missing(ukf.dim_z))
         means.append(ukf.x)
         S = ukf.P1_2
         covs.append(S if return_factors else S @ S.T)
@@ -497,5 +450,5 @@ def batch_filter(
     m = ukf.dim_z
     return BatchResult(
         means.result(), covs.result(), _stack_rows(rejected, m, bool), np.array(nis), np.array(loglik),
-        _stack_rows(whitened, m, float), np.array(log_dets),
+        *(_stack_rows(got, m, float) if r.per_component else np.array(got) for r, got in zip(kept, rows)),
     )  # fmt: skip

@@ -28,6 +28,7 @@ about 1.6 times slower there than in a plain process.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
@@ -45,6 +46,7 @@ except ImportError as exc:  # say which extra brings them
 
 from . import checks
 from .batch import model_kwargs, per_step
+from .boundary import records
 from .boundary.loop import check_keep
 from .checks import as_measurements
 from .errors import ParameterError, ShapeError
@@ -61,10 +63,11 @@ __all__ = [
 MMAP_THRESHOLD = 16 * 2**20
 """Bytes from which glibc's malloc maps fresh pages, in :func:`worker_environ` (16 MiB)."""
 
-_FIELDS = (
-    "means", "P1_2s", "variances", "log_likelihood", "failed", "x", "P1_2", "rejected", "nis", "y_whitened",
-    "log_det_S1_2",
-)  # fmt: skip
+
+def _fields() -> list[str]:
+    """``FleetResult``'s fields: its own, then the per-step records' (the registry's, read now)."""
+    steps = [r.name for r in records.STEP_RECORDS]
+    return [f.name for f in dataclasses.fields(FleetResult) if f.name not in steps] + steps
 
 
 def worker_environ() -> dict[str, Any]:
@@ -166,8 +169,9 @@ def batch_filter(
         recursion runs through all steps of a filter in one task).
     keep : {"all", "diagonals", "means", "final"} or tuple
         What to store, as for :meth:`squkf.Fleet.batch_filter` (``"means"`` or
-        ``"final"`` for runs too large to keep every factor; ``"whitened"`` in a
-        tuple adds the whitened innovations).
+        ``"final"`` for runs too large to keep every factor; a per-step record's
+        ``keep`` word in a tuple adds that record: ``"whitened"`` the whitened
+        innovations and ``log det S1_2``).
     dts, fx_args, hx_args
         As for :meth:`squkf.Fleet.batch_filter`; a per-filter array (leading
         axis ``K``) is cut into the chunks' rows, so that each filter gets its
@@ -192,7 +196,8 @@ def batch_filter(
     """
     if not isinstance(fleet, Fleet):
         raise ParameterError(f"fleet must be a squkf.Fleet, got {type(fleet).__name__}")
-    state, whitened = check_keep(keep)
+    state, words = check_keep(keep)
+    steps = records.STEP_RECORDS
     # an array in memory is read here, before anything is scheduled: text refused, masked entries NaN
     Z = zs if isinstance(zs, da.Array) else da.from_array(as_measurements(zs, "zs"))
     if Z.ndim != 3:
@@ -217,7 +222,7 @@ def batch_filter(
         checks.check_chunk_args(args, name, K, Z.chunks[0])
     n = fleet.dim_x
     blocks = Z.to_delayed().reshape(-1)
-    fields: dict[str, list] = {f: [] for f in _FIELDS}
+    fields: dict[str, list] = {f: [] for f in _fields()}
     lo = 0
     for block, size in zip(blocks, Z.chunks[0]):
         # each task carries only its chunk's filters (not the whole template): a worker holds a few chunks
@@ -236,8 +241,7 @@ def batch_filter(
             "P1_2": (size, n, n),
             "rejected": (size, m) if state == "final" else (size, T, m),
             "nis": (size, T),
-            "y_whitened": (size, T, m),
-            "log_det_S1_2": (size, T),
+            **{r.name: r.shape((size, T), m) for r in steps},
         }
         dtypes = {"failed": bool, "rejected": np.int64 if state == "final" else bool}
         for name, shape in shapes.items():
@@ -249,8 +253,7 @@ def batch_filter(
         "P1_2s": state == "all",
         "variances": state in ("all", "diagonals"),
         "nis": state != "final",
-        "y_whitened": whitened,
-        "log_det_S1_2": whitened,
+        **{r.name: r.keep in words for r in steps},
     }
     out: dict[str, Any] = {}
     for name, parts in fields.items():
@@ -337,10 +340,11 @@ def compute(result: FleetResult, **kwargs) -> FleetResult:
     FleetResult
         With numpy arrays.
     """
-    lazy = {k: getattr(result, k) for k in _FIELDS if getattr(result, k) is not None}
+    names = _fields()
+    lazy = {k: getattr(result, k) for k in names if getattr(result, k, None) is not None}
     values = dask.compute(*lazy.values(), **kwargs)
     done = dict(zip(lazy, values))
-    return FleetResult(**{k: done.get(k) for k in _FIELDS})  # type: ignore[arg-type]
+    return FleetResult(**{k: done.get(k) for k in names})  # type: ignore[arg-type]
 
 
 def filter_frame(

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -65,6 +65,7 @@ __all__ = [
     "PRIOR",
     "UPDATING",
     "BLOCK",
+    "POSTERIOR_OUT",
     "Block",
     "Engine",
     "Route",
@@ -135,13 +136,13 @@ class Update(NamedTuple):
 
     def rows(self, idx) -> Update:
         """The update of the filters ``idx`` of the block (their rows of every per-filter field)."""
-        Sy, L21, K, ld = (
-            None if a is None else a[idx] for a in (self.Sy, self.L21, self.K, self.log_det_S1_2)
-        )
-        return Update(
-            self.x[idx], self.S[idx], self.y[idx], Sy, L21, self.log_likelihood[idx], self.nis[idx],
-            self.observed, self.rejected[idx], K, self.m, self.w[idx], ld,
-        )  # fmt: skip
+        fields: tuple[Any, ...] = self  # (each a (B, ...) array, None, or the block's: observed, m)
+        rows = [a if a is None or name in _SHARED else a[idx] for name, a in zip(self._fields, fields)]
+        return Update(*rows)
+
+
+#: The fields of an :class:`Update` that are the block's, not one per filter (``Update.rows`` keeps them).
+_SHARED = frozenset(("observed", "m"))
 
 
 def _downdate_route(base: UpdateRoute, wc: np.ndarray, xkind: np.ndarray, residual_x: bool) -> UpdateRoute:
@@ -287,8 +288,17 @@ def _points_out(B: int, N: int, n: int, offsets: bool) -> tuple:
     return np.empty((B, N, n)), np.empty((B, N, n)) if offsets else table.no_set(n)
 
 
+#: The update kernels' outputs, in their order (``_posterior_out``'s): by the :class:`Update` field each
+#: is, or the kernel's own (``zp``, ``dx``, ``status``, and ``X1``, the next first set). A fleet's chunk
+#: passes its step's arrays to the kernel by these names (:class:`squkf.stacks.Chunks`).
+POSTERIOR_OUT = (
+    "zp", "y", "w", "Sy", "L21", "dx", "x", "S", "log_likelihood", "nis", "log_det_S1_2", "status", "X1",
+)  # fmt: skip
+
+
 def _posterior_out(B: int, n: int, m: int, N1: int) -> tuple:
-    """The update kernel's outputs (as its arguments), and the next first set (``N1`` points, 0: none)."""
+    """The update kernel's outputs (as its arguments, :data:`POSTERIOR_OUT`), and the next first set (``N1``
+    points, 0: none)."""
     return (
         np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m)), np.empty((B, n, m)),
         np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B), np.empty(B),

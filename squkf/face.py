@@ -4,10 +4,11 @@ Both faces hold an :class:`~squkf.engine.Engine` (one filter a block of one, a f
 derive from :class:`Face`, which reads the engine's records for them:
 
 - the records of the last prediction and update (``x_prior``, ``P_prior``, ``x_post``, ``P_post``,
-  their factors, ``y``, ``nis``, the likelihoods, ``y_whitened``, ``log_det_S1_2``, ``rejected``) as
-  properties (a filterpy ``Saver`` collects properties), each read from the engine's ``(B, ...)``
-  record and handed out fresh: a fleet's ``(K, ...)``, one filter's with the block axis dropped
-  (scalars as Python floats);
+  their factors, ``y``, ``nis``, the likelihoods, ``rejected``) as properties (a filterpy ``Saver``
+  collects properties), each read from the engine's ``(B, ...)`` record and handed out fresh: a fleet's
+  ``(K, ...)``, one filter's with the block axis dropped (scalars as Python floats); the per-step
+  records of the registry (``y_whitened``, ``log_det_S1_2``: ``squkf.boundary.records.STEP_RECORDS``)
+  are its base's, :class:`~squkf.boundary.records.StepRecords`, read the same way;
 - the records filterpy lets a program write (:func:`written_record`: on one filter an assignment
   reads back until the step that makes the record again; a fleet's are read-only);
 - the configuration both faces read alike (``fx_noise``, ``hx_noise``, ``gate``, the hooks) and
@@ -36,7 +37,7 @@ from . import checks
 from .boundary.attributes import FactorSlot, HandOut, Hook, Unformed
 from .boundary.config import Config
 from .boundary.loop import Transaction
-from .boundary.records import log_det, whitened
+from .boundary.records import StepRecords
 from .engine import Engine, Route, Update
 from .gating import Gate, as_gate
 from .kernels.table import KernelTable
@@ -150,7 +151,7 @@ def noise_factor(name: str) -> property:
     return property(get, set_, doc=doc)
 
 
-class Face:
+class Face(StepRecords):
     """The core of both faces: the records read from the engine, the shared configuration, the transaction.
 
     Not for use alone: a face (:class:`squkf.SquareRootUKF`, :class:`squkf.Fleet`) derives from it and
@@ -293,37 +294,6 @@ class Face:
             return math.sqrt(self.nis)
         last = self._engine.last
         return np.sqrt(self._before_update() if last is None else last.nis)
-
-    @property
-    def y_whitened(self) -> np.ndarray:
-        """The last update's whitened innovation ``S1_2^-1 y``, ``(..., dim_z)`` (a fresh array).
-
-        NaN where a component was not measured (or a fleet's filter not updated); ``nis`` is its
-        squared norm. With ``log_det_S1_2`` it is the whole of the step's log-likelihood,
-        ``-(m log 2 pi + nis) / 2 - log_det_S1_2`` over the ``m`` measured components
-        (:func:`squkf.tune.fit_noise` reads them as least-squares residuals). Zeros before any update.
-        """
-        last = self._engine.last
-        if last is None:
-            return self._before_update((self.dim_z,))
-        w = whitened(last.w, last.observed, last.m)  # (a new array)
-        return w[0] if self.ONE else w
-
-    @property
-    def log_det_S1_2(self):
-        """``log det S1_2`` of the last update: the log-determinant of the innovation factor's measured
-        block (one filter's a float, a fleet's ``(K,)``).
-
-        0 before any update (and where nothing was measured).
-        """
-        last = self._engine.last
-        if last is None:
-            return self._scalar(None, 0.0)
-        ld = last.log_det_S1_2
-        if ld is None:  # (one filter's update keeps its factor)
-            assert last.Sy is not None
-            ld = log_det(last.Sy)
-        return self._scalar(ld, 0.0)
 
     @property
     def rejected(self) -> np.ndarray:

@@ -36,7 +36,7 @@ from .checks import (
     noise_factors,
     reset_rows,
 )
-from .engine import Engine, Update
+from .engine import Engine
 from .errors import FleetStepError, ParameterError
 from .fleet_batch import FleetBatch
 from .fleet_from import PerPoint, stacked_filters, template  # noqa: F401  (old pickles name squkf.fleet.PerPoint)
@@ -45,7 +45,7 @@ from .gating import Gate, as_gate
 from .generators import as_generator
 from .noise import handed_points, noise_points
 from .plan import PREDICTING, UPDATING, Hooks, build_plan
-from .stacks import CHUNKS, Step, rows_of
+from .stacks import CHUNKS, Step, not_updated, rows_of
 from .transform import StackedHook
 from .ukf import SquareRootUKF
 from .weights import as_family
@@ -482,14 +482,9 @@ class Fleet(FleetState, FleetBatch):
 
     def _no_update(self) -> None:
         """The records of a step in which no filter had a measurement, as :meth:`update` would leave them."""
-        K, m = self._K, self._m
         e = self._engine
         # the record's own copies: the estimate may live in the arrays the next prediction writes
-        none = Update(
-            e.x.copy(), e.S.copy(), np.full((K, m), np.nan), None, None, np.zeros(K), np.zeros(K), None,
-            np.zeros((K, m), dtype=bool), None, m, np.full((K, m), np.nan), np.zeros(K),
-        )  # fmt: skip
-        e.skip_update(none)
+        e.skip_update(not_updated(e.x.copy(), e.S.copy(), self._m))
 
     def _step(self, t: int, z: np.ndarray, dt: float, fx_args: dict, hx_args: dict, records: Records) -> None:
         """Step ``t`` of :meth:`batch_filter`, its records kept."""

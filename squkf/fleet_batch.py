@@ -59,8 +59,9 @@ class FleetBatch(Face):
         keep : {"all", "diagonals", "means", "final"} or tuple
             What to store: everything; means and the covariances' diagonals;
             means only; or only the final state (for long runs). A tuple of
-            one of the first three and ``"whitened"`` (``("means", "whitened")``)
-            keeps each step's whitened innovations and ``log det S1_2`` too
+            one of the first three and the ``keep`` words of per-step records
+            keeps those too: ``"whitened"`` (``("means", "whitened")``), each
+            step's whitened innovations and ``log det S1_2``
             (``FleetResult.y_whitened``, ``log_det_S1_2``).
         fx_args, hx_args : dict, optional
             Passed to ``fx`` and ``hx`` at every step, and to nothing else: a
@@ -76,7 +77,7 @@ class FleetBatch(Face):
             The fleet itself is left after the last step, as after a loop of
             ``predict`` and ``update``; an error leaves it as it was before the call.
         """
-        state, whitened = check_keep(keep)
+        state, words = check_keep(keep)
         check_progress(progress)
         Z = checks.measurement_series(zs, self._K, self._m)
         T = Z.shape[1]
@@ -84,7 +85,7 @@ class FleetBatch(Face):
         Z = np.ascontiguousarray(np.swapaxes(Z, 0, 1))
         dt_list = per_step(dts, T, "dts", "dt", default=self._dt, ref="zs")
         fx_args, hx_args = model_kwargs(fx_args, "fx_args"), model_kwargs(hx_args, "hx_args")
-        records = new_records(state, self._K, T, self._n, self._m, whitened)
+        records = new_records(state, self._K, T, self._n, self._m, words)
         self._take_edits()
 
         def step(t: int, z: np.ndarray) -> None:
@@ -95,8 +96,7 @@ class FleetBatch(Face):
         r = records
         return FleetResult(
             r.means, r.factors, r.variances, r.loglik, self._failed.copy(), self._engine.x.copy(),
-            self._engine.S.copy(),
-            r.rejected, r.nis, r.y_whitened, r.log_det,
+            self._engine.S.copy(), r.rejected, r.nis, **r.step_records(),
         )  # fmt: skip
 
     def _step(self, t: int, z: np.ndarray, dt: float, fx_args: dict, hx_args: dict, records: Records) -> None:

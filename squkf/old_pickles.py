@@ -11,8 +11,9 @@ from typing import Any
 import numpy as np
 
 from .boundary.attributes import FactorSlot
-from .engine import Engine, Route, Update
-from .stacks import CHUNKS
+from .boundary.records import log_det
+from .engine import Engine, Route
+from .stacks import CHUNKS, not_updated
 
 __all__ = ["filter_state", "fleet_engine", "fleet_state"]
 
@@ -25,10 +26,22 @@ BEFORE_ENGINE = (
 
 def filter_state(state: Any) -> dict:
     """A ``SquareRootUKF``'s pickled state: before both faces shared one layout, a tuple of its
-    ``__dict__``, its carried slots, its engine and the gain of its last update."""
+    ``__dict__``, its carried slots, its engine and the gain of its last update; before the update kernel
+    wrote ``log det S1_2``, a last update without it (formed from its factor, the records current with
+    that update kept current with the one that has it)."""
     if isinstance(state, tuple):
         d, own, engine, gain = state
         state = {**d, **own, "_engine": engine, "_gain_of": (engine.last, gain)}
+    engine = state.get("_engine")
+    last = None if engine is None else engine.last
+    if last is not None and last.log_det_S1_2 is None:  # pickled before the update kernel wrote it
+        new = engine.last = last._replace(log_det_S1_2=log_det(last.Sy))
+        # what was current with the last update (written records, the gain) is with its record still
+        state["_written"] = {
+            k: (new, *held[1:]) if held[0] is last else held for k, held in state.get("_written", {}).items()
+        }
+        stamp, gain = state.get("_gain_of", (None, None))
+        state["_gain_of"] = (new if stamp is last else stamp, gain)
     return state
 
 
@@ -63,11 +76,11 @@ def fleet_engine(route: Route, old: dict) -> Engine:
     engine = Engine(route, old["_x"], old["_S"], None, None, CHUNKS)
     engine.prior_record = (old["_x_prior"], old["_S_prior"])
     engine.post_record = (old["_x_post"], old["_S_post"])
-    y, w, ld = old["_y"], old["_y_whitened"], old["_log_det"]
-    w = np.full(y.shape, np.nan) if w is None else w
-    ld = np.zeros(y.shape[0]) if ld is None else ld
-    engine.last = Update(
-        old["_x_post"], old["_S_post"], y, None, None, old["_loglik"], old["_nis"], None, old["_rejected"],
-        None, y.shape[1], w, ld,
-    )  # fmt: skip
+    y = old["_y"]
+    kept = {"y": y, "log_likelihood": old["_loglik"], "nis": old["_nis"], "rejected": old["_rejected"]}
+    # (the whitened record by its names then; each record pickled before it was kept: a filter not updated's)
+    for field, name in (("w", "_y_whitened"), ("log_det_S1_2", "_log_det")):
+        if old[name] is not None:
+            kept[field] = old[name]
+    engine.last = not_updated(old["_x_post"], old["_S_post"], y.shape[1])._replace(**kept)
     return engine

@@ -23,17 +23,19 @@ keeps its state, and the others go on. The routes through the hooks or a
 
 from __future__ import annotations
 
+import operator
 import os
 import sys
 import threading
 from collections.abc import Callable, Mapping
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
+from .boundary import records
 from .boundary.records import failures_error
 from .checks import describe_nonfinite, finite_images, stacked_shape
-from .engine import Buffers, Route, Scratch, Update
+from .engine import POSTERIOR_OUT, Buffers, Route, Scratch, Update
 from .errors import NonFiniteError, NotPositiveDefiniteError, SqukfError
 from .generators import SigmaSet
 from .kernels.table import kernel_array
@@ -45,10 +47,12 @@ __all__ = [
     "CHUNK",
     "CHUNK_BYTES",
     "CHUNKS",
+    "KEPT",
     "Chunks",
     "Step",
     "chunks",
     "default_chunk",
+    "not_updated",
     "numerical",
     "rows_of",
     "run_isolated",
@@ -226,13 +230,56 @@ def _propagated(K: int, N: int, n: int) -> tuple:
     return (np.empty((K, N, n)),)
 
 
+#: The fields of an :class:`Update` a fleet writes per filter, in the order of a step's arrays: the
+#: estimate, then the records (a fleet keeps no innovation factor or gain; ``observed``, ``m``: the block's)
+KEPT = tuple(f for f in Update._fields if f not in ("Sy", "L21", "observed", "K", "m"))
+
+#: The records' own: per measurement component or not, and the value of a filter not updated
+_OWN = {"y": (True, np.nan), "log_likelihood": (False, 0.0), "nis": (False, 0.0), "rejected": (True, False)}
+
+
+def _record_of(field: str) -> tuple[bool, float]:
+    """Whether ``field`` is per component, and its value where a filter was not updated: the registry's for
+    a per-step record's field (:data:`squkf.boundary.records.STEP_RECORDS`)."""
+    if field in _OWN:
+        return _OWN[field]
+    for r in records.STEP_RECORDS:
+        if r.field == field:
+            return r.per_component, r.fill
+    raise LookupError(f"Update.{field}: neither a fleet's own record nor a per-step record's (STEP_RECORDS)")
+
+
+_KINDS = tuple(_record_of(f) for f in KEPT[2:])
+#: The value of each record of a filter not updated (``KEPT[2:]``)
+_FILLS = tuple(fill for _, fill in _KINDS)
+#: Which of ``KEPT`` are per measurement component (written in a group's measured columns)
+_PER_COMPONENT = (False, False, *(per for per, _ in _KINDS))
+#: A group's update as its fields ``KEPT`` (a tuple)
+_kept_of = operator.attrgetter(*KEPT)
+#: The update kernel's outputs (``engine.POSTERIOR_OUT``) from a step's arrays (``KEPT``) and a chunk's
+#: (``_SCRATCH``), in that order
+_SCRATCH = ("zp", "Sy", "L21", "dx", "status", "X1")
+_kernel_out = operator.itemgetter(*((*KEPT, *_SCRATCH).index(name) for name in POSTERIOR_OUT))
+#: The fields of ``KEPT`` the kernel does not write (``rejected``: none, with no gate), by position: copied
+#: from the update the route returns
+_NOT_WRITTEN = tuple((i, f) for i, f in enumerate(KEPT) if f not in POSTERIOR_OUT)
+#: The fields of a fleet's update that it does not keep
+_NOT_KEPT: dict[str, Any] = {f: None for f in Update._fields if f not in KEPT and f != "m"}
+
+
 def _update_records(K: int, m: int) -> tuple:
-    """A fleet update's records besides the estimate: ``y``, log-likelihoods, NIS, ``rejected``, the
-    whitened innovations and ``log det S1_2``."""
-    return (
-        np.empty((K, m)), np.empty(K), np.empty(K), np.empty((K, m), dtype=bool),
-        np.empty((K, m)), np.empty(K),
-    )  # fmt: skip
+    """A fleet update's records besides the estimate (``KEPT[2:]``): ``(K, m)`` per component, ``(K,)`` per
+    filter, of the type of their value where a filter was not updated (``rejected``'s bool)."""
+    return tuple(np.empty((K, m) if per else K, dtype=type(fill)) for per, fill in _KINDS)
+
+
+def not_updated(x: np.ndarray, S: np.ndarray, m: int) -> Update:
+    """A fleet's update in which no filter was updated: the estimates ``x (K, n)``, ``S (K, n, n)`` kept
+    (these arrays), each record its value of a filter not updated."""
+    out = (x, S, *_update_records(x.shape[0], m))
+    for a, fill in zip(out[2:], _FILLS):
+        a[...] = fill
+    return Update(**dict(zip(KEPT, out)), **_NOT_KEPT, m=m)
 
 
 def _second_size(plan, Q1_2) -> int:
@@ -609,16 +656,20 @@ class Chunks:
             # the usual case, one kernel call: a kernel's update route (as update_route decides it, from
             # the route's and the set's attributes; kept in posterior), no gate, every component measured
             if route.kernel_update and s.rows is not None and route.gate is None and obs.all():
-                xo, So, y, ll, nis, rejected, w, log_det = part  # written into the step's records
-                kernel_out = (zp, y, w, Sy, L21, dx, xo, So, ll, nis, log_det, status, route.no_set)
+                # the kernel writes into the step's records (part) and the chunk's own arrays
+                kernel_out = _kernel_out((*part, zp, Sy, L21, dx, status, route.no_set))
                 # (the scratch: the angle kernel's rows, for squkf's angle hooks)
-                route.posterior(s, xs, Ss, H, zr, None, Rr, None, False, buffers=scratch, out=kernel_out)
-                rejected[...] = False
+                done, _, _ = route.posterior(
+                    s, xs, Ss, H, zr, None, Rr, None, False, buffers=scratch, out=kernel_out
+                )
+                for i, field in _NOT_WRITTEN:
+                    part[i][...] = getattr(done, field)
                 if np.count_nonzero(status) or not on.all():  # a failing or inactive filter keeps its prior
                     form = route.form_of(s, None)
                     bad = ~_flag(status, on, found, form, "update", H, "hx values")
-                    xo[bad], So[bad] = xs[bad], Ss[bad]
-                    y[bad], ll[bad], nis[bad], w[bad], log_det[bad] = np.nan, 0.0, 0.0, np.nan, 0.0
+                    part[0][bad], part[1][bad] = xs[bad], Ss[bad]
+                    for a, fill in zip(part[2:], _FILLS):
+                        a[bad] = fill
             else:
                 _grouped(route, route.update_route(s, None), s, xs, Ss, H, zr, obs, Rr, on, found, part)
             free.append(scratch)
@@ -627,8 +678,7 @@ class Chunks:
         _map_chunks(one, K, step.size, found_all, 8 * _second_size(route.plan, Q1_2) * max(n, m))
         if found_all and step.raises:
             raise failures_error(found_all)
-        x_new, S_new, y, ll, nis, rejected, w, log_det = out
-        return Update(x_new, S_new, y, None, None, ll, nis, None, rejected, None, m, w, log_det), None, None
+        return Update(**dict(zip(KEPT, out)), **_NOT_KEPT, m=m), None, None
 
 
 #: The runner of a fleet's engine.
@@ -637,15 +687,15 @@ CHUNKS = Chunks()
 
 def _grouped(route: Route, joint, sset, x0, S0, H, z, observed, R1_2, todo, found, out) -> None:
     """A chunk's update through the gate or with missing components (or on a route that raises),
-    written into its rows ``out`` of the step's records (``x, S, y, loglik, nis, rejected``): the filters
+    written into its rows ``out`` of the step's records (``KEPT``: the estimate, ``y``, ...): the filters
     grouped by their measured components, each group through :meth:`Route.posterior` and
     :meth:`Route.gated` as one filter's update is; a filter no update reaches keeps its prior, with no
     innovation and no likelihood. ``joint``: the set's update route (None: the hooks' or a ``UT``'s)."""
     if joint is None:  # the hooks raise: images that are not finite flagged first
         todo = todo & finite_images(H, "hx values", todo, found, kernels=route.kernels)
-    x, S, y, ll, nis, rej, w, log_det = out
-    x[...], S[...], y[...], ll[...], nis[...], rej[...] = x0, S0, np.nan, 0.0, 0.0, False
-    w[...], log_det[...] = np.nan, 0.0
+    out[0][...], out[1][...] = x0, S0
+    for a, fill in zip(out[2:], _FILLS):
+        a[...] = fill
     groups: list[tuple[np.ndarray, np.ndarray | slice, np.ndarray | None]]
     if todo.all() and observed.all():  # (a gate's usual chunk: one group, the chunk's arrays as they are)
         groups = [(np.arange(todo.size), slice(None), None)]
@@ -668,7 +718,7 @@ def _grouped(route: Route, joint, sset, x0, S0, H, z, observed, R1_2, todo, foun
                 status, np.ones(ix.size, dtype=bool), found_rows, joint.form, "update", Hi, "hx values"
             )
             good_ix = np.flatnonzero(good)
-            res = tuple(a[good_ix] for a in _records(upd))
+            res = tuple(a[good_ix] for a in _kept_of(upd))
         else:  # the hooks or a generator's set raise: a filter at a time after a failure
             good_ix, res = _isolated(route, s, xi, Si, Hi, zi, mask, Ri, found_rows)
         for j, why in found_rows.items():
@@ -676,35 +726,23 @@ def _grouped(route: Route, joint, sset, x0, S0, H, z, observed, R1_2, todo, foun
         if res is None:
             continue
         gi = ix[good_ix]
-        x[gi], S[gi], ll[gi], nis[gi], log_det[gi] = res[0], res[1], res[3], res[4], res[7]
-        if mask is None:
-            y[gi], rej[gi], w[gi] = res[2], res[5], res[6]
-        else:
-            cols = np.ix_(gi, np.flatnonzero(mask))
-            y[cols], rej[cols], w[cols] = res[2], res[5], res[6]
+        cols = gi if mask is None else np.ix_(gi, np.flatnonzero(mask))  # (a record per component's)
+        for a, value, per in zip(out, res, _PER_COMPONENT):
+            a[cols if per else gi] = value
 
 
 def _isolated(route: Route, s, x0, S0, H, z, mask, R1_2, found: dict[int, str]):
     """The update of a group of filters on a route that raises, run again a filter at a time after a
-    failure (:func:`run_isolated`): the filters that succeeded, and their records (:func:`_records`)."""
+    failure (:func:`run_isolated`): the filters that succeeded, and their records (``KEPT``)."""
 
     def posterior(j):
         r, j = _one_or_all(route, j)
         sub, Rj = take_set(s, j), rows_of(R1_2, j, 2)
         post, _, _ = r.posterior(sub, x0[j], S0[j], H[j], z[j], mask, Rj, None, False)
         ok = np.zeros(x0[j].shape[0], dtype=np.int64)
-        return _records(r.gated(post, ok, sub, x0[j], S0[j], H[j], z[j], mask, Rj, None)[0])
+        return _kept_of(r.gated(post, ok, sub, x0[j], S0[j], H[j], z[j], mask, Rj, None)[0])
 
     return run_isolated(posterior, np.arange(x0.shape[0]), x0.shape[0], found)
-
-
-def _records(update: Update) -> tuple:
-    """What a fleet keeps of a group's update, per filter: ``x, S, y, loglik, nis, rejected``, the whitened
-    innovations and ``log det S1_2`` (over the group's measured components)."""
-    return (
-        update.x, update.S, update.y, update.log_likelihood, update.nis, update.rejected, update.w,
-        update.log_det_S1_2,
-    )  # fmt: skip
 
 
 def _one_or_all(route: Route, ix):

@@ -56,6 +56,8 @@ from squkf import (
     ParameterError,
     SquareRootUKF,
 )
+from squkf.batch import BatchResult
+from squkf.boundary import loop, records
 
 # == the single filter's records ===================================================================
 
@@ -942,3 +944,137 @@ def test_whitened_records_are_kept_only_when_asked_and_keep_is_checked():
         with pytest.raises(ParameterError, match="keep"):
             fleet.batch_filter(zs, keep=bad)
         assert np.array_equal(fleet.x, before)
+
+
+# == the registry of per-step records: one declaration reaches both faces and every result ============
+
+#: A record added to the registry by a test alone: an existing field of the engine's update under a new
+#: name and keep word (one number per filter, and one per component), declared as a record is declared.
+NIS_AGAIN = records.StepRecord("nis_again", "nis", False, 0.0, "again", "NIS, again", "The NIS as a record.")
+Y_AGAIN = records.StepRecord("y_again", "y", True, np.nan, "again", "innovation, again", "``y`` as a record.")
+
+
+def _same(a, b) -> bool:
+    a, b = np.asarray(a), np.asarray(b)
+    return a.shape == b.shape and np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
+
+
+def _delivered(record: records.StepRecord, K: int = 3, T: int = 7) -> None:
+    """``record`` on both faces after each update (a fleet's equal to its single filters' bit for bit),
+    in ``batch_filter``'s result ``(T, ...)``, in ``FleetResult`` with its keep word (None without it), and
+    in ``squkf.dask``'s results, all equal."""
+    fleet, singles, zs = fleet_batch_setup(K=K, T=T)  # (missing rows, components and a whole step)
+    m = fleet.dim_z
+    before = getattr(singles[0], record.name)
+    assert _same(before, np.zeros(m) if record.per_component else 0.0)
+    assert _same(getattr(fleet, record.name), np.zeros((K, m) if record.per_component else K))
+    mine = fleet.subset(slice(None))
+    for t in range(T):
+        mine.predict()
+        mine.update(zs[:, t])
+        for k, f in enumerate(singles):
+            f.predict()
+            f.update(zs[k, t])
+            # (nothing measured: a single filter keeps its last update's records, as filterpy's; a fleet's
+            # filter not updated has the record's missing value, as batch_filter keeps for that step)
+            expected = record.missing(m) if np.isnan(zs[k, t]).all() else getattr(f, record.name)
+            assert _same(getattr(mine, record.name)[k], expected), (t, k)
+    one = [g.batch_filter(zs[k]) for k, g in enumerate(fleet_batch_setup(K=K, T=T)[1])]
+    shape = record.shape((T,), m)
+    assert all(getattr(r, record.name).shape == shape for r in one)
+    kept = fleet.subset(slice(None)).batch_filter(zs, keep=("means", record.keep))
+    assert getattr(kept, record.name).shape == record.shape((K, T), m)
+    for k in range(K):
+        assert _same(getattr(kept, record.name)[k], getattr(one[k], record.name)), k
+    assert getattr(fleet.subset(slice(None)).batch_filter(zs, keep="means"), record.name) is None
+    assert getattr(pickle.loads(pickle.dumps(one[0])), record.name).shape == shape
+    da = pytest.importorskip("dask.array")
+    import squkf.dask as sd
+
+    lazy = sd.batch_filter(fleet, da.from_array(zs, chunks=(2, -1, -1)), keep=("means", record.keep))
+    assert _same(getattr(sd.compute(lazy, scheduler="synchronous"), record.name), getattr(kept, record.name))
+    none = sd.compute(sd.batch_filter(fleet, da.from_array(zs), keep="means"), scheduler="synchronous")
+    assert getattr(none, record.name) is None
+
+
+@pytest.mark.parametrize("record", records.STEP_RECORDS, ids=lambda r: r.name)
+def test_every_registry_record_is_on_both_faces_and_in_every_result(record):
+    _delivered(record)
+
+
+def test_a_record_added_to_the_registry_reaches_both_faces_and_every_result(monkeypatch):
+    """The registry's entry and the faces' attribute (what ``squkf/boundary/records.py`` declares) are all
+    a record needs: ``keep``, both faces, ``BatchResult``, ``FleetResult`` and ``squkf.dask`` take it."""
+    monkeypatch.setattr(records, "STEP_RECORDS", (*records.STEP_RECORDS, NIS_AGAIN, Y_AGAIN))
+    for record in (NIS_AGAIN, Y_AGAIN):
+        monkeypatch.setattr(records.StepRecords, record.name, records.StepProperty(record), raising=False)
+    for record in (NIS_AGAIN, Y_AGAIN):
+        _delivered(record)
+    # what it reads, and beside the others: one keep word adds both records, with another word too
+    f = cv_filter()
+    step(f, CV_Z[0])
+    assert f.nis_again == f.nis and _same(f.y_again, f.y)
+    assert {"nis_again", "y_again"} <= set(dict(Saver(f).properties))  # (a Saver collects them)
+    fleet, _, zs = fleet_batch_setup(K=2, T=4)
+    result = fleet.subset(slice(None)).batch_filter(zs, keep=("means", "again", "whitened"))
+    assert _same(result.nis_again, result.nis) and result.y_whitened is not None
+    assert np.array_equal(np.isnan(result.y_again), np.isnan(zs))  # (NaN where not measured)
+    with pytest.raises(ParameterError, match="keep"):
+        fleet.batch_filter(zs, keep=("final", "again"))
+    with pytest.raises(ParameterError, match="keep"):
+        fleet.batch_filter(zs, keep=("means", "again", "again"))
+
+
+def test_keep_words_are_the_registrys_and_refused_as_before():
+    state, words = loop.check_keep(("means", "whitened"))
+    assert (state, words) == ("means", ("whitened",))
+    assert loop.check_keep("all") == ("all", ())
+    for bad in ("whitened", ("final", "whitened"), ("means", "whitened", "whitened"), ("means", "nis")):
+        with pytest.raises(ParameterError, match="keep"):
+            loop.check_keep(bad)
+
+
+def test_a_batch_result_pickled_with_its_records_in_the_registrys_order_loads():
+    """A ``BatchResult`` pickles its records positionally, in the registry's order (as before it moved)."""
+    means, covs = np.zeros((2, 1)), np.ones((2, 1, 1))
+    rej, nis, ll, w, ld = (
+        np.zeros((2, 1), bool),
+        np.ones(2),
+        np.full(2, -1.0),
+        np.full((2, 1), 0.5),
+        np.ones(2),
+    )
+    result = records.BatchResult(means, covs, rej, nis, ll, w, ld)
+    assert BatchResult is records.BatchResult  # (squkf.batch's name: older pickles find it there)
+    assert _same(result.y_whitened, w) and _same(result.log_det_S1_2, ld)
+    again = pickle.loads(pickle.dumps(result))
+    assert _same(again[0], means) and _same(again.y_whitened, w) and _same(again.log_det_S1_2, ld)
+    assert _same(records.BatchResult(means, covs, rej, nis, ll, log_det_S1_2=ld).log_det_S1_2, ld)
+    with pytest.raises(TypeError, match="nis_again"):
+        records.BatchResult(means, covs, rej, nis, ll, nis_again=nis)
+
+
+def test_a_filter_pickled_before_the_kernel_wrote_log_det_reads_it_with_its_written_records():
+    """A last update pickled without ``log det S1_2`` has it formed from its factor when loaded, and what
+    was current with that update (a written ``y``, an assigned gain) is current still."""
+    f = cv_filter()
+    for z in CV_Z[:2]:
+        step(f, z)
+    f.K = f.K * 2.0
+    f.y = f.y + 1.0
+    state = copy.deepcopy(f).__getstate__()
+    last = state["_engine"].last
+    old = state["_engine"].last = last._replace(log_det_S1_2=None)
+    state["_written"] = {
+        k: (old, *held[1:]) if held[0] is last else held for k, held in state["_written"].items()
+    }
+    state["_gain_of"] = (old, state["_gain_of"][1])
+    g = SquareRootUKF.__new__(SquareRootUKF)
+    g.__setstate__(pickle.loads(pickle.dumps(state)))
+    assert math.isclose(g.log_det_S1_2, f.log_det_S1_2, rel_tol=1e-12)
+    for name in ("y", "K", "x", "P"):
+        np.testing.assert_array_equal(getattr(g, name), getattr(f, name), err_msg=name)
+    step(f, CV_Z[2])
+    step(g, CV_Z[2])
+    assert_filter_state(g, filter_state(f))
+    assert g.log_det_S1_2 == f.log_det_S1_2

@@ -45,6 +45,7 @@ USER_SCRIPT = textwrap.dedent(
     assert_type(ukf.dim_x, int)
     assert_type(ukf.P1_2, np.ndarray)
     assert_type(ukf.Wm, np.ndarray)
+    assert_type(ukf.y_whitened, np.ndarray)  # (a per-step record of the registry: its typed descriptor)
     assert_type(points.num_sigmas(2), int)
     mean, S = unscented_transform(np.square, np.zeros(2), np.eye(2), points=points)
     print(ukf.x, mean, S)
@@ -56,6 +57,7 @@ USER_SCRIPT = textwrap.dedent(
 MISUSES = [
     "n_points: str = points.num_sigmas(2)",
     "P1_2: list = ukf.P1_2",
+    "w: list = ukf.y_whitened",
 ]
 
 

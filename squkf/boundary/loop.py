@@ -18,10 +18,10 @@ from typing import Any
 import numpy as np
 
 from ..errors import ParameterError, SqukfError
+from . import records
 
 __all__ = [
     "KEEP",
-    "WHITENED",
     "Transaction",
     "annotate_step",
     "check_keep",
@@ -31,8 +31,6 @@ __all__ = [
 ]
 
 KEEP = ("all", "diagonals", "means", "final")
-#: The word of ``keep`` that adds each step's whitened innovations and ``log det S1_2`` to a fleet's run.
-WHITENED = "whitened"
 
 
 class Transaction:
@@ -62,37 +60,45 @@ class Transaction:
         self._state = None
 
 
-def check_keep(keep) -> tuple[str, bool]:
-    """``keep`` of a fleet's run, as what to keep of the state and whether the whitened record too.
+def check_keep(keep) -> tuple[str, tuple[str, ...]]:
+    """``keep`` of a fleet's run, as what to keep of the state and which per-step records too.
 
     Parameters
     ----------
     keep : str or tuple of str
         One of :data:`KEEP` (``"all"``, ``"diagonals"``, ``"means"``, ``"final"``), or a tuple of one of
-        them and ``"whitened"``: each step's whitened innovations and ``log det S1_2`` kept as well
-        (not with ``"final"``, which keeps no step's records).
+        them and ``keep`` words of the registry's records (:data:`squkf.boundary.records.STEP_RECORDS`;
+        ``"whitened"``: each step's whitened innovations and ``log det S1_2``), each once, whose records
+        are kept as well (not with ``"final"``, which keeps no step's records).
 
     Returns
     -------
     state : str
         One of :data:`KEEP`.
-    whitened : bool
+    words : tuple of str
+        The records' ``keep`` words given (empty: none).
     """
+    known = tuple(dict.fromkeys(r.keep for r in records.STEP_RECORDS))  # (in the registry's order, once)
     words = keep if isinstance(keep, tuple) else (keep,)
     states = [w for w in words if isinstance(w, str) and w in KEEP]
     rest = [w for w in words if not (isinstance(w, str) and w in KEEP)]
-    if len(states) != 1 or rest not in ([], [WHITENED]):
+    if (
+        len(states) != 1
+        or not all(isinstance(w, str) and w in known for w in rest)
+        or len(set(rest)) < len(rest)
+    ):
+        extra = repr(known[0]) if len(known) == 1 else "any of " + ", ".join(map(repr, known))
         raise ParameterError(
-            "keep must be 'all', 'diagonals', 'means' or 'final', or a tuple of one of them and 'whitened',"
+            f"keep must be 'all', 'diagonals', 'means' or 'final', or a tuple of one of them and {extra},"
             f" got keep={keep!r}"
         )
-    whitened = bool(rest)
-    if whitened and states[0] == "final":
+    if rest and states[0] == "final":
+        names = ", ".join(r.name for r in records.STEP_RECORDS if r.keep in rest)
         raise ParameterError(
-            f"keep={keep!r}: 'final' keeps no step's records, so not the whitened innovations of every step;"
-            " keep ('means', 'whitened') for them"
+            f"keep={keep!r}: 'final' keeps no step's records, so not {names} of every step;"
+            f" keep {('means', *rest)!r} for them"
         )
-    return states[0], whitened
+    return states[0], tuple(rest)
 
 
 def check_progress(progress) -> None:

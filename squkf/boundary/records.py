@@ -1,12 +1,22 @@
-"""The records handed out: a fleet's run (:class:`FleetResult`), and those formed from one filter's update.
+"""The records handed out: the per-step records' registry, the results that keep them, their faces' reads.
 
-Also the arrays a fleet's run fills and the error of its failing filters.
+A record of each update (the whitened innovation, ``log det S1_2``) is declared once here: a
+:class:`StepRecord` in :data:`STEP_RECORDS`, its typed field in :class:`FleetResult` and
+:class:`BatchResult`, and its attribute on both faces (:class:`StepRecords`, a base of
+:class:`squkf.face.Face`). It is read from a field of the engine's :class:`~squkf.engine.Update`; everything
+that delivers it (the faces, ``batch_filter``'s results, a fleet's run with ``keep``, :mod:`squkf.dask`)
+reads the registry and names no record.
+
+Also the arrays a fleet's run fills, the error of its failing filters, and the records formed from one
+filter's update.
 """
 
 from __future__ import annotations
 
+import inspect
+import textwrap
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Any, Generic, NamedTuple, TypeVar, overload
 
 import numpy as np
 
@@ -14,18 +24,222 @@ from ..errors import FleetStepError
 from ..linalg import solve_lower
 
 __all__ = [
+    "STEP_RECORDS",
+    "BatchResult",
     "FleetResult",
     "Records",
+    "StepProperty",
+    "StepRecord",
+    "StepRecords",
     "embed",
     "failures_error",
     "innovation_inverse",
     "new_records",
     "log_det",
-    "whitened",
 ]
 
+T = TypeVar("T")
 
-@dataclass
+
+class StepRecord(NamedTuple):
+    """A record of each update, as every face and result delivers it.
+
+    Attributes
+    ----------
+    name : str
+        Its public name: the faces' attribute, :class:`BatchResult`'s and :class:`FleetResult`'s field.
+    field : str
+        The :class:`~squkf.engine.Update` field it is read from: ``(B, mo)`` over the measured
+        components, or ``(B,)``.
+    per_component : bool
+        One value per measurement component (``(..., m)``: the measured components' in their places,
+        ``fill`` elsewhere), or one number per filter.
+    fill : float
+        Its value where a component was not measured, or a filter not updated (nothing measured).
+    keep : str
+        The word of a fleet's ``keep`` that adds it to the run's results (records may share one).
+    summary : str
+        What one value is, a noun phrase (the docs' first line).
+    doc : str
+        The rest of its documentation, one numpydoc paragraph.
+    """
+
+    name: str
+    field: str
+    per_component: bool
+    fill: float
+    keep: str
+    summary: str
+    doc: str
+
+    def missing(self, m: int) -> Any:
+        """The value of a step with nothing measured: ``(m,)`` of ``fill``, or ``fill``."""
+        return np.full(m, self.fill) if self.per_component else self.fill
+
+    def shape(self, lead: tuple, m: int) -> tuple:
+        """Its array's shape in a result whose leading axes are ``lead`` (steps; filters and steps)."""
+        return (*lead, m) if self.per_component else lead
+
+
+#: The per-step records, in the order ``BatchResult`` and ``FleetResult`` take them positionally (new ones
+#: go last: a pickled ``BatchResult`` passes them in this order).
+STEP_RECORDS: tuple[StepRecord, ...] = (
+    StepRecord(
+        "y_whitened", "w", True, np.nan, "whitened", "whitened innovation ``S1_2^-1 y``",
+        "NaN where a component was not measured (or a fleet's filter not updated); ``nis`` is its squared"
+        " norm. With ``log_det_S1_2`` it is the whole of the step's log-likelihood,"
+        " ``-(m log 2 pi + nis) / 2 - log_det_S1_2`` over the ``m`` measured components"
+        " (:func:`squkf.tune.fit_noise` reads them as least-squares residuals).",
+    ),
+    StepRecord(
+        "log_det_S1_2", "log_det_S1_2", False, 0.0, "whitened", "``log det S1_2``",
+        "The log-determinant of the innovation factor's measured block, the sum ``sum log|S1_2_ii|`` the"
+        " log-likelihood takes; 0 where nothing was measured (or a fleet's filter not updated).",
+    ),
+)  # fmt: skip
+
+
+def _fill(text: str, width: int, indent: str = "") -> str:
+    """``text`` wrapped to ``width`` columns, no inline literal (````...````) broken across lines."""
+    parts = text.split("``")
+    kept = "``".join(p.replace(" ", "\0") if i % 2 else p for i, p in enumerate(parts))
+    lines = textwrap.wrap(
+        kept, width, initial_indent=indent, subsequent_indent=indent, break_on_hyphens=False
+    )
+    return "\n".join(lines).replace("\0", " ")
+
+
+def _with_entries(doc: str | None, lead: str, m: str, kept: bool) -> str:
+    """A result's docstring ``doc`` (its Attributes section last) with the registry's records as its
+    entries: ``lead``, the records' leading axes; ``m``, the components' axis; ``kept``, kept by ``keep``."""
+    text = [inspect.cleandoc(doc or "")]
+    for r in STEP_RECORDS:
+        shape = f"({lead}, {m})" if r.per_component else f"({lead})" if "," in lead else f"({lead},)"
+        when = f", kept when ``keep`` names ``{r.keep!r}``" if kept else ""
+        text.append(f"{r.name} : ndarray, shape {shape}{', or None' if kept else ''}")
+        words = f"Each step's {r.summary}{when}. {r.doc}"
+        text.append(_fill(words, 100, "    "))
+    return "\n".join(text) + "\n"
+
+
+# -- the faces' attributes --------------------------------------------------------------------------
+
+
+class StepProperty(property, Generic[T]):
+    """A face's attribute of a :class:`StepRecord`, read from the engine's last update (fresh each read).
+
+    Declared in a class body by the record's name (``y_whitened = StepProperty()``: the registry's record
+    of that name), or given its record. One filter's without the block axis (a scalar record a float), a
+    fleet's ``(K, ...)``; zeros before any update. A ``property`` (a filterpy ``Saver`` collects
+    properties), read-only.
+    """
+
+    record: StepRecord
+
+    def __init__(self, record: StepRecord | None = None) -> None:
+        super().__init__(None, None, None)
+        if record is not None:
+            self._use(record)
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        if getattr(self, "record", None) is None:  # (declared by its name: the registry's record of it)
+            found = [r for r in STEP_RECORDS if r.name == name]
+            if not found:
+                raise LookupError(f"{owner.__name__}.{name}: no record {name!r} in STEP_RECORDS")
+            self._use(found[0])
+
+    def _use(self, record: StepRecord) -> None:
+        self.record = record
+        if record.per_component:
+            shape = "``(..., dim_z)`` (a fleet's ``(K, dim_z)``; a fresh array); zeros before any update"
+        else:
+            shape = "one filter's a float, a fleet's ``(K,)``; 0 before any update"
+        summary = _fill(f"The last update's {record.summary}: {shape}.", 100)
+        self.__doc__ = f"{summary}\n\n{_fill(record.doc, 100)}"
+
+    @overload
+    def __get__(self, face: None, owner: type, /) -> StepProperty[T]: ...
+
+    @overload
+    def __get__(self, face: Any, owner: type | None = None, /) -> T: ...
+
+    def __get__(self, face: Any, owner: type | None = None, /) -> Any:
+        if face is None:
+            return self
+        r = self.record
+        last = face._engine.last
+        if r.per_component:
+            if last is None:
+                return face._before_update((face.dim_z,))
+            return face._in_place(getattr(last, r.field), last.observed, last.m, r.fill)
+        return face._scalar(None if last is None else getattr(last, r.field), 0.0)
+
+
+class StepRecords:
+    """The faces' attributes of the per-step records (:data:`STEP_RECORDS`): a base of
+    :class:`squkf.face.Face`, so that :class:`squkf.SquareRootUKF` and :class:`squkf.Fleet` have each."""
+
+    __slots__ = ()
+
+    y_whitened: StepProperty[np.ndarray] = StepProperty()
+    log_det_S1_2: StepProperty[Any] = StepProperty()
+
+
+# -- the results that keep them ---------------------------------------------------------------------
+
+
+class BatchResult(tuple):
+    """``(means, covariances)``, as filterpy's ``batch_filter`` returns them, with the gate's record.
+
+    Unpacks as the pair (``means, covs = ukf.batch_filter(zs)``) and is a
+    tuple; the gate's decisions, the test statistic and each step's records
+    (:data:`STEP_RECORDS`) are attributes.
+
+    Attributes
+    ----------
+    rejected : ndarray of bool, shape (T, dim_z)
+        The components the gate rejected at each step (all False without a
+        gate, or at a step without a measurement).
+    nis : ndarray, shape (T,)
+        Each step's normalised innovation squared (0 without a measurement).
+    log_likelihood : ndarray, shape (T,)
+        Each step's log-likelihood of the components used (0 without a
+        measurement, or when the gate rejected them all).
+    """
+
+    rejected: np.ndarray
+    nis: np.ndarray
+    log_likelihood: np.ndarray
+    y_whitened: np.ndarray
+    log_det_S1_2: np.ndarray
+
+    def __new__(
+        cls, means: np.ndarray, covariances: np.ndarray, rejected, nis, log_likelihood, *steps, **named
+    ):
+        """``steps``: the registry's records in its order (as a pickle passes them), or ``named``."""
+        self = super().__new__(cls, (means, covariances))
+        self.rejected, self.nis, self.log_likelihood = rejected, nis, log_likelihood
+        _set_steps(self, steps, named)
+        return self
+
+    def __reduce__(self):
+        steps = (getattr(self, r.name) for r in STEP_RECORDS)
+        return (type(self), (self[0], self[1], self.rejected, self.nis, self.log_likelihood, *steps))
+
+
+def _set_steps(result: Any, steps: tuple, named: dict) -> None:
+    """A result's fields of the registry's records, given in its order (``steps``) or by name; None where
+    neither gives one (not kept)."""
+    names = [r.name for r in STEP_RECORDS]
+    named = {**dict(zip(names, steps)), **named}
+    unknown = set(named).difference(names)
+    if len(steps) > len(names) or unknown:
+        raise TypeError(f"{type(result).__name__} got records it does not keep: {sorted(unknown) or steps}")
+    for name in names:
+        setattr(result, name, named.get(name))
+
+
+@dataclass(init=False)
 class FleetResult:
     """What :meth:`Fleet.batch_filter` returns.
 
@@ -51,14 +265,6 @@ class FleetResult:
     nis : ndarray, shape (K, T), or None with ``keep="final"``
         Each step's normalised innovation squared (0 where a filter had no
         measurement or had failed).
-    y_whitened : ndarray, shape (K, T, m), or None
-        Each step's whitened innovation ``S1_2^-1 y`` (NaN where a component was
-        not measured or a filter not updated), kept when ``keep`` names
-        ``"whitened"``: with ``log_det_S1_2`` the log-likelihood as residuals
-        (what :func:`squkf.tune.fit_noise` reads).
-    log_det_S1_2 : ndarray, shape (K, T), or None
-        Each step's ``log det S1_2`` of the measured block (0 where none), kept
-        with ``y_whitened``.
     """
 
     means: np.ndarray | None
@@ -73,9 +279,28 @@ class FleetResult:
     y_whitened: np.ndarray | None = None
     log_det_S1_2: np.ndarray | None = None
 
+    def __init__(
+        self, means: np.ndarray | None, P1_2s: np.ndarray | None, variances: np.ndarray | None,
+        log_likelihood: np.ndarray, failed: np.ndarray, x: np.ndarray, P1_2: np.ndarray,
+        rejected: np.ndarray | None = None, nis: np.ndarray | None = None, *steps: np.ndarray | None,
+        **named: np.ndarray | None,
+    ) -> None:  # fmt: skip
+        """``steps``: the registry's records in its order, or ``named`` (those not given: None)."""
+        self.means, self.P1_2s, self.variances, self.log_likelihood = means, P1_2s, variances, log_likelihood
+        self.failed, self.x, self.P1_2, self.rejected, self.nis = failed, x, P1_2, rejected, nis
+        _set_steps(self, steps, named)
+
+
+BatchResult.__doc__ = _with_entries(BatchResult.__doc__, "T", "dim_z", False)
+FleetResult.__doc__ = _with_entries(FleetResult.__doc__, "K, T", "m", True)
+
 
 class Records(NamedTuple):
-    """The arrays a fleet's batch run fills, step by step (None: not kept)."""
+    """The arrays a fleet's batch run fills, step by step (None: not kept).
+
+    ``steps``: the registry's records kept (``keep``'s words), by name; ``reads``: each one's
+    :class:`~squkf.engine.Update` field and array, what :meth:`keep` copies at each step.
+    """
 
     means: np.ndarray | None
     factors: np.ndarray | None
@@ -83,8 +308,8 @@ class Records(NamedTuple):
     loglik: np.ndarray
     rejected: np.ndarray
     nis: np.ndarray | None
-    y_whitened: np.ndarray | None
-    log_det: np.ndarray | None
+    steps: dict[str, np.ndarray]
+    reads: tuple[tuple[str, np.ndarray], ...]
 
     def keep(self, t: int, update) -> None:
         """Keep step ``t``'s update: its estimates ``x (K, n)``, ``S (K, n, n)`` and its records.
@@ -100,8 +325,8 @@ class Records(NamedTuple):
             self.loglik[:, t], self.rejected[:, t], self.nis[:, t] = (
                 update.log_likelihood, update.rejected, update.nis,
             )  # fmt: skip
-        if self.y_whitened is not None and self.log_det is not None:
-            self.y_whitened[:, t], self.log_det[:, t] = update.w, update.log_det_S1_2
+        for field, kept in self.reads:
+            kept[:, t] = getattr(update, field)
         if self.means is not None:
             self.means[:, t] = x
         if self.factors is not None:
@@ -116,8 +341,12 @@ class Records(NamedTuple):
             None if self.factors is None else self.factors[:, :t].copy(),
         )
 
+    def step_records(self) -> dict[str, np.ndarray | None]:
+        """Every registry record by name, as :class:`FleetResult` takes it: its array, or None (not kept)."""
+        return {r.name: self.steps.get(r.name) for r in STEP_RECORDS}
 
-def new_records(keep: str, K: int, T: int, n: int, m: int, whitened: bool = False) -> Records:
+
+def new_records(keep: str, K: int, T: int, n: int, m: int, words: tuple[str, ...] = ()) -> Records:
     """The arrays of a run of ``T`` steps of ``K`` filters that ``keep`` asks for.
 
     Parameters
@@ -125,15 +354,16 @@ def new_records(keep: str, K: int, T: int, n: int, m: int, whitened: bool = Fals
     keep : {"all", "diagonals", "means", "final"}
     K, T, n, m : int
         Filters, steps, state and measurement sizes.
-    whitened : bool
-        Keep the whitened innovations ``(K, T, m)`` and ``log det S1_2`` ``(K, T)`` too.
+    words : tuple of str
+        ``keep``'s other words: the registry's records of these ``keep`` words are kept too, ``(K, T, m)``
+        per component or ``(K, T)``.
 
     Returns
     -------
     Records
         ``means (K, T, n)``, ``factors (K, T, n, n)``, ``variances (K, T, n)``,
         ``loglik (K, T)`` (``(K,)`` with ``"final"``), ``rejected (K, T, m)``
-        of bool (``(K, m)`` counts with ``"final"``), ``nis (K, T)``.
+        of bool (``(K, m)`` counts with ``"final"``), ``nis (K, T)``, the records asked for.
     """
     means = None if keep == "final" else np.empty((K, T, n))
     factors = np.empty((K, T, n, n)) if keep == "all" else None
@@ -141,9 +371,10 @@ def new_records(keep: str, K: int, T: int, n: int, m: int, whitened: bool = Fals
     loglik = np.zeros((K, T)) if keep != "final" else np.zeros(K)
     rejected = np.zeros((K, T, m), dtype=bool) if keep != "final" else np.zeros((K, m), dtype=np.int64)
     nis = np.zeros((K, T)) if keep != "final" else None
-    w = np.empty((K, T, m)) if whitened else None
-    log_det = np.empty((K, T)) if whitened else None
-    return Records(means, factors, variances, loglik, rejected, nis, w, log_det)
+    kept = [r for r in STEP_RECORDS if r.keep in words]
+    steps = {r.name: np.empty(r.shape((K, T), m)) for r in kept}
+    reads = tuple((r.field, steps[r.name]) for r in kept)
+    return Records(means, factors, variances, loglik, rejected, nis, steps, reads)
 
 
 def failures_error(fails: dict[int, str], during: str = "") -> FleetStepError:
@@ -213,29 +444,6 @@ def innovation_inverse(Sy: np.ndarray, observed: np.ndarray | None) -> np.ndarra
         return embed(np.zeros((m, m)), observed, np.nan)
     W = solve_lower(Sy, np.eye(m))
     return embed(W.T @ W, observed, np.nan)
-
-
-def whitened(w: np.ndarray, observed: np.ndarray | None, m: int) -> np.ndarray:
-    """The whitened innovations ``Sy^-1 y`` of an update in the measured components' places.
-
-    Parameters
-    ----------
-    w : ndarray, shape (B, o)
-        Over the ``o`` measured components.
-    observed : ndarray of bool, shape (m,), or None
-        The measured components (None: all).
-    m : int
-
-    Returns
-    -------
-    ndarray, shape (B, m)
-        NaN where a component was not measured (a new array).
-    """
-    if observed is None:
-        return w.copy()
-    full = np.full((w.shape[0], m), np.nan)
-    full[:, observed] = w
-    return full
 
 
 def log_det(Sy: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
