@@ -35,6 +35,7 @@ was. Its phases
 from __future__ import annotations
 
 import copy
+import operator
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
@@ -46,9 +47,9 @@ from .checks import check_hook_result, check_values, describe_nonfinite
 from .errors import CallSequenceError, NonFiniteError, SqukfError
 from .generators import SigmaSet, sigma_points_from_factor
 from .kernels import table
+from .kernels.wrappers import JointUpdate
 from .linalg import all_finite
 from .measurement import (
-    Posterior,
     gain_from_factors,
     keeps_prior_factor,
     measurement_update,
@@ -84,9 +85,9 @@ class Update(NamedTuple):
 
     One filter's update is a block of one (:class:`squkf.SquareRootUKF` drops the block axis when it
     reads a field); a fleet's is a block of K, written a chunk at a time (:class:`squkf.stacks.Chunks`),
-    which keeps no factor of the innovation (``Sy``, ``L21`` and ``K`` None; ``log_det_S1_2`` kept instead)
-    and whose filters each have their own measured components (``observed`` None, NaN in ``y`` and ``w``
-    where a component was missing).
+    which keeps no factor of the innovation (``Sy``, ``L21`` and ``K`` None) and whose filters each have
+    their own measured components (``observed`` None, NaN in ``y`` and ``w`` where a component was
+    missing).
     Batch histories keep their rows (``squkf.boundary.records.Records.keep``).
 
     Attributes
@@ -115,9 +116,10 @@ class Update(NamedTuple):
     w : ndarray, shape (B, mo)
         The whitened innovation ``Sy^-1 y`` of the innovation tested (``nis`` is its squared norm; NaN
         as in ``y``).
-    log_det_S1_2 : ndarray, shape (B,), or None
-        ``log det Sy`` of the measured block, where the factor is not kept (a fleet's: 0 where a filter
-        was not updated); None: formed from ``Sy`` when read.
+    log_det_S1_2 : ndarray, shape (B,)
+        ``log det Sy`` of the measured block, as the kernel summed it for the log-likelihood (a fleet's:
+        0 where a filter was not updated). (None only in an update pickled before the kernels wrote it,
+        which :mod:`squkf.old_pickles` fills when it loads.)
     """
 
     x: np.ndarray
@@ -288,12 +290,14 @@ def _points_out(B: int, N: int, n: int, offsets: bool) -> tuple:
     return np.empty((B, N, n)), np.empty((B, N, n)) if offsets else table.no_set(n)
 
 
-#: The update kernels' outputs, in their order (``_posterior_out``'s): by the :class:`Update` field each
-#: is, or the kernel's own (``zp``, ``dx``, ``status``, and ``X1``, the next first set). A fleet's chunk
-#: passes its step's arrays to the kernel by these names (:class:`squkf.stacks.Chunks`).
-POSTERIOR_OUT = (
-    "zp", "y", "w", "Sy", "L21", "dx", "x", "S", "log_likelihood", "nis", "log_det_S1_2", "status", "X1",
-)  # fmt: skip
+#: The update kernels' outputs, in their order (``_posterior_out``'s): :class:`JointUpdate`'s fields, by
+#: the :class:`Update` field each is or the kernel's own (``z_pred``, ``dx``, ``status``), and ``X1``, the
+#: next first set. A fleet's chunk passes its step's arrays to the kernel by these names
+#: (:class:`squkf.stacks.Chunks`).
+POSTERIOR_OUT = (*JointUpdate._fields, "X1")
+#: The fields of an :class:`Update` an update kernel gives (:class:`JointUpdate`'s of the same names)
+_FROM_KERNEL = tuple(name for name in Update._fields if name in JointUpdate._fields)
+_from_kernel = operator.attrgetter(*_FROM_KERNEL)
 
 
 def _posterior_out(B: int, n: int, m: int, N1: int) -> tuple:
@@ -677,14 +681,11 @@ class Route:
                 observed=observed, z_mean_fn=hooks.z_mean_fn, residual_x=hooks.residual_x,
                 residual_z=hooks.residual_z, state_add=hooks.state_add, UT=UT, kernels=self.kernels,
             )  # fmt: skip
+            given = dict(zip(_FROM_KERNEL, _from_kernel(post)))  # (the kernel's outputs an Update keeps)
             if self.single:
-                post = Posterior(*(a[None] for a in post))
-            none = _NONE_REJECTED[post.y.shape]
-            ll, nis = post.log_likelihood, post.nis
-            update = Update(
-                post.x, post.S, post.y, post.Sy, post.L21, ll, nis, observed, none, None, m_all, post.w,
-                post.log_det,
-            )  # fmt: skip
+                given = {name: a[None] for name, a in given.items()}
+            none = _NONE_REJECTED[given["y"].shape]
+            update = Update(**given, observed=observed, rejected=none, K=None, m=m_all)
             return update, np.zeros(B, dtype=np.int64), None
         Ro = R1_2
         whole = None

@@ -51,7 +51,6 @@ Every array may carry leading batch axes ``(...)``: one filter has none.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import NamedTuple
 
 import numpy as np
 
@@ -67,7 +66,6 @@ from .statuses import failure, first_status, singular_allowed
 from .transform import StackedHook, deviations, weighted_mean
 
 __all__ = [
-    "Posterior",
     "measurement_update",
     "keeps_prior_factor",
     "gain_from_factors",
@@ -77,49 +75,6 @@ __all__ = [
 
 _TINY = np.finfo(float).tiny
 _INF = float("inf")
-
-
-class Posterior(NamedTuple):
-    """Everything a measurement update produces.
-
-    Attributes
-    ----------
-    x : ndarray, shape (..., n)
-        Posterior mean.
-    S : ndarray, shape (..., n, n)
-        Lower factor of the posterior covariance.
-    y : ndarray, shape (..., m)
-        Innovation ``residual_z(z, z_pred)``.
-    z_pred : ndarray, shape (..., m)
-        Predicted measurement.
-    Sy : ndarray, shape (..., m, m)
-        Lower factor of the innovation covariance.
-    L21 : ndarray, shape (..., n, m)
-        ``Pxy Sy^-T`` (equivalently ``K Sy``); :meth:`gain` forms ``K`` from it.
-    w : ndarray, shape (..., m)
-        Whitened innovation ``Sy^-1 y``.
-    log_likelihood : ndarray, shape (...)
-        The measurement's Gaussian log-likelihood, ``-(m log 2 pi + 2 sum log|Sy_ii| + w.w) / 2``.
-    nis : ndarray, shape (...)
-        ``w.w``, the squared Mahalanobis distance of the innovation (its NIS).
-    log_det : ndarray, shape (...)
-        ``log det Sy = sum log|Sy_ii|`` (the kernel's, the sum the log-likelihood takes).
-    """
-
-    x: np.ndarray
-    S: np.ndarray
-    y: np.ndarray
-    z_pred: np.ndarray
-    Sy: np.ndarray
-    L21: np.ndarray
-    w: np.ndarray
-    log_likelihood: np.ndarray
-    nis: np.ndarray
-    log_det: np.ndarray
-
-    def gain(self) -> np.ndarray:
-        """The Kalman gain ``K = L21 Sy^-1``, shape ``(..., n, m)`` (one triangular solve)."""
-        return gain_from_factors(self.Sy, self.L21)
 
 
 def gain_from_factors(Sy: np.ndarray, L21: np.ndarray, *, kernels: KernelTable | None = None) -> np.ndarray:
@@ -198,7 +153,7 @@ def measurement_update(
     state_add: Callable | None = None,
     UT: Callable | None = None,
     kernels: KernelTable | None = None,
-) -> Posterior:
+) -> wrappers.JointUpdate:
     """Square-root measurement update from the second set and its images.
 
     One kernel call, of the form the set and hooks take (see the module): the hooks and a ``UT``
@@ -240,9 +195,10 @@ def measurement_update(
 
     Returns
     -------
-    Posterior
-        Of the observed components (``y``, ``z_pred``, ``Sy``, ``L21``, ``w``
-        have ``m_obs`` of them).
+    JointUpdate
+        The kernel's outputs (:class:`squkf.kernels.wrappers.JointUpdate`), ``x`` the posterior mean
+        (``state_add``'s, where a user's hook adds), of the observed components (``y``, ``z_pred``,
+        ``Sy``, ``L21``, ``w`` have ``m_obs`` of them). ``K = L21 Sy^-1``: :func:`gain_from_factors`.
 
     Raises
     ------
@@ -326,7 +282,7 @@ def measurement_update(
         x_post = _per_filter(state_add, x, u.dx, "state_add")
         if not all_finite(x_post):
             raise PosteriorFactorError("the posterior mean or factor is not finite", errno=303)
-    return Posterior(x_post, u.S, u.y, u.z_pred, u.Sy, u.L21, u.w, u.log_likelihood, u.nis, u.log_det)
+    return u if x_post is u.x else u._replace(x=x_post)
 
 
 def _data(hook: Callable | None) -> Callable | None:

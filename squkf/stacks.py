@@ -258,7 +258,7 @@ _PER_COMPONENT = (False, False, *(per for per, _ in _KINDS))
 _kept_of = operator.attrgetter(*KEPT)
 #: The update kernel's outputs (``engine.POSTERIOR_OUT``) from a step's arrays (``KEPT``) and a chunk's
 #: (``_SCRATCH``), in that order
-_SCRATCH = ("zp", "Sy", "L21", "dx", "status", "X1")
+_SCRATCH = ("z_pred", "Sy", "L21", "dx", "status", "X1")
 _kernel_out = operator.itemgetter(*((*KEPT, *_SCRATCH).index(name) for name in POSTERIOR_OUT))
 #: The fields of ``KEPT`` the kernel does not write (``rejected``: none, with no gate), by position: copied
 #: from the update the route returns

@@ -303,7 +303,8 @@ def transform(
 
 
 class JointUpdate(NamedTuple):
-    """What an update kernel gives, in the caller's batch shape.
+    """What an update kernel gives, in the caller's batch shape (its outputs in their order, by the names
+    of :class:`squkf.engine.Update`'s fields where it has them).
 
     Attributes
     ----------
@@ -315,7 +316,7 @@ class JointUpdate(NamedTuple):
         ``L21 w`` and the posterior mean ``x + dx``.
     S : ndarray, shape (..., n, n)
         The posterior factor.
-    log_likelihood, nis, log_det : ndarray, shape (...)
+    log_likelihood, nis, log_det_S1_2 : ndarray, shape (...)
         The measurement's Gaussian log-likelihood, its squared Mahalanobis distance ``w.w`` and
         ``log det Sy``.
     status : ndarray of int, shape (...)
@@ -333,7 +334,7 @@ class JointUpdate(NamedTuple):
     S: np.ndarray
     log_likelihood: np.ndarray
     nis: np.ndarray
-    log_det: np.ndarray
+    log_det_S1_2: np.ndarray
     status: np.ndarray
 
 
