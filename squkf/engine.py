@@ -649,8 +649,8 @@ class Route:
         buffers : Buffers, optional
             Where the kernel's results are written (default: new arrays).
         out : tuple, optional
-            The kernel's outputs themselves, as its arguments (``zp, y, w, Sy, L21, dx, x, S, loglik,
-            nis, log_det, status, X1``), on the joint route: a fleet writes into its step's arrays.
+            The kernel's outputs themselves, as its arguments (:data:`POSTERIOR_OUT`), on the joint
+            route: a fleet writes into its step's arrays.
 
         Returns
         -------

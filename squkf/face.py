@@ -37,7 +37,7 @@ from . import checks
 from .boundary.attributes import FactorSlot, HandOut, Hook, Unformed
 from .boundary.config import Config
 from .boundary.loop import Transaction
-from .boundary.records import StepRecords
+from .boundary.records import StepRecord, StepRecords
 from .engine import Engine, Route, Update
 from .gating import Gate, as_gate
 from .kernels.table import KernelTable
@@ -216,6 +216,20 @@ class Face(StepRecords):
         out = np.full((a.shape[0], m), fill, dtype=a.dtype)
         out[:, observed] = a
         return out[0] if self.ONE else out
+
+    def _step_record(self, record: StepRecord):
+        """A per-step record of the registry (:class:`~squkf.boundary.records.StepRecord`) of the last
+        update, as handed out: its observed components in their places (``record.fill`` elsewhere), or one
+        number per filter; zeros before any update."""
+        last: Update | None = self._engine.last
+        if last is None:
+            return self._before_update((self.dim_z,)) if record.per_component else self._scalar(None, 0.0)
+        value = getattr(last, record.field)
+        if value is None:  # (every update holds it: an old pickle's is filled when it loads, old_pickles)
+            raise LookupError(f"the last update holds no {record.field!r} for {record.name!r}")
+        if record.per_component:
+            return self._in_place(value, last.observed, last.m, record.fill)
+        return self._scalar(value, 0.0)
 
     # -- the records of the last prediction and update (formed when read, fresh) -------------
 

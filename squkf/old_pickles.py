@@ -11,7 +11,6 @@ from typing import Any
 import numpy as np
 
 from .boundary.attributes import FactorSlot
-from .boundary.records import log_det
 from .engine import Engine, Route
 from .stacks import CHUNKS, not_updated
 
@@ -35,7 +34,7 @@ def filter_state(state: Any) -> dict:
     engine = state.get("_engine")
     last = None if engine is None else engine.last
     if last is not None and last.log_det_S1_2 is None:  # pickled before the update kernel wrote it
-        new = engine.last = last._replace(log_det_S1_2=log_det(last.Sy))
+        new = engine.last = last._replace(log_det_S1_2=_log_det(last.Sy))
         # what was current with the last update (written records, the gain) is with its record still
         state["_written"] = {
             k: (new, *held[1:]) if held[0] is last else held for k, held in state.get("_written", {}).items()
@@ -84,3 +83,9 @@ def fleet_engine(route: Route, old: dict) -> Engine:
             kept[field] = old[name]
     engine.last = not_updated(old["_x_post"], old["_S_post"], y.shape[1])._replace(**kept)
     return engine
+
+
+def _log_det(Sy: np.ndarray) -> np.ndarray:
+    """``log det Sy`` ``(B,)`` of a stack of triangular factors ``(B, o, o)`` (the kernels sum it in their own
+    order: the same to rounding)."""
+    return np.log(np.abs(np.diagonal(Sy, axis1=1, axis2=2))).sum(axis=1)

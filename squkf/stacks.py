@@ -259,6 +259,7 @@ _kept_of = operator.attrgetter(*KEPT)
 #: The update kernel's outputs (``engine.POSTERIOR_OUT``) from a step's arrays (``KEPT``) and a chunk's
 #: (``_SCRATCH``), in that order
 _SCRATCH = ("z_pred", "Sy", "L21", "dx", "status", "X1")
+assert not set(KEPT) & set(_SCRATCH)  # (each kernel output found in one place)
 _kernel_out = operator.itemgetter(*((*KEPT, *_SCRATCH).index(name) for name in POSTERIOR_OUT))
 #: The fields of ``KEPT`` the kernel does not write (``rejected``: none, with no gate), by position: copied
 #: from the update the route returns
@@ -267,10 +268,17 @@ _NOT_WRITTEN = tuple((i, f) for i, f in enumerate(KEPT) if f not in POSTERIOR_OU
 _NOT_KEPT: dict[str, Any] = {f: None for f in Update._fields if f not in KEPT and f != "m"}
 
 
+#: A record's arrays by its value of a filter not updated: float64, or bool for ``rejected``'s False (an
+#: integer would be a float's too: the kernels write float64)
+_DTYPE = {bool: bool, float: float, int: float}
+
+
 def _update_records(K: int, m: int) -> tuple:
     """A fleet update's records besides the estimate (``KEPT[2:]``): ``(K, m)`` per component, ``(K,)`` per
     filter, of the type of their value where a filter was not updated (``rejected``'s bool)."""
-    return tuple(np.empty((K, m) if per else K, dtype=type(fill)) for per, fill in _KINDS)
+    return tuple(
+        np.empty((K, m) if per else K, dtype=bool if fill is False else float) for per, fill in _KINDS
+    )
 
 
 def not_updated(x: np.ndarray, S: np.ndarray, m: int) -> Update:
@@ -667,7 +675,8 @@ class Chunks:
                 if np.count_nonzero(status) or not on.all():  # a failing or inactive filter keeps its prior
                     form = route.form_of(s, None)
                     bad = ~_flag(status, on, found, form, "update", H, "hx values")
-                    part[0][bad], part[1][bad] = xs[bad], Ss[bad]
+                    xo, So = part[0], part[1]  # (KEPT: the estimate first)
+                    xo[bad], So[bad] = xs[bad], Ss[bad]
                     for a, fill in zip(part[2:], _FILLS):
                         a[bad] = fill
             else:

@@ -91,8 +91,8 @@ def rounding_of_terms(python, data, z, x_prior) -> dict[str, float]:
     The kernels and numpy sum in different orders, so each sum rounds differently by about
     ``eps * sum |W| * |terms|``, and a difference is measured against those terms, not the result:
 
-    - ``y = z - z_pred``: against ``max |z|`` (a range of 100 predicted to 1e-13 leaves an innovation
-      of 0.01 with 1e-11 of its own size);
+    - ``y = z - z_pred``: each component against its measurement ``|z_i|`` (a range of 100 predicted to
+      1e-13 leaves an innovation of 0.01 with 1e-11 of its own size);
     - ``x = x_prior + K y``: against ``max(|x_prior|, |K y|)``;
     - the log-likelihood: against ``|log L| + ||S^-1 y|| max |z|``, what ``y``'s rounding moves it by
       (its gradient in ``y`` is ``-S^-1 y``);
@@ -102,12 +102,17 @@ def rounding_of_terms(python, data, z, x_prior) -> dict[str, float]:
     for name, value in _records(python).items():
         got, value = np.asarray(_records(data)[name], dtype=float), np.asarray(value, dtype=float)
         ok = ~np.isnan(value)
+        if not np.array_equal(np.isnan(got), ~ok):  # (NaN in one route only: no rounding)
+            out[name] = np.inf
+            continue
         diff = np.max(np.abs(got[ok] - value[ok]), initial=0.0)
         scale = np.max(np.abs(value[ok]), initial=0.0)
         measured = ~np.isnan(z)
-        if name == "y":
-            scale = max(scale, np.abs(z[measured]).max(initial=0.0))
-        elif name == "x":
+        if name == "y":  # per component: each against its own measurement
+            d = np.abs(got - value)[ok]
+            out[name] = np.max(d / np.fmax(np.abs(z[ok]), np.abs(value[ok])), initial=0.0)
+            continue
+        if name == "x":
             scale = max(np.abs(x_prior).max(), np.abs(value - x_prior).max())
         elif name == "log_likelihood" and measured.any():
             S = python.S[np.ix_(measured, measured)]

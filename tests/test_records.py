@@ -10,6 +10,7 @@ compares with an untouched twin filter, a freshly built reference or filterpy.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 import pickle
 import warnings
@@ -55,6 +56,7 @@ from squkf import (
     NonFiniteError,
     ParameterError,
     SquareRootUKF,
+    fleet_batch,
 )
 from squkf.batch import BatchResult
 from squkf.boundary import loop, records
@@ -950,8 +952,16 @@ def test_whitened_records_are_kept_only_when_asked_and_keep_is_checked():
 
 #: A record added to the registry by a test alone: an existing field of the engine's update under a new
 #: name and keep word (one number per filter, and one per component), declared as a record is declared.
-NIS_AGAIN = records.StepRecord("nis_again", "nis", False, 0.0, "again", "NIS, again", "The NIS as a record.")
-Y_AGAIN = records.StepRecord("y_again", "y", True, np.nan, "again", "innovation, again", "``y`` as a record.")
+NIS_AGAIN = records.StepRecord("nis_again", "nis", False, 0.0, "again")
+Y_AGAIN = records.StepRecord("y_again", "y", True, np.nan, "again")
+
+
+@dataclasses.dataclass
+class _AgainResult(records.FleetResult):
+    """``FleetResult`` with the test's records' typed fields, declared as a record's are."""
+
+    nis_again: np.ndarray | None = None
+    y_again: np.ndarray | None = None
 
 
 def _same(a, b) -> bool:
@@ -1007,7 +1017,12 @@ def test_a_record_added_to_the_registry_reaches_both_faces_and_every_result(monk
     a record needs: ``keep``, both faces, ``BatchResult``, ``FleetResult`` and ``squkf.dask`` take it."""
     monkeypatch.setattr(records, "STEP_RECORDS", (*records.STEP_RECORDS, NIS_AGAIN, Y_AGAIN))
     for record in (NIS_AGAIN, Y_AGAIN):
-        monkeypatch.setattr(records.StepRecords, record.name, records.StepProperty(record), raising=False)
+        attribute = records.StepProperty(f"The last update's {record.name}.", record)
+        monkeypatch.setattr(records.StepRecords, record.name, attribute, raising=False)
+    import squkf.dask as sd
+
+    for module in (records, fleet_batch, sd):  # (its typed fields: where FleetResult is made)
+        monkeypatch.setattr(module, "FleetResult", _AgainResult)
     for record in (NIS_AGAIN, Y_AGAIN):
         _delivered(record)
     # what it reads, and beside the others: one keep word adds both records, with another word too
@@ -1052,6 +1067,41 @@ def test_a_batch_result_pickled_with_its_records_in_the_registrys_order_loads():
     assert _same(records.BatchResult(means, covs, rej, nis, ll, log_det_S1_2=ld).log_det_S1_2, ld)
     with pytest.raises(TypeError, match="nis_again"):
         records.BatchResult(means, covs, rej, nis, ll, nis_again=nis)
+    with pytest.raises(TypeError, match="'y_whitened' twice"):
+        records.BatchResult(means, covs, rej, nis, ll, w, y_whitened=w)
+    with pytest.raises(TypeError, match="keeps 2 per-step records"):
+        records.BatchResult(means, covs, rej, nis, ll, w, ld, ld)
+
+
+def test_each_registry_record_is_declared_in_every_result_and_documented():
+    """Each record's typed field in ``FleetResult`` (its last fields, in the registry's order, so that it
+    takes them positionally as ``BatchResult`` does), ``BatchResult``'s annotation, both results' docs and
+    the faces' attribute with its own docstring, read-only with its name in the error."""
+    names = [r.name for r in records.STEP_RECORDS]
+    fields = [f.name for f in dataclasses.fields(records.FleetResult)]
+    assert fields[-len(names) :] == names
+    for name in names:
+        assert name in records.BatchResult.__annotations__
+        for result in (records.FleetResult, records.BatchResult):
+            assert f"\n    {name} : ndarray" in result.__doc__, (result, name)
+        for face in (SquareRootUKF, Fleet):
+            attribute = getattr(face, name)
+            assert isinstance(attribute, property) and "last update" in attribute.__doc__
+        f = cv_filter()
+        with pytest.raises(AttributeError, match=f"SquareRootUKF.{name} is a record"):
+            setattr(f, name, 0.0)
+        with pytest.raises(AttributeError, match=f"SquareRootUKF.{name} is a record"):
+            delattr(f, name)
+
+
+def test_a_property_declared_for_a_record_the_registry_lacks_says_so():
+    with pytest.raises((LookupError, RuntimeError)) as err:
+
+        class Faulty(records.StepRecords):
+            y_typo = records.StepProperty("A typo.")
+
+    found = err.value if isinstance(err.value, LookupError) else err.value.__cause__  # (3.11 wraps it)
+    assert "Faulty.y_typo: no record 'y_typo'" in str(found)
 
 
 def test_a_filter_pickled_before_the_kernel_wrote_log_det_reads_it_with_its_written_records():

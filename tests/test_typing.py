@@ -58,6 +58,7 @@ MISUSES = [
     "n_points: str = points.num_sigmas(2)",
     "P1_2: list = ukf.P1_2",
     "w: list = ukf.y_whitened",
+    "ukf.y_whitened = np.zeros(2)",
 ]
 
 

@@ -13,10 +13,8 @@ filter's update.
 
 from __future__ import annotations
 
-import inspect
-import textwrap
 from dataclasses import dataclass
-from typing import Any, Generic, NamedTuple, TypeVar, overload
+from typing import Any, Generic, NamedTuple, NoReturn, TypeVar, overload
 
 import numpy as np
 
@@ -35,7 +33,6 @@ __all__ = [
     "failures_error",
     "innovation_inverse",
     "new_records",
-    "log_det",
 ]
 
 T = TypeVar("T")
@@ -55,13 +52,10 @@ class StepRecord(NamedTuple):
         One value per measurement component (``(..., m)``: the measured components' in their places,
         ``fill`` elsewhere), or one number per filter.
     fill : float
-        Its value where a component was not measured, or a filter not updated (nothing measured).
+        Its value where a component was not measured, or a filter not updated (nothing measured): a
+        float (the arrays a fleet writes it into are float64).
     keep : str
         The word of a fleet's ``keep`` that adds it to the run's results (records may share one).
-    summary : str
-        What one value is, a noun phrase (the docs' first line).
-    doc : str
-        The rest of its documentation, one numpydoc paragraph.
     """
 
     name: str
@@ -69,8 +63,6 @@ class StepRecord(NamedTuple):
     per_component: bool
     fill: float
     keep: str
-    summary: str
-    doc: str
 
     def missing(self, m: int) -> Any:
         """The value of a step with nothing measured: ``(m,)`` of ``fill``, or ``fill``."""
@@ -82,44 +74,13 @@ class StepRecord(NamedTuple):
 
 
 #: The per-step records, in the order ``BatchResult`` and ``FleetResult`` take them positionally (new ones
-#: go last: a pickled ``BatchResult`` passes them in this order).
+#: go last: a pickled ``BatchResult`` passes them in this order, and ``FleetResult`` declares its fields
+#: so). Each has its typed field and docs entry in both results and its ``StepProperty`` in
+#: :class:`StepRecords`, below.
 STEP_RECORDS: tuple[StepRecord, ...] = (
-    StepRecord(
-        "y_whitened", "w", True, np.nan, "whitened", "whitened innovation ``S1_2^-1 y``",
-        "NaN where a component was not measured (or a fleet's filter not updated); ``nis`` is its squared"
-        " norm. With ``log_det_S1_2`` it is the whole of the step's log-likelihood,"
-        " ``-(m log 2 pi + nis) / 2 - log_det_S1_2`` over the ``m`` measured components"
-        " (:func:`squkf.tune.fit_noise` reads them as least-squares residuals).",
-    ),
-    StepRecord(
-        "log_det_S1_2", "log_det_S1_2", False, 0.0, "whitened", "``log det S1_2``",
-        "The log-determinant of the innovation factor's measured block, the sum ``sum log|S1_2_ii|`` the"
-        " log-likelihood takes; 0 where nothing was measured (or a fleet's filter not updated).",
-    ),
-)  # fmt: skip
-
-
-def _fill(text: str, width: int, indent: str = "") -> str:
-    """``text`` wrapped to ``width`` columns, no inline literal (````...````) broken across lines."""
-    parts = text.split("``")
-    kept = "``".join(p.replace(" ", "\0") if i % 2 else p for i, p in enumerate(parts))
-    lines = textwrap.wrap(
-        kept, width, initial_indent=indent, subsequent_indent=indent, break_on_hyphens=False
-    )
-    return "\n".join(lines).replace("\0", " ")
-
-
-def _with_entries(doc: str | None, lead: str, m: str, kept: bool) -> str:
-    """A result's docstring ``doc`` (its Attributes section last) with the registry's records as its
-    entries: ``lead``, the records' leading axes; ``m``, the components' axis; ``kept``, kept by ``keep``."""
-    text = [inspect.cleandoc(doc or "")]
-    for r in STEP_RECORDS:
-        shape = f"({lead}, {m})" if r.per_component else f"({lead})" if "," in lead else f"({lead},)"
-        when = f", kept when ``keep`` names ``{r.keep!r}``" if kept else ""
-        text.append(f"{r.name} : ndarray, shape {shape}{', or None' if kept else ''}")
-        words = f"Each step's {r.summary}{when}. {r.doc}"
-        text.append(_fill(words, 100, "    "))
-    return "\n".join(text) + "\n"
+    StepRecord("y_whitened", "w", True, np.nan, "whitened"),
+    StepRecord("log_det_S1_2", "log_det_S1_2", False, 0.0, "whitened"),
+)
 
 
 # -- the faces' attributes --------------------------------------------------------------------------
@@ -128,34 +89,26 @@ def _with_entries(doc: str | None, lead: str, m: str, kept: bool) -> str:
 class StepProperty(property, Generic[T]):
     """A face's attribute of a :class:`StepRecord`, read from the engine's last update (fresh each read).
 
-    Declared in a class body by the record's name (``y_whitened = StepProperty()``: the registry's record
-    of that name), or given its record. One filter's without the block axis (a scalar record a float), a
-    fleet's ``(K, ...)``; zeros before any update. A ``property`` (a filterpy ``Saver`` collects
-    properties), read-only.
+    Declared in a class body by the record's name with its docstring
+    (``y_whitened = StepProperty("...")``: the registry's record of that name), or given its record. A
+    ``property`` (a filterpy ``Saver`` collects properties), read-only; the face forms the value
+    (``Face._step_record``: one filter's without the block axis, a fleet's ``(K, ...)``).
     """
 
     record: StepRecord
 
-    def __init__(self, record: StepRecord | None = None) -> None:
-        super().__init__(None, None, None)
+    def __init__(self, doc: str, record: StepRecord | None = None) -> None:
+        super().__init__()
+        self.__doc__ = doc  # (a subclass instance's own: the class's would shadow property's)
         if record is not None:
-            self._use(record)
+            self.record = record
 
     def __set_name__(self, owner: type, name: str) -> None:
         if getattr(self, "record", None) is None:  # (declared by its name: the registry's record of it)
             found = [r for r in STEP_RECORDS if r.name == name]
             if not found:
                 raise LookupError(f"{owner.__name__}.{name}: no record {name!r} in STEP_RECORDS")
-            self._use(found[0])
-
-    def _use(self, record: StepRecord) -> None:
-        self.record = record
-        if record.per_component:
-            shape = "``(..., dim_z)`` (a fleet's ``(K, dim_z)``; a fresh array); zeros before any update"
-        else:
-            shape = "one filter's a float, a fleet's ``(K,)``; 0 before any update"
-        summary = _fill(f"The last update's {record.summary}: {shape}.", 100)
-        self.__doc__ = f"{summary}\n\n{_fill(record.doc, 100)}"
+            self.record = found[0]
 
     @overload
     def __get__(self, face: None, owner: type, /) -> StepProperty[T]: ...
@@ -166,13 +119,17 @@ class StepProperty(property, Generic[T]):
     def __get__(self, face: Any, owner: type | None = None, /) -> Any:
         if face is None:
             return self
-        r = self.record
-        last = face._engine.last
-        if r.per_component:
-            if last is None:
-                return face._before_update((face.dim_z,))
-            return face._in_place(getattr(last, r.field), last.observed, last.m, r.fill)
-        return face._scalar(None if last is None else getattr(last, r.field), 0.0)
+        return face._step_record(self.record)
+
+    def __set__(self, face: Any, value: NoReturn, /) -> NoReturn:  # type: ignore[override]
+        raise AttributeError(
+            f"{type(face).__name__}.{self.record.name} is a record of the last update: read-only"
+        )
+
+    def __delete__(self, face: Any, /) -> NoReturn:
+        raise AttributeError(
+            f"{type(face).__name__}.{self.record.name} is a record of the last update: read-only"
+        )
 
 
 class StepRecords:
@@ -181,8 +138,23 @@ class StepRecords:
 
     __slots__ = ()
 
-    y_whitened: StepProperty[np.ndarray] = StepProperty()
-    log_det_S1_2: StepProperty[Any] = StepProperty()
+    y_whitened: StepProperty[np.ndarray] = StepProperty(
+        """The last update's whitened innovation ``S1_2^-1 y``, ``(..., dim_z)`` (a fresh array).
+
+        NaN where a component was not measured (or a fleet's filter not updated); ``nis`` is its
+        squared norm. With ``log_det_S1_2`` it is the whole of the step's log-likelihood,
+        ``-(m log 2 pi + nis) / 2 - log_det_S1_2`` over the ``m`` measured components
+        (:func:`squkf.tune.fit_noise` reads them as least-squares residuals). Zeros before any update.
+        """
+    )
+    log_det_S1_2: StepProperty[Any] = StepProperty(
+        """``log det S1_2`` of the last update: the log-determinant of the innovation factor's measured
+        block, the sum ``sum log|S1_2_ii|`` the log-likelihood takes (one filter's a float, a fleet's
+        ``(K,)``).
+
+        0 before any update (and where nothing was measured).
+        """
+    )
 
 
 # -- the results that keep them ---------------------------------------------------------------------
@@ -205,6 +177,11 @@ class BatchResult(tuple):
     log_likelihood : ndarray, shape (T,)
         Each step's log-likelihood of the components used (0 without a
         measurement, or when the gate rejected them all).
+    y_whitened : ndarray, shape (T, dim_z)
+        Each step's whitened innovation ``S1_2^-1 y`` (NaN where a component,
+        or the whole step, was not measured): ``nis`` is its squared norm.
+    log_det_S1_2 : ndarray, shape (T,)
+        Each step's ``log det S1_2`` of the measured block (0 without a measurement).
     """
 
     rejected: np.ndarray
@@ -231,15 +208,21 @@ def _set_steps(result: Any, steps: tuple, named: dict) -> None:
     """A result's fields of the registry's records, given in its order (``steps``) or by name; None where
     neither gives one (not kept)."""
     names = [r.name for r in STEP_RECORDS]
-    named = {**dict(zip(names, steps)), **named}
-    unknown = set(named).difference(names)
-    if len(steps) > len(names) or unknown:
-        raise TypeError(f"{type(result).__name__} got records it does not keep: {sorted(unknown) or steps}")
+    kind = type(result).__name__
+    if len(steps) > len(names):
+        raise TypeError(f"{kind} keeps {len(names)} per-step records ({', '.join(names)}), got {len(steps)}")
+    unknown = sorted(set(named).difference(names))
+    if unknown:
+        raise TypeError(f"{kind} keeps no per-step record {unknown[0]!r} (it keeps {', '.join(names)})")
+    twice = sorted(set(names[: len(steps)]).intersection(named))
+    if twice:
+        raise TypeError(f"{kind} got the record {twice[0]!r} twice, by position and by name")
+    given = {**dict(zip(names, steps)), **named}
     for name in names:
-        setattr(result, name, named.get(name))
+        setattr(result, name, given.get(name))
 
 
-@dataclass(init=False)
+@dataclass
 class FleetResult:
     """What :meth:`Fleet.batch_filter` returns.
 
@@ -265,6 +248,14 @@ class FleetResult:
     nis : ndarray, shape (K, T), or None with ``keep="final"``
         Each step's normalised innovation squared (0 where a filter had no
         measurement or had failed).
+    y_whitened : ndarray, shape (K, T, m), or None
+        Each step's whitened innovation ``S1_2^-1 y`` (NaN where a component was
+        not measured or a filter not updated), kept when ``keep`` names
+        ``"whitened"``: with ``log_det_S1_2`` the log-likelihood as residuals
+        (what :func:`squkf.tune.fit_noise` reads).
+    log_det_S1_2 : ndarray, shape (K, T), or None
+        Each step's ``log det S1_2`` of the measured block (0 where none), kept
+        with ``y_whitened``.
     """
 
     means: np.ndarray | None
@@ -276,23 +267,9 @@ class FleetResult:
     P1_2: np.ndarray
     rejected: np.ndarray | None = None
     nis: np.ndarray | None = None
+    # the per-step records (STEP_RECORDS), in its order
     y_whitened: np.ndarray | None = None
     log_det_S1_2: np.ndarray | None = None
-
-    def __init__(
-        self, means: np.ndarray | None, P1_2s: np.ndarray | None, variances: np.ndarray | None,
-        log_likelihood: np.ndarray, failed: np.ndarray, x: np.ndarray, P1_2: np.ndarray,
-        rejected: np.ndarray | None = None, nis: np.ndarray | None = None, *steps: np.ndarray | None,
-        **named: np.ndarray | None,
-    ) -> None:  # fmt: skip
-        """``steps``: the registry's records in its order, or ``named`` (those not given: None)."""
-        self.means, self.P1_2s, self.variances, self.log_likelihood = means, P1_2s, variances, log_likelihood
-        self.failed, self.x, self.P1_2, self.rejected, self.nis = failed, x, P1_2, rejected, nis
-        _set_steps(self, steps, named)
-
-
-BatchResult.__doc__ = _with_entries(BatchResult.__doc__, "T", "dim_z", False)
-FleetResult.__doc__ = _with_entries(FleetResult.__doc__, "K, T", "m", True)
 
 
 class Records(NamedTuple):
@@ -444,22 +421,3 @@ def innovation_inverse(Sy: np.ndarray, observed: np.ndarray | None) -> np.ndarra
         return embed(np.zeros((m, m)), observed, np.nan)
     W = solve_lower(Sy, np.eye(m))
     return embed(W.T @ W, observed, np.nan)
-
-
-def log_det(Sy: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """``log det Sy`` of each innovation factor (over its measured block: 0 for an empty one).
-
-    Parameters
-    ----------
-    Sy : ndarray, shape (B, o, o)
-        Triangular.
-    out : ndarray, shape (B,), optional
-        Where to write it.
-
-    Returns
-    -------
-    ndarray, shape (B,)
-        (``-inf`` for a singular factor: a failed filter's, which its caller replaces.)
-    """
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return np.log(np.abs(np.diagonal(Sy, axis1=1, axis2=2))).sum(axis=1, out=out)

@@ -355,7 +355,7 @@ class UpdateStacks(NamedTuple):
     Sy : ndarray, shape (B, m, m) or (0, m, m)
         The innovation factor given (a user's ``UT``), or none.
     out : tuple of ndarray
-        The kernel's outputs, in its order: ``zp, y, w, Sy, L21, dx, x, S, loglik, nis, log_det, status``.
+        The kernel's outputs, in its order: :class:`JointUpdate`'s fields.
     """
 
     batch: tuple[int, ...]
