@@ -47,7 +47,7 @@ from .checks import check_hook_result, check_values, describe_nonfinite
 from .errors import CallSequenceError, NonFiniteError, SqukfError
 from .generators import SigmaSet, sigma_points_from_factor
 from .kernels import table
-from .kernels.wrappers import JointUpdate
+from .kernels.phases import JointUpdate, update_outputs
 from .linalg import all_finite
 from .measurement import (
     gain_from_factors,
@@ -303,11 +303,7 @@ _from_kernel = operator.attrgetter(*_FROM_KERNEL)
 def _posterior_out(B: int, n: int, m: int, N1: int) -> tuple:
     """The update kernel's outputs (as its arguments, :data:`POSTERIOR_OUT`), and the next first set (``N1``
     points, 0: none)."""
-    return (
-        np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m)), np.empty((B, n, m)),
-        np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B), np.empty(B),
-        np.empty(B, dtype=np.int64), np.empty((B, N1, n)) if N1 else table.no_set(n),
-    )  # fmt: skip
+    return (*update_outputs(B, n, m), np.empty((B, N1, n)) if N1 else table.no_set(n))
 
 
 class Route:

@@ -59,6 +59,7 @@ from .checks import call_hook, check_hook_result
 from .errors import GainError, PosteriorFactorError
 from .generators import SigmaSet
 from .kernels import table, wrappers
+from .kernels.phases import JointUpdate
 from .kernels.table import CENTRAL, GIVEN, MEAN, KernelTable, no_angles, no_points, no_set, plan_array
 from .linalg import all_finite, solve_lower, tria
 from .rows import RowForm, weight_rows
@@ -153,7 +154,7 @@ def measurement_update(
     state_add: Callable | None = None,
     UT: Callable | None = None,
     kernels: KernelTable | None = None,
-) -> wrappers.JointUpdate:
+) -> JointUpdate:
     """Square-root measurement update from the second set and its images.
 
     One kernel call, of the form the set and hooks take (see the module): the hooks and a ``UT``
@@ -196,7 +197,7 @@ def measurement_update(
     Returns
     -------
     JointUpdate
-        The kernel's outputs (:class:`squkf.kernels.wrappers.JointUpdate`), ``x`` the posterior mean
+        The kernel's outputs (:class:`squkf.kernels.phases.JointUpdate`), ``x`` the posterior mean
         (``state_add``'s, where a user's hook adds), of the observed components (``y``, ``z_pred``,
         ``Sy``, ``L21``, ``w`` have ``m_obs`` of them). ``K = L21 Sy^-1``: :func:`gain_from_factors`.
 

@@ -33,6 +33,10 @@ in the updates, g13ej's 301 (the innovation factor's downdate failed), 302
 (the points transformed, the measurement function's values) that are not
 finite.
 
+The update kernels' outputs are declared here too, by name (:class:`JointUpdate`, the fields of
+:class:`squkf.engine.Update` they are, and :func:`update_outputs`, their arrays): what a kernel writes
+and what it is called are one edit.
+
 Lanes
 -----
 The dense square-root linear algebra (Householder QR, triangular solves,
@@ -82,6 +86,7 @@ what ``benchmarks/compile_time.py`` measures in the end.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import types
@@ -91,6 +96,8 @@ from .cache import jit
 
 __all__ = [
     "LAPACK_MIN_COLUMNS",
+    "JointUpdate",
+    "update_outputs",
     "tria_kernel",
     "solve_kernel",
     "chol_update_kernel",
@@ -106,6 +113,58 @@ _TINY = float(np.finfo(np.float64).tiny)
 _LOG_2PI = math.log(2.0 * math.pi)
 _PI = math.pi
 _TWO_PI = 2.0 * math.pi
+
+
+class JointUpdate(NamedTuple):
+    """What an update kernel writes (:func:`joint_update_kernel`, :func:`downdate_update_kernel`): its
+    outputs in their order, by the names of :class:`squkf.engine.Update`'s fields where they are one.
+
+    Plain Python (not compiled): :func:`squkf.kernels.wrappers.update_stacks` gives it in the caller's
+    batch shape, :func:`squkf.measurement.measurement_update` returns it, the engine takes it into an
+    ``Update`` by name.
+
+    Attributes
+    ----------
+    z_pred, y, w : ndarray, shape (..., m)
+        Predicted measurement, innovation, ``Sy^-1 y``.
+    Sy : ndarray, shape (..., m, m)
+    L21 : ndarray, shape (..., n, m)
+    dx, x : ndarray, shape (..., n)
+        ``L21 w`` and the posterior mean ``x + dx``.
+    S : ndarray, shape (..., n, n)
+        The posterior factor.
+    log_likelihood, nis, log_det_S1_2 : ndarray, shape (...)
+        The measurement's Gaussian log-likelihood, its squared Mahalanobis distance ``w.w`` and
+        ``log det Sy``.
+    status : ndarray of int, shape (...)
+        0, or g13ej's 301, 302, 303 (304: a zero on the posterior factor's diagonal; 306: images
+        not finite).
+    """
+
+    z_pred: np.ndarray
+    y: np.ndarray
+    w: np.ndarray
+    Sy: np.ndarray
+    L21: np.ndarray
+    dx: np.ndarray
+    x: np.ndarray
+    S: np.ndarray
+    log_likelihood: np.ndarray
+    nis: np.ndarray
+    log_det_S1_2: np.ndarray
+    status: np.ndarray
+
+
+def update_outputs(B: int, n: int, m: int) -> JointUpdate:
+    """New arrays for an update kernel's outputs over a stack of ``B`` filters (``n`` states, ``m``
+    measured components), :class:`JointUpdate`'s fields in its order."""
+    return JointUpdate(
+        np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m)), np.empty((B, n, m)),
+        np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B), np.empty(B),
+        np.empty(B, dtype=np.int64),
+    )  # fmt: skip
+
+
 #: The decorator of every kernel: compiled on first call, releases the GIL, cached on disk where numba has a
 #: writable place, else in memory with a warning (:mod:`squkf.kernels.cache`). No C-callable wrapper: a
 #: kernel is called from Python or from another kernel, never through a C pointer (the wrapper would only

@@ -26,6 +26,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import table
+from .phases import JointUpdate, update_outputs
 from .table import KernelTable, kernel_array, no_factor, no_noise, no_points, no_set, plan_array, zeros_row
 from .threads import split_call
 
@@ -302,42 +303,6 @@ def transform(
     return _unstack(mean, batch), _unstack(S, batch), _unstack(status, batch)
 
 
-class JointUpdate(NamedTuple):
-    """What an update kernel gives, in the caller's batch shape (its outputs in their order, by the names
-    of :class:`squkf.engine.Update`'s fields where it has them).
-
-    Attributes
-    ----------
-    z_pred, y, w : ndarray, shape (..., m)
-        Predicted measurement, innovation, ``Sy^-1 y``.
-    Sy : ndarray, shape (..., m, m)
-    L21 : ndarray, shape (..., n, m)
-    dx, x : ndarray, shape (..., n)
-        ``L21 w`` and the posterior mean ``x + dx``.
-    S : ndarray, shape (..., n, n)
-        The posterior factor.
-    log_likelihood, nis, log_det_S1_2 : ndarray, shape (...)
-        The measurement's Gaussian log-likelihood, its squared Mahalanobis distance ``w.w`` and
-        ``log det Sy``.
-    status : ndarray of int, shape (...)
-        0, or g13ej's 301, 302, 303 (304: a zero on the posterior factor's diagonal; 306: images
-        not finite).
-    """
-
-    z_pred: np.ndarray
-    y: np.ndarray
-    w: np.ndarray
-    Sy: np.ndarray
-    L21: np.ndarray
-    dx: np.ndarray
-    x: np.ndarray
-    S: np.ndarray
-    log_likelihood: np.ndarray
-    nis: np.ndarray
-    log_det_S1_2: np.ndarray
-    status: np.ndarray
-
-
 class UpdateStacks(NamedTuple):
     """An update kernel's inputs as stacks ``(B, ...)`` and the outputs it writes, for one call.
 
@@ -418,11 +383,7 @@ def update_stacks(
     n = X.shape[-1]
     Hs = _stack(H, batch, 2)
     B = Hs.shape[0]
-    out = (
-        np.empty((B, m)), np.empty((B, m)), np.empty((B, m)), np.empty((B, m, m)), np.empty((B, n, m)),
-        np.empty((B, n)), np.empty((B, n)), np.empty((B, n, n)), np.empty(B), np.empty(B), np.empty(B),
-        np.empty(B, dtype=np.int64),
-    )  # fmt: skip
+    out = tuple(update_outputs(B, n, m))
     return UpdateStacks(
         batch,
         Hs,
