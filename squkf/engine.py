@@ -368,7 +368,7 @@ class Route:
         self, plan: Plan, hooks: Hooks, gate, single: bool, kernels: table.KernelTable | None = None
     ):
         self.plan, self.hooks, self.gate, self.single = plan, hooks, gate, single
-        self.kernels = table.KERNELS if kernels is None else kernels
+        self.kernels = table.chosen(kernels)
         # squkf's angle hooks on the state are data: the kernels do what they would (x_kinds, per component)
         self.x_kinds = state_angles(hooks.x_mean_fn, hooks.residual_x, hooks.state_add, plan.n)
         self.x_angles = self.x_kinds is not None and (

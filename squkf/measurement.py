@@ -212,7 +212,7 @@ def measurement_update(
         form, a downdate of the prior factor failed (``P_prior - K S K^T`` is
         not positive definite).
     """
-    kernels = table.KERNELS if kernels is None else kernels
+    kernels = table.chosen(kernels)
     rows = sset.rows if sset.rows is not None else weight_rows(sset.Wm, sset.Wc)
     z_hooks = z_mean_fn is not None or residual_z is not None
     cols: np.ndarray | slice = slice(None)  # the observed components of what is formed over all of them

@@ -268,14 +268,10 @@ _NOT_WRITTEN = tuple((i, f) for i, f in enumerate(KEPT) if f not in POSTERIOR_OU
 _NOT_KEPT: dict[str, Any] = {f: None for f in Update._fields if f not in KEPT and f != "m"}
 
 
-#: A record's arrays by its value of a filter not updated: float64, or bool for ``rejected``'s False (an
-#: integer would be a float's too: the kernels write float64)
-_DTYPE = {bool: bool, float: float, int: float}
-
-
 def _update_records(K: int, m: int) -> tuple:
     """A fleet update's records besides the estimate (``KEPT[2:]``): ``(K, m)`` per component, ``(K,)`` per
-    filter, of the type of their value where a filter was not updated (``rejected``'s bool)."""
+    filter, of bool for ``rejected`` (its value of a filter not updated is False), else float64 (the
+    kernels write float64, a registry record's fill is a float)."""
     return tuple(
         np.empty((K, m) if per else K, dtype=bool if fill is False else float) for per, fill in _KINDS
     )

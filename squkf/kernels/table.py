@@ -33,6 +33,7 @@ __all__ = [
     "GIVEN",
     "KERNELS",
     "KernelTable",
+    "chosen",
     "kernel_array",
     "no_angles",
     "no_factor",
@@ -87,6 +88,11 @@ KERNELS = KernelTable(
 
 
 _ZEROS: dict[int, np.ndarray] = {}
+
+
+def chosen(kernels: KernelTable | None) -> KernelTable:
+    """The table a call takes: the one given (a route's), else the one installed as :data:`KERNELS` now."""
+    return KERNELS if kernels is None else kernels
 
 
 def zeros_row(d: int) -> np.ndarray:

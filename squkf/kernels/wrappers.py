@@ -43,11 +43,6 @@ __all__ = [
 ]
 
 
-def _table(kernels: KernelTable | None) -> KernelTable:
-    """The table a call takes: the one given (a route's), else the one installed now."""
-    return table.KERNELS if kernels is None else kernels
-
-
 def _batch(*arrays: tuple[np.ndarray | None, int]) -> tuple[int, ...]:
     shape: tuple[int, ...] = ()
     for a, core in arrays:
@@ -101,7 +96,7 @@ def tria(rows: np.ndarray, *, kernels: KernelTable | None = None) -> np.ndarray:
     k, n = rows.shape[-2:]
     A = _stack(rows, batch, 2)
     S = np.empty((A.shape[0], n, n))
-    split_call(_table(kernels).tria, A.shape[0], A, S)
+    split_call(table.chosen(kernels).tria, A.shape[0], A, S)
     return _unstack(S, batch)
 
 
@@ -132,7 +127,7 @@ def solve_lower(
     Y = _stack(B_, batch, 2)
     X = np.empty(Y.shape)
     ok = np.empty(Y.shape[0], dtype=np.bool_)
-    split_call(_table(kernels).solve, Y.shape[0], _shared(L, batch, 2), Y, 1 if trans else 0, X, ok)
+    split_call(table.chosen(kernels).solve, Y.shape[0], _shared(L, batch, 2), Y, 1 if trans else 0, X, ok)
     X = _unstack(X, batch)
     return (X[..., 0] if vector else X), _unstack(ok, batch)
 
@@ -161,7 +156,7 @@ def chol_update(
     L = _stack(S, batch, 2)
     out = np.empty(L.shape)
     fail = np.empty(L.shape[0], dtype=np.int64)
-    split_call(_table(kernels).chol_update, L.shape[0], L, _stack(v, batch, 1), float(sign), out, fail)
+    split_call(table.chosen(kernels).chol_update, L.shape[0], L, _stack(v, batch, 1), float(sign), out, fail)
     return _unstack(out, batch), _unstack(fail, batch)
 
 
@@ -202,7 +197,7 @@ def sigma_points(
     X = np.empty((Ss.shape[0], N, n))
     dX = np.empty(X.shape if offsets else (0, N, n))
     split_call(
-        _table(kernels).points,
+        table.chosen(kernels).points,
         Ss.shape[0],
         _shared(x, batch, 1),
         Ss,
@@ -230,7 +225,7 @@ def finite_rows(A: np.ndarray, *, kernels: KernelTable | None = None) -> np.ndar
     """
     rows = kernel_array(A.reshape(A.shape[0], -1))
     ok = np.empty(rows.shape[0], dtype=np.bool_)
-    split_call(_table(kernels).finite_rows, rows.shape[0], rows, ok)
+    split_call(table.chosen(kernels).finite_rows, rows.shape[0], rows, ok)
     return ok
 
 
@@ -281,7 +276,7 @@ def transform(
     status = np.empty(B, dtype=np.int64)
     nothing = no_set(d)
     split_call(
-        _table(kernels).transform,
+        table.chosen(kernels).transform,
         B,
         Ps,
         R,
